@@ -1,0 +1,5 @@
+import sys
+
+from omnican.cli import main
+
+sys.exit(main())

@@ -1,0 +1,475 @@
+"""Robot configuration: TOML -> validated, frozen dataclasses.
+
+The schema (every key, its type, default and meaning) is the table :data:`SCHEMA`;
+README's configuration reference is checked against it by a test. Every problem
+is a :class:`ConfigError` whose message names the key, e.g.
+``robot.toml: wheel[2].node_id: must be 1-127, got 200``.
+
+No I/O beyond reading the TOML file and parsing the EDS files it names.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from omnican.cia402 import Mode
+from omnican.errors import ConfigError
+from omnican.kinematics import LAYOUTS, OmniKinematics
+from omnican.limits import VelocityLimits
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib  # type: ignore[import-not-found,unused-ignore]
+
+#: The bundled generic wheel-drive EDS (inside the installed package).
+WHEEL_EDS: Path = Path(__file__).resolve().parent / "eds" / "omnican_wheel.eds"
+
+#: Velocity units of a drive's target/actual velocity, as multiples of motor rev/s.
+VELOCITY_UNITS: dict[str, float] = {
+    "counts/s": 0.0,  # special: encoder counts per second
+    "rpm": 1.0 / 60.0,
+    "0.1rpm": 1.0 / 600.0,
+    "0.01rpm": 1.0 / 6000.0,
+    "rev/s": 1.0,
+}
+
+
+@dataclass(frozen=True)
+class Key:
+    """One configuration key: its TOML type(s), default (None = required) and meaning."""
+
+    types: tuple[type, ...]
+    default: Any
+    doc: str
+    required: bool = False
+
+
+_NUM = (int, float)
+
+# Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
+SCHEMA: dict[str, dict[str, Key]] = {
+    "chassis": {
+        "layout": Key((str,), None, "wheel preset: \"b21\" (180, -60, 60 deg) or \"a12\" "
+                      "(0, 120, -120 deg); omit and give angle_deg per wheel instead"),
+        "base_radius": Key(_NUM, None, "m, base centre to wheel contact point", required=True),
+        "rate_hz": Key(_NUM, 100.0, "control loop and SYNC rate"),
+        "cmd_timeout_s": Key(_NUM, 0.5, "no command for this long -> controlled stop"),
+        "max_wheel_speed": Key(_NUM, 1.0, "m/s at the rim; commands are desaturated to it"),
+        "max_speed": Key(_NUM, math.inf, "m/s, body linear speed (vector norm)"),
+        "max_angular_speed": Key(_NUM, math.inf, "rad/s, body angular speed"),
+        "max_accel": Key(_NUM, 1.0, "m/s^2, body linear acceleration"),
+        "max_angular_accel": Key(_NUM, 3.0, "rad/s^2, body angular acceleration"),
+        "stop_decel": Key(_NUM, None, "m/s^2 for a stop command; default 2 x max_accel"),
+        "stop_angular_decel": Key(_NUM, None, "rad/s^2 for a stop; default 2 x max_angular_accel"),
+        "mode": Key((str,), None, "\"pv\", \"csv\" or \"vl\"; default: pv, or what 6502h offers"),
+        "host_node_id": Key((int,), 127, "node id of this host's heartbeat (0x700 + id)"),
+        "heartbeat_ms": Key((int,), 100, "heartbeat period of host and drives, ms"),
+        "heartbeat_timeout_factor": Key(_NUM, 3.0, "a heartbeat is lost after this many periods"),
+        "sdo_timeout_s": Key(_NUM, 0.3, "one SDO request's timeout (retried once)"),
+        "boot_timeout_s": Key(_NUM, 2.0, "wait for a drive's boot-up after NMT reset"),
+        "enable_timeout_s": Key(_NUM, 1.0, "bring a drive to OPERATION ENABLED within this"),
+    },
+    "wheel": {
+        "node_id": Key((int,), None, "CANopen node id 1-127", required=True),
+        "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)"),
+        "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
+        "velocity_scale": Key(_NUM, None, "drive velocity units per m/s at the rim; sign = "
+                              "polarity (the seeds' k)"),
+        "position_scale": Key(_NUM, None, "encoder position units per m of rim travel"),
+        "gear_ratio": Key(_NUM, None, "motor turns per wheel turn (instead of the scales)"),
+        "encoder_cpr": Key(_NUM, None, "encoder counts per motor turn (instead of the scales)"),
+        "wheel_radius": Key(_NUM, None, "m, wheel radius (instead of the scales)"),
+        "velocity_unit": Key((str,), "counts/s", "drive velocity unit when deriving the scales: "
+                             + ", ".join(VELOCITY_UNITS)),
+        "invert": Key((bool,), False, "reverse the wheel's direction (with derived scales)"),
+        "angle_deg": Key(_NUM, None, "wheel position angle from +x, CCW (instead of layout)"),
+        "drive_angle_deg": Key(_NUM, None, "drive direction; default angle_deg + 90"),
+        "base_radius": Key(_NUM, None, "m, this wheel's distance from the centre; default "
+                           "[chassis] base_radius"),
+        "mode": Key((str,), None, "this wheel's mode; default [chassis] mode"),
+    },
+}
+
+
+@dataclass(frozen=True)
+class WheelConfig:
+    """One wheel: an axis of a CANopen node and its unit conversions."""
+
+    node_id: int
+    axis: int
+    eds: Path
+    velocity_scale: float  # drive velocity units per m/s at the rim
+    position_scale: float  # encoder units per m of rim travel
+    angle_deg: float | None = None
+    drive_angle_deg: float | None = None
+    base_radius: float | None = None
+    mode: Mode | None = None
+
+    @property
+    def name(self) -> str:
+        return f"node {self.node_id}" + (f" axis {self.axis}" if self.axis else "")
+
+
+@dataclass(frozen=True)
+class ChassisSettings:
+    layout: str | None = "b21"
+    base_radius: float = 0.19
+    rate_hz: float = 100.0
+    cmd_timeout_s: float = 0.5
+    max_wheel_speed: float = 1.0
+    max_speed: float = math.inf
+    max_angular_speed: float = math.inf
+    max_accel: float = 1.0
+    max_angular_accel: float = 3.0
+    stop_decel: float = 2.0
+    stop_angular_decel: float = 6.0
+    mode: Mode | None = None
+    host_node_id: int = 127
+    heartbeat_ms: int = 100
+    heartbeat_timeout_factor: float = 3.0
+    sdo_timeout_s: float = 0.3
+    boot_timeout_s: float = 2.0
+    enable_timeout_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class ChassisConfig:
+    """The whole robot. ``bus`` is passed to ``can.Bus``; None = python-can's own config."""
+
+    chassis: ChassisSettings
+    wheels: tuple[WheelConfig, ...]
+    bus: Mapping[str, Any] | None = None
+    source: Path | None = field(default=None, compare=False)
+
+    def kinematics(self) -> OmniKinematics:
+        c = self.chassis
+        radii = [w.base_radius if w.base_radius is not None else c.base_radius for w in self.wheels]
+        if c.layout is not None:
+            angles: list[float] = list(LAYOUTS[c.layout])
+        else:
+            angles = [float(w.angle_deg) for w in self.wheels if w.angle_deg is not None]
+        drive = [w.drive_angle_deg for w in self.wheels]
+        drive_angles = (
+            None
+            if all(d is None for d in drive)
+            else [d if d is not None else a + 90.0 for d, a in zip(drive, angles, strict=True)]
+        )
+        return OmniKinematics(angles, radii, drive_angles)
+
+    def limits(self) -> VelocityLimits:
+        c = self.chassis
+        return VelocityLimits(
+            max_linear=c.max_speed,
+            max_angular=c.max_angular_speed,
+            max_linear_accel=c.max_accel,
+            max_angular_accel=c.max_angular_accel,
+            stop_linear_decel=c.stop_decel,
+            stop_angular_decel=c.stop_angular_decel,
+            max_wheel_speed=c.max_wheel_speed,
+        )
+
+    def with_bus(self, **bus: Any) -> ChassisConfig:
+        """A copy on another bus (e.g. a virtual channel for the simulator)."""
+        return replace(self, bus=dict(bus))
+
+    def nodes(self) -> dict[int, list[WheelConfig]]:
+        """Wheels grouped by node id, in wheel order."""
+        out: dict[int, list[WheelConfig]] = {}
+        for w in self.wheels:
+            out.setdefault(w.node_id, []).append(w)
+        return out
+
+
+def derive_scales(
+    gear_ratio: float,
+    encoder_cpr: float,
+    wheel_radius: float,
+    velocity_unit: str = "counts/s",
+    invert: bool = False,
+) -> tuple[float, float]:
+    """(velocity_scale, position_scale) from a drive's physical parameters.
+
+    position_scale = counts per m of rim travel = cpr * gear / (2 pi r);
+    velocity_scale = drive velocity units per m/s at the rim."""
+    if velocity_unit not in VELOCITY_UNITS:
+        raise ConfigError(
+            f"velocity_unit: unknown unit {velocity_unit!r}; use one of {', '.join(VELOCITY_UNITS)}"
+        )
+    motor_rev_per_m = gear_ratio / (2.0 * math.pi * wheel_radius)
+    position_scale = encoder_cpr * motor_rev_per_m
+    per_unit = VELOCITY_UNITS[velocity_unit]
+    velocity_scale = position_scale if per_unit == 0.0 else motor_rev_per_m / per_unit
+    sign = -1.0 if invert else 1.0
+    return sign * velocity_scale, sign * position_scale
+
+
+# A simulated demo base: the bundled drive, 16:1 gear, 4096-count encoder, 50 mm wheels.
+_DEMO_SCALES = derive_scales(16.0, 4096.0, 0.05)
+
+
+def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
+    """The demo base that ``--sim`` runs without a config: three bundled drives,
+    node ids 1-3, layout b21, base radius 0.19 m."""
+    vs, ps = _DEMO_SCALES
+    wheels = tuple(
+        WheelConfig(node_id=n, axis=0, eds=WHEEL_EDS, velocity_scale=vs, position_scale=ps)
+        for n in (1, 2, 3)
+    )
+    return ChassisConfig(chassis=ChassisSettings(), wheels=wheels, bus=bus)
+
+
+class _Reader:
+    """Checks one TOML table against its schema, collecting nothing: first error raises."""
+
+    def __init__(self, origin: str) -> None:
+        self.origin = origin
+
+    def fail(self, where: str, message: str) -> ConfigError:
+        return ConfigError(f"{self.origin}: {where}: {message}")
+
+    def table(self, section: str, data: Any, where: str) -> dict[str, Any]:
+        if not isinstance(data, dict):
+            raise self.fail(where, f"must be a table, got {type(data).__name__}")
+        schema = SCHEMA[section]
+        for key in data:
+            if key not in schema:
+                raise self.fail(
+                    f"{where}.{key}", f"unknown key (known: {', '.join(schema)})"
+                )
+        out: dict[str, Any] = {}
+        for key, spec in schema.items():
+            if key not in data:
+                if spec.required:
+                    raise self.fail(f"{where}.{key}", "missing required key")
+                out[key] = spec.default
+                continue
+            value = data[key]
+            if isinstance(value, bool) and bool not in spec.types:
+                raise self.fail(f"{where}.{key}", f"must be a number, got {value!r}")
+            if not isinstance(value, spec.types):
+                kind = " or ".join(t.__name__ for t in spec.types)
+                raise self.fail(f"{where}.{key}", f"must be {kind}, got {value!r}")
+            if isinstance(value, float) and math.isnan(value):
+                raise self.fail(f"{where}.{key}", "must be a number, got nan")
+            out[key] = value
+        return out
+
+    def positive(self, where: str, value: Any, allow_inf: bool = False) -> float:
+        v = float(value)
+        if not (v > 0) or (math.isinf(v) and not allow_inf):
+            raise self.fail(where, f"must be a positive number, got {value!r}")
+        return v
+
+
+def _parse_mode(reader: _Reader, where: str, value: str | None) -> Mode | None:
+    if value is None:
+        return None
+    try:
+        return Mode.from_name(value)
+    except ValueError as exc:
+        raise reader.fail(where, str(exc)) from None
+
+
+def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path | None = None,
+                 check_eds: bool = True) -> ChassisConfig:
+    """Validate a parsed TOML document into a :class:`ChassisConfig`."""
+    r = _Reader(origin)
+    for key in data:
+        if key not in ("bus", "chassis", "wheel"):
+            raise r.fail(key, "unknown section (known: bus, chassis, wheel)")
+    bus = data.get("bus")
+    if bus is not None and not isinstance(bus, dict):
+        raise r.fail("bus", "must be a table")
+    if "chassis" not in data:
+        raise r.fail("chassis", "missing section")
+    c = r.table("chassis", data["chassis"], "chassis")
+
+    base_radius = r.positive("chassis.base_radius", c["base_radius"])
+    rate = r.positive("chassis.rate_hz", c["rate_hz"])
+    if rate > 5000:
+        raise r.fail("chassis.rate_hz", f"must be at most 5000 Hz, got {rate}")
+    for key in ("cmd_timeout_s", "max_wheel_speed", "max_accel", "max_angular_accel",
+                "heartbeat_timeout_factor", "sdo_timeout_s", "boot_timeout_s",
+                "enable_timeout_s"):
+        r.positive(f"chassis.{key}", c[key])
+    for key in ("max_speed", "max_angular_speed"):
+        r.positive(f"chassis.{key}", c[key], allow_inf=True)
+    stop_decel = c["stop_decel"] if c["stop_decel"] is not None else 2.0 * c["max_accel"]
+    stop_ang = (c["stop_angular_decel"] if c["stop_angular_decel"] is not None
+                else 2.0 * c["max_angular_accel"])
+    r.positive("chassis.stop_decel", stop_decel)
+    r.positive("chassis.stop_angular_decel", stop_ang)
+    if not 1 <= c["host_node_id"] <= 127:
+        raise r.fail("chassis.host_node_id", f"must be 1-127, got {c['host_node_id']}")
+    if not 1 <= c["heartbeat_ms"] <= 65535:
+        raise r.fail("chassis.heartbeat_ms", f"must be 1-65535, got {c['heartbeat_ms']}")
+    layout = c["layout"]
+    if layout is not None and layout not in LAYOUTS:
+        raise r.fail("chassis.layout", f"unknown layout {layout!r} (known: {', '.join(LAYOUTS)})")
+    settings = ChassisSettings(
+        layout=layout,
+        base_radius=base_radius,
+        rate_hz=rate,
+        cmd_timeout_s=float(c["cmd_timeout_s"]),
+        max_wheel_speed=float(c["max_wheel_speed"]),
+        max_speed=float(c["max_speed"]),
+        max_angular_speed=float(c["max_angular_speed"]),
+        max_accel=float(c["max_accel"]),
+        max_angular_accel=float(c["max_angular_accel"]),
+        stop_decel=float(stop_decel),
+        stop_angular_decel=float(stop_ang),
+        mode=_parse_mode(r, "chassis.mode", c["mode"]),
+        host_node_id=c["host_node_id"],
+        heartbeat_ms=c["heartbeat_ms"],
+        heartbeat_timeout_factor=float(c["heartbeat_timeout_factor"]),
+        sdo_timeout_s=float(c["sdo_timeout_s"]),
+        boot_timeout_s=float(c["boot_timeout_s"]),
+        enable_timeout_s=float(c["enable_timeout_s"]),
+    )
+
+    raw_wheels = data.get("wheel")
+    if raw_wheels is None:
+        raise r.fail("wheel", "missing: give one [[wheel]] table per wheel")
+    if not isinstance(raw_wheels, list):
+        raise r.fail("wheel", "must be an array of tables ([[wheel]])")
+    wheels = tuple(
+        _parse_wheel(r, i, w, settings, base_dir) for i, w in enumerate(raw_wheels)
+    )
+    _check_wheels(r, settings, wheels)
+    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus)
+    try:
+        cfg.kinematics()
+    except ConfigError as exc:
+        raise r.fail("wheel geometry", str(exc)) from None
+    if check_eds:
+        check_eds_files(cfg, r.origin)
+    return cfg
+
+
+def _parse_wheel(r: _Reader, i: int, data: Any, settings: ChassisSettings,
+                 base_dir: Path | None) -> WheelConfig:
+    where = f"wheel[{i}]"
+    w = r.table("wheel", data, where)
+    node_id, axis = w["node_id"], w["axis"]
+    if not 1 <= node_id <= 127:
+        raise r.fail(f"{where}.node_id", f"must be 1-127, got {node_id}")
+    if not 0 <= axis < 8:
+        raise r.fail(f"{where}.axis", f"must be 0-7, got {axis}")
+    scales_given = [k for k in ("velocity_scale", "position_scale") if w[k] is not None]
+    physical = [k for k in ("gear_ratio", "encoder_cpr", "wheel_radius") if w[k] is not None]
+    if scales_given and physical:
+        both = ", ".join(scales_given + physical)
+        raise r.fail(where, "give either velocity_scale and position_scale or gear_ratio, "
+                     f"encoder_cpr and wheel_radius, not both ({both})")
+    if physical:
+        missing = {"gear_ratio", "encoder_cpr", "wheel_radius"} - set(physical)
+        if missing:
+            raise r.fail(f"{where}.{sorted(missing)[0]}", "missing (needed to derive the scales)")
+        for k in physical:
+            r.positive(f"{where}.{k}", w[k])
+        try:
+            vs, ps = derive_scales(w["gear_ratio"], w["encoder_cpr"], w["wheel_radius"],
+                                   w["velocity_unit"], w["invert"])
+        except ConfigError as exc:
+            raise r.fail(f"{where}.velocity_unit", str(exc).split(": ", 1)[1]) from None
+    else:
+        for k in ("velocity_scale", "position_scale"):
+            if w[k] is None:
+                raise r.fail(f"{where}.{k}", "missing (or give gear_ratio, encoder_cpr and "
+                             "wheel_radius)")
+            if not math.isfinite(w[k]) or w[k] == 0:
+                raise r.fail(f"{where}.{k}", f"must be a non-zero finite number, got {w[k]!r}")
+        vs, ps = float(w["velocity_scale"]), float(w["position_scale"])
+        if w["invert"]:
+            vs, ps = -vs, -ps
+    if w["base_radius"] is not None:
+        r.positive(f"{where}.base_radius", w["base_radius"])
+    eds = WHEEL_EDS
+    if w["eds"] is not None:
+        p = Path(w["eds"]).expanduser()
+        eds = p if p.is_absolute() or base_dir is None else (base_dir / p)
+    return WheelConfig(
+        node_id=node_id,
+        axis=axis,
+        eds=eds,
+        velocity_scale=vs,
+        position_scale=ps,
+        angle_deg=None if w["angle_deg"] is None else float(w["angle_deg"]),
+        drive_angle_deg=None if w["drive_angle_deg"] is None else float(w["drive_angle_deg"]),
+        base_radius=None if w["base_radius"] is None else float(w["base_radius"]),
+        mode=_parse_mode(r, f"{where}.mode", w["mode"]) or settings.mode,
+    )
+
+
+def _check_wheels(r: _Reader, s: ChassisSettings, wheels: tuple[WheelConfig, ...]) -> None:
+    if len(wheels) < 3:
+        raise r.fail("wheel", f"an omni base needs at least 3 wheels, got {len(wheels)}")
+    seen: dict[tuple[int, int], int] = {}
+    for i, w in enumerate(wheels):
+        key = (w.node_id, w.axis)
+        if key in seen:
+            raise r.fail(f"wheel[{i}]",
+                         f"node {w.node_id} axis {w.axis} is already wheel[{seen[key]}]")
+        seen[key] = i
+        if w.node_id == s.host_node_id:
+            raise r.fail(f"wheel[{i}].node_id", f"{w.node_id} is the host's node id "
+                         "(chassis.host_node_id)")
+    with_angles = [w.angle_deg is not None for w in wheels]
+    if s.layout is not None:
+        if any(with_angles):
+            raise r.fail("chassis.layout", "give either a layout or angle_deg on every wheel, "
+                         "not both")
+        n = len(LAYOUTS[s.layout])
+        if len(wheels) != n:
+            raise r.fail("wheel", f"layout {s.layout!r} has {n} wheels, config has {len(wheels)}")
+    elif not all(with_angles):
+        i = with_angles.index(False)
+        raise r.fail(f"wheel[{i}].angle_deg", "missing: without chassis.layout every wheel "
+                     "needs angle_deg")
+
+
+def check_eds_files(cfg: ChassisConfig, origin: str = "config") -> None:
+    """Each wheel's EDS exists, parses, has the axis and the objects omnican needs."""
+    from omnican.odmap import AxisObjects, Obj, load_dictionary, obj_name
+
+    cache: dict[Path, Any] = {}
+    for i, w in enumerate(cfg.wheels):
+        where = f"{origin}: wheel[{i}].eds"
+        if w.eds not in cache:
+            try:
+                cache[w.eds] = load_dictionary(w.eds)
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+        objs = AxisObjects(cache[w.eds], w.axis)
+        if w.axis >= max(objs.num_axes, 1):
+            raise ConfigError(f"{where}: {w.eds.name} has {objs.num_axes} axis(es), "
+                              f"no axis {w.axis}")
+        mode = w.mode or Mode.PROFILE_VELOCITY
+        target = Obj.VL_TARGET if mode is Mode.VELOCITY else Obj.TARGET_VELOCITY
+        for obj in (Obj.CONTROLWORD, Obj.STATUSWORD, Obj.POSITION_ACTUAL, Obj.MODE, target):
+            if obj not in objs:
+                raise ConfigError(
+                    f"{where}: {w.eds.name} lacks {obj_name(obj)} "
+                    f"(0x{int(obj):04X}) for axis {w.axis}, needed in {mode.short} mode"
+                )
+
+
+def load_config(path: str | Path, check_eds: bool = True) -> ChassisConfig:
+    """Read and validate a TOML config file; raises :class:`ConfigError` on any problem."""
+    p = Path(path).expanduser()
+    try:
+        text = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"cannot read config {p}: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    cfg = parse_config(data, origin=str(p), base_dir=p.resolve().parent, check_eds=check_eds)
+    return replace(cfg, source=p)

@@ -1,0 +1,129 @@
+"""Body velocity and acceleration limiting that keeps the direction of motion.
+
+Each step, the commanded twist is:
+
+1. scaled by one common factor so that the linear speed (vector norm) and the
+   angular speed are within their limits: the path's curvature is kept;
+2. desaturated at the wheels (one common factor so no wheel exceeds its maximum
+   rim speed) when kinematics are given. Doing this on the *target*, before the
+   acceleration limit, keeps every output feasible: the set of twists whose wheel
+   speeds are within the limit is convex, so each step between two feasible twists
+   stays feasible;
+3. approached from the previous output with one common factor on the change, so
+   that the linear (norm) and angular accelerations stay within their limits. A stop
+   command (zero twist) uses the deceleration limits instead, which are usually larger.
+
+Pure module: no I/O, no CAN imports.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from omnican.kinematics import OmniKinematics, Twist
+
+
+@dataclass(frozen=True)
+class VelocityLimits:
+    """Limits on the body motion. Linear values are vector norms (m/s, m/s^2);
+    angular values are rad/s and rad/s^2. ``inf`` disables a limit."""
+
+    max_linear: float = math.inf
+    max_angular: float = math.inf
+    max_linear_accel: float = math.inf
+    max_angular_accel: float = math.inf
+    stop_linear_decel: float = math.inf
+    stop_angular_decel: float = math.inf
+    max_wheel_speed: float = math.inf
+
+    def __post_init__(self) -> None:
+        for name in (
+            "max_linear",
+            "max_angular",
+            "max_linear_accel",
+            "max_angular_accel",
+            "stop_linear_decel",
+            "stop_angular_decel",
+            "max_wheel_speed",
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+
+
+def _ratio(limit: float, value: float) -> float:
+    """Largest factor k <= 1 with k * value <= limit."""
+    if value <= limit:
+        return 1.0
+    return limit / value
+
+
+def clamp_twist(twist: Twist, limits: VelocityLimits) -> Twist:
+    """Step 1: scale ``twist`` by one factor to respect the speed limits."""
+    k = min(
+        _ratio(limits.max_linear, twist.linear_speed),
+        _ratio(limits.max_angular, abs(twist.wz)),
+    )
+    return twist if k == 1.0 else twist.scaled(k)
+
+
+def desaturate_twist(twist: Twist, kinematics: OmniKinematics, max_wheel_speed: float) -> Twist:
+    """Step 2: scale ``twist`` by one factor so no wheel exceeds ``max_wheel_speed``."""
+    if math.isinf(max_wheel_speed):
+        return twist
+    peak = float(max(abs(v) for v in kinematics.to_wheel_speeds(twist)))
+    k = _ratio(max_wheel_speed, peak)
+    return twist if k == 1.0 else twist.scaled(k)
+
+
+def limit_step(current: Twist, target: Twist, dt: float, limits: VelocityLimits) -> Twist:
+    """Step 3: move from ``current`` towards ``target`` within the acceleration limits."""
+    stopping = target.is_zero()
+    lin = limits.stop_linear_decel if stopping else limits.max_linear_accel
+    ang = limits.stop_angular_decel if stopping else limits.max_angular_accel
+    dvx, dvy, dwz = target.vx - current.vx, target.vy - current.vy, target.wz - current.wz
+    k = min(_ratio(lin * dt, math.hypot(dvx, dvy)), _ratio(ang * dt, abs(dwz)))
+    if k == 1.0:
+        return target
+    return Twist(current.vx + k * dvx, current.vy + k * dvy, current.wz + k * dwz)
+
+
+class VelocityLimiter:
+    """Stateful limiter: call :meth:`step` once per control cycle.
+
+    Args:
+        limits: the limits to apply.
+        kinematics: when given, targets are desaturated at the wheels
+            against ``limits.max_wheel_speed``.
+    """
+
+    def __init__(self, limits: VelocityLimits, kinematics: OmniKinematics | None = None) -> None:
+        self.limits = limits
+        self._kin = kinematics
+        self._last = Twist()
+
+    @property
+    def output(self) -> Twist:
+        """The last twist returned by :meth:`step`."""
+        return self._last
+
+    def reset(self, twist: Twist | None = None) -> None:
+        """Set the current output (e.g. to zero after the drives were stopped)."""
+        self._last = twist if twist is not None else Twist()
+
+    def target(self, command: Twist) -> Twist:
+        """Steps 1 and 2: the feasible twist the limiter will approach for ``command``."""
+        if not command.is_finite():
+            raise ValueError(f"command contains a non-finite value: {command}")
+        twist = clamp_twist(command, self.limits)
+        if self._kin is not None:
+            twist = desaturate_twist(twist, self._kin, self.limits.max_wheel_speed)
+        return twist
+
+    def step(self, command: Twist, dt: float) -> Twist:
+        """Limit ``command`` for a cycle of ``dt`` seconds; returns the twist to apply."""
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"dt must be a non-negative number, got {dt!r}")
+        self._last = limit_step(self._last, self.target(command), dt, self.limits)
+        return self._last

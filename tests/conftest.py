@@ -1,0 +1,52 @@
+"""Shared fixtures. Every test gets its own virtual CAN channel, and no test may
+leave a thread or a bus behind (the check runs after each test)."""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+VENDOR_EDS = Path(__file__).resolve().parent / "vendor_eds"
+
+
+@pytest.fixture
+def channel(request: pytest.FixtureRequest) -> str:
+    """A virtual channel name no other test uses."""
+    return f"omnican-test-{request.node.name}-{uuid.uuid4().hex[:8]}"
+
+
+def _live_threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t is not threading.main_thread() and t.is_alive()}
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_threads() -> Iterator[None]:
+    before = _live_threads()
+    yield
+    deadline = time.monotonic() + 3.0
+    while True:
+        leaked = {t for t in _live_threads() - before if not t.name.startswith("asyncio")}
+        if not leaked or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    assert not leaked, f"test leaked threads: {sorted(t.name for t in leaked)}"
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_virtual_channels() -> Iterator[None]:
+    from can.interfaces import virtual
+
+    before = set(virtual.channels)
+    yield
+    deadline = time.monotonic() + 3.0
+    while True:
+        leaked = {c for c in set(virtual.channels) - before if virtual.channels.get(c)}
+        if not leaked or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    assert not leaked, f"test left virtual buses open on: {sorted(leaked)}"

@@ -1,0 +1,99 @@
+"""Limits: direction kept, limits never exceeded over random command sequences."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from omnican import OmniKinematics, Twist, VelocityLimiter, VelocityLimits
+
+KIN = OmniKinematics.from_layout("b21", base_radius=0.19)
+LIMITS = VelocityLimits(
+    max_linear=0.8, max_angular=2.0, max_linear_accel=1.0, max_angular_accel=3.0,
+    stop_linear_decel=2.5, stop_angular_decel=6.0, max_wheel_speed=0.7,
+)
+cmd = st.builds(Twist, st.floats(-3, 3), st.floats(-3, 3), st.floats(-8, 8))
+zero_or_cmd = st.one_of(cmd, st.just(Twist()))
+EPS = 1e-9
+
+
+def parallel(a: Twist, b: Twist) -> bool:
+    """b is a non-negative multiple of a (same direction in twist space)."""
+    va, vb = a.as_array(), b.as_array()
+    if np.linalg.norm(vb) < 1e-12:
+        return True
+    cross = np.linalg.norm(np.outer(va, vb) - np.outer(vb, va))
+    return bool(cross < 1e-9 * max(1.0, np.linalg.norm(va) ** 2) and va @ vb >= 0)
+
+
+@given(cmd)
+def test_target_keeps_direction_and_limits(c: Twist) -> None:
+    lim = VelocityLimiter(LIMITS, KIN)
+    t = lim.target(c)
+    assert parallel(c, t)
+    assert t.linear_speed <= LIMITS.max_linear + EPS
+    assert abs(t.wz) <= LIMITS.max_angular + EPS
+    assert np.max(np.abs(KIN.to_wheel_speeds(t))) <= LIMITS.max_wheel_speed + EPS
+
+
+def test_per_axis_clipping_would_bend_the_path() -> None:
+    lim = VelocityLimiter(VelocityLimits(max_linear=1.0))
+    t = lim.target(Twist(3.0, 1.0, 0.0))
+    assert t.vy / t.vx == pytest.approx(1 / 3)
+    assert t.linear_speed == pytest.approx(1.0)
+
+
+@settings(max_examples=60)
+@given(st.lists(st.tuples(zero_or_cmd, st.integers(1, 40)), min_size=1, max_size=12),
+       st.sampled_from([0.001, 0.01, 0.05]))
+def test_limits_never_exceeded_over_a_sequence(seq: list[tuple[Twist, int]], dt: float) -> None:
+    lim = VelocityLimiter(LIMITS, KIN)
+    prev = Twist()
+    for command, cycles in seq:
+        for _ in range(cycles):
+            out = lim.step(command, dt)
+            assert out.linear_speed <= LIMITS.max_linear + EPS
+            assert abs(out.wz) <= LIMITS.max_angular + EPS
+            assert np.max(np.abs(KIN.to_wheel_speeds(out))) <= LIMITS.max_wheel_speed + EPS
+            dv = math.hypot(out.vx - prev.vx, out.vy - prev.vy) / dt
+            dw = abs(out.wz - prev.wz) / dt
+            lin_lim = LIMITS.stop_linear_decel if command.is_zero() else LIMITS.max_linear_accel
+            ang_lim = LIMITS.stop_angular_decel if command.is_zero() else LIMITS.max_angular_accel
+            assert dv <= lin_lim * (1 + 1e-9)
+            assert dw <= ang_lim * (1 + 1e-9)
+            prev = out
+
+
+@given(cmd)
+def test_accelerating_from_rest_keeps_direction(c: Twist) -> None:
+    lim = VelocityLimiter(LIMITS, KIN)
+    target = lim.target(c)
+    for _ in range(500):
+        out = lim.step(c, 0.01)
+        assert parallel(target, out)
+    assert out.as_array() == pytest.approx(target.as_array(), abs=1e-9)
+
+
+def test_stop_uses_the_larger_deceleration() -> None:
+    lim = VelocityLimiter(LIMITS, KIN)
+    lim.reset(Twist(0.5, 0.0, 0.0))
+    out = lim.step(Twist(), 0.1)
+    assert out.vx == pytest.approx(0.5 - 0.25)  # 2.5 m/s^2 * 0.1 s
+    lim.reset(Twist(0.5, 0.0, 0.0))
+    out = lim.step(Twist(0.1, 0.0, 0.0), 0.1)  # slowing, not stopping: accel limit
+    assert out.vx == pytest.approx(0.5 - 0.1)
+
+
+def test_bad_input_is_rejected() -> None:
+    lim = VelocityLimiter(LIMITS, KIN)
+    with pytest.raises(ValueError, match="non-finite"):
+        lim.step(Twist(float("nan"), 0, 0), 0.01)
+    with pytest.raises(ValueError, match="dt"):
+        lim.step(Twist(), float("nan"))
+    with pytest.raises(ValueError, match="max_linear must be a positive number"):
+        VelocityLimits(max_linear=0.0)
+    assert lim.output == Twist()
