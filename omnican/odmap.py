@@ -85,7 +85,8 @@ class Entry:
     index: int
     subindex: int
     bits: int
-    signed: bool
+    signed: bool  # holds a signed quantity
+    declared_signed: bool  # the EDS declares a signed type
     shared: bool  # the node's single copy, shared by all axes
     pdo_mappable: bool
     writable: bool
@@ -127,6 +128,7 @@ def _entry(obj: Obj, var: od.ODVariable, shared: bool) -> Entry:
         subindex=var.subindex,
         bits=_var_bits(var),
         signed=signed_type or obj in SIGNED,
+        declared_signed=signed_type,
         shared=shared,
         pdo_mappable=bool(var.pdo_mappable),
         writable=bool(var.writable),

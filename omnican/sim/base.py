@@ -1,0 +1,190 @@
+"""A simulated omni base: one simulated drive per node of a config, plus ground truth.
+
+The true pose is integrated from the drives' *physical* wheel motion (not from the
+encoder values they report, which may be noisy, wrapped or reset by a reboot)
+through the base's true kinematics.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import canopen
+import numpy as np
+import numpy.typing as npt
+
+from omnican.config import ChassisConfig, WheelConfig
+from omnican.errors import BusError, ConfigError
+from omnican.kinematics import OmniKinematics, Twist
+from omnican.odometry import Odometry, Pose2D
+from omnican.sim.drive import SimulatedDrive
+from omnican.sim.scheduler import SimScheduler
+
+logger = logging.getLogger(__name__)
+
+
+class SimulatedBase:
+    """Simulated drives for every wheel of ``cfg`` on the configured bus.
+
+    Use :meth:`from_config`; it is a context manager that owns the bus, the network
+    and the housekeeping thread."""
+
+    def __init__(
+        self,
+        cfg: ChassisConfig,
+        network: canopen.Network,
+        scheduler: SimScheduler,
+        drives: list[SimulatedDrive],
+        wheel_axes: list[tuple[SimulatedDrive, int]],
+        true_kinematics: OmniKinematics,
+        counts_per_metre: npt.NDArray[np.float64],
+    ) -> None:
+        self.cfg = cfg
+        self.network = network
+        self.scheduler = scheduler
+        self.drives = drives
+        self.wheel_axes = wheel_axes
+        self.true_kinematics = true_kinematics
+        self._counts_per_metre = counts_per_metre
+        self._odo = Odometry(true_kinematics)
+        self._lock = threading.Lock()
+        self._closed = False
+        self._odo.update(self._true_travel())
+        scheduler.add(self._tick)
+
+    @classmethod
+    def from_config(
+        cls,
+        cfg: ChassisConfig,
+        *,
+        bus: Mapping[str, Any] | None = None,
+        true_kinematics: OmniKinematics | None = None,
+        true_scale: float | Sequence[float] = 1.0,
+        tick_s: float = 0.002,
+        drive_options: Mapping[int, Mapping[str, Any]] | None = None,
+        **options: Any,
+    ) -> SimulatedBase:
+        """Start simulated drives for ``cfg``.
+
+        Args:
+            cfg: the robot config (its ``bus`` section is used unless ``bus`` is given).
+            true_kinematics: the real geometry, if it differs from the configured one.
+            true_scale: real counts per metre / configured ``position_scale``, per wheel
+                (a wheel worn smaller than configured has ``true_scale > 1``).
+            tick_s: housekeeping period.
+            drive_options: extra :class:`SimulatedDrive` arguments per node id.
+            **options: :class:`SimulatedDrive` arguments for every drive
+                (``encoder_noise``, ``slip``, ``frame_loss``, ``tau_s``, ...).
+        """
+        bus_kwargs = dict(bus if bus is not None else (cfg.bus or {}))
+        scales = (list(true_scale) if isinstance(true_scale, Sequence)
+                  else [float(true_scale)] * len(cfg.wheels))
+        if len(scales) != len(cfg.wheels):
+            raise ConfigError(f"true_scale has {len(scales)} values for {len(cfg.wheels)} wheels")
+        network = canopen.Network()
+        network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the Notifier
+        try:
+            network.connect(**bus_kwargs)
+        except Exception as exc:
+            raise BusError(f"cannot open CAN bus {bus_kwargs or '(python-can config)'}: {exc}") \
+                from None
+        scheduler = SimScheduler(tick_s, name="omnican-sim")
+        drives: list[SimulatedDrive] = []
+        try:
+            by_node: dict[int, SimulatedDrive] = {}
+            for node_id, wheels in cfg.nodes().items():
+                by_node[node_id] = cls._make_drive(network, node_id, wheels, scheduler,
+                                                   {**options, **(drive_options or {}).get(
+                                                       node_id, {})})
+                drives.append(by_node[node_id])
+            wheel_axes = [(by_node[w.node_id], w.axis) for w in cfg.wheels]
+            counts = np.array([w.position_scale * s for w, s in zip(cfg.wheels, scales,
+                                                                     strict=True)])
+            base = cls(cfg, network, scheduler, drives, wheel_axes,
+                       true_kinematics or cfg.kinematics(), counts)
+        except BaseException:
+            for d in drives:
+                d.close()
+            scheduler.close()
+            network.disconnect()
+            raise
+        scheduler.start()
+        logger.info("simulated base: nodes %s on %s", sorted(by_node), bus_kwargs)
+        return base
+
+    @staticmethod
+    def _make_drive(network: canopen.Network, node_id: int, wheels: list[WheelConfig],
+                    scheduler: SimScheduler, options: Mapping[str, Any]) -> SimulatedDrive:
+        eds = {w.eds for w in wheels}
+        if len(eds) > 1:
+            raise ConfigError(f"node {node_id}: its wheels name different EDS files "
+                              f"({', '.join(sorted(str(e) for e in eds))})")
+        probe = SimulatedDrive(network, node_id, wheels[0].eds, scheduler=scheduler, boot=False)
+        n_axes = probe.num_axes
+        probe.close()
+        cpu = [1.0] * n_axes
+        for w in wheels:
+            cpu[w.axis] = w.position_scale / w.velocity_scale
+        return SimulatedDrive(network, node_id, wheels[0].eds, scheduler=scheduler,
+                              counts_per_unit=cpu, **options)
+
+    # ------------------------------------------------------------ truth
+
+    def _true_travel(self) -> npt.NDArray[np.float64]:
+        counts = np.array([d.physical_counts(axis) * (1.0 - d.slip) for d, axis in
+                           self.wheel_axes])
+        travel: npt.NDArray[np.float64] = counts / self._counts_per_metre
+        return travel
+
+    def _tick(self, now: float) -> None:
+        with self._lock:
+            if not self._closed:
+                self._odo.update(self._true_travel())
+
+    @property
+    def true_pose(self) -> Pose2D:
+        """Ground-truth pose of the base (m, m, rad; theta continuous)."""
+        with self._lock:
+            return self._odo.update(self._true_travel())
+
+    @property
+    def true_twist(self) -> Twist:
+        """Ground-truth body velocity now (m/s, m/s, rad/s)."""
+        speeds = np.array([d.velocity_counts(axis) * (1.0 - d.slip) for d, axis in
+                           self.wheel_axes]) / self._counts_per_metre
+        return self.true_kinematics.to_twist(speeds)
+
+    def reset_truth(self, pose: Pose2D | None = None) -> None:
+        with self._lock:
+            self._odo.update(self._true_travel())
+            self._odo.reset(pose)
+
+    def wheel_drive(self, wheel: int) -> tuple[SimulatedDrive, int]:
+        """(drive, axis) that simulates wheel number ``wheel`` of the config."""
+        return self.wheel_axes[wheel]
+
+    # ------------------------------------------------------------ lifecycle
+
+    def wait(self, seconds: float) -> None:
+        """Let simulated time pass (real time)."""
+        time.sleep(seconds)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self.scheduler.close()
+        for d in self.drives:
+            d.close()
+        self.network.disconnect()
+
+    def __enter__(self) -> SimulatedBase:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

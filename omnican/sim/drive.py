@@ -1,0 +1,874 @@
+"""A simulated CiA 402 wheel drive on a canopen network.
+
+Built on :class:`canopen.LocalNode` (object dictionary from an EDS, SDO server,
+EMCY producer) and adding what it lacks (canopen #555, #558): NMT with boot-up
+frames and resets, PDOs as the master configured them, the CiA 402 state machine,
+a motor model per axis, heartbeat producer and consumer, and fault injection.
+
+Multi-axis drives work in both layouts omnican supports (see :mod:`omnican.odmap`):
+axes at 0x800 offsets have a state machine each; sub-indexed axes share one.
+
+Threads: frames are handled on the network's Notifier thread; a
+:class:`SimScheduler` tick covers time-driven work. One lock per drive.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import struct
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+from canopen import objectdictionary as od
+from canopen.objectdictionary import SIGNED_TYPES
+from canopen.sdo.exceptions import SdoAbortedError
+
+from omnican import cia402
+from omnican.cia402 import Mode, State
+from omnican.config import WHEEL_EDS
+from omnican.odmap import AxisObjects, Entry, Obj
+from omnican.sim import motor
+from omnican.sim.pdo import (
+    ABORT_READ_ONLY,
+    ABORT_VALUE_RANGE,
+    RPDO_COMM,
+    RPDO_MAP,
+    TPDO_COMM,
+    TPDO_MAP,
+    MappedObject,
+    PdoConfig,
+    check_mapping_write,
+    read_pdos,
+)
+from omnican.sim.scheduler import SimScheduler
+
+logger = logging.getLogger(__name__)
+
+# NMT states as sent in heartbeats.
+NMT_BOOTUP, NMT_STOPPED, NMT_OPERATIONAL, NMT_PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
+NMT_NAMES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
+_NMT_START, _NMT_STOP, _NMT_PREOP, _NMT_RESET_NODE, _NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+
+EMCY_HEARTBEAT = 0x8130
+EMCY_PDO_LENGTH = 0x8210
+
+# Error register (1001h) bits by EMCY class.
+_ERROR_REGISTER_BITS = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}
+
+COAST_TAU_S = 0.1  # a disabled motor spins down with this time constant
+DEFAULT_TAU_S = 0.01  # velocity loop lag of an enabled motor
+STANDSTILL_UNITS = 1.0  # below this many velocity units the drive reports speed zero
+
+
+def _default_modes(d: od.ObjectDictionary) -> frozenset[int]:
+    modes = set()
+    if int(Obj.TARGET_VELOCITY) in d:
+        modes |= {3, 9}
+    if int(Obj.VL_TARGET) in d:
+        modes.add(2)
+    mode_obj = d.get(int(Obj.MODE))
+    if isinstance(mode_obj, od.ODVariable) and mode_obj.max is not None:
+        lo = mode_obj.min if mode_obj.min is not None else -128
+        modes = {m for m in modes if lo <= m <= mode_obj.max}
+    return frozenset(modes)
+
+
+@dataclass
+class _Axis:
+    """One motor of the drive."""
+
+    number: int
+    objs: AxisObjects
+    stage: _PowerStage
+    counts_per_unit: float
+    state: motor.MotorState = field(default_factory=motor.MotorState)
+    counter_offset: float = 0.0  # physical counts at the last encoder reset
+    internal_limit: bool = False
+    target_units: float = 0.0
+
+
+@dataclass
+class _PowerStage:
+    """A CiA 402 device state machine (one per controlword)."""
+
+    controlword: Entry
+    statusword: Entry
+    mode: Entry | None
+    axes: list[_Axis] = field(default_factory=list)
+    state: State = State.SWITCH_ON_DISABLED
+    last_cw: int = 0
+    warning: bool = False
+    fault_code: int = 0
+
+
+class SimulatedDrive:
+    """A simulated CiA 402 drive attached to a connected ``canopen.Network``.
+
+    Args:
+        network: a connected network (``network.connect(...)`` done).
+        node_id: CANopen node id.
+        eds: EDS of the drive; default the bundled omnican wheel drive.
+        counts_per_unit: encoder counts per second per unit of the velocity
+            objects (60FFh, 6042h), one value for all axes or one per axis.
+        tau_s: velocity lag time constant of the motor.
+        encoder_noise: standard deviation (counts) added to reported positions.
+        slip: fraction of wheel motion lost to slip (read by the simulated base).
+        frame_loss: probability that a PDO or heartbeat frame is lost (either way).
+        max_mapping_entries: mapping entries a PDO accepts (None: the EDS decides).
+        remappable: False for a drive that refuses any PDO remapping.
+        initial_position: encoder counts at power-up, per axis (to test wrap-around).
+        scheduler: share a housekeeping thread; default one of its own.
+        boot: send the boot-up frame and enter PRE-OPERATIONAL now.
+        seed: random seed for noise and frame loss.
+    """
+
+    def __init__(
+        self,
+        network: canopen.Network,
+        node_id: int,
+        eds: str | Path | None = None,
+        *,
+        counts_per_unit: float | Sequence[float] = 1.0,
+        tau_s: float = DEFAULT_TAU_S,
+        encoder_noise: float = 0.0,
+        slip: float = 0.0,
+        frame_loss: float = 0.0,
+        max_mapping_entries: int | None = None,
+        remappable: bool = True,
+        initial_position: float | Sequence[float] = 0.0,
+        scheduler: SimScheduler | None = None,
+        boot: bool = True,
+        seed: int | None = None,
+    ) -> None:
+        if not 1 <= node_id <= 127:
+            raise ValueError(f"node_id must be 1-127, got {node_id}")
+        self.network = network
+        self.node_id = node_id
+        self.eds = Path(eds) if eds is not None else WHEEL_EDS
+        self.node = canopen.LocalNode(node_id, str(self.eds))
+        self.dictionary: od.ObjectDictionary = self.node.object_dictionary
+        self.tau_s = tau_s
+        self.encoder_noise = encoder_noise
+        self.slip = slip
+        self.frame_loss = frame_loss
+        self.max_mapping_entries = max_mapping_entries
+        self.remappable = remappable
+        self._rng = random.Random(seed)
+        self.lock = threading.RLock()
+
+        probe = AxisObjects(self.dictionary, 0)
+        self.num_axes = max(1, probe.num_axes)
+        cpu = list(counts_per_unit) if isinstance(counts_per_unit, Sequence) else [
+            float(counts_per_unit)] * self.num_axes
+        init = list(initial_position) if isinstance(initial_position, Sequence) else [
+            float(initial_position)] * self.num_axes
+        if len(cpu) != self.num_axes or len(init) != self.num_axes:
+            raise ValueError(f"{self.eds.name} has {self.num_axes} axes: give one value per axis")
+        self._initial_position = init
+        self.axes: list[_Axis] = []
+        self.stages: list[_PowerStage] = []
+        stage_by_cw: dict[tuple[int, int], _PowerStage] = {}
+        for k in range(self.num_axes):
+            objs = AxisObjects(self.dictionary, k)
+            cw, sw = objs.get(Obj.CONTROLWORD), objs.get(Obj.STATUSWORD)
+            if cw is None or sw is None:
+                raise ValueError(f"{self.eds.name}: axis {k} has no controlword/statusword")
+            key = (cw.index, cw.subindex)
+            if key not in stage_by_cw:
+                stage_by_cw[key] = _PowerStage(cw, sw, objs.get(Obj.MODE))
+                self.stages.append(stage_by_cw[key])
+            stage = stage_by_cw[key]
+            ax = _Axis(k, objs, stage, cpu[k], counter_offset=-init[k])
+            stage.axes.append(ax)
+            self.axes.append(ax)
+        self._supported_modes = self._find_supported_modes()
+
+        # Dynamic objects: (index, subindex) -> reader.
+        self._readers: dict[tuple[int, int], Callable[[], int]] = {}
+        self._writers: dict[tuple[int, int], Callable[[int], None]] = {}
+        self._motion_objects: set[tuple[int, int]] = set()
+        self._build_object_hooks()
+
+        self._nmt = NMT_BOOTUP
+        self._frozen = False
+        self._heartbeat_enabled = True
+        self._heartbeat_period = 0.0
+        self._last_heartbeat = -1e9
+        self._consumers: dict[int, float] = {}  # producer node id -> timeout s
+        self._consumer_seen: dict[int, float] = {}
+        self._consumer_lost: set[int] = set()
+        self._subscribed_hb: set[int] = set()
+        self._tpdos: list[PdoConfig] = []
+        self._rpdos: dict[int, PdoConfig] = {}
+        self._pending: dict[int, bytes] = {}
+        self._last_advance = time.monotonic()
+        self._closed = False
+
+        # LocalNode produces its heartbeat from a 1017h write callback; we do it ourselves.
+        self.node._write_callbacks.remove(self.node.nmt.on_write)
+        self.node.add_read_callback(self._on_read)
+        self.node.add_write_callback(self._on_write)
+        network.add_node(self.node)
+        # Replace LocalNode's NMT and SDO handlers with ones that honour freeze/NMT state.
+        network.unsubscribe(0, self.node.nmt.on_command)
+        network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        network.subscribe(0, self._on_nmt)
+        network.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
+        self._sync_cob = self._u32(0x1005, 0, 0x80) & 0x7FF
+        network.subscribe(self._sync_cob, self._on_sync)
+
+        self._own_scheduler = scheduler is None
+        self.scheduler = scheduler if scheduler is not None else SimScheduler()
+        self._prefill_defaults()
+        if boot:
+            self._boot(reset_node=False)
+        self.scheduler.add(self.tick)
+        if self._own_scheduler:
+            self.scheduler.start()
+
+    # ------------------------------------------------------------------ setup
+
+    def _find_supported_modes(self) -> frozenset[int]:
+        obj = self.dictionary.get(int(Obj.SUPPORTED_MODES))
+        if isinstance(obj, od.ODVariable) and obj.default is not None:
+            return cia402.supported_modes(int(obj.default))
+        return _default_modes(self.dictionary)
+
+    def _prefill_defaults(self) -> None:
+        """Give every numeric object without a default a value, as a drive would."""
+        store = self.node.data_store
+        for obj in self.dictionary.values():
+            variables = [obj] if isinstance(obj, od.ODVariable) else list(obj.values())
+            for var in variables:
+                if var.value is None and var.default is None and var.data_type in od.NUMBER_TYPES:
+                    value = 0
+                    if var.min is not None and var.min > 0:
+                        value = var.min
+                    if var.index == Obj.SUPPORTED_MODES:
+                        value = cia402.modes_to_bits(set(self._supported_modes))
+                    store.setdefault(var.index, {})[var.subindex] = var.encode_raw(value)
+
+    def _build_object_hooks(self) -> None:
+        for stage in self.stages:
+            sw, cw = stage.statusword, stage.controlword
+            self._readers[(sw.index, sw.subindex)] = partial(self._statusword, stage)
+            self._writers[(cw.index, cw.subindex)] = partial(self._on_controlword, stage)
+            if stage.mode is not None:
+                m = stage.mode
+                self._writers[(m.index, m.subindex)] = partial(self._on_mode, stage)
+            display = stage.axes[0].objs.get(Obj.MODE_DISPLAY)
+            if display is not None:
+                self._readers[(display.index, display.subindex)] = partial(self._mode, stage)
+        for ax in self.axes:
+            readers: tuple[tuple[Obj, Callable[[], int]], ...] = (
+                (Obj.POSITION_ACTUAL, partial(self._position, ax)),
+                (Obj.VELOCITY_ACTUAL, partial(self._velocity_rounded, ax)),
+                (Obj.VL_ACTUAL, partial(self._velocity_rounded, ax)),
+                (Obj.VL_DEMAND, partial(self._demand_rounded, ax)),
+            )
+            for obj, reader in readers:
+                entry = ax.objs.get(obj)
+                if entry is not None:
+                    self._readers[(entry.index, entry.subindex)] = self._wrap_for(entry, reader)
+            for obj in (Obj.TARGET_VELOCITY, Obj.VL_TARGET, Obj.PROFILE_ACCEL, Obj.PROFILE_DECEL,
+                        Obj.QUICK_STOP_DECEL, Obj.MAX_PROFILE_VELOCITY):
+                entry = ax.objs.get(obj)
+                if entry is not None:
+                    self._motion_objects.add((entry.index, entry.subindex))
+            for rec in (Obj.VL_ACCEL, Obj.VL_DECEL, Obj.VL_QUICK_STOP):
+                index = ax.objs.record(rec)
+                if index is not None:
+                    self._motion_objects.update({(index, 1), (index, 2)})
+        err = self.axes[0].objs.get(Obj.ERROR_CODE)
+        if err is not None:
+            self._readers[(err.index, err.subindex)] = lambda: self.stages[0].fault_code
+        if 0x1001 in self.dictionary:
+            self._readers[(0x1001, 0)] = self._error_register
+
+    @staticmethod
+    def _wrap_for(entry: Entry, reader: Callable[[], int]) -> Callable[[], int]:
+        """Raw integer as the OD type stores it (two's complement for unsigned types)."""
+        bits = entry.bits
+        half, full = 1 << (bits - 1), 1 << bits
+
+        def wrapped() -> int:
+            value = (int(reader()) + half) % full - half  # wrap like an encoder counter
+            return value if entry.declared_signed else value % full
+
+        return wrapped
+
+    # ------------------------------------------------------------- properties
+
+    @property
+    def nmt_state(self) -> str:
+        return NMT_NAMES.get(self._nmt, hex(self._nmt))
+
+    def state(self, axis: int = 0) -> State:
+        return self.axes[axis].stage.state
+
+    @property
+    def frozen(self) -> bool:
+        return self._frozen
+
+    def physical_counts(self, axis: int = 0) -> float:
+        """Encoder counts the wheel really turned since power-up (never reset or wrapped)."""
+        with self.lock:
+            self._advance(time.monotonic())
+            return self.axes[axis].state.position
+
+    def velocity_counts(self, axis: int = 0) -> float:
+        with self.lock:
+            self._advance(time.monotonic())
+            return self.axes[axis].state.velocity
+
+    def read(self, index: int, subindex: int = 0) -> bytes:
+        """Current raw value of an object, as an SDO upload would return it."""
+        with self.lock:
+            self._advance(time.monotonic())
+            return bytes(self.node.get_data(index, subindex))
+
+    # ------------------------------------------------------------- injection
+
+    def inject_fault(self, code: int = 0x2310, axis: int = 0) -> None:
+        """Trip a fault: EMCY with ``code``, then FAULT REACTION ACTIVE -> FAULT."""
+        with self.lock:
+            self._advance(time.monotonic())
+            self._fault(self.axes[axis].stage, code)
+
+    def stop_heartbeat(self) -> None:
+        """Stop producing heartbeats (the drive keeps working otherwise)."""
+        with self.lock:
+            self._heartbeat_enabled = False
+
+    def start_heartbeat(self) -> None:
+        with self.lock:
+            self._heartbeat_enabled = True
+
+    def reboot(self) -> None:
+        """Power-cycle: boot-up frame, OD defaults, position counters at their power-up value."""
+        with self.lock:
+            self._advance(time.monotonic())
+            self._boot(reset_node=True)
+
+    def freeze(self) -> None:
+        """Go silent: answer nothing, send nothing (a hung node). The motor keeps its demand."""
+        with self.lock:
+            self._frozen = True
+
+    def thaw(self) -> None:
+        with self.lock:
+            self._frozen = False
+            self._last_heartbeat = -1e9
+
+    # ---------------------------------------------------------------- NMT
+
+    def _boot(self, reset_node: bool) -> None:
+        self._nmt = NMT_BOOTUP
+        self._tpdos, self._rpdos, self._pending = [], {}, {}
+        if reset_node:
+            self.node.data_store.clear()
+            self._prefill_defaults()
+            for ax in self.axes:
+                # The power stage drops out: the wheel coasts; the counter restarts.
+                ax.counter_offset = ax.state.position - self._initial_position[ax.number]
+                ax.internal_limit = False
+            for stage in self.stages:
+                stage.state, stage.last_cw, stage.fault_code, stage.warning = (
+                    State.SWITCH_ON_DISABLED, 0, 0, False)
+        else:
+            self._reset_comm_objects()
+        self._heartbeat_enabled = True
+        self._send(0x700 + self.node_id, b"\x00", droppable=False)
+        self._nmt = NMT_PRE_OPERATIONAL
+        self._load_heartbeat_config()
+        self._last_heartbeat = time.monotonic()
+
+    def _reset_comm_objects(self) -> None:
+        for index in [i for i in self.node.data_store if 0x1000 <= i < 0x2000]:
+            del self.node.data_store[index]
+        self._prefill_defaults()
+
+    def _load_heartbeat_config(self) -> None:
+        self._heartbeat_period = self._u16(0x1017, 0) / 1000.0
+        self._consumers = {}
+        obj = self.dictionary.get(0x1016)
+        if isinstance(obj, (od.ODArray, od.ODRecord)):
+            for sub in obj.subindices:
+                if sub == 0:
+                    continue
+                raw = self._u32(0x1016, sub)
+                producer, ms = (raw >> 16) & 0x7F, raw & 0xFFFF
+                if producer and ms:
+                    self._consumers[producer] = ms / 1000.0
+        for producer in self._consumers:
+            if producer not in self._subscribed_hb:
+                self.network.subscribe(0x700 + producer, self._on_heartbeat)
+                self._subscribed_hb.add(producer)
+        self._consumer_seen = {p: t for p, t in self._consumer_seen.items() if p in self._consumers}
+        self._consumer_lost &= set(self._consumers)
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) < 2 or data[1] not in (0, self.node_id):
+            return
+        with self.lock:
+            if self._frozen:
+                return
+            cmd = data[0]
+            now = time.monotonic()
+            self._advance(now)
+            if cmd == _NMT_START:
+                self._enter_operational()
+            elif cmd == _NMT_STOP:
+                self._abort_connection()
+                self._nmt, self._tpdos, self._rpdos = NMT_STOPPED, [], {}
+            elif cmd == _NMT_PREOP:
+                self._nmt, self._tpdos, self._rpdos = NMT_PRE_OPERATIONAL, [], {}
+            elif cmd == _NMT_RESET_NODE:
+                self._boot(reset_node=True)
+            elif cmd == _NMT_RESET_COMM:
+                self._abort_connection()
+                self._boot(reset_node=False)
+            self._send_heartbeat(now)  # heartbeats show a new state at once
+
+    def _enter_operational(self) -> None:
+        getter = self.node.get_data
+        self._tpdos = read_pdos(self.dictionary, getter, TPDO_COMM, TPDO_MAP)
+        self._rpdos = {p.cob_id: p for p in read_pdos(self.dictionary, getter, RPDO_COMM, RPDO_MAP)}
+        self._pending = {}
+        for cob in self._rpdos:
+            self.network.subscribe(cob, self._on_rpdo)
+        self._nmt = NMT_OPERATIONAL
+        for tpdo in self._tpdos:
+            tpdo.last_data = None
+            tpdo.pending_change = tpdo.event_driven  # first event TPDO goes out at once
+
+    # -------------------------------------------------------- frame handlers
+
+    def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            if self._frozen or self._nmt in (NMT_STOPPED, NMT_BOOTUP):
+                return
+            self._advance(time.monotonic())
+            self.node.sdo.on_request(can_id, data, timestamp)
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            if self._frozen or self._nmt != NMT_OPERATIONAL or self._lost():
+                return
+            now = time.monotonic()
+            self._advance(now)
+            pending, self._pending = self._pending, {}
+            for cob, payload in pending.items():
+                rpdo = self._rpdos.get(cob)
+                if rpdo is not None:
+                    self._apply_rpdo(rpdo, payload)
+            for tpdo in self._tpdos:
+                if tpdo.trans_type == 0:
+                    if tpdo.pending_change or self._frame(tpdo) != tpdo.last_data:
+                        self._send_tpdo(tpdo, now)
+                elif tpdo.synchronous:
+                    tpdo.sync_count += 1
+                    if tpdo.sync_count >= tpdo.trans_type:
+                        tpdo.sync_count = 0
+                        self._send_tpdo(tpdo, now)
+            self._event_tpdos(now)
+
+    def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            rpdo = self._rpdos.get(can_id)
+            if rpdo is None or self._frozen or self._nmt != NMT_OPERATIONAL or self._lost():
+                return
+            if len(data) < rpdo.length:
+                self._emcy(EMCY_PDO_LENGTH, 0x10)
+                return
+            if rpdo.synchronous:
+                self._pending[can_id] = bytes(data)
+            else:
+                now = time.monotonic()
+                self._advance(now)
+                self._apply_rpdo(rpdo, bytes(data))
+                self._event_tpdos(now)
+
+    def _apply_rpdo(self, rpdo: PdoConfig, payload: bytes) -> None:
+        offset = 0
+        for entry in rpdo.entries:
+            chunk = payload[offset : offset + entry.nbytes]
+            offset += entry.nbytes
+            try:
+                self.node.set_data(entry.index, entry.subindex, self._fit(entry, chunk))
+            except SdoAbortedError as exc:  # e.g. an unsupported mode: ignored, as on a drive
+                logger.debug("node %d: RPDO write to 0x%04X refused: %s", self.node_id,
+                             entry.index, exc)
+
+    def _fit(self, entry: MappedObject, chunk: bytes) -> bytes:
+        var = self.node._find_object(entry.index, entry.subindex)
+        size = len(var) // 8
+        return chunk[:size].ljust(size, b"\x00")
+
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        producer = can_id - 0x700
+        with self.lock:
+            if self._frozen or producer not in self._consumers:
+                return
+            self._consumer_seen[producer] = time.monotonic()
+            if producer in self._consumer_lost:
+                self._consumer_lost.discard(producer)
+                for stage in self.stages:
+                    stage.warning = False
+
+    # --------------------------------------------------------- OD callbacks
+
+    def _on_read(self, index: int, subindex: int, od: od.ODVariable) -> int | None:
+        reader = self._readers.get((index, subindex))
+        return None if reader is None else reader()
+
+    def _on_write(self, index: int, subindex: int, od: od.ODVariable, data: bytes) -> None:
+        key = (index, subindex)
+        if RPDO_MAP <= index < RPDO_MAP + 512 or TPDO_MAP <= index < TPDO_MAP + 512:
+            if not self.remappable:
+                raise SdoAbortedError(ABORT_READ_ONLY)
+            check_mapping_write(self.dictionary, self.node.get_data, index, subindex, data,
+                                self.max_mapping_entries)
+            return
+        if key in self._motion_objects:
+            self._advance(time.monotonic())
+        writer = self._writers.get(key)
+        if writer is not None:
+            value = int.from_bytes(data, "little", signed=od.data_type in SIGNED_TYPES)
+            writer(value)
+        if index in (0x1016, 0x1017):
+            # Store first so the new value is read back, then reload.
+            self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
+            self._load_heartbeat_config()
+
+    # ----------------------------------------------------------- CiA 402
+
+    def _on_mode(self, stage: _PowerStage, value: int) -> None:
+        if value not in self._supported_modes and value != 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+
+    def _mode(self, stage: _PowerStage) -> int:
+        if stage.mode is None:
+            return int(Mode.PROFILE_VELOCITY)
+        return stage.mode.decode(self.node.get_data(stage.mode.index, stage.mode.subindex))
+
+    def _on_controlword(self, stage: _PowerStage, value: int) -> None:
+        self._advance(time.monotonic())
+        previous, stage.last_cw = stage.last_cw, value & 0xFFFF
+        rising_reset = value & cia402.CW_FAULT_RESET and not previous & cia402.CW_FAULT_RESET
+        if stage.state is State.FAULT:
+            if rising_reset:
+                stage.state, stage.fault_code = State.SWITCH_ON_DISABLED, 0
+                self._emcy(0x0000, 0)  # error reset
+            return
+        if stage.state is State.FAULT_REACTION_ACTIVE:
+            return
+        command = cia402.decode_command(value)
+        if command is None:
+            return
+        transition = cia402.DEVICE_TRANSITIONS.get((stage.state, command))
+        if transition is None:
+            return
+        if transition.number == 16 and self._quick_stop_option() not in (5, 6, 7, 8):
+            return
+        if transition.target is State.OPERATION_ENABLED:
+            for ax in stage.axes:  # start from where the wheel is, not from an old demand
+                ax.state = motor.MotorState(ax.state.position, ax.state.velocity,
+                                            ax.state.velocity)
+        stage.state = transition.target
+
+    def _quick_stop_option(self) -> int:
+        entry = self.axes[0].objs.get(Obj.QUICK_STOP_OPTION)
+        if entry is None:
+            return 2
+        return entry.decode(self.node.get_data(entry.index, entry.subindex))
+
+    def _fault(self, stage: _PowerStage, code: int) -> None:
+        if stage.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+            return
+        stage.fault_code = code
+        powered = stage.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
+        stage.state = State.FAULT_REACTION_ACTIVE if powered else State.FAULT
+        self._emcy(code, self._error_register())
+        self._event_tpdos(time.monotonic())
+
+    def _error_register(self) -> int:
+        reg = 0
+        for stage in self.stages:
+            if stage.fault_code:
+                reg |= 0x01 | _ERROR_REGISTER_BITS.get(stage.fault_code >> 12, 0)
+        return reg
+
+    def _abort_connection(self) -> None:
+        """React to a lost master per 6007h (quick stop by default)."""
+        entry = self.axes[0].objs.get(Obj.ABORT_OPTION)
+        option = cia402.ABORT_QUICK_STOP
+        if entry is not None:
+            option = entry.decode(self.node.get_data(entry.index, entry.subindex))
+        for stage in self.stages:
+            if stage.state not in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+                if option == cia402.ABORT_NO_ACTION:
+                    stage.warning = True
+                continue
+            if option == cia402.ABORT_FAULT:
+                self._fault(stage, EMCY_HEARTBEAT)
+            elif option == cia402.ABORT_DISABLE_VOLTAGE:
+                stage.state = State.SWITCH_ON_DISABLED
+            elif option == cia402.ABORT_NO_ACTION:
+                stage.warning = True
+            elif stage.state is State.OPERATION_ENABLED:
+                stage.state = State.QUICK_STOP_ACTIVE
+
+    def _statusword(self, stage: _PowerStage) -> int:
+        sw = cia402.state_bits(stage.state) | cia402.SW_REMOTE
+        if stage.warning:
+            sw |= cia402.SW_WARNING
+        if any(ax.internal_limit for ax in stage.axes):
+            sw |= cia402.SW_INTERNAL_LIMIT
+        if stage.state is State.OPERATION_ENABLED:
+            mode = self._mode(stage)
+            if mode == Mode.CYCLIC_SYNC_VELOCITY:
+                sw |= cia402.SW_OMS_12  # drive follows the command value
+            elif all(self._reached(ax, stage) for ax in stage.axes):
+                sw |= cia402.SW_TARGET_REACHED
+            if mode == Mode.PROFILE_VELOCITY and self._standstill(stage):
+                sw |= cia402.SW_OMS_12  # speed is zero
+        elif stage.state is State.QUICK_STOP_ACTIVE and self._standstill(stage):
+            sw |= cia402.SW_TARGET_REACHED
+        return sw
+
+    def _standstill(self, stage: _PowerStage) -> bool:
+        """Every axis below one velocity unit: the drive's "speed = 0"."""
+        return all(abs(self._velocity_units(ax)) < STANDSTILL_UNITS for ax in stage.axes)
+
+    def _reached(self, ax: _Axis, stage: _PowerStage) -> bool:
+        halted = bool(stage.last_cw & cia402.CW_HALT)
+        target = 0.0 if halted else ax.target_units
+        window = 1.0
+        entry = self.dictionary.get(0x606D)
+        if isinstance(entry, od.ODVariable):
+            window = max(window, float(self._u32(0x606D, 0, 1) & 0xFFFF))
+        return abs(self._velocity_units(ax) - target) <= window
+
+    # ------------------------------------------------------------ motion
+
+    def _axis_raw(self, entry: Entry | None, default: int = 0) -> int:
+        if entry is None:
+            return default
+        return entry.decode(self.node.get_data(entry.index, entry.subindex))
+
+    def _record_rate(self, index: int | None) -> float | None:
+        """vl ramp (delta speed / delta time in s) in units/s^2, or None."""
+        if index is None:
+            return None
+        speed = self._u32(index, 1)
+        seconds = self._u16(index, 2)
+        if speed == 0 or seconds == 0:
+            return None
+        return speed / seconds
+
+    def _motion_command(self, ax: _Axis) -> tuple[float, float, float, float]:
+        """(target counts/s, accel, decel, tau) for the axis in its current state."""
+        stage = ax.stage
+        inf = math.inf
+        cpu = abs(ax.counts_per_unit)
+        quick = self._axis_raw(ax.objs.get(Obj.QUICK_STOP_DECEL)) * cpu
+        mode = self._mode(stage)
+        if mode == Mode.VELOCITY:
+            vl_quick = self._record_rate(ax.objs.record(Obj.VL_QUICK_STOP))
+            quick = vl_quick * cpu if vl_quick else quick
+        quick = quick if quick > 0 else inf
+        state = stage.state
+        if state in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE):
+            ax.target_units = 0.0
+            return 0.0, quick, quick, self.tau_s
+        if state is not State.OPERATION_ENABLED:
+            ax.target_units = 0.0
+            return 0.0, inf, inf, COAST_TAU_S
+        halted = bool(stage.last_cw & cia402.CW_HALT)
+        if mode == Mode.VELOCITY:
+            target = self._axis_raw(ax.objs.get(Obj.VL_TARGET))
+            accel = self._record_rate(ax.objs.record(Obj.VL_ACCEL))
+            decel = self._record_rate(ax.objs.record(Obj.VL_DECEL))
+            accel_c = accel * cpu if accel else inf
+            decel_c = decel * cpu if decel else inf
+        elif mode in (Mode.PROFILE_VELOCITY, Mode.CYCLIC_SYNC_VELOCITY):
+            target = self._axis_raw(ax.objs.get(Obj.TARGET_VELOCITY))
+            if mode == Mode.PROFILE_VELOCITY:
+                accel_c = self._axis_raw(ax.objs.get(Obj.PROFILE_ACCEL)) * cpu or inf
+                decel_c = self._axis_raw(ax.objs.get(Obj.PROFILE_DECEL)) * cpu or accel_c
+            else:
+                accel_c = decel_c = inf
+        else:
+            ax.target_units = 0.0
+            return 0.0, quick, quick, self.tau_s  # no velocity mode: hold still
+        limit = self._axis_raw(ax.objs.get(Obj.MAX_PROFILE_VELOCITY))
+        ax.internal_limit = bool(limit) and abs(target) > limit
+        if ax.internal_limit:
+            target = int(math.copysign(limit, target))
+        ax.target_units = float(target)
+        if halted and mode != Mode.CYCLIC_SYNC_VELOCITY:
+            return 0.0, decel_c, decel_c, self.tau_s
+        return target * ax.counts_per_unit, accel_c, decel_c, self.tau_s
+
+    def _advance(self, now: float) -> None:
+        dt = now - self._last_advance
+        if dt <= 0:
+            return
+        self._last_advance = now
+        for ax in self.axes:
+            target, accel, decel, tau = self._motion_command(ax)
+            ax.state = motor.advance(ax.state, dt, target, accel, decel, tau)
+        for stage in self.stages:
+            stopped = self._standstill(stage)
+            if stage.state is State.FAULT_REACTION_ACTIVE and stopped:
+                stage.state = State.FAULT
+            elif stage.state is State.QUICK_STOP_ACTIVE and stopped and (
+                self._quick_stop_option() not in (5, 6, 7, 8)
+            ):
+                stage.state = State.SWITCH_ON_DISABLED
+
+    def _position(self, ax: _Axis) -> int:
+        counts = ax.state.position - ax.counter_offset
+        if self.encoder_noise:
+            counts += self._rng.gauss(0.0, self.encoder_noise)
+        return round(counts)
+
+    def _velocity_units(self, ax: _Axis) -> float:
+        return ax.state.velocity / ax.counts_per_unit
+
+    def _velocity_rounded(self, ax: _Axis) -> int:
+        return round(self._velocity_units(ax))
+
+    def _demand_rounded(self, ax: _Axis) -> int:
+        return round(ax.state.demand / ax.counts_per_unit)
+
+    # ------------------------------------------------------------- output
+
+    def _lost(self) -> bool:
+        return self.frame_loss > 0 and self._rng.random() < self.frame_loss
+
+    def _send(self, cob_id: int, data: bytes, droppable: bool = True) -> None:
+        if self._frozen or self._closed or (droppable and self._lost()):
+            return
+        try:
+            self.network.send_message(cob_id, data)
+        except (can.CanError, RuntimeError) as exc:
+            logger.warning("simulated node %d could not send 0x%03X: %s", self.node_id, cob_id,
+                           exc)
+
+    def _emcy(self, code: int, register: int) -> None:
+        self._send(0x80 + self.node_id, struct.pack("<HB5s", code, register, b""),
+                   droppable=False)
+
+    def _frame(self, tpdo: PdoConfig) -> bytes:
+        out = bytearray()
+        for entry in tpdo.entries:
+            out += self.node.get_data(entry.index, entry.subindex)[: entry.nbytes]
+        return bytes(out)
+
+    def _send_tpdo(self, tpdo: PdoConfig, now: float) -> None:
+        data = self._frame(tpdo)
+        tpdo.last_data, tpdo.last_sent, tpdo.pending_change = data, now, False
+        self._send(tpdo.cob_id, data)
+
+    def _event_tpdos(self, now: float) -> None:
+        if self._nmt != NMT_OPERATIONAL:
+            return
+        for tpdo in self._tpdos:
+            if not tpdo.event_driven:
+                continue
+            data = self._frame(tpdo)
+            if data != tpdo.last_data:
+                tpdo.pending_change = True
+            due = tpdo.pending_change or (tpdo.event_s and now - tpdo.last_sent >= tpdo.event_s)
+            if due and now - tpdo.last_sent >= tpdo.inhibit_s:
+                self._send_tpdo(tpdo, now)
+
+    def _send_heartbeat(self, now: float) -> None:
+        if self._heartbeat_enabled and self._heartbeat_period > 0:
+            self._last_heartbeat = now
+            self._send(0x700 + self.node_id, bytes([self._nmt]))
+
+    def tick(self, now: float) -> None:
+        """Housekeeping (called by the scheduler)."""
+        with self.lock:
+            if self._closed:
+                return
+            self._advance(now)
+            if self._frozen:
+                return
+            if self._heartbeat_period > 0 and now - self._last_heartbeat >= self._heartbeat_period:
+                self._send_heartbeat(now)
+            for producer, timeout in self._consumers.items():
+                seen = self._consumer_seen.get(producer)
+                if seen is None or producer in self._consumer_lost:
+                    continue  # consumer starts at the first heartbeat received
+                if now - seen > timeout:
+                    self._consumer_lost.add(producer)
+                    logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
+                                producer)
+                    self._emcy(EMCY_HEARTBEAT, 0x11)
+                    self._abort_connection()
+            self._event_tpdos(now)
+
+    # ------------------------------------------------------------ helpers
+
+    def _u32(self, index: int, sub: int, default: int = 0) -> int:
+        try:
+            return int.from_bytes(self.node.get_data(index, sub)[:4], "little")
+        except (SdoAbortedError, KeyError):
+            return default
+
+    def _u16(self, index: int, sub: int, default: int = 0) -> int:
+        try:
+            return int.from_bytes(self.node.get_data(index, sub)[:2], "little")
+        except (SdoAbortedError, KeyError):
+            return default
+
+    # ------------------------------------------------------------ lifecycle
+
+    def close(self) -> None:
+        """Detach from the network and stop the housekeeping (idempotent)."""
+        with self.lock:
+            if self._closed:
+                return
+            self._closed = True
+        self.scheduler.remove(self.tick)
+        if self._own_scheduler:
+            self.scheduler.close()
+        net = self.network
+        for cob, handler in [(0, self._on_nmt), (self.node.sdo.rx_cobid, self._on_sdo),
+                             (self._sync_cob, self._on_sync)]:
+            _unsubscribe(net, cob, handler)
+        for cob in list(self._rpdos):
+            _unsubscribe(net, cob, self._on_rpdo)
+        for producer in self._subscribed_hb:
+            _unsubscribe(net, 0x700 + producer, self._on_heartbeat)
+        if self.node_id in net.nodes and net.nodes[self.node_id] is self.node:
+            # LocalNode.remove_network would unsubscribe handlers we already replaced.
+            del net.nodes[self.node_id]
+
+    def __enter__(self) -> SimulatedDrive:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<SimulatedDrive node {self.node_id} {self.eds.name} {self.nmt_state}>"
+
+
+def _unsubscribe(net: canopen.Network, cob: int, handler: Any) -> None:
+    if handler in net.subscribers.get(cob, []):
+        net.unsubscribe(cob, handler)
+

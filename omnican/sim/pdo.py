@@ -1,0 +1,168 @@
+"""PDO configuration of a simulated drive, read from its own object dictionary.
+
+A real drive takes its PDO setup from its communication (14xxh/18xxh) and mapping
+(16xxh/1Axxh) parameters when it goes OPERATIONAL; so does the simulator. Writes
+to the mapping parameters are checked like a drive does, with the SDO abort codes
+of CiA 301.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from canopen import objectdictionary as od
+from canopen.sdo.exceptions import SdoAbortedError
+
+RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
+MAX_PDOS = 512
+
+ABORT_NOT_IN_OD = 0x06020000
+ABORT_NOT_MAPPABLE = 0x06040041
+ABORT_PDO_LENGTH = 0x06040042
+ABORT_GENERAL_INCOMPATIBLE = 0x06040043
+ABORT_READ_ONLY = 0x06010002
+ABORT_VALUE_RANGE = 0x06090030
+ABORT_SUBINDEX = 0x06090011
+
+COB_INVALID = 1 << 31
+
+
+@dataclass(frozen=True)
+class MappedObject:
+    index: int
+    subindex: int
+    bits: int
+
+    @property
+    def nbytes(self) -> int:
+        return self.bits // 8
+
+
+@dataclass
+class PdoConfig:
+    """One PDO as configured in the object dictionary."""
+
+    number: int  # 1-based
+    cob_id: int
+    trans_type: int
+    inhibit_s: float
+    event_s: float
+    entries: tuple[MappedObject, ...]
+    # Run-time bookkeeping (TPDOs).
+    sync_count: int = 0
+    last_data: bytes | None = None
+    last_sent: float = field(default=-1e9)
+    pending_change: bool = False
+
+    @property
+    def length(self) -> int:
+        return sum(e.nbytes for e in self.entries)
+
+    @property
+    def synchronous(self) -> bool:
+        return self.trans_type <= 240
+
+    @property
+    def event_driven(self) -> bool:
+        return self.trans_type >= 254
+
+
+Getter = Callable[[int, int], bytes]
+
+
+def _u(getter: Getter, index: int, sub: int, fmt: str, default: int = 0) -> int:
+    try:
+        raw = getter(index, sub)
+    except (SdoAbortedError, KeyError):
+        return default
+    size = struct.calcsize(fmt)
+    return int(struct.unpack(fmt, raw[:size].ljust(size, b"\x00"))[0])
+
+
+def read_pdos(dictionary: od.ObjectDictionary, getter: Getter, comm_base: int,
+              map_base: int) -> list[PdoConfig]:
+    """Every valid PDO of one direction, from the current OD values."""
+    out: list[PdoConfig] = []
+    for n in range(MAX_PDOS):
+        comm = comm_base + n
+        if comm not in dictionary or map_base + n not in dictionary:
+            continue
+        cob = _u(getter, comm, 1, "<I")
+        if cob & COB_INVALID:
+            continue
+        count = _u(getter, map_base + n, 0, "<B")
+        entries = []
+        for sub in range(1, count + 1):
+            raw = _u(getter, map_base + n, sub, "<I")
+            index, subindex, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
+            if index and bits:
+                entries.append(MappedObject(index, subindex, bits))
+        comm_obj = dictionary[comm]
+        has = comm_obj.subindices if isinstance(comm_obj, od.ODRecord) else {}
+        out.append(
+            PdoConfig(
+                number=n + 1,
+                cob_id=cob & 0x7FF,
+                trans_type=_u(getter, comm, 2, "<B", 255),
+                inhibit_s=(_u(getter, comm, 3, "<H") if 3 in has else 0) * 100e-6,
+                event_s=(_u(getter, comm, 5, "<H") if 5 in has else 0) * 1e-3,
+                entries=tuple(entries),
+            )
+        )
+    return out
+
+
+def _find(dictionary: od.ObjectDictionary, index: int, sub: int) -> od.ODVariable:
+    if index not in dictionary:
+        raise SdoAbortedError(ABORT_NOT_IN_OD)
+    item = dictionary[index]
+    if isinstance(item, od.ODVariable):
+        if sub != 0:
+            raise SdoAbortedError(ABORT_SUBINDEX)
+        return item
+    if sub not in item.subindices:
+        raise SdoAbortedError(ABORT_NOT_IN_OD)
+    var = item[sub]
+    assert isinstance(var, od.ODVariable)
+    return var
+
+
+def check_mapping_write(
+    dictionary: od.ObjectDictionary,
+    getter: Getter,
+    index: int,
+    subindex: int,
+    data: bytes,
+    max_entries: int | None = None,
+) -> None:
+    """Raise the SDO abort a drive would send for this write to a mapping parameter.
+
+    Entries must name an existing, PDO-mappable object with its own size;
+    the number of entries must fit in 8 bytes (and the drive's entry limit)."""
+    if subindex == 0:
+        count = data[0]
+        limit = max_entries if max_entries is not None else 0x40
+        if count > limit:
+            raise SdoAbortedError(ABORT_PDO_LENGTH)
+        bits = 0
+        for sub in range(1, count + 1):
+            bits += _u(getter, index, sub, "<I") & 0xFF
+        if bits > 64:
+            raise SdoAbortedError(ABORT_PDO_LENGTH)
+        return
+    value = struct.unpack("<I", data[:4].ljust(4, b"\x00"))[0]
+    obj_index, obj_sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+    if obj_index == 0 and bits == 0:
+        return  # clearing an entry
+    if max_entries is not None and subindex > max_entries:
+        raise SdoAbortedError(ABORT_PDO_LENGTH)
+    var = _find(dictionary, obj_index, obj_sub)
+    if not var.pdo_mappable:
+        raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+    if bits != len(var) or bits % 8:
+        raise SdoAbortedError(ABORT_GENERAL_INCOMPATIBLE)
+    rx = RPDO_MAP <= index < RPDO_MAP + MAX_PDOS
+    if rx and not var.writable:
+        raise SdoAbortedError(ABORT_NOT_MAPPABLE)

@@ -1,0 +1,77 @@
+"""One housekeeping thread for the simulated drives of a process.
+
+Drives advance their motion lazily (on SYNC and on reads); this slow timer covers
+what needs time to pass without traffic: heartbeats, heartbeat-consumer timeouts,
+event timers and event-driven TPDOs, and automatic state transitions.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+logger = logging.getLogger(__name__)
+
+Tick = Callable[[float], None]
+
+
+class SimScheduler:
+    """Calls each registered ``tick(now)`` every ``period_s`` on one thread.
+
+    A context manager; :meth:`close` stops and joins the thread (idempotent)."""
+
+    def __init__(self, period_s: float = 0.002, name: str = "omnican-sim") -> None:
+        if period_s <= 0:
+            raise ValueError("period_s must be positive")
+        self.period_s = period_s
+        self._ticks: list[Tick] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._started = False
+
+    def add(self, tick: Tick) -> None:
+        with self._lock:
+            self._ticks.append(tick)
+
+    def remove(self, tick: Tick) -> None:
+        with self._lock:
+            if tick in self._ticks:
+                self._ticks.remove(tick)
+
+    def start(self) -> SimScheduler:
+        if not self._started:
+            self._started = True
+            self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            with self._lock:
+                ticks = list(self._ticks)
+            for tick in ticks:
+                try:
+                    tick(now)
+                except Exception:  # one broken drive must not stop the others
+                    logger.exception("simulated drive tick failed")
+            next_t += self.period_s
+            delay = next_t - time.monotonic()
+            if delay < 0:  # fell behind (a loaded machine): skip, do not burst
+                next_t = time.monotonic()
+                delay = 0
+            self._stop.wait(delay)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._started and self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+
+    def __enter__(self) -> SimScheduler:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
