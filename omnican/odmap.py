@@ -81,7 +81,7 @@ SIGNED = frozenset(
 class Entry:
     """One resolved object: where it is and how wide it is."""
 
-    obj: Obj
+    obj: Obj | None  # None: an object omnican does not use (in a drive's fixed mapping)
     index: int
     subindex: int
     bits: int
@@ -120,20 +120,30 @@ def _var_bits(var: od.ODVariable) -> int:
     return len(var)
 
 
-def _entry(obj: Obj, var: od.ODVariable, shared: bool) -> Entry:
+def _entry(obj: Obj | None, var: od.ODVariable, shared: bool) -> Entry:
     signed_type = var.data_type in od.SIGNED_TYPES
     return Entry(
         obj=obj,
         index=var.index,
         subindex=var.subindex,
         bits=_var_bits(var),
-        signed=signed_type or obj in SIGNED,
+        signed=signed_type or (obj is not None and obj in SIGNED),
         declared_signed=signed_type,
         shared=shared,
         pdo_mappable=bool(var.pdo_mappable),
         writable=bool(var.writable),
         name=var.name,
     )
+
+
+def entry_at(dictionary: od.ObjectDictionary, index: int, subindex: int) -> Entry:
+    """An entry for any object (e.g. one in a drive's fixed PDO mapping)."""
+    item = dictionary[index]
+    var = item if isinstance(item, od.ODVariable) else item[subindex]
+    if not isinstance(var, od.ODVariable):
+        raise KeyError(f"0x{index:04X}:{subindex:02X} is not a variable")
+    obj = Obj(index) if index in Obj._value2member_map_ else None
+    return _entry(obj, var, shared=False)
 
 
 def count_axes(dictionary: od.ObjectDictionary) -> int:

@@ -464,7 +464,7 @@ class SimulatedDrive:
         with self.lock:
             if self._frozen or self._nmt != NMT_OPERATIONAL or self._lost():
                 return
-            now = time.monotonic()
+            now = self._frame_time(timestamp)
             self._advance(now)
             pending, self._pending = self._pending, {}
             for cob, payload in pending.items():
@@ -482,6 +482,12 @@ class SimulatedDrive:
                         self._send_tpdo(tpdo, now)
             self._event_tpdos(now)
 
+    def _frame_time(self, timestamp: float) -> float:
+        """When a frame reached the bus, on the monotonic clock: every drive acts on a
+        SYNC at the instant it was sent, not when its handler got to run."""
+        age = time.time() - timestamp if timestamp else 0.0
+        return max(self._last_advance, time.monotonic() - min(max(age, 0.0), 0.05))
+
     def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
             rpdo = self._rpdos.get(can_id)
@@ -493,7 +499,7 @@ class SimulatedDrive:
             if rpdo.synchronous:
                 self._pending[can_id] = bytes(data)
             else:
-                now = time.monotonic()
+                now = self._frame_time(timestamp)
                 self._advance(now)
                 self._apply_rpdo(rpdo, bytes(data))
                 self._event_tpdos(now)

@@ -1,0 +1,185 @@
+"""The one owner of the CAN bus: one ``can.Bus``, one ``canopen.Network``, one Notifier.
+
+Also counts traffic (frames and worst-case bits, for the bus load) and records every
+frame, received and sent, to a python-can log file when asked (format by extension:
+``.log`` candump text, ``.asc``, ``.blf``, ``.csv``...).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+
+from omnican.errors import BusError
+from omnican.pdoplan import frame_bits
+
+logger = logging.getLogger(__name__)
+
+SYNC_COB_ID = 0x80
+
+
+class _Recorder(can.Listener):
+    """Writes frames to a python-can log file; survives Notifier restarts (reconnects)."""
+
+    def __init__(self, path: Path) -> None:
+        self._lock = threading.Lock()
+        self._writer: can.Listener | None = can.Logger(str(path))
+        self.path = path
+
+    def on_message_received(self, msg: can.Message) -> None:
+        with self._lock:
+            if self._writer is not None:
+                self._writer.on_message_received(msg)
+
+    def stop(self) -> None:
+        """Called by the Notifier when it stops: keep writing after a reconnect."""
+
+    def close(self) -> None:
+        with self._lock:
+            if self._writer is not None:
+                self._writer.stop()
+                self._writer = None
+
+
+class _Traffic(can.Listener):
+    """Counts frames and worst-case bits seen on the bus (both directions)."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.bits = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.frames += 1
+        self.bits += frame_bits(len(msg.data))
+
+    def stop(self) -> None:
+        pass
+
+
+class _Network(canopen.Network):
+    """canopen's network with every sent frame counted and recorded."""
+
+    def __init__(self, owner: CanBus) -> None:
+        super().__init__()
+        self._owner = owner
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        super().send_message(can_id, data, remote)
+        self._owner._sent(can_id, data)
+
+
+class CanBus:
+    """Opens the bus from a ``[bus]`` config table (None: python-can's own config).
+
+    A context manager; :meth:`close` is idempotent."""
+
+    def __init__(self, bus: Mapping[str, Any] | None = None, record: str | Path | None = None,
+                 notifier_cycle_s: float = 0.1) -> None:
+        self.bus_kwargs: dict[str, Any] = dict(bus or {})
+        self.traffic = _Traffic()
+        self.recorder = _Recorder(Path(record)) if record is not None else None
+        self.network = _Network(self)
+        self.network.NOTIFIER_CYCLE = notifier_cycle_s
+        # canopen types this list as MessageListener only; any can.Listener works.
+        listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
+        listeners.append(self.traffic)
+        if self.recorder is not None:
+            listeners.append(self.recorder)
+        self.sync_epoch = 0
+        self.sync_time = 0.0
+        self.last_error: str | None = None
+        self.send_errors = 0
+        self._closed = False
+        self._lock = threading.Lock()
+        self._connect()
+
+    @property
+    def bitrate(self) -> int | None:
+        rate = self.bus_kwargs.get("bitrate")
+        return int(rate) if rate else None
+
+    def _connect(self) -> None:
+        try:
+            self.network.connect(**self.bus_kwargs)
+        except Exception as exc:  # python-can raises many kinds for a bad interface/channel
+            where = ", ".join(f"{k}={v}" for k, v in self.bus_kwargs.items()) or \
+                "python-can's configuration"
+            if self.recorder is not None:
+                self.recorder.close()
+            raise BusError(f"cannot open CAN bus ({where}): {exc}") from None
+        logger.info("bus open: %s", self.network.bus.channel_info if self.network.bus else "?")
+
+    def _sent(self, can_id: int, data: bytes) -> None:
+        self.traffic.bits += frame_bits(len(data))
+        self.traffic.frames += 1
+        if self.recorder is not None:
+            self.recorder.on_message_received(
+                can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
+                            timestamp=time.time(), is_rx=False))
+
+    def send(self, can_id: int, data: bytes) -> bool:
+        """Send one frame; a failure is counted and reported, not raised."""
+        try:
+            self.network.send_message(can_id, data)
+        except (can.CanError, OSError, RuntimeError) as exc:
+            self.send_errors += 1
+            self.last_error = f"send 0x{can_id:03X} failed: {exc}"
+            return False
+        if self.send_errors:
+            logger.info("bus sends work again after %d errors", self.send_errors)
+        self.send_errors = 0
+        self.last_error = None
+        return True
+
+    def sync(self) -> bool:
+        """Send a SYNC; samples the drives take for it carry the new epoch."""
+        with self._lock:
+            self.sync_epoch += 1
+            self.sync_time = time.monotonic()
+        return self.send(SYNC_COB_ID, b"")
+
+    def reconnect(self) -> bool:
+        """Close and reopen the bus (after bus-off or an interface going down)."""
+        with self._lock:
+            if self._closed:
+                return False
+            try:
+                if self.network.notifier is not None:
+                    self.network.notifier.stop(1.0)
+                if self.network.bus is not None:
+                    self.network.bus.shutdown()
+            except Exception as exc:  # a dead interface may fail to shut down cleanly
+                logger.debug("closing the broken bus: %s", exc)
+            self.network.bus = None
+            try:
+                self.network.connect(**self.bus_kwargs)
+            except Exception as exc:
+                self.last_error = f"reconnect failed: {exc}"
+                return False
+        logger.warning("CAN bus reopened")
+        return True
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        try:
+            self.network.disconnect()
+        except Exception as exc:  # best effort on the way out
+            logger.debug("disconnect: %s", exc)
+        if self.recorder is not None:
+            self.recorder.close()
+
+    def __enter__(self) -> CanBus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,598 @@
+"""The base: drives + kinematics + odometry + limits + watchdog + safety.
+
+One thread runs the control loop at ``rate_hz``. Each cycle it integrates the
+encoder samples of the previous SYNC (all wheels, same SYNC, or none), checks the
+drives' health, limits the newest command, writes the targets on the SYNC RPDOs,
+walks the CiA 402 state machines, sends SYNC and the host heartbeat, and publishes
+an immutable snapshot that any thread may read.
+
+Safety (DESIGN.md): no command for ``cmd_timeout_s`` -> controlled stop; a drive
+fault, a lost heartbeat, a drive reboot or a bus that stays down -> every wheel
+stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
+host's heartbeat, so they stop by themselves if this process dies; leaving the
+``with`` block, Ctrl-C or SIGTERM stops the wheels and disables every drive.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import math
+import queue
+import signal
+import threading
+import time
+import weakref
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+
+from omnican.bus import CanBus
+from omnican.cia402 import State, describe_emcy
+from omnican.config import ChassisConfig
+from omnican.drive import AxisIO, DriveNode
+from omnican.errors import DriveError, OmnicanError
+from omnican.kinematics import Twist
+from omnican.limits import VelocityLimiter
+from omnican.odometry import Odometry, Pose2D
+from omnican.pdoplan import frame_bits
+
+logger = logging.getLogger(__name__)
+
+BUS_DOWN_AFTER_S = 0.05  # sends failing for this long: the bus is down
+RECONNECT_EVERY_S = 1.0
+LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
+
+
+@dataclass(frozen=True)
+class WheelState:
+    """One wheel, as of one control cycle. Speeds in m/s at the rim, travel in m."""
+
+    index: int
+    node_id: int
+    axis: int
+    state: State
+    statusword: int | None
+    mode: int | None
+    target_speed: float
+    actual_speed: float
+    travel: float
+    online: bool
+    fault: str | None
+    error: str | None
+
+
+@dataclass(frozen=True)
+class ChassisStatus:
+    """The loop and the bus, as of one control cycle."""
+
+    enabled: bool  # every drive in OPERATION ENABLED and nothing latched
+    stopped_reason: str | None  # why the base is held stopped (needs recover())
+    command_age_s: float
+    loop_hz: float
+    late_fraction: float
+    cycles: int
+    bus_load: float | None  # fraction of the bitrate (None: bitrate unknown)
+    bus_bits_per_s: float
+    bus_error: str | None
+    warnings: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    pose: Pose2D
+    twist: Twist
+    command: Twist
+    wheels: tuple[WheelState, ...]
+    status: ChassisStatus
+
+
+_open_chassis: weakref.WeakSet[Chassis] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_all() -> None:
+    for base in list(_open_chassis):
+        base.close()
+
+
+class Chassis:
+    """A running base. Use :meth:`open` (a context manager)."""
+
+    def __init__(self, cfg: ChassisConfig, bus: CanBus, nodes: list[DriveNode]) -> None:
+        self.cfg = cfg
+        self._bus = bus
+        self.nodes = nodes
+        self._kin = cfg.kinematics()
+        self._odo = Odometry(self._kin)
+        self._limiter = VelocityLimiter(cfg.limits(), self._kin)
+        self._period = 1.0 / cfg.chassis.rate_hz
+        self._axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
+                                          key=lambda a: a.wheel_index)
+        self._node_of = {id(a): n for n in nodes for a in n.axes}
+        self._stages = [s for n in nodes for s in n.stages]
+        self._cmd: tuple[Twist, float] = (Twist(), -math.inf)
+        self._latched: str | None = None
+        self._want_enabled = True
+        self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._configuring: set[int] = set()
+        self._offline: set[int] = set()
+        self._speeds = np.zeros(len(self._axes))
+        self._targets = np.zeros(len(self._axes))
+        self._travel = np.zeros(len(self._axes))
+        self._last_sync_time = 0.0
+        self._sample_time = 0.0
+        self._stop = threading.Event()
+        self._cycles = 0
+        self._late = 0
+        self._last_hb = -math.inf
+        self._bus_fail_since: float | None = None
+        self._last_reconnect = -math.inf
+        self._load_mark = (time.monotonic(), 0)
+        self._bus_bits_per_s = 0.0
+        self._rate_mark = (time.monotonic(), 0)
+        self._loop_hz = 0.0
+        self.warnings: list[str] = []
+        self._workers: list[threading.Thread] = []
+        self._closed = False
+        self._close_lock = threading.Lock()
+        self._old_sigterm: Any = None
+        self.loop_cpu_s = 0.0  # CPU time of the loop thread (for benchmarks)
+        self._snapshot = self._make_snapshot(time.monotonic())
+        self._thread = threading.Thread(target=self._run, name="omnican-loop", daemon=True)
+
+    # ------------------------------------------------------------ opening
+
+    @classmethod
+    def open(
+        cls,
+        cfg: ChassisConfig,
+        *,
+        bus: Mapping[str, Any] | None = None,
+        record: str | Path | None = None,
+        handle_signals: bool = True,
+    ) -> Chassis:
+        """Open the bus, configure and enable every drive, start the loop.
+
+        Args:
+            cfg: the robot config.
+            bus: ``can.Bus`` arguments overriding ``cfg.bus``.
+            record: write all bus traffic to this python-can log file (.log/.asc/.blf).
+            handle_signals: in the main thread, turn SIGTERM into SystemExit so the
+                ``with`` block unwinds and the drives are disabled.
+
+        Raises:
+            BusError: the bus cannot be opened.
+            DriveError: a drive did not come up (the message says which and why).
+        """
+        can_bus = CanBus(bus if bus is not None else cfg.bus, record=record)
+        nodes: list[DriveNode] = []
+        try:
+            for node_id, wheels in cfg.nodes().items():
+                indexed = [(cfg.wheels.index(w), w) for w in wheels]
+                nodes.append(DriveNode(can_bus.network, node_id, indexed, cfg.chassis, can_bus))
+            base = cls(cfg, can_bus, nodes)
+        except BaseException:
+            for n in nodes:
+                n.detach()
+            can_bus.close()
+            raise
+        try:
+            base._start(handle_signals)
+        except BaseException:
+            base.close(controlled=False)
+            raise
+        return base
+
+    def _start(self, handle_signals: bool) -> None:
+        warnings: list[str] = []
+        errors: list[str] = []
+        with ThreadPoolExecutor(len(self.nodes), thread_name_prefix="omnican-cfg") as ex:
+            futures = {ex.submit(n.configure, warnings): n for n in self.nodes}
+            for fut, node in futures.items():
+                try:
+                    fut.result()
+                except OmnicanError as exc:
+                    errors.append(str(exc))
+                except Exception as exc:
+                    errors.append(f"node {node.node_id}: {exc}")
+        if errors:
+            raise DriveError("; ".join(errors))
+        for node in self.nodes:
+            node.rebooted = False
+            self._seed_statuswords(node)
+        for w in warnings:
+            logger.warning("%s", w)
+        self.warnings = warnings
+        for stage in self._stages:
+            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+        _open_chassis.add(self)
+        if handle_signals and threading.current_thread() is threading.main_thread():
+            self._old_sigterm = signal.signal(signal.SIGTERM, _sigterm_to_exit)
+        self._thread.start()
+        self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
+        for stage in self._stages:
+            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=False)
+
+    def _seed_statuswords(self, node: DriveNode) -> None:
+        """Read each statusword once by SDO: a drive need not send its event TPDO at start."""
+        for stage in node.stages:
+            sw = stage.statusword
+            try:
+                raw = node.remote.sdo.upload(sw.index, sw.subindex)
+            except Exception as exc:  # the TPDO will tell; this is only a head start
+                logger.debug("node %d: statusword read failed: %s", node.node_id, exc)
+                continue
+            if stage.statusword_value is None:
+                stage.statusword_value = sw.decode(raw) & 0xFFFF
+
+    def _wait_enabled(self, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            snap = self._snapshot
+            if snap.status.enabled and snap.status.cycles > 0:
+                return
+            if self._closed:
+                raise DriveError(f"{what}: the base was closed")
+            time.sleep(0.002)
+        problems = [s.error for s in self._stages if s.error]
+        states = ", ".join(f"node {s.node_id}: {s.state}" for s in self._stages
+                           if s.state is not State.OPERATION_ENABLED)
+        reason = self._latched or "; ".join(problems) or states or "not enabled"
+        raise DriveError(f"{what}: drives not enabled within {timeout:.2g} s ({reason})")
+
+    # ------------------------------------------------------------ public API
+
+    def set_velocity(self, vx: float, vy: float, wz: float) -> None:
+        """Command a body velocity (m/s, m/s, rad/s); it lapses after ``cmd_timeout_s``.
+
+        Raises ValueError for NaN/inf (nothing changes); DriveError if the base is closed."""
+        twist = Twist(float(vx), float(vy), float(wz))
+        if not twist.is_finite():
+            raise ValueError(f"velocity command must be finite, got {twist}")
+        if self._closed:
+            raise DriveError("the base is closed")
+        self._cmd = (twist, time.monotonic())
+
+    def stop(self) -> None:
+        """Controlled stop now (at the stop deceleration); a new command moves again."""
+        self._cmd = (Twist(), time.monotonic())
+
+    def recover(self, timeout_s: float | None = None) -> None:
+        """Clear a latched stop: reset faulted drives, re-enable every drive, and wait
+        (bounded) until all are enabled. The base stays still until the next command.
+
+        Raises DriveError naming what could not be recovered."""
+        if self._closed:
+            raise DriveError("the base is closed")
+        timeout = timeout_s if timeout_s is not None else (
+            self.cfg.chassis.enable_timeout_s + self.cfg.chassis.boot_timeout_s)
+
+        def begin() -> None:
+            self._cmd = (Twist(), time.monotonic())
+            self._want_enabled = True
+            for node in self.nodes:
+                if node.node_id in self._offline and not node.heartbeat_lost(time.monotonic()):
+                    self._offline.discard(node.node_id)
+            for stage in self._stages:
+                stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+            self._latched = None
+
+        self._requests.put(begin)
+        time.sleep(2 * self._period)
+        try:
+            self._wait_enabled(timeout, "recover")
+        finally:
+            def done() -> None:
+                for stage in self._stages:
+                    stage.set_goal(stage.goal, allow_fault_reset=False)
+            self._requests.put(done)
+        self._cmd = (Twist(), time.monotonic())
+
+    def reset_pose(self, pose: Pose2D | None = None) -> None:
+        """Set the odometry pose (default: origin)."""
+        target = pose if pose is not None else Pose2D()
+        self._requests.put(lambda: self._odo.reset(target))
+        deadline = time.monotonic() + 1.0
+        while self._snapshot.pose != target and time.monotonic() < deadline:
+            if not self._thread.is_alive():
+                self._odo.reset(target)
+                break
+            time.sleep(self._period / 2)
+
+    @property
+    def pose(self) -> Pose2D:
+        return self._snapshot.pose
+
+    @property
+    def twist(self) -> Twist:
+        """Measured body velocity (from the encoders)."""
+        return self._snapshot.twist
+
+    @property
+    def command(self) -> Twist:
+        """The limited twist being applied this cycle."""
+        return self._snapshot.command
+
+    @property
+    def wheels(self) -> tuple[WheelState, ...]:
+        return self._snapshot.wheels
+
+    @property
+    def status(self) -> ChassisStatus:
+        return self._snapshot.status
+
+    @property
+    def bus(self) -> CanBus:
+        return self._bus
+
+    # ------------------------------------------------------------ loop
+
+    def _run(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now - next_t > self._period * LATE_FRACTION_OF_PERIOD:
+                self._late += 1
+            cpu0 = time.thread_time()
+            try:
+                self._cycle(now)
+            except Exception:  # keep stopping the base whatever went wrong
+                logger.exception("control cycle failed")
+                self._latch("internal error in the control loop (see log)")
+            self.loop_cpu_s += time.thread_time() - cpu0
+            next_t += self._period
+            delay = next_t - time.monotonic()
+            if delay < -self._period:
+                next_t = time.monotonic()  # fell far behind: do not burst to catch up
+                delay = 0.0
+            if delay > 0:
+                self._stop.wait(delay)
+
+    def _latch(self, reason: str) -> None:
+        if self._latched is None:
+            self._latched = reason
+            logger.warning("base stopped: %s", reason)
+
+    def _cycle(self, now: float) -> None:
+        while True:
+            try:
+                self._requests.get_nowait()()
+            except queue.Empty:
+                break
+        self._check_health(now)
+        self._integrate_samples()
+        # Command -> limits -> wheel speeds.
+        cmd, t_cmd = self._cmd
+        all_enabled = all(s.state is State.OPERATION_ENABLED for s in self._stages)
+        if self._latched or not all_enabled or now - t_cmd > self.cfg.chassis.cmd_timeout_s:
+            cmd = Twist()
+        if not all_enabled:
+            self._limiter.reset()
+        dt = now - self._last_sync_time if self._last_sync_time else self._period
+        limited = self._limiter.step(cmd, min(dt, 5 * self._period))
+        self._targets = self._kin.desaturate(self._kin.to_wheel_speeds(limited),
+                                             self.cfg.chassis.max_wheel_speed)
+        speeds = {a.wheel_index: float(self._targets[i]) for i, a in enumerate(self._axes)}
+        # State machines, then the cycle's RPDOs, then SYNC.
+        for node in self.nodes:
+            if node.node_id in self._configuring:
+                continue
+            if node.node_id not in self._offline:  # a silent node's statusword is stale
+                for stage in node.stages:
+                    if stage.step(now) is not None:
+                        frame = node.controlword_frame(stage)
+                        if frame is not None:
+                            self._bus.send(*frame)
+            # Targets go to every node, a silent one too: it may still listen, and stop.
+            for cob, data in node.cyclic_frames(speeds):
+                self._bus.send(cob, data)
+        self._bus.sync()
+        self._last_sync_time = self._bus.sync_time
+        hb_period = self.cfg.chassis.heartbeat_ms / 1000.0
+        if now - self._last_hb >= hb_period:
+            self._last_hb = now
+            self._bus.send(0x700 + self.cfg.chassis.host_node_id, b"\x05")
+        self._check_bus(now)
+        self._cycles += 1
+        self._snapshot = self._make_snapshot(now, limited)
+
+    def _check_health(self, now: float) -> None:
+        for node in self.nodes:
+            nid = node.node_id
+            if node.rebooted and nid not in self._configuring:
+                node.rebooted = False
+                self._latch(f"node {nid} rebooted")
+                for stage in node.stages:
+                    stage.forget()
+                    stage.set_goal(State.SWITCH_ON_DISABLED)
+                for ax in node.axes:
+                    ax.reseed()
+                self._reconfigure(node)
+                continue
+            if nid in self._configuring:
+                continue
+            if node.heartbeat_lost(now):
+                self._offline.add(nid)
+                self._latch(f"node {nid} heartbeat lost")
+            elif nid in self._offline and self._latched is None:
+                self._offline.discard(nid)
+            for stage in node.stages:
+                state = stage.state
+                if stage.allow_fault_reset:
+                    continue  # starting up or recovering: the stage driver resets faults
+                if state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+                    text = node.fault_text or (describe_emcy(stage.error_value)
+                                               if stage.error_value else "no EMCY")
+                    self._latch(f"node {nid} fault: {text}")
+                elif (state is not State.OPERATION_ENABLED and stage.goal is
+                      State.OPERATION_ENABLED and state is not State.UNKNOWN):
+                    self._latch(f"node {nid} left OPERATION ENABLED (now {state})")
+
+    def _reconfigure(self, node: DriveNode) -> None:
+        self._configuring.add(node.node_id)
+
+        def work() -> None:
+            try:
+                node.configure()
+                self._seed_statuswords(node)
+                logger.info("node %d re-configured after its reboot", node.node_id)
+            except OmnicanError as exc:
+                logger.error("re-configuring node %d failed: %s", node.node_id, exc)
+                reason = f"re-configuring node {node.node_id} failed: {exc}"
+                self._requests.put(lambda: self._latch(reason))
+            finally:
+                self._requests.put(lambda: self._configuring.discard(node.node_id))
+
+        t = threading.Thread(target=work, name=f"omnican-reconfigure-{node.node_id}", daemon=True)
+        self._workers.append(t)
+        t.start()
+
+    def _integrate_samples(self) -> None:
+        epoch = self._bus.sync_epoch
+        axes = self._axes
+        if not axes or any(a.epoch != epoch or a.raw is None for a in axes):
+            return  # not every wheel has answered the last SYNC: wait for a complete set
+        travel = np.array([a.travel_from_sample(a.raw) for a in axes])  # type: ignore[arg-type]
+        t = self._last_sync_time
+        if not self._odo.seeded:
+            self._odo.update(travel)
+            self._sample_time, self._travel = t, travel
+            return
+        dt = t - self._sample_time
+        if dt > 0:
+            self._speeds = (travel - self._travel) / dt
+        self._odo.update(travel, dt if dt > 0 else None)
+        self._sample_time, self._travel = t, travel
+
+    def _check_bus(self, now: float) -> None:
+        if self._bus.send_errors == 0:
+            self._bus_fail_since = None
+            return
+        if self._bus_fail_since is None:
+            self._bus_fail_since = now
+        if now - self._bus_fail_since >= BUS_DOWN_AFTER_S:
+            self._latch(f"CAN bus down ({self._bus.last_error})")
+            if now - self._last_reconnect >= RECONNECT_EVERY_S:
+                self._last_reconnect = now
+                self._bus.reconnect()
+
+    def _make_snapshot(self, now: float, command: Twist | None = None) -> _Snapshot:
+        mark_t, mark_bits = self._load_mark
+        if now - mark_t >= 0.5:
+            bits = self._bus.traffic.bits
+            self._bus_bits_per_s = (bits - mark_bits) / (now - mark_t)
+            self._load_mark = (now, bits)
+            rate_t, rate_n = self._rate_mark
+            self._loop_hz = (self._cycles - rate_n) / (now - rate_t)
+            self._rate_mark = (now, self._cycles)
+        wheels = []
+        for i, ax in enumerate(self._axes):
+            stage = ax.stage
+            node = self._node_of[id(ax)]
+            fault = None
+            if stage.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+                fault = node.fault_text or (describe_emcy(stage.error_value)
+                                            if stage.error_value else "fault")
+            wheels.append(WheelState(
+                index=ax.wheel_index, node_id=node.node_id, axis=ax.wheel.axis,
+                state=stage.state, statusword=stage.statusword_value, mode=stage.mode_value,
+                target_speed=float(self._targets[i]), actual_speed=float(self._speeds[i]),
+                travel=ax.counts / ax.wheel.position_scale,
+                online=node.node_id not in self._offline and node.node_id not in self._configuring,
+                fault=fault, error=stage.error,
+            ))
+        enabled = (self._latched is None and not self._offline and not self._configuring and
+                   all(s.state is State.OPERATION_ENABLED for s in self._stages))
+        bitrate = self._bus.bitrate
+        status = ChassisStatus(
+            enabled=enabled,
+            stopped_reason=self._latched,
+            command_age_s=now - self._cmd[1],
+            loop_hz=self._loop_hz,
+            late_fraction=self._late / self._cycles if self._cycles else 0.0,
+            cycles=self._cycles,
+            bus_load=self._bus_bits_per_s / bitrate if bitrate else None,
+            bus_bits_per_s=self._bus_bits_per_s,
+            bus_error=self._bus.last_error,
+            warnings=tuple(self.warnings),
+        )
+        return _Snapshot(self._odo.pose, self._odo.twist, command or Twist(), tuple(wheels),
+                         status)
+
+    def cycle_bits(self) -> int:
+        """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
+        return sum(n.cyclic_bits() for n in self.nodes) + frame_bits(0)
+
+    # ------------------------------------------------------------ closing
+
+    def close(self, controlled: bool = True) -> None:
+        """Stop the wheels (controlled), disable every drive, release the bus. Idempotent."""
+        with self._close_lock:
+            if self._closed:
+                return
+            self._closed = True
+        _open_chassis.discard(self)
+        try:
+            if self._thread.is_alive():
+                if controlled:
+                    self._controlled_shutdown()
+                self._stop.set()
+                self._thread.join(timeout=2.0)
+            for t in self._workers:
+                t.join(timeout=self.cfg.chassis.boot_timeout_s + 1.0)
+            for node in self.nodes:
+                if node.node_id not in self._offline and self._bus.send_errors == 0:
+                    node.stop()
+        finally:
+            for node in self.nodes:
+                node.detach()
+            self._bus.close()
+            if self._old_sigterm is not None:
+                try:
+                    signal.signal(signal.SIGTERM, self._old_sigterm)
+                except ValueError:  # not in the main thread any more
+                    pass
+        logger.info("base closed; drives disabled")
+
+    def _controlled_shutdown(self) -> None:
+        self._cmd = (Twist(), -math.inf)
+        s = self.cfg.chassis
+        speed = max(abs(self._limiter.output.linear_speed),
+                    abs(self._limiter.output.wz) * max(self._kin.base_radius))
+        deadline = time.monotonic() + speed / s.stop_decel + 0.5
+        while time.monotonic() < deadline:
+            if self._limiter.output.is_zero() and np.all(np.abs(self._speeds) < 0.005):
+                break
+            time.sleep(self._period)
+
+        def disable() -> None:
+            self._want_enabled = False
+            for stage in self._stages:
+                stage.set_goal(State.SWITCH_ON_DISABLED)
+
+        self._requests.put(disable)
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            if all(s.state in (State.SWITCH_ON_DISABLED, State.FAULT, State.UNKNOWN)
+                   for s in self._stages):
+                break
+            time.sleep(self._period)
+
+    def __enter__(self) -> Chassis:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<Chassis {len(self._axes)} wheels on nodes {[n.node_id for n in self.nodes]}>"
+
+
+def _sigterm_to_exit(signum: int, frame: FrameType | None) -> None:
+    raise SystemExit(128 + signum)

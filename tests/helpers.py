@@ -1,0 +1,57 @@
+"""Helpers shared by the chassis and CLI tests."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from omnican import WHEEL_EDS, ChassisConfig, WheelConfig, default_config
+from omnican.cia402 import Mode
+from omnican.config import ChassisSettings
+
+from .conftest import VENDOR_EDS
+
+
+def wait_for(pred: Callable[[], bool], timeout: float = 2.0, step: float = 0.005) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(step)
+    return pred()
+
+
+def drive_for(base: Any, seconds: float, vx: float = 0.0, vy: float = 0.0, wz: float = 0.0,
+              every: float = 0.02) -> None:
+    """Keep commanding a velocity (the watchdog wants fresh commands)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        base.set_velocity(vx, vy, wz)
+        time.sleep(every)
+
+
+def sim_config(channel: str, **chassis: Any) -> ChassisConfig:
+    cfg = default_config(bus={"interface": "virtual", "channel": channel})
+    return replace(cfg, chassis=replace(cfg.chassis, **chassis)) if chassis else cfg
+
+
+def vendor_config(channel: str, layout: str, **chassis: Any) -> ChassisConfig:
+    """Three wheels on vendor drives: two axes of one node plus one more node where the
+    drive has two axes (ZLAC8015D, Roboteq), or three single-axis nodes (EPOS4)."""
+    files = {"zlac": "zlac8015d.eds", "roboteq": "roboteq_v80_21.eds", "epos4": "maxon_epos4.eds",
+             "bundled": None}
+    eds: Path = VENDOR_EDS / files[layout] if files[layout] else WHEEL_EDS
+    if layout in ("zlac", "roboteq"):
+        slots = [(1, 0), (1, 1), (2, 0)]
+    else:
+        slots = [(1, 0), (2, 0), (3, 0)]
+    # 1000 drive velocity units per m/s, 10000 counts per m (10 counts per unit per s).
+    wheels = tuple(WheelConfig(node_id=n, axis=a, eds=eds, velocity_scale=1000.0,
+                               position_scale=10000.0, mode=Mode.PROFILE_VELOCITY)
+                   for n, a in slots)
+    settings = replace(ChassisSettings(), **chassis)
+    return ChassisConfig(chassis=settings, wheels=wheels,
+                         bus={"interface": "virtual", "channel": channel})

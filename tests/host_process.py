@@ -1,0 +1,27 @@
+"""A host program for the process-level safety tests: opens the base from a config,
+says "ready", and keeps commanding forward motion until it is signalled."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from omnican import Chassis, load_config
+
+
+def main() -> int:
+    cfg = load_config(sys.argv[1])
+    try:
+        with Chassis.open(cfg) as base:
+            print("ready", flush=True)
+            while True:
+                base.set_velocity(0.3, 0.0, 0.0)
+                time.sleep(0.02)
+    except KeyboardInterrupt:
+        print("interrupted", flush=True)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

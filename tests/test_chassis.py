@@ -1,0 +1,261 @@
+"""Chassis against the simulated base: motion, odometry, and every safety scenario."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import pytest
+
+from omnican import Chassis, Pose2D
+from omnican.cia402 import State
+from omnican.errors import DriveError
+from omnican.sim import SimulatedBase
+
+from .helpers import drive_for, sim_config, vendor_config, wait_for
+
+
+@pytest.fixture
+def rig(channel: str) -> Iterator[tuple[SimulatedBase, Chassis]]:
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
+        yield sim, base
+
+
+def still(sim: SimulatedBase) -> bool:
+    t = sim.true_twist
+    return math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2
+
+
+def test_drives_and_odometry_follows_truth(rig: tuple[SimulatedBase, Chassis]) -> None:
+    sim, base = rig
+    assert base.status.enabled
+    assert all(w.state is State.OPERATION_ENABLED for w in base.wheels)
+    drive_for(base, 0.8, vx=0.3, wz=0.4)
+    base.stop()
+    assert wait_for(lambda: still(sim), 2.0)
+    time.sleep(0.05)
+    truth, pose = sim.true_pose, base.pose
+    assert truth.x > 0.1
+    assert pose.distance_to(truth) < 0.005
+    assert pose.theta == pytest.approx(truth.theta, abs=0.005)
+    assert base.status.loop_hz == pytest.approx(100, rel=0.2)
+
+
+def test_watchdog_stops_without_commands(rig: tuple[SimulatedBase, Chassis]) -> None:
+    sim, base = rig
+    base.set_velocity(0.4, 0.0, 0.0)  # once, then silence
+    assert wait_for(lambda: sim.true_twist.vx > 0.2, 1.0)
+    assert wait_for(lambda: still(sim), 0.5 + 0.4 / 2.0 + 0.5)
+    assert base.status.command_age_s > 0.5
+    assert base.status.enabled and base.status.stopped_reason is None  # not latched
+    drive_for(base, 0.3, vx=0.2)
+    assert sim.true_twist.vx > 0.1  # a new command moves again
+
+
+def test_fault_stops_all_wheels_until_recover(rig: tuple[SimulatedBase, Chassis]) -> None:
+    sim, base = rig
+    drive_for(base, 0.4, vy=0.3)
+    sim.drives[0].inject_fault(0x2310)
+    assert wait_for(lambda: base.status.stopped_reason is not None, 1.0)
+    assert base.status.stopped_reason == "node 1 fault: 0x2310 continuous over-current"
+    assert base.wheels[0].fault == "0x2310 continuous over-current"
+    assert wait_for(lambda: base.wheels[0].state is State.FAULT, 1.0)  # after the reaction
+    assert wait_for(lambda: still(sim), 1.5)
+    drive_for(base, 0.3, vy=0.3)  # commands are ignored while stopped
+    assert still(sim)
+    base.recover()
+    assert base.status.enabled and base.wheels[0].state is State.OPERATION_ENABLED
+    assert base.wheels[0].fault is None
+    time.sleep(0.1)
+    assert still(sim)  # no motion until a new command
+    drive_for(base, 0.3, vy=0.3)
+    assert sim.true_twist.vy > 0.1
+
+
+def test_heartbeat_loss_stops_all(rig: tuple[SimulatedBase, Chassis]) -> None:
+    sim, base = rig
+    drive_for(base, 0.3, vx=0.3)
+    sim.drives[1].stop_heartbeat()
+    assert wait_for(lambda: base.status.stopped_reason == "node 2 heartbeat lost", 1.0)
+    assert not base.wheels[1].online
+    assert wait_for(lambda: still(sim), 1.5)
+    with pytest.raises(DriveError, match="not enabled"):
+        base.recover(timeout_s=0.3)  # the node is still silent
+    sim.drives[1].start_heartbeat()
+    base.recover()
+    assert base.status.enabled
+
+
+def test_frozen_node_is_a_lost_heartbeat(rig: tuple[SimulatedBase, Chassis]) -> None:
+    sim, base = rig
+    drive_for(base, 0.2, vx=0.2)
+    sim.drives[2].freeze()
+    assert wait_for(lambda: base.status.stopped_reason == "node 3 heartbeat lost", 1.0)
+    sim.drives[2].thaw()
+
+
+def test_reboot_reconfigures_without_motion_or_odometry_jump(
+        rig: tuple[SimulatedBase, Chassis]) -> None:
+    sim, base = rig
+    drive_for(base, 0.5, vx=0.3)
+    base.stop()
+    assert wait_for(lambda: still(sim), 1.0)
+    time.sleep(0.05)
+    before = base.pose
+    sim.drives[2].reboot()
+    assert wait_for(lambda: base.status.stopped_reason == "node 3 rebooted", 1.0)
+    assert wait_for(lambda: base.wheels[2].online and base.wheels[2].state is not State.UNKNOWN,
+                    3.0)  # re-configured automatically
+    assert sim.drives[2].nmt_state == "OPERATIONAL"
+    drive_for(base, 0.3, vx=0.3)
+    assert still(sim)  # no motion before recover()
+    base.recover()
+    time.sleep(0.1)
+    assert still(sim)  # nor right after it
+    assert base.pose.distance_to(before) < 1e-3  # no odometry jump from the counter reset
+    drive_for(base, 0.4, vx=0.3)
+    base.stop()
+    assert wait_for(lambda: still(sim), 1.0)
+    time.sleep(0.05)
+    assert base.pose.x - before.x == pytest.approx(sim.true_pose.x - before.x, abs=0.01)
+
+
+def test_leaving_the_block_disables_every_drive(channel: str) -> None:
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg) as sim:
+        with Chassis.open(cfg) as base:
+            drive_for(base, 0.3, vx=0.4)
+        assert [d.state() for d in sim.drives] == [State.SWITCH_ON_DISABLED] * 3
+        assert still(sim)
+        assert [d.nmt_state for d in sim.drives] == ["PRE-OPERATIONAL"] * 3
+
+
+def test_exception_in_block_disables_every_drive(channel: str) -> None:
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg) as sim:
+        with pytest.raises(KeyboardInterrupt), Chassis.open(cfg) as base:
+            drive_for(base, 0.2, vx=0.4)
+            raise KeyboardInterrupt
+        assert [d.state() for d in sim.drives] == [State.SWITCH_ON_DISABLED] * 3
+
+
+def test_nan_and_inf_are_rejected(rig: tuple[SimulatedBase, Chassis]) -> None:
+    sim, base = rig
+    for bad in ((math.nan, 0, 0), (0, math.inf, 0), (0, 0, -math.inf)):
+        with pytest.raises(ValueError, match="finite"):
+            base.set_velocity(*bad)
+    time.sleep(0.1)
+    assert still(sim) and base.status.enabled
+
+
+def test_foreign_traffic_is_ignored(rig: tuple[SimulatedBase, Chassis], channel: str) -> None:
+    sim, base = rig
+    with can.Bus(interface="virtual", channel=channel) as other:
+        for i in range(200):
+            other.send(can.Message(arbitration_id=0x123 + i % 7, data=bytes([i % 256] * 8),
+                                   is_extended_id=False))
+            other.send(can.Message(arbitration_id=0x1ABCDEF, data=b"\xff", is_extended_id=True))
+            other.send(can.Message(arbitration_id=0x281, data=b"\x01", is_extended_id=False))
+            base.set_velocity(0.2, 0.0, 0.0)
+            time.sleep(0.002)
+    assert base.status.enabled and base.status.stopped_reason is None
+    base.stop()
+    assert wait_for(lambda: still(sim), 1.0)
+    time.sleep(0.05)
+    assert base.pose.distance_to(sim.true_pose) < 0.005
+
+
+def test_reset_pose(rig: tuple[SimulatedBase, Chassis]) -> None:
+    _, base = rig
+    base.reset_pose(Pose2D(1.0, 2.0, 0.5))
+    assert base.pose == Pose2D(1.0, 2.0, 0.5)
+
+
+def test_recording(channel: str, tmp_path: Path) -> None:
+    cfg = sim_config(channel)
+    log = tmp_path / "run.log"
+    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=log) as base:
+        drive_for(base, 0.2, vx=0.2)
+    frames = list(can.LogReader(str(log)))
+    ids = {m.arbitration_id for m in frames}
+    assert {0x80, 0x301, 0x281, 0x181, 0x77F, 0x701} <= ids  # SYNC, RPDO, TPDOs, heartbeats
+    assert any(not m.is_rx for m in frames) and any(m.is_rx for m in frames)
+
+
+@pytest.mark.parametrize("layout", ["zlac", "roboteq", "epos4"])
+def test_vendor_layouts_drive_and_track_truth(channel: str, layout: str) -> None:
+    cfg = vendor_config(channel, layout)
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
+        assert base.status.enabled
+        if layout == "zlac":
+            assert any("no heartbeat consumer" in w for w in base.status.warnings)
+        drive_for(base, 0.6, vx=0.2, vy=-0.1, wz=0.3)
+        base.stop()
+        assert wait_for(lambda: still(sim), 2.0)
+        time.sleep(0.05)
+        assert sim.true_pose.x > 0.05
+        assert base.pose.distance_to(sim.true_pose) < 0.005
+        assert base.pose.theta == pytest.approx(sim.true_pose.theta, abs=0.01)
+
+
+def test_drive_that_refuses_remapping_uses_its_mapping(channel: str) -> None:
+    cfg = vendor_config(channel, "epos4")
+    with SimulatedBase.from_config(cfg, remappable=False) as sim, Chassis.open(cfg) as base:
+        assert any("refuses remapping" in w for w in base.status.warnings)
+        drive_for(base, 0.4, vx=0.2)
+        base.stop()
+        assert wait_for(lambda: still(sim), 2.0)
+        time.sleep(0.05)
+        assert base.pose.distance_to(sim.true_pose) < 0.005
+
+
+@pytest.mark.parametrize("mode", ["csv", "vl"])
+def test_other_modes(channel: str, mode: str) -> None:
+    from dataclasses import replace
+
+    from omnican.cia402 import Mode
+    cfg = sim_config(channel)
+    m = Mode.from_name(mode)
+    if mode == "vl":  # 6042h is INTEGER16 (rpm): a coarser velocity unit
+        wheels = tuple(replace(w, mode=m, velocity_scale=w.velocity_scale / 1000.0)
+                       for w in cfg.wheels)
+    else:
+        wheels = tuple(replace(w, mode=m) for w in cfg.wheels)
+    cfg = replace(cfg, wheels=wheels)
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
+        assert {w.mode for w in base.wheels} == {int(m)}
+        drive_for(base, 0.5, vx=0.25)
+        assert sim.true_twist.vx == pytest.approx(0.25, rel=0.05)
+
+
+def test_encoder_wrap_around_keeps_odometry(channel: str) -> None:
+    cfg = sim_config(channel)
+    counts_per_m = cfg.wheels[0].position_scale
+    near = 2**31 - int(0.05 * counts_per_m)  # wraps after 5 cm of rim travel
+    with SimulatedBase.from_config(cfg, initial_position=near) as sim, Chassis.open(cfg) as base:
+        drive_for(base, 0.8, vx=0.4)
+        base.stop()
+        assert wait_for(lambda: still(sim), 2.0)
+        time.sleep(0.05)
+        assert sim.true_pose.x > 0.2
+        assert base.pose.distance_to(sim.true_pose) < 0.005
+
+
+def test_missing_node_fails_with_a_clear_error(channel: str) -> None:
+    cfg = sim_config(channel, boot_timeout_s=0.3)
+    with SimulatedBase.from_config(cfg) as sim:
+        sim.drives[1].freeze()
+        with pytest.raises(DriveError, match=r"node 2: no boot-up within 0.3 s"):
+            Chassis.open(cfg)
+
+
+def test_drive_stuck_in_fault_at_startup_is_reset(channel: str) -> None:
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg) as sim:
+        sim.drives[0].inject_fault(0x3210)
+        with Chassis.open(cfg) as base:
+            assert base.status.enabled
