@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from omnican import OmniKinematics, Odometry, Twist
+from omnican import Odometry, OmniKinematics, Twist
 from omnican.limits import VelocityLimiter, VelocityLimits
 
 

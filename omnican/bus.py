@@ -125,17 +125,27 @@ class CanBus:
                             timestamp=time.time(), is_rx=False))
 
     def send(self, can_id: int, data: bytes) -> bool:
-        """Send one frame; a failure is counted and reported, not raised."""
+        """Send one frame; a failure is counted and reported, not raised.
+
+        The control loop's path: straight to the bus (canopen's ``send_message`` adds a
+        second message object and a Notifier check per frame)."""
+        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
+        network = self.network
         try:
-            self.network.send_message(can_id, data)
+            bus = network.bus
+            if bus is None:
+                raise can.CanOperationError("bus is closed")
+            with network.send_lock:
+                bus.send(msg)
         except (can.CanError, OSError, RuntimeError) as exc:
             self.send_errors += 1
             self.last_error = f"send 0x{can_id:03X} failed: {exc}"
             return False
+        self._sent(can_id, data)
         if self.send_errors:
             logger.info("bus sends work again after %d errors", self.send_errors)
-        self.send_errors = 0
-        self.last_error = None
+            self.send_errors = 0
+            self.last_error = None
         return True
 
     def sync(self) -> bool:

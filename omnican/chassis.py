@@ -30,8 +30,6 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-import numpy as np
-
 from omnican.bus import CanBus
 from omnican.cia402 import State, describe_emcy
 from omnican.config import ChassisConfig
@@ -83,13 +81,23 @@ class ChassisStatus:
     warnings: tuple[str, ...]
 
 
-@dataclass(frozen=True)
 class _Snapshot:
-    pose: Pose2D
-    twist: Twist
-    command: Twist
-    wheels: tuple[WheelState, ...]
-    status: ChassisStatus
+    """What one cycle published. Wheel states are built on first read: the loop only
+    packs tuples, which keeps it cheap at 1 kHz."""
+
+    __slots__ = ("_rows", "_wheels", "command", "pose", "status", "twist")
+
+    def __init__(self, pose: Pose2D, twist: Twist, command: Twist,
+                 rows: tuple[tuple[Any, ...], ...], status: ChassisStatus) -> None:
+        self.pose, self.twist, self.command, self.status = pose, twist, command, status
+        self._rows = rows
+        self._wheels: tuple[WheelState, ...] | None = None
+
+    @property
+    def wheels(self) -> tuple[WheelState, ...]:
+        if self._wheels is None:
+            self._wheels = tuple(WheelState(*row) for row in self._rows)
+        return self._wheels
 
 
 _open_chassis: weakref.WeakSet[Chassis] = weakref.WeakSet()
@@ -122,9 +130,11 @@ class Chassis:
         self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         self._configuring: set[int] = set()
         self._offline: set[int] = set()
-        self._speeds = np.zeros(len(self._axes))
-        self._targets = np.zeros(len(self._axes))
-        self._travel = np.zeros(len(self._axes))
+        n = len(self._axes)
+        self._speeds = [0.0] * n  # measured rim speeds, m/s, by wheel index
+        self._targets = [0.0] * n  # commanded rim speeds, m/s, by wheel index
+        self._travel = [0.0] * n
+        self._inverse_rows = tuple(tuple(float(v) for v in row) for row in self._kin.matrix)
         self._last_sync_time = 0.0
         self._sample_time = 0.0
         self._stop = threading.Event()
@@ -376,9 +386,12 @@ class Chassis:
             self._limiter.reset()
         dt = now - self._last_sync_time if self._last_sync_time else self._period
         limited = self._limiter.step(cmd, min(dt, 5 * self._period))
-        self._targets = self._kin.desaturate(self._kin.to_wheel_speeds(limited),
-                                             self.cfg.chassis.max_wheel_speed)
-        speeds = {a.wheel_index: float(self._targets[i]) for i, a in enumerate(self._axes)}
+        vx, vy, wz = limited.vx, limited.vy, limited.wz
+        speeds = [a * vx + b * vy + c * wz for a, b, c in self._inverse_rows]
+        peak = max(abs(v) for v in speeds)
+        if peak > self.cfg.chassis.max_wheel_speed:  # the limiter keeps this from happening
+            speeds = [v * self.cfg.chassis.max_wheel_speed / peak for v in speeds]
+        self._targets = speeds
         # State machines, then the cycle's RPDOs, then SYNC.
         for node in self.nodes:
             if node.node_id in self._configuring:
@@ -458,7 +471,7 @@ class Chassis:
         axes = self._axes
         if not axes or any(a.epoch != epoch or a.raw is None for a in axes):
             return  # not every wheel has answered the last SYNC: wait for a complete set
-        travel = np.array([a.travel_from_sample(a.raw) for a in axes])  # type: ignore[arg-type]
+        travel = [a.travel_from_sample(a.raw) for a in axes]  # type: ignore[arg-type]
         t = self._last_sync_time
         if not self._odo.seeded:
             self._odo.update(travel)
@@ -466,7 +479,7 @@ class Chassis:
             return
         dt = t - self._sample_time
         if dt > 0:
-            self._speeds = (travel - self._travel) / dt
+            self._speeds = [(a - b) / dt for a, b in zip(travel, self._travel, strict=True)]
         self._odo.update(travel, dt if dt > 0 else None)
         self._sample_time, self._travel = t, travel
 
@@ -491,22 +504,21 @@ class Chassis:
             rate_t, rate_n = self._rate_mark
             self._loop_hz = (self._cycles - rate_n) / (now - rate_t)
             self._rate_mark = (now, self._cycles)
-        wheels = []
+        rows = []
         for i, ax in enumerate(self._axes):
             stage = ax.stage
             node = self._node_of[id(ax)]
+            state = stage.state
             fault = None
-            if stage.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+            if state is State.FAULT or state is State.FAULT_REACTION_ACTIVE:
                 fault = node.fault_text or (describe_emcy(stage.error_value)
                                             if stage.error_value else "fault")
-            wheels.append(WheelState(
-                index=ax.wheel_index, node_id=node.node_id, axis=ax.wheel.axis,
-                state=stage.state, statusword=stage.statusword_value, mode=stage.mode_value,
-                target_speed=float(self._targets[i]), actual_speed=float(self._speeds[i]),
-                travel=ax.counts / ax.wheel.position_scale,
-                online=node.node_id not in self._offline and node.node_id not in self._configuring,
-                fault=fault, error=stage.error,
-            ))
+            nid = node.node_id
+            rows.append((ax.wheel_index, nid, ax.wheel.axis, state, stage.statusword_value,
+                         stage.mode_value, self._targets[i], self._speeds[i],
+                         ax.counts / ax.wheel.position_scale,
+                         nid not in self._offline and nid not in self._configuring,
+                         fault, stage.error))
         enabled = (self._latched is None and not self._offline and not self._configuring and
                    all(s.state is State.OPERATION_ENABLED for s in self._stages))
         bitrate = self._bus.bitrate
@@ -522,8 +534,7 @@ class Chassis:
             bus_error=self._bus.last_error,
             warnings=tuple(self.warnings),
         )
-        return _Snapshot(self._odo.pose, self._odo.twist, command or Twist(), tuple(wheels),
-                         status)
+        return _Snapshot(self._odo.pose, self._odo.twist, command or Twist(), tuple(rows), status)
 
     def cycle_bits(self) -> int:
         """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
@@ -567,7 +578,7 @@ class Chassis:
                     abs(self._limiter.output.wz) * max(self._kin.base_radius))
         deadline = time.monotonic() + speed / s.stop_decel + 0.5
         while time.monotonic() < deadline:
-            if self._limiter.output.is_zero() and np.all(np.abs(self._speeds) < 0.005):
+            if self._limiter.output.is_zero() and all(abs(v) < 0.005 for v in self._speeds):
                 break
             time.sleep(self._period)
 

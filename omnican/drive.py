@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -136,10 +136,14 @@ class StageDriver:
     _waiting_since: float | None = None
     _waiting_state: State | None = None
     error: str | None = None
+    _decoded: tuple[int | None, State] = (None, State.UNKNOWN)
 
     @property
     def state(self) -> State:
-        return cia402.decode_state(self.statusword_value)
+        sw = self.statusword_value
+        if sw != self._decoded[0]:
+            self._decoded = (sw, cia402.decode_state(sw))
+        return self._decoded[1]
 
     def set_goal(self, goal: State, allow_fault_reset: bool = False) -> None:
         if goal is not self.goal or allow_fault_reset != self.allow_fault_reset:
@@ -554,7 +558,7 @@ class DriveNode:
 
     # ------------------------------------------------------------ cyclic I/O
 
-    def cyclic_frames(self, speeds: dict[int, float]) -> list[tuple[int, bytes]]:
+    def cyclic_frames(self, speeds: Sequence[float]) -> list[tuple[int, bytes]]:
         """SYNC-applied RPDO frames with the targets of ``speeds`` (m/s by wheel index)."""
         frames = []
         for io in self._rpdo_io:
@@ -562,7 +566,7 @@ class DriveNode:
                 continue
             for offset, entry, owner in io.slots:
                 if isinstance(owner, AxisIO):
-                    units = speeds.get(owner.wheel_index, 0.0) * owner.wheel.velocity_scale
+                    units = speeds[owner.wheel_index] * owner.wheel.velocity_scale
                     io.frame[offset : offset + entry.bits // 8] = entry.encode(round(units))
                 elif isinstance(owner, StageDriver):
                     io.frame[offset : offset + entry.bits // 8] = entry.encode(owner.cw)

@@ -72,7 +72,9 @@ def desaturate_twist(twist: Twist, kinematics: OmniKinematics, max_wheel_speed: 
     """Step 2: scale ``twist`` by one factor so no wheel exceeds ``max_wheel_speed``."""
     if math.isinf(max_wheel_speed):
         return twist
-    peak = float(max(abs(v) for v in kinematics.to_wheel_speeds(twist)))
+    vx, vy, wz = twist.vx, twist.vy, twist.wz
+    # Plain floats: this runs every control cycle, on three to six numbers.
+    peak = max(abs(a * vx + b * vy + c * wz) for a, b, c in kinematics.matrix.tolist())
     k = _ratio(max_wheel_speed, peak)
     return twist if k == 1.0 else twist.scaled(k)
 

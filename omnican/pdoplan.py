@@ -186,10 +186,10 @@ def plan_node(
     def pack_direction(cyclic: list[Entry], event: list[Entry], slots: list[PdoSlot],
                        kind: str) -> tuple[list[tuple[PdoSlot, list[Entry]]],
                                            list[tuple[PdoSlot, list[Entry]]]]:
-        try:
-            cyc = _pack(cyclic, slots)
-            used = {s.number for s, _ in cyc}
-            ev = _pack(event, [s for s in slots if s.number not in used]) if event else []
+        try:  # on-change data (controlword, statusword) in the first PDOs, as drives default
+            ev = _pack(event, slots) if event else []
+            used = {s.number for s, _ in ev}
+            cyc = _pack(cyclic, [s for s in slots if s.number not in used])
             return cyc, ev
         except _NoRoomError:
             pass

@@ -62,10 +62,10 @@ record(0x1018, "Identity object", [
 ])
 # PDO defaults = the plan omnican's host configures for this drive in pv mode:
 # RPDO1 controlword (on change), RPDO2 target velocity (SYNC), TPDO1 statusword +
-# mode display + error code (event, 5 ms inhibit, 100 ms event timer), TPDO2 position (SYNC).
+# mode display + error code (event, 2 ms inhibit, 100 ms event timer), TPDO2 position (SYNC).
 rpdo = {0: (0x200, 255, ["0x60400010"]), 1: (0x300, 1, ["0x60FF0020"]),
         2: (0x80000400, 255, []), 3: (0x80000500, 255, [])}
-tpdo = {0: (0x180, 255, ["0x60410010", "0x60610008", "0x603F0010"], 50, 100),
+tpdo = {0: (0x180, 255, ["0x60410010", "0x60610008", "0x603F0010"], 20, 100),
         1: (0x280, 1, ["0x60640020"], 0, 0),
         2: (0x80000380, 255, [], 0, 0), 3: (0x80000480, 255, [], 0, 0)}
 for n, (cob, tt, maps) in rpdo.items():

@@ -50,6 +50,7 @@ class SimulatedBase:
         self.wheel_axes = wheel_axes
         self.true_kinematics = true_kinematics
         self._counts_per_metre = counts_per_metre
+        self._scales = [float(c) for c in counts_per_metre]
         self._odo = Odometry(true_kinematics)
         self._lock = threading.Lock()
         self._closed = False
@@ -134,16 +135,15 @@ class SimulatedBase:
 
     # ------------------------------------------------------------ truth
 
-    def _true_travel(self) -> npt.NDArray[np.float64]:
-        counts = np.array([d.physical_counts(axis) * (1.0 - d.slip) for d, axis in
-                           self.wheel_axes])
-        travel: npt.NDArray[np.float64] = counts / self._counts_per_metre
-        return travel
+    def _true_travel(self, now: float | None = None) -> list[float]:
+        t = time.monotonic() if now is None else now
+        return [d.physical_counts(axis, t) * (1.0 - d.slip) / scale
+                for (d, axis), scale in zip(self.wheel_axes, self._scales, strict=True)]
 
     def _tick(self, now: float) -> None:
         with self._lock:
             if not self._closed:
-                self._odo.update(self._true_travel())
+                self._odo.update(self._true_travel(now))
 
     @property
     def true_pose(self) -> Pose2D:

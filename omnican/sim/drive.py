@@ -64,6 +64,8 @@ EMCY_PDO_LENGTH = 0x8210
 # Error register (1001h) bits by EMCY class.
 _ERROR_REGISTER_BITS = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}
 
+_STATE_BITS: dict[State, int] = {s: cia402.state_bits(s) for s in State if s is not State.UNKNOWN}
+
 COAST_TAU_S = 0.1  # a disabled motor spins down with this time constant
 DEFAULT_TAU_S = 0.01  # velocity loop lag of an enabled motor
 STANDSTILL_UNITS = 1.0  # below this many velocity units the drive reports speed zero
@@ -94,6 +96,7 @@ class _Axis:
     counter_offset: float = 0.0  # physical counts at the last encoder reset
     internal_limit: bool = False
     target_units: float = 0.0
+    command: tuple[float, float, float, float] | None = None  # cached motion command
 
 
 @dataclass
@@ -108,6 +111,7 @@ class _PowerStage:
     last_cw: int = 0
     warning: bool = False
     fault_code: int = 0
+    mode_cache: int | None = None
 
 
 class SimulatedDrive:
@@ -211,6 +215,7 @@ class SimulatedDrive:
         self._rpdos: dict[int, PdoConfig] = {}
         self._pending: dict[int, bytes] = {}
         self._last_advance = time.monotonic()
+        self._window = 1.0
         self._closed = False
 
         # LocalNode produces its heartbeat from a 1017h write callback; we do it ourselves.
@@ -229,6 +234,7 @@ class SimulatedDrive:
         self._own_scheduler = scheduler is None
         self.scheduler = scheduler if scheduler is not None else SimScheduler()
         self._prefill_defaults()
+        self._window = self._velocity_window()
         if boot:
             self._boot(reset_node=False)
         self.scheduler.add(self.tick)
@@ -319,10 +325,11 @@ class SimulatedDrive:
     def frozen(self) -> bool:
         return self._frozen
 
-    def physical_counts(self, axis: int = 0) -> float:
-        """Encoder counts the wheel really turned since power-up (never reset or wrapped)."""
+    def physical_counts(self, axis: int = 0, now: float | None = None) -> float:
+        """Encoder counts the wheel really turned since power-up (never reset or wrapped),
+        at ``now`` (default: the present)."""
         with self.lock:
-            self._advance(time.monotonic())
+            self._advance(time.monotonic() if now is None else now)
             return self.axes[axis].state.position
 
     def velocity_counts(self, axis: int = 0) -> float:
@@ -372,6 +379,7 @@ class SimulatedDrive:
     # ---------------------------------------------------------------- NMT
 
     def _boot(self, reset_node: bool) -> None:
+        self._invalidate()
         self._nmt = NMT_BOOTUP
         self._tpdos, self._rpdos, self._pending = [], {}, {}
         if reset_node:
@@ -384,8 +392,10 @@ class SimulatedDrive:
             for stage in self.stages:
                 stage.state, stage.last_cw, stage.fault_code, stage.warning = (
                     State.SWITCH_ON_DISABLED, 0, 0, False)
+                stage.mode_cache = None
         else:
             self._reset_comm_objects()
+        self._window = self._velocity_window()
         self._heartbeat_enabled = True
         self._send(0x700 + self.node_id, b"\x00", droppable=False)
         self._nmt = NMT_PRE_OPERATIONAL
@@ -480,7 +490,6 @@ class SimulatedDrive:
                     if tpdo.sync_count >= tpdo.trans_type:
                         tpdo.sync_count = 0
                         self._send_tpdo(tpdo, now)
-            self._event_tpdos(now)
 
     def _frame_time(self, timestamp: float) -> float:
         """When a frame reached the bus, on the monotonic clock: every drive acts on a
@@ -546,26 +555,43 @@ class SimulatedDrive:
                                 self.max_mapping_entries)
             return
         if key in self._motion_objects:
-            self._advance(time.monotonic())
+            self._advance(time.monotonic())  # the old value applied until now
         writer = self._writers.get(key)
-        if writer is not None:
+        if writer is not None:  # may refuse the value (SDO abort): then nothing is stored
             value = int.from_bytes(data, "little", signed=od.data_type in SIGNED_TYPES)
             writer(value)
+        # Store now (LocalNode stores again after us) so what follows reads the new value.
+        self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
+        self._invalidate()
         if index in (0x1016, 0x1017):
-            # Store first so the new value is read back, then reload.
-            self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
             self._load_heartbeat_config()
+        elif index == 0x606D:
+            self._window = self._velocity_window()
 
     # ----------------------------------------------------------- CiA 402
+
+    def _invalidate(self) -> None:
+        """Something that shapes the motion changed: recompute the commands lazily."""
+        for ax in self.axes:
+            ax.command = None
+
+    def _set_state(self, stage: _PowerStage, state: State) -> None:
+        if stage.state is not state:
+            stage.state = state
+            self._invalidate()
 
     def _on_mode(self, stage: _PowerStage, value: int) -> None:
         if value not in self._supported_modes and value != 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
+        stage.mode_cache = value
 
     def _mode(self, stage: _PowerStage) -> int:
         if stage.mode is None:
             return int(Mode.PROFILE_VELOCITY)
-        return stage.mode.decode(self.node.get_data(stage.mode.index, stage.mode.subindex))
+        if stage.mode_cache is None:
+            stage.mode_cache = stage.mode.decode(
+                self.node.get_data(stage.mode.index, stage.mode.subindex))
+        return stage.mode_cache
 
     def _on_controlword(self, stage: _PowerStage, value: int) -> None:
         self._advance(time.monotonic())
@@ -573,7 +599,8 @@ class SimulatedDrive:
         rising_reset = value & cia402.CW_FAULT_RESET and not previous & cia402.CW_FAULT_RESET
         if stage.state is State.FAULT:
             if rising_reset:
-                stage.state, stage.fault_code = State.SWITCH_ON_DISABLED, 0
+                stage.fault_code = 0
+                self._set_state(stage, State.SWITCH_ON_DISABLED)
                 self._emcy(0x0000, 0)  # error reset
             return
         if stage.state is State.FAULT_REACTION_ACTIVE:
@@ -590,7 +617,7 @@ class SimulatedDrive:
             for ax in stage.axes:  # start from where the wheel is, not from an old demand
                 ax.state = motor.MotorState(ax.state.position, ax.state.velocity,
                                             ax.state.velocity)
-        stage.state = transition.target
+        self._set_state(stage, transition.target)
 
     def _quick_stop_option(self) -> int:
         entry = self.axes[0].objs.get(Obj.QUICK_STOP_OPTION)
@@ -603,7 +630,7 @@ class SimulatedDrive:
             return
         stage.fault_code = code
         powered = stage.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
-        stage.state = State.FAULT_REACTION_ACTIVE if powered else State.FAULT
+        self._set_state(stage, State.FAULT_REACTION_ACTIVE if powered else State.FAULT)
         self._emcy(code, self._error_register())
         self._event_tpdos(time.monotonic())
 
@@ -628,14 +655,14 @@ class SimulatedDrive:
             if option == cia402.ABORT_FAULT:
                 self._fault(stage, EMCY_HEARTBEAT)
             elif option == cia402.ABORT_DISABLE_VOLTAGE:
-                stage.state = State.SWITCH_ON_DISABLED
+                self._set_state(stage, State.SWITCH_ON_DISABLED)
             elif option == cia402.ABORT_NO_ACTION:
                 stage.warning = True
             elif stage.state is State.OPERATION_ENABLED:
-                stage.state = State.QUICK_STOP_ACTIVE
+                self._set_state(stage, State.QUICK_STOP_ACTIVE)
 
     def _statusword(self, stage: _PowerStage) -> int:
-        sw = cia402.state_bits(stage.state) | cia402.SW_REMOTE
+        sw = _STATE_BITS[stage.state] | cia402.SW_REMOTE
         if stage.warning:
             sw |= cia402.SW_WARNING
         if any(ax.internal_limit for ax in stage.axes):
@@ -657,20 +684,27 @@ class SimulatedDrive:
         return all(abs(self._velocity_units(ax)) < STANDSTILL_UNITS for ax in stage.axes)
 
     def _reached(self, ax: _Axis, stage: _PowerStage) -> bool:
+        if ax.command is None:
+            ax.command = self._motion_command(ax)  # refreshes target_units
         halted = bool(stage.last_cw & cia402.CW_HALT)
         target = 0.0 if halted else ax.target_units
+        return abs(self._velocity_units(ax) - target) <= self._window
+
+    def _velocity_window(self) -> float:
         window = 1.0
-        entry = self.dictionary.get(0x606D)
-        if isinstance(entry, od.ODVariable):
+        if isinstance(self.dictionary.get(0x606D), od.ODVariable):
             window = max(window, float(self._u32(0x606D, 0, 1) & 0xFFFF))
-        return abs(self._velocity_units(ax) - target) <= window
+        return window
 
     # ------------------------------------------------------------ motion
 
     def _axis_raw(self, entry: Entry | None, default: int = 0) -> int:
         if entry is None:
             return default
-        return entry.decode(self.node.get_data(entry.index, entry.subindex))
+        data = self.node.data_store.get(entry.index, {}).get(entry.subindex)
+        if data is None:  # never written: the EDS default
+            data = self.node.get_data(entry.index, entry.subindex)
+        return entry.decode(data)
 
     def _record_rate(self, index: int | None) -> float | None:
         """vl ramp (delta speed / delta time in s) in units/s^2, or None."""
@@ -732,16 +766,18 @@ class SimulatedDrive:
             return
         self._last_advance = now
         for ax in self.axes:
-            target, accel, decel, tau = self._motion_command(ax)
+            if ax.command is None:
+                ax.command = self._motion_command(ax)
+            target, accel, decel, tau = ax.command
             ax.state = motor.advance(ax.state, dt, target, accel, decel, tau)
         for stage in self.stages:
             stopped = self._standstill(stage)
             if stage.state is State.FAULT_REACTION_ACTIVE and stopped:
-                stage.state = State.FAULT
+                self._set_state(stage, State.FAULT)
             elif stage.state is State.QUICK_STOP_ACTIVE and stopped and (
                 self._quick_stop_option() not in (5, 6, 7, 8)
             ):
-                stage.state = State.SWITCH_ON_DISABLED
+                self._set_state(stage, State.SWITCH_ON_DISABLED)
 
     def _position(self, ax: _Axis) -> int:
         counts = ax.state.position - ax.counter_offset
@@ -766,9 +802,13 @@ class SimulatedDrive:
     def _send(self, cob_id: int, data: bytes, droppable: bool = True) -> None:
         if self._frozen or self._closed or (droppable and self._lost()):
             return
+        bus = self.network.bus
+        if bus is None:
+            return
         try:
-            self.network.send_message(cob_id, data)
-        except (can.CanError, RuntimeError) as exc:
+            with self.network.send_lock:
+                bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+        except (can.CanError, OSError, RuntimeError) as exc:
             logger.warning("simulated node %d could not send 0x%03X: %s", self.node_id, cob_id,
                            exc)
 
@@ -779,7 +819,13 @@ class SimulatedDrive:
     def _frame(self, tpdo: PdoConfig) -> bytes:
         out = bytearray()
         for entry in tpdo.entries:
-            out += self.node.get_data(entry.index, entry.subindex)[: entry.nbytes]
+            key = (entry.index, entry.subindex)
+            reader = self._readers.get(key)
+            if reader is not None:  # dynamic object: skip the OD machinery
+                width = entry.nbytes * 8
+                out += (reader() % (1 << width)).to_bytes(entry.nbytes, "little")
+            else:
+                out += self.node.get_data(entry.index, entry.subindex)[: entry.nbytes]
         return bytes(out)
 
     def _send_tpdo(self, tpdo: PdoConfig, now: float) -> None:
