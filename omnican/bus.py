@@ -17,7 +17,7 @@ from typing import Any
 import can
 import canopen
 
-from omnican.errors import BusError
+from omnican.errors import BusError, ConfigError
 from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
@@ -30,7 +30,10 @@ class _Recorder(can.Listener):
 
     def __init__(self, path: Path) -> None:
         self._lock = threading.Lock()
-        self._writer: can.Listener | None = can.Logger(str(path))
+        try:
+            self._writer: can.Listener | None = can.Logger(str(path))
+        except (ValueError, OSError) as exc:  # unknown suffix, unwritable place
+            raise ConfigError(f"cannot record to {path}: {exc}") from None
         self.path = path
 
     def on_message_received(self, msg: can.Message) -> None:

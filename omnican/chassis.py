@@ -36,6 +36,7 @@ from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
 from omnican.errors import DriveError, OmnicanError
 from omnican.kinematics import Twist
+from omnican.layout import node_layouts
 from omnican.limits import VelocityLimiter
 from omnican.odometry import Odometry, Pose2D
 from omnican.pdoplan import frame_bits
@@ -180,12 +181,12 @@ class Chassis:
             BusError: the bus cannot be opened.
             DriveError: a drive did not come up (the message says which and why).
         """
+        layouts = node_layouts(cfg)  # EDS problems surface before the bus is touched
         can_bus = CanBus(bus if bus is not None else cfg.bus, record=record)
         nodes: list[DriveNode] = []
         try:
-            for node_id, wheels in cfg.nodes().items():
-                indexed = [(cfg.wheels.index(w), w) for w in wheels]
-                nodes.append(DriveNode(can_bus.network, node_id, indexed, cfg.chassis, can_bus))
+            for layout in layouts:
+                nodes.append(DriveNode(can_bus.network, layout, can_bus))
             base = cls(cfg, can_bus, nodes)
         except BaseException:
             for n in nodes:

@@ -22,16 +22,16 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import canopen
-from canopen import objectdictionary as od
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from omnican import cia402
 from omnican.cia402 import Command, Mode, State
-from omnican.config import ChassisSettings, WheelConfig
+from omnican.config import WheelConfig
 from omnican.errors import DriveError
-from omnican.odmap import AxisObjects, Entry, Obj, entry_at, load_dictionary, obj_name
-from omnican.pdoplan import TPDO_COMM, TRANS_EVENT, TRANS_SYNC, NodePlan, PlannedPdo, plan_node
+from omnican.layout import NodeLayout
+from omnican.odmap import AxisObjects, Entry, Obj, entry_at, obj_name
+from omnican.pdoplan import TPDO_COMM, TRANS_EVENT, TRANS_SYNC, NodePlan, PlannedPdo
 
 logger = logging.getLogger(__name__)
 
@@ -208,40 +208,29 @@ class _RpdoIO:
 
 
 class DriveNode:
-    """One node of the base, with the wheels (axes) it drives."""
+    """One node of the base, with the wheels (axes) it drives, on a live network."""
 
-    def __init__(self, network: canopen.Network, node_id: int,
-                 wheels: list[tuple[int, WheelConfig]], settings: ChassisSettings,
+    def __init__(self, network: canopen.Network, layout: NodeLayout,
                  epoch_source: EpochSource) -> None:
-        self.node_id = node_id
-        self.settings = settings
+        self.layout = layout
+        self.node_id = node_id = layout.node_id
+        self.settings = settings = layout.settings
         self.network = network
         self._epoch_source = epoch_source
-        eds = wheels[0][1].eds
-        self.dictionary = load_dictionary(eds, node_id)
-        self.eds_name = eds.name
+        self.dictionary = layout.dictionary
+        self.eds_name = layout.eds.name
+        self.mode = layout.mode
+        self.has_consumer = layout.has_consumer
+        self.plan = layout.plan
         self.remote = canopen.RemoteNode(node_id, self.dictionary)
         self.remote.sdo.RESPONSE_TIMEOUT = settings.sdo_timeout_s
         self.remote.sdo.MAX_RETRIES = 1
         network.add_node(self.remote)
-        self.mode = self._choose_mode(wheels)
-        self.stages: list[StageDriver] = []
-        self.axes: list[AxisIO] = []
-        by_cw: dict[tuple[int, int], StageDriver] = {}
-        for wheel_index, wheel in wheels:
-            objs = AxisObjects(self.dictionary, wheel.axis)
-            cw, sw = objs[Obj.CONTROLWORD], objs[Obj.STATUSWORD]
-            key = (cw.index, cw.subindex)
-            if key not in by_cw:
-                by_cw[key] = StageDriver(node_id, cw, sw, objs.get(Obj.MODE),
-                                         objs.get(Obj.MODE_DISPLAY), objs.get(Obj.ERROR_CODE),
-                                         settings.enable_timeout_s)
-                self.stages.append(by_cw[key])
-            target = objs[Obj.VL_TARGET if self.mode is Mode.VELOCITY else Obj.TARGET_VELOCITY]
-            self.axes.append(AxisIO(wheel_index, wheel, objs, target, objs[Obj.POSITION_ACTUAL],
-                                    by_cw[key]))
-        self.has_consumer = isinstance(self.dictionary.get(0x1016), (od.ODArray, od.ODRecord))
-        self.plan = self._plan()
+        self.stages = [StageDriver(node_id, s.controlword, s.statusword, s.mode, s.mode_display,
+                                   s.error_code, settings.enable_timeout_s)
+                       for s in layout.stages]
+        self.axes = [AxisIO(a.wheel_index, a.wheel, a.objs, a.target, a.position,
+                            self.stages[a.stage]) for a in layout.axes]
         self._rpdo_io: list[_RpdoIO] = []
         self._cw_io: dict[int, tuple[_RpdoIO, int]] = {}  # id(stage) -> (pdo, offset)
         self._subscribed: list[tuple[int, TpdoHandler]] = []
@@ -256,38 +245,6 @@ class DriveNode:
         self._hb_period = settings.heartbeat_ms / 1000.0
         network.subscribe(0x700 + node_id, self._on_heartbeat)
         self.remote.emcy.add_callback(self._on_emcy)
-
-    # ------------------------------------------------------------ planning
-
-    def _choose_mode(self, wheels: list[tuple[int, WheelConfig]]) -> Mode:
-        modes = {w.mode for _, w in wheels if w.mode is not None}
-        if len(modes) > 1:
-            raise DriveError(f"node {self.node_id}: its wheels ask for different modes")
-        if modes:
-            return modes.pop()
-        supported = self.dictionary.get(int(Obj.SUPPORTED_MODES))
-        if isinstance(supported, od.ODVariable) and isinstance(supported.default, int):
-            offered = cia402.supported_modes(supported.default)
-            for mode in (Mode.PROFILE_VELOCITY, Mode.CYCLIC_SYNC_VELOCITY, Mode.VELOCITY):
-                if int(mode) in offered:
-                    return mode
-        return Mode.PROFILE_VELOCITY
-
-    def _plan(self) -> NodePlan:
-        optional: list[Entry] = []
-        for stage in self.stages:
-            optional += [e for e in (stage.mode_display, stage.error_code) if e is not None]
-        return plan_node(
-            self.node_id,
-            self.dictionary,
-            cyclic_rx=[a.target for a in self.axes],
-            event_rx=[s.controlword for s in self.stages],
-            cyclic_tx=[a.position for a in self.axes],
-            event_tx=[s.statusword for s in self.stages],
-            optional_tx=optional,
-            inhibit_ms=2.0,
-            event_timer_ms=max(50, self.settings.heartbeat_ms),
-        )
 
     def _build_io(self, plan: NodePlan) -> None:
         for cob, handler in self._subscribed:

@@ -1,0 +1,2 @@
+"""Placeholder removed when the subcommand lands."""
+raise ImportError("not yet", name="omnican.cli.calibrate")

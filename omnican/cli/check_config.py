@@ -1,0 +1,79 @@
+"""``omnican check-config``: validate a config and its EDS files offline.
+
+Prints the PDO plan of every node and the bus load at the configured rate and
+bitrate, or one line per problem (exit 2). Touches no bus.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail
+from omnican.config import ChassisConfig, load_config
+from omnican.errors import ConfigError
+from omnican.layout import NodeLayout, cycle_bits, heartbeat_bits_per_s
+from omnican.pdoplan import frame_bits
+
+
+def add_subparser(sub: Any) -> None:
+    p = sub.add_parser("check-config", help="validate a config and its EDS files offline",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("config", metavar="TOML", help="the robot config to check")
+    p.add_argument("--bitrate", type=int, metavar="BIT/S",
+                   help="bitrate for the bus load when the config's [bus] has none")
+    p.set_defaults(func=run)
+
+
+def layouts_or_problems(cfg: ChassisConfig) -> tuple[list[NodeLayout], list[str]]:
+    layouts, problems = [], []
+    for node_id, wheels in cfg.nodes().items():
+        try:
+            layouts.append(NodeLayout(node_id, [(cfg.wheels.index(w), w) for w in wheels],
+                                      cfg.chassis))
+        except ConfigError as exc:
+            problems.append(f"{cfg.source or 'config'}: {exc}")
+    return layouts, problems
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        cfg = load_config(args.config)
+    except ConfigError as exc:
+        return fail(str(exc), EXIT_USAGE)
+    layouts, problems = layouts_or_problems(cfg)
+    if problems:
+        for line in problems:
+            fail(line, EXIT_USAGE)
+        return EXIT_USAGE
+    c = cfg.chassis
+    kin = cfg.kinematics()
+    print(f"{cfg.source}: OK")
+    print(f"  base: {len(cfg.wheels)} wheels at {list(kin.angles_deg)} deg, radius "
+          f"{', '.join(f'{r:g}' for r in sorted(set(kin.base_radius)))} m; loop {c.rate_hz:g} Hz, "
+          f"watchdog {c.cmd_timeout_s:g} s")
+    for layout in layouts:
+        wheels = ", ".join(f"wheel {a.wheel_index} (axis {a.wheel.axis})" for a in layout.axes)
+        print(f"  node {layout.node_id}: {layout.eds.name}, mode {layout.mode.short}, {wheels}")
+        if not layout.has_consumer:
+            print("    warning: no heartbeat consumer (1016h): this drive will not stop by "
+                  "itself if the host dies")
+        for line in layout.plan.describe():
+            print(f"    {line}")
+    bits = cycle_bits(layouts)
+    hb = heartbeat_bits_per_s(cfg)
+    bitrate = args.bitrate or (cfg.bus or {}).get("bitrate")
+    per_s = bits * c.rate_hz + hb
+    print(f"  bus: {bits} worst-case bits per cycle ({len(layouts)} nodes + SYNC "
+          f"{frame_bits(0)}), {per_s / 1000:.1f} kbit/s at {c.rate_hz:g} Hz with heartbeats")
+    if bitrate:
+        load = per_s / float(bitrate)
+        flag = "  TOO HIGH" if load > 0.8 else ""
+        print(f"  bus load at {int(bitrate) // 1000} kbit/s: {load:.0%}{flag}")
+        if load > 0.8:
+            return fail("bus load above 80 %: lower chassis.rate_hz or raise the bitrate",
+                        EXIT_USAGE)
+    else:
+        for rate in (500_000, 1_000_000):
+            print(f"  bus load at {rate // 1000} kbit/s: {per_s / rate:.0%}")
+    return EXIT_OK

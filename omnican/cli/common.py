@@ -1,0 +1,136 @@
+"""What every subcommand shares: argument builders, the bus/config/--sim resolution,
+one-line errors and exit codes (0 success, 2 bad usage/config/EDS, 1 run-time failure).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import math
+import sys
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any, NoReturn
+
+import can.cli
+
+from omnican.config import ChassisConfig, default_config, load_config
+from omnican.errors import ConfigError
+
+EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
+
+_BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "timing")
+
+
+class UsageError(Exception):
+    """Bad command-line usage: one line on stderr, exit 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with errors on one line (usage is one ``--help`` away) and exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number (argparse's float accepts 'nan' and 'inf')."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    value = finite_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return value
+
+
+def add_config_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="TOML",
+                        help="robot config (default: the demo base of three bundled drives, "
+                             "nodes 1-3)")
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser, sim_help: str | None = None) -> None:
+    """--config, --sim and python-can's bus arguments (-i/-c/-b ...)."""
+    add_config_argument(parser)
+    parser.add_argument("--sim", action="store_true",
+                        help=sim_help or "run against simulated drives in this process "
+                        "(a virtual bus; no hardware)")
+    can.cli.add_bus_arguments(parser, group_title="bus arguments (override [bus] of the config)")
+
+
+def bus_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key in _BUS_KEYS:
+        if key in args:
+            out[key] = getattr(args, key)
+    if "bus_kwargs" in args:
+        out.update(args.bus_kwargs)
+    return out
+
+
+def load(args: argparse.Namespace) -> ChassisConfig:
+    """The config named by --config (or the demo base), with bus arguments applied."""
+    path = getattr(args, "config", None)
+    cfg = load_config(path) if path else default_config()
+    overrides = bus_overrides(args)
+    if overrides:
+        cfg = cfg.with_bus(**{**(cfg.bus or {}), **overrides})
+    return cfg
+
+
+@dataclass
+class Session:
+    """The config a subcommand runs with, and the simulated base under --sim."""
+
+    cfg: ChassisConfig
+    sim: Any = None  # omnican.sim.SimulatedBase under --sim
+
+
+@contextlib.contextmanager
+def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
+    """Resolve config and bus; under --sim, start simulated drives on a fresh virtual channel."""
+    cfg = load(args)
+    if not getattr(args, "sim", False):
+        yield Session(cfg)
+        return
+    if bus_overrides(args):
+        raise UsageError("--sim runs on its own virtual bus: drop the bus arguments, or use "
+                         "'omnican sim' to serve simulated drives on a real interface")
+    from omnican.sim import SimulatedBase
+
+    cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}")
+    with SimulatedBase.from_config(cfg, **sim_options) as sim:
+        yield Session(cfg, sim)
+
+
+def setup_logging(verbosity: int, stream: Any = None) -> None:
+    """Warnings by default; -v info; -vv debug (canopen's chatty INFO only at -vv)."""
+    level = logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
+    root = logging.getLogger()
+    root.handlers.clear()
+    handler = logging.StreamHandler(stream or sys.stderr)
+    handler.setFormatter(logging.Formatter("omnican: %(levelname)s: %(message)s"))
+    root.addHandler(handler)
+    root.setLevel(level)
+    for noisy in ("canopen", "can"):
+        logging.getLogger(noisy).setLevel(logging.DEBUG if verbosity >= 2 else logging.WARNING)
+
+
+def fail(message: str, code: int = EXIT_FAILURE) -> int:
+    """Print one line on stderr and return the exit code."""
+    print(f"omnican: error: {message}", file=sys.stderr)
+    return code
+
+
+def is_config_error(exc: BaseException) -> bool:
+    return isinstance(exc, (ConfigError, UsageError))

@@ -1,0 +1,119 @@
+"""What each node of a config looks like on the wire, worked out offline from its EDS:
+its mode, the objects of each wheel, its CiA 402 state machines and its PDO plan.
+
+Used by the drive layer to configure the nodes, and by the tools that need the same
+picture without a bus (check-config, monitor, plot, calibrate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from canopen import objectdictionary as od
+
+from omnican import cia402
+from omnican.cia402 import Mode
+from omnican.config import ChassisConfig, ChassisSettings, WheelConfig
+from omnican.errors import ConfigError
+from omnican.odmap import AxisObjects, Entry, Obj, load_dictionary
+from omnican.pdoplan import NodePlan, frame_bits, plan_node
+
+
+@dataclass(frozen=True)
+class StageLayout:
+    """One CiA 402 state machine: the objects of one controlword/statusword pair."""
+
+    controlword: Entry
+    statusword: Entry
+    mode: Entry | None
+    mode_display: Entry | None
+    error_code: Entry | None
+
+
+@dataclass(frozen=True)
+class AxisLayout:
+    """One wheel: an axis of the node."""
+
+    wheel_index: int
+    wheel: WheelConfig
+    objs: AxisObjects
+    target: Entry
+    position: Entry
+    stage: int  # index into NodeLayout.stages
+
+
+class NodeLayout:
+    """One node of the base and the wheels (axes) it drives."""
+
+    def __init__(self, node_id: int, wheels: list[tuple[int, WheelConfig]],
+                 settings: ChassisSettings) -> None:
+        self.node_id = node_id
+        self.settings = settings
+        eds = wheels[0][1].eds
+        if any(w.eds != eds for _, w in wheels):
+            raise ConfigError(f"node {node_id}: its wheels name different EDS files")
+        self.eds = eds
+        self.dictionary = load_dictionary(eds, node_id)
+        self.mode = self._choose_mode(wheels)
+        self.stages: list[StageLayout] = []
+        self.axes: list[AxisLayout] = []
+        by_cw: dict[tuple[int, int], int] = {}
+        for wheel_index, wheel in wheels:
+            objs = AxisObjects(self.dictionary, wheel.axis)
+            cw, sw = objs[Obj.CONTROLWORD], objs[Obj.STATUSWORD]
+            key = (cw.index, cw.subindex)
+            if key not in by_cw:
+                by_cw[key] = len(self.stages)
+                self.stages.append(StageLayout(cw, sw, objs.get(Obj.MODE),
+                                               objs.get(Obj.MODE_DISPLAY),
+                                               objs.get(Obj.ERROR_CODE)))
+            target = objs[Obj.VL_TARGET if self.mode is Mode.VELOCITY else Obj.TARGET_VELOCITY]
+            self.axes.append(AxisLayout(wheel_index, wheel, objs, target,
+                                        objs[Obj.POSITION_ACTUAL], by_cw[key]))
+        self.has_consumer = isinstance(self.dictionary.get(0x1016), (od.ODArray, od.ODRecord))
+        self.plan = self._plan()
+
+    def _choose_mode(self, wheels: list[tuple[int, WheelConfig]]) -> Mode:
+        """The configured mode, else the first of pv, csv, vl that 6502h offers, else pv."""
+        modes = {w.mode for _, w in wheels if w.mode is not None}
+        if len(modes) > 1:
+            raise ConfigError(f"node {self.node_id}: its wheels ask for different modes")
+        if modes:
+            return modes.pop()
+        supported = self.dictionary.get(int(Obj.SUPPORTED_MODES))
+        if isinstance(supported, od.ODVariable) and isinstance(supported.default, int):
+            offered = cia402.supported_modes(supported.default)
+            for mode in (Mode.PROFILE_VELOCITY, Mode.CYCLIC_SYNC_VELOCITY, Mode.VELOCITY):
+                if int(mode) in offered:
+                    return mode
+        return Mode.PROFILE_VELOCITY
+
+    def _plan(self) -> NodePlan:
+        optional = [e for s in self.stages for e in (s.mode_display, s.error_code) if e]
+        return plan_node(
+            self.node_id,
+            self.dictionary,
+            cyclic_rx=[a.target for a in self.axes],
+            event_rx=[s.controlword for s in self.stages],
+            cyclic_tx=[a.position for a in self.axes],
+            event_tx=[s.statusword for s in self.stages],
+            optional_tx=optional,
+            inhibit_ms=2.0,
+            event_timer_ms=max(50, self.settings.heartbeat_ms),
+        )
+
+
+def node_layouts(cfg: ChassisConfig) -> list[NodeLayout]:
+    """One layout per node of ``cfg``, in order of first appearance."""
+    return [NodeLayout(node_id, [(cfg.wheels.index(w), w) for w in wheels], cfg.chassis)
+            for node_id, wheels in cfg.nodes().items()]
+
+
+def cycle_bits(layouts: list[NodeLayout]) -> int:
+    """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
+    return sum(n.plan.cyclic_bits() for n in layouts) + frame_bits(0)
+
+
+def heartbeat_bits_per_s(cfg: ChassisConfig) -> float:
+    """Heartbeats of the host and every node, worst-case bits per second."""
+    return (len(cfg.nodes()) + 1) * frame_bits(1) / (cfg.chassis.heartbeat_ms / 1000.0)
