@@ -159,7 +159,7 @@ def execute(base: Chassis, plan: list[Leg]) -> tuple[Twist, float]:
             while time.monotonic() < end:
                 reason = base.status.stopped_reason
                 if reason:
-                    raise _Stopped(reason)
+                    raise _StoppedError(reason)
                 twist = _leg_command(base, leg, origin) if goal else leg.twist
                 if twist is None:
                     _settle(base)  # stop between goal legs, so one does not run into the next
@@ -186,8 +186,8 @@ def _settle(base: Chassis, timeout_s: float = 3.0) -> None:
     time.sleep(0.05)  # the last samples of the stop reach the odometry
 
 
-class _Stopped(Exception):
-    pass
+class _StoppedError(Exception):
+    """The base stopped itself (fault, lost drive) during the motion."""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
         with Chassis.open(s.cfg, record=args.record) as base:
             try:
                 twist, elapsed = execute(base, plan)
-            except _Stopped as exc:
+            except _StoppedError as exc:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
                 print(pose_line(base.pose))
                 return EXIT_FAILURE
