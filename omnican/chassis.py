@@ -16,6 +16,7 @@ host's heartbeat, so they stop by themselves if this process dies; leaving the
 from __future__ import annotations
 
 import atexit
+import collections
 import logging
 import math
 import queue
@@ -46,6 +47,7 @@ logger = logging.getLogger(__name__)
 BUS_DOWN_AFTER_S = 0.05  # sends failing for this long: the bus is down
 RECONNECT_EVERY_S = 1.0
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
+SPEED_WINDOW_S = 0.1  # measured wheel speeds and twist average over this window
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,9 @@ class Chassis:
         self._targets = [0.0] * n  # commanded rim speeds, m/s, by wheel index
         self._travel = [0.0] * n
         self._inverse_rows = tuple(tuple(float(v) for v in row) for row in self._kin.matrix)
+        self._forward_rows = tuple(tuple(float(v) for v in row) for row in self._kin.forward_matrix)
+        self._history: collections.deque[tuple[float, list[float]]] = collections.deque()
+        self._measured = Twist()
         self._last_sync_time = 0.0
         self._sample_time = 0.0
         self._stop = threading.Event()
@@ -322,7 +327,7 @@ class Chassis:
 
     @property
     def twist(self) -> Twist:
-        """Measured body velocity (from the encoders)."""
+        """Measured body velocity from the encoders, averaged over the last 0.1 s."""
         return self._snapshot.twist
 
     @property
@@ -474,15 +479,24 @@ class Chassis:
             return  # not every wheel has answered the last SYNC: wait for a complete set
         travel = [a.travel_from_sample(a.raw) for a in axes]  # type: ignore[arg-type]
         t = self._last_sync_time
+        history = self._history
         if not self._odo.seeded:
             self._odo.update(travel)
-            self._sample_time, self._travel = t, travel
+            history.clear()
+            history.append((t, travel))
             return
-        dt = t - self._sample_time
-        if dt > 0:
-            self._speeds = [(a - b) / dt for a, b in zip(travel, self._travel, strict=True)]
-        self._odo.update(travel, dt if dt > 0 else None)
-        self._sample_time, self._travel = t, travel
+        self._odo.update(travel)
+        history.append((t, travel))
+        while len(history) > 2 and t - history[1][0] >= SPEED_WINDOW_S:
+            history.popleft()
+        t0, travel0 = history[0]
+        if t > t0:  # speeds over the window: SYNC timing jitter averages out
+            self._speeds = [(a - b) / (t - t0) for a, b in zip(travel, travel0, strict=True)]
+            rx, ry, rw = self._forward_rows
+            sp = self._speeds
+            self._measured = Twist(sum(k * v for k, v in zip(rx, sp, strict=True)),
+                                   sum(k * v for k, v in zip(ry, sp, strict=True)),
+                                   sum(k * v for k, v in zip(rw, sp, strict=True)))
 
     def _check_bus(self, now: float) -> None:
         if self._bus.send_errors == 0:
@@ -535,7 +549,7 @@ class Chassis:
             bus_error=self._bus.last_error,
             warnings=tuple(self.warnings),
         )
-        return _Snapshot(self._odo.pose, self._odo.twist, command or Twist(), tuple(rows), status)
+        return _Snapshot(self._odo.pose, self._measured, command or Twist(), tuple(rows), status)
 
     def cycle_bits(self) -> int:
         """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""

@@ -124,6 +124,10 @@ def setup_logging(verbosity: int, stream: Any = None) -> None:
     root.setLevel(level)
     for noisy in ("canopen", "can"):
         logging.getLogger(noisy).setLevel(logging.DEBUG if verbosity >= 2 else logging.WARNING)
+    # Vendor EDS files often declare defaults outside their own limits (ZLAC8015D: mode 0
+    # with a minimum of 1); canopen warns on every such read. Keep that for -v.
+    logging.getLogger("canopen.objectdictionary").setLevel(
+        logging.WARNING if verbosity >= 1 else logging.ERROR)
 
 
 def fail(message: str, code: int = EXIT_FAILURE) -> int:

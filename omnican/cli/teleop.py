@@ -1,2 +1,302 @@
-"""Placeholder removed when the subcommand lands."""
-raise ImportError("not yet", name="omnican.cli.teleop")
+"""``omnican teleop``: drive the base from the keyboard, with a live dashboard.
+
+Keys follow ROS ``teleop_twist_keyboard``::
+
+    u i o      forward-left   forward   forward-right (turning)
+    j k l      turn left      stop      turn right
+    m , .      back-right     back      back-left
+    Shift (U I O J K L M < >) strafes instead of turning (holonomic mode)
+    q/z  all speeds +/-10 %    w/x  linear only    e/c  angular only
+    space or k  stop     r  recover after a fault     Esc or Ctrl-C  quit
+
+Holding a key keeps the base moving; when keys stop arriving for ``--key-timeout``
+seconds it stops. On exit every drive is disabled and the final pose is printed as
+``pose x=<m> y=<m> theta=<rad>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import logging
+import math
+import os
+import select
+import sys
+import termios
+import time
+import tty
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from rich.console import Console, Group, RenderableType
+from rich.live import Live
+from rich.panel import Panel
+from rich.table import Table
+from rich.text import Text
+
+from omnican.chassis import Chassis
+from omnican.cia402 import State
+from omnican.cli.common import (
+    UsageError,
+    add_bus_arguments,
+    positive_float,
+    session,
+)
+from omnican.cli.drive import pose_line
+from omnican.errors import OmnicanError
+from omnican.kinematics import Twist
+
+# (x, y, th) multipliers, as in teleop_twist_keyboard's moveBindings.
+MOVE_KEYS: dict[str, tuple[int, int, int]] = {
+    "i": (1, 0, 0), "o": (1, 0, -1), "j": (0, 0, 1), "l": (0, 0, -1),
+    "u": (1, 0, 1), ",": (-1, 0, 0), ".": (-1, 0, 1), "m": (-1, 0, -1),
+    "O": (1, -1, 0), "I": (1, 0, 0), "J": (0, 1, 0), "L": (0, -1, 0),
+    "U": (1, 1, 0), "<": (-1, 0, 0), ">": (-1, -1, 0), "M": (-1, 1, 0),
+    "k": (0, 0, 0), "K": (0, 0, 0), " ": (0, 0, 0),
+}
+# (linear factor, angular factor), as in speedBindings.
+SPEED_KEYS: dict[str, tuple[float, float]] = {
+    "q": (1.1, 1.1), "z": (0.9, 0.9), "w": (1.1, 1.0), "x": (0.9, 1.0),
+    "e": (1.0, 1.1), "c": (1.0, 0.9),
+}
+ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}  # up, down, right, left
+ESC, CTRL_C = "\x1b", "\x03"
+LOOP_S = 0.05
+
+
+def add_subparser(sub: Any) -> None:
+    p = sub.add_parser("teleop", help="drive the base from the keyboard (live dashboard)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--speed", type=positive_float, default=0.3, metavar="M/S",
+                   help="initial linear speed (default 0.3)")
+    p.add_argument("--turn", type=positive_float, default=1.0, metavar="RAD/S",
+                   help="initial turn rate (default 1.0)")
+    p.add_argument("--key-timeout", type=float, default=0.6, metavar="S",
+                   help="stop when no key arrives for this long (default 0.6; 0: never)")
+    p.add_argument("--record", metavar="FILE",
+                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
+    add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
+    p.set_defaults(func=run)
+
+
+@dataclass
+class Keyboard:
+    """What the keys asked for so far."""
+
+    speed: float
+    turn: float
+    max_speed: float
+    max_turn: float
+    key_timeout: float
+    direction: tuple[int, int, int] = (0, 0, 0)
+    last_key_at: float = -math.inf
+    last_key: str = ""
+    quit: bool = False
+    recover: bool = False
+
+    def press(self, key: str, now: float) -> None:
+        self.last_key, self.last_key_at = key, now
+        if key in MOVE_KEYS:
+            self.direction = MOVE_KEYS[key]
+        elif key in SPEED_KEYS:
+            lin, ang = SPEED_KEYS[key]
+            self.speed = min(self.speed * lin, self.max_speed)
+            self.turn = min(self.turn * ang, self.max_turn)
+        elif key in ("r", "R"):
+            self.recover = True
+        elif key in (ESC, CTRL_C):
+            self.quit = True
+        else:
+            self.direction = (0, 0, 0)  # anything else: stop, as in teleop_twist_keyboard
+
+    def command(self, now: float) -> Twist:
+        if self.key_timeout > 0 and now - self.last_key_at > self.key_timeout:
+            self.direction = (0, 0, 0)
+        x, y, th = self.direction
+        return Twist(x * self.speed, y * self.speed, th * self.turn)
+
+
+def read_keys(fd: int, timeout: float) -> list[str]:
+    """Keys typed within ``timeout`` s; arrow keys become i , l j; a lone Esc is Esc."""
+    ready, _, _ = select.select([fd], [], [], timeout)
+    if not ready:
+        return []
+    data = os.read(fd, 64).decode("utf-8", "replace")
+    keys: list[str] = []
+    i = 0
+    while i < len(data):
+        ch = data[i]
+        if ch == ESC and i + 2 < len(data) + 1 and data[i + 1 : i + 2] == "[":
+            code = data[i + 2 : i + 3]
+            keys.append(ARROWS.get(code, ""))
+            i += 3
+            continue
+        if ch == ESC and i + 1 == len(data):
+            more, _, _ = select.select([fd], [], [], 0.03)  # an escape sequence on its way?
+            if more:
+                data += os.read(fd, 64).decode("utf-8", "replace")
+                continue
+        keys.append(ch)
+        i += 1
+    return [k for k in keys if k]
+
+
+@contextlib.contextmanager
+def cbreak(fd: int) -> Iterator[None]:
+    """Keys without Enter and without echo; Ctrl-C still interrupts."""
+    old = termios.tcgetattr(fd)
+    try:
+        tty.setcbreak(fd)
+        yield
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, old)
+
+
+class _Events(logging.Handler):
+    """Log records go to the dashboard instead of over it."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: collections.deque[str] = collections.deque(maxlen=5)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(f"{time.strftime('%H:%M:%S')} {record.getMessage()}")
+
+
+@contextlib.contextmanager
+def logs_into(handler: logging.Handler) -> Iterator[None]:
+    root = logging.getLogger()
+    saved = root.handlers[:]
+    root.handlers = [handler]
+    try:
+        yield
+    finally:
+        root.handlers = saved
+
+
+STATE_STYLE = {
+    State.OPERATION_ENABLED: "green",
+    State.FAULT: "bold red",
+    State.FAULT_REACTION_ACTIVE: "bold red",
+    State.QUICK_STOP_ACTIVE: "yellow",
+    State.UNKNOWN: "dim",
+}
+
+
+def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
+              events: _Events, note: str) -> Group:
+    st = base.status
+    pose, twist, applied = base.pose, base.twist, base.command
+    header = Text(title, style="bold")
+    bitrate = base.bus.bitrate
+    load = (f"{st.bus_load:.0%} of {bitrate // 1000} kbit/s"
+            if st.bus_load is not None and bitrate else f"{st.bus_bits_per_s / 1000:.1f} kbit/s")
+    header.append(f"   loop {st.loop_hz:.0f} Hz   bus {load}", style="dim")
+
+    pose_t = Table.grid(padding=(0, 1))
+    pose_t.add_row("x", f"{pose.x:+8.3f} m")
+    pose_t.add_row("y", f"{pose.y:+8.3f} m")
+    pose_t.add_row("θ", f"{pose.theta:+8.3f} rad ({math.degrees(pose.heading):+6.1f}°)")
+
+    tw = Table(box=None, padding=(0, 1))
+    for col in ("", "keys", "applied", "measured"):
+        tw.add_column(col, justify="right")
+    for name, unit, a, b, c in (("vx", "m/s", command.vx, applied.vx, twist.vx),
+                                ("vy", "m/s", command.vy, applied.vy, twist.vy),
+                                ("wz", "rad/s", command.wz, applied.wz, twist.wz)):
+        tw.add_row(f"{name} {unit}", f"{a:+.3f}", f"{b:+.3f}", f"{c:+.3f}")
+
+    wheels = Table(box=None, padding=(0, 1))
+    for col in ("wheel", "node", "state", "target m/s", "actual m/s", "travel m", "fault"):
+        wheels.add_column(col, justify="right" if "m" in col or col == "node" else "left")
+    for w in base.wheels:
+        node = f"{w.node_id}" + (f".{w.axis}" if w.axis else "")
+        state = Text(str(w.state), style=STATE_STYLE.get(w.state, ""))
+        if not w.online:
+            state = Text("OFFLINE", style="bold red")
+        wheels.add_row(str(w.index), node, state, f"{w.target_speed:+.3f}",
+                       f"{w.actual_speed:+.3f}", f"{w.travel:+.3f}",
+                       Text(w.fault or w.error or "", style="red"))
+
+    if st.stopped_reason:
+        status = Text(f"STOPPED: {st.stopped_reason} - press r to recover", style="bold red")
+    elif st.enabled:
+        status = Text("RUNNING", style="bold green")
+    else:
+        status = Text("starting...", style="yellow")
+    if note:
+        status.append(f"   {note}", style="yellow")
+    settings = Text(f"speed {keys.speed:.2f} m/s   turn {keys.turn:.2f} rad/s   "
+                    f"key timeout {keys.key_timeout:g} s   last key {keys.last_key!r}")
+    help_text = Text("u i o / j k l / m , .  move    Shift: strafe    q/z w/x e/c: speeds    "
+                     "space/k: stop    r: recover    Esc/Ctrl-C: quit", style="dim")
+    grid = Table.grid(padding=(0, 2))
+    grid.add_row(Panel(pose_t, title="pose", title_align="left"),
+                 Panel(tw, title="twist", title_align="left"))
+    body: list[RenderableType] = [header, grid, Panel(wheels, title="wheels", title_align="left"),
+                                  status, settings, help_text]
+    if st.warnings:
+        body.append(Text("\n".join(st.warnings), style="yellow"))
+    if events.lines:
+        body.append(Panel(Text("\n".join(events.lines)), title="events", title_align="left"))
+    return Group(*body)
+
+
+def drive_loop(base: Chassis, keys: Keyboard, fd: int, live: Live, title: str,
+               events: _Events) -> None:
+    """Keys in, commands out, dashboard refreshed, until Esc."""
+    note = ""
+    while not keys.quit:
+        now = time.monotonic()
+        for key in read_keys(fd, LOOP_S):
+            keys.press(key, now)
+        if keys.recover:
+            keys.recover, note = False, "recovering..."
+            live.update(dashboard(base, keys, Twist(), title, events, note), refresh=True)
+            try:
+                base.recover()
+                note = ""
+            except OmnicanError as exc:
+                note = f"recover failed: {exc}"
+        command = keys.command(time.monotonic())
+        base.set_velocity(command.vx, command.vy, command.wz)
+        live.update(dashboard(base, keys, command, title, events, note), refresh=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not sys.stdin.isatty():
+        raise UsageError("teleop reads keys from a terminal, and stdin is not one "
+                         "(for scripts use 'omnican drive')")
+    if not math.isfinite(args.key_timeout) or args.key_timeout < 0:
+        raise UsageError(f"--key-timeout must be 0 or more seconds, got {args.key_timeout}")
+    fd = sys.stdin.fileno()
+    console = Console()
+    events = _Events()
+    final = None
+    with session(args) as s:
+        c = s.cfg.chassis
+        kin = s.cfg.kinematics()
+        max_speed = min(c.max_speed, c.max_wheel_speed)
+        max_turn = min(c.max_angular_speed, c.max_wheel_speed / max(kin.base_radius))
+        keys = Keyboard(min(args.speed, max_speed), min(args.turn, max_turn), max_speed,
+                        max_turn, args.key_timeout)
+        where = "simulated base" if s.sim else "base"
+        nodes = ", ".join(str(n) for n in s.cfg.nodes())
+        title = f"omnican teleop - {where}, nodes {nodes}"
+        console.print(f"{title}: bringing the drives up...", style="dim")
+        with Chassis.open(s.cfg, record=args.record) as base, cbreak(fd), \
+                logs_into(events), Live(console=console, screen=True, auto_refresh=False,
+                                        transient=True) as live:
+            try:
+                drive_loop(base, keys, fd, live, title, events)
+            except KeyboardInterrupt:  # Ctrl-C quits like Esc
+                pass
+            base.stop()
+            final = base.pose
+        # Leaving the block stopped the wheels and disabled every drive.
+    if final is not None:
+        print(pose_line(final))
+    return 0

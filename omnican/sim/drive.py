@@ -250,17 +250,24 @@ class SimulatedDrive:
         return _default_modes(self.dictionary)
 
     def _prefill_defaults(self) -> None:
-        """Give every numeric object without a default a value, as a drive would."""
+        """Give every numeric object without a default a value, as a drive would: its
+        identity from the EDS's [DeviceInfo], CiA 402 as device type, else 0."""
         store = self.node.data_store
+        info = self.dictionary.device_information
+        known = {
+            (0x1000, 0): 0x00020192,  # CiA 402, servo drive
+            (0x1018, 1): info.vendor_number or 0,
+            (0x1018, 2): info.product_number or 0,
+            (0x1018, 3): info.revision_number or 0,
+            (int(Obj.SUPPORTED_MODES), 0): cia402.modes_to_bits(set(self._supported_modes)),
+        }
         for obj in self.dictionary.values():
             variables = [obj] if isinstance(obj, od.ODVariable) else list(obj.values())
             for var in variables:
                 if var.value is None and var.default is None and var.data_type in od.NUMBER_TYPES:
-                    value = 0
-                    if var.min is not None and var.min > 0:
+                    value = known.get((var.index, var.subindex), 0)
+                    if var.min is not None and var.min > value:
                         value = var.min
-                    if var.index == Obj.SUPPORTED_MODES:
-                        value = cia402.modes_to_bits(set(self._supported_modes))
                     store.setdefault(var.index, {})[var.subindex] = var.encode_raw(value)
 
     def _build_object_hooks(self) -> None:
