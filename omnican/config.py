@@ -87,7 +87,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "wheel_radius": Key(_NUM, None, "m, wheel radius (instead of the scales)"),
         "velocity_unit": Key((str,), "counts/s", "drive velocity unit when deriving the scales: "
                              + ", ".join(VELOCITY_UNITS)),
-        "invert": Key((bool,), False, "reverse the wheel's direction (with derived scales)"),
+        "invert": Key((bool,), False, "reverse the wheel's direction (negates both scales)"),
         "angle_deg": Key(_NUM, None, "wheel position angle from +x, CCW (instead of layout)"),
         "drive_angle_deg": Key(_NUM, None, "drive direction; default angle_deg + 90"),
         "base_radius": Key(_NUM, None, "m, this wheel's distance from the centre; default "
@@ -95,6 +95,28 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "mode": Key((str,), None, "this wheel's mode; default [chassis] mode"),
     },
 }
+
+
+def reference_rows() -> list[tuple[str, str, str]]:
+    """(key, default, meaning) for every key of :data:`SCHEMA`: README's reference table."""
+    rows = []
+    for section, keys in SCHEMA.items():
+        for name, spec in keys.items():
+            d = spec.default
+            if spec.required:
+                text = "required"
+            elif d is None:
+                text = "-"
+            elif isinstance(d, bool):
+                text = str(d).lower()
+            elif isinstance(d, str):
+                text = f'"{d}"'
+            elif isinstance(d, float) and math.isinf(d):
+                text = "inf"
+            else:
+                text = f"{d:g}"
+            rows.append((f"{section}.{name}", text, spec.doc))
+    return rows
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,6 @@ python-can's ``virtual`` bus only reaches buses of the same process. The hub run
 python-can-remote's server on 127.0.0.1 in front of a virtual channel: the
 simulated drives sit on that channel in this process, and other processes connect
 with ``interface = "remote"``, ``channel = "ws://127.0.0.1:<port>/"``.
-Needs the ``remote`` extra (``pip install 'omnican[remote]'``).
 """
 
 from __future__ import annotations
@@ -83,8 +82,8 @@ class LoopbackHub:
         try:
             from can_remote.server import RemoteServer
         except ImportError:
-            raise ConfigError("serving the simulator to other processes needs python-can-remote: "
-                              "pip install 'omnican[remote]'") from None
+            raise ConfigError("serving the simulator to other processes needs python-can-remote "
+                              "(pip install python-can-remote)") from None
         self.channel = channel
         config: dict[str, Any] = {"interface": "virtual", "channel": channel}
         logging.getLogger("can_remote").setLevel(logging.WARNING)

@@ -182,3 +182,13 @@ def test_default_config_is_valid() -> None:
     assert len(cfg.wheels) == 3
     assert cfg.kinematics().num_wheels == 3
     assert WHEEL_EDS.is_file()
+
+
+def test_readme_reference_matches_the_schema() -> None:
+    from omnican.config import reference_rows
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    rows = [line for line in readme.splitlines() if line.startswith("| `chassis.")
+            or line.startswith("| `wheel.")]
+    expected = [f"| `{key}` | {default} | {doc} |" for key, default, doc in reference_rows()]
+    assert rows == expected
