@@ -14,10 +14,11 @@ Units: m/s at the rim <-> drive velocity units (``velocity_scale``); encoder cou
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -333,17 +334,22 @@ class DriveNode:
 
     # ------------------------------------------------------------ SDO configuration
 
+    @contextlib.contextmanager
+    def _sdo_errors(self, doing: str) -> Iterator[None]:
+        """SDO failures as one DriveError naming the node, what it was doing and why."""
+        try:
+            yield
+        except SdoAbortedError as exc:
+            raise DriveError(f"node {self.node_id}: {doing} refused: {abort_text(exc.code)}"
+                             ) from None
+        except SdoCommunicationError as exc:
+            raise DriveError(f"node {self.node_id}: no SDO answer {doing}: {exc}") from None
+
     def _sdo_write(self, entry_or_index: Entry | int, subindex: int, data: bytes,
                    what: str) -> None:
         index = entry_or_index.index if isinstance(entry_or_index, Entry) else entry_or_index
-        try:
+        with self._sdo_errors(f"writing {what} (0x{index:04X}:{subindex:02X})"):
             self.remote.sdo.download(index, subindex, data)
-        except SdoAbortedError as exc:
-            raise DriveError(f"node {self.node_id}: writing {what} (0x{index:04X}:{subindex:02X})"
-                             f" refused: {abort_text(exc.code)}") from None
-        except SdoCommunicationError as exc:
-            raise DriveError(f"node {self.node_id}: no SDO answer writing {what} "
-                             f"(0x{index:04X}:{subindex:02X}): {exc}") from None
 
     def _write_value(self, entry: Entry, value: int, what: str) -> None:
         if entry.writable:
@@ -436,23 +442,14 @@ class DriveNode:
                         "PDO COB-ID (disable)")
 
     def _save_map(self, m: canopen.pdo.PdoMap) -> None:
-        index = m.com_record.od.index
-        try:
+        with self._sdo_errors(f"configuring PDO 0x{m.com_record.od.index:04X}"):
             m.save()
-        except SdoAbortedError as exc:
-            raise DriveError(f"node {self.node_id}: PDO 0x{index:04X} configuration refused: "
-                             f"{abort_text(exc.code)}") from None
-        except SdoCommunicationError as exc:
-            raise DriveError(f"node {self.node_id}: no SDO answer configuring PDO 0x{index:04X}: "
-                             f"{exc}") from None
 
     def _adopt_existing_mapping(self, reason: str) -> NodePlan:
         """Find the objects we need in the drive's fixed mapping; enable those PDOs."""
-        try:
+        with self._sdo_errors("reading its PDO mapping"):
             self.remote.rpdo.read()
             self.remote.tpdo.read()
-        except (SdoAbortedError, SdoCommunicationError) as exc:
-            raise DriveError(f"node {self.node_id}: cannot read its PDO mapping: {exc}") from None
 
         def keys(m: canopen.pdo.PdoMap) -> list[tuple[int, int]]:
             return [(v.index, v.subindex) for v in m]

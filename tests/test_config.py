@@ -192,3 +192,18 @@ def test_readme_reference_matches_the_schema() -> None:
             or line.startswith("| `wheel.")]
     expected = [f"| `{key}` | {default} | {doc} |" for key, default, doc in reference_rows()]
     assert rows == expected
+
+
+def test_bundled_data_found_from_the_installed_package(tmp_path: Path) -> None:
+    """Run from outside the source tree: the installed package finds its EDS and DBC."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    code = ("import omnican, pathlib; p = omnican.WHEEL_EDS; "
+            "print(isinstance(p, pathlib.Path), p.is_file(), (p.parent.parent / 'dbc' / "
+            "'omnican.dbc').is_file())")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, text=True,
+                         capture_output=True, check=True).stdout
+    assert out.split() == ["True", "True", "True"]
