@@ -125,7 +125,8 @@ class CanBus:
         if self.recorder is not None:
             self.recorder.on_message_received(
                 can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                            timestamp=time.time(), is_rx=False))
+                            timestamp=time.time(), is_rx=False,
+                            channel=self.bus_kwargs.get("channel")))
 
     def send(self, can_id: int, data: bytes) -> bool:
         """Send one frame; a failure is counted and reported, not raised.
