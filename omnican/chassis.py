@@ -35,6 +35,7 @@ from omnican.bus import CanBus
 from omnican.cia402 import State, describe_emcy
 from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
+from omnican.encoder import SPEED_WINDOW_S
 from omnican.errors import DriveError, OmnicanError
 from omnican.kinematics import Twist
 from omnican.layout import node_layouts
@@ -47,7 +48,6 @@ logger = logging.getLogger(__name__)
 BUS_DOWN_AFTER_S = 0.05  # sends failing for this long: the bus is down
 RECONNECT_EVERY_S = 1.0
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
-SPEED_WINDOW_S = 0.1  # measured wheel speeds and twist average over this window
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from omnican import cia402
 from omnican.cia402 import Command, Mode, State
 from omnican.config import WheelConfig
+from omnican.encoder import fold_counter
 from omnican.errors import DriveError
 from omnican.layout import NodeLayout
 from omnican.odmap import AxisObjects, Entry, Obj, entry_at, obj_name
@@ -97,10 +98,7 @@ class AxisIO:
 
     def travel_from_sample(self, raw: int) -> float:
         """Fold a raw counter value into continuous counts; returns travel in m."""
-        if self.last_raw is not None:
-            span = 1 << self.position.bits
-            delta = (raw - self.last_raw + span // 2) % span - span // 2
-            self.counts += delta
+        self.counts = fold_counter(self.counts, self.last_raw, raw, self.position.bits)
         self.last_raw = raw
         return self.counts / self.wheel.position_scale
 

@@ -159,7 +159,7 @@ def execute(base: Chassis, plan: list[Leg]) -> tuple[Twist, float]:
             while time.monotonic() < end:
                 reason = base.status.stopped_reason
                 if reason:
-                    raise _StoppedError(reason)
+                    raise BaseStoppedError(reason)
                 twist = _leg_command(base, leg, origin) if goal else leg.twist
                 if twist is None:
                     _settle(base)  # stop between goal legs, so one does not run into the next
@@ -186,7 +186,7 @@ def _settle(base: Chassis, timeout_s: float = 3.0) -> None:
     time.sleep(0.05)  # the last samples of the stop reach the odometry
 
 
-class _StoppedError(Exception):
+class BaseStoppedError(Exception):
     """The base stopped itself (fault, lost drive) during the motion."""
 
 
@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
         with Chassis.open(s.cfg, record=args.record) as base:
             try:
                 twist, elapsed = execute(base, plan)
-            except _StoppedError as exc:
+            except BaseStoppedError as exc:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
                 print(pose_line(base.pose))
                 return EXIT_FAILURE

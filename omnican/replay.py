@@ -1,0 +1,363 @@
+"""Decode a recording of the bus into time series, offline (no bus, no threads).
+
+What is on the wire is worked out from the config alone (:func:`omnican.layout.node_layouts`):
+the cyclic RPDOs carry each wheel's target velocity, the SYNC TPDOs each wheel's
+position, the event TPDOs each state machine's statusword. :func:`decode` follows the
+frames in time order and applies the chassis' rules:
+
+* position samples belong to the latest SYNC before them; odometry integrates only
+  complete sets (every wheel answered that SYNC), as :class:`omnican.chassis.Chassis`;
+* counters are folded into continuous counts across wrap-around, and a drive's
+  boot-up (a reboot) restarts the fold without a jump, as :class:`omnican.drive.AxisIO`.
+
+:func:`read_frames` is the only I/O: it reads any python-can log format by extension.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from omnican.cia402 import State, decode_state, describe_emcy
+from omnican.config import ChassisConfig
+from omnican.encoder import SPEED_WINDOW_S, fold_counter
+from omnican.errors import ConfigError
+from omnican.layout import NodeLayout, node_layouts
+from omnican.odmap import Entry
+from omnican.odometry import Odometry
+
+FloatArray = npt.NDArray[np.float64]
+
+SYNC_COB_ID = 0x80
+EMCY_BASE = 0x80
+HEARTBEAT_BASE = 0x700
+NMT_COB_ID = 0x000
+NMT_RESETS = (0x81, 0x82)  # reset node, reset communication
+
+
+class RecordingError(ConfigError):
+    """A recording that cannot be read: missing, unreadable, unknown format, empty."""
+
+
+class Frame(Protocol):
+    """What decoding needs of a frame (a :class:`can.Message` fits)."""
+
+    @property
+    def timestamp(self) -> float: ...
+
+    @property
+    def arbitration_id(self) -> int: ...
+
+    @property
+    def data(self) -> bytes | bytearray: ...
+
+
+@dataclass(frozen=True)
+class StateChange:
+    """A stage entered ``state`` (``t`` in s from the first frame; ``statusword`` is
+    the first one that showed it)."""
+
+    t: float
+    state: State
+    statusword: int
+
+
+@dataclass(frozen=True)
+class StageTrack:
+    """One CiA 402 state machine (a controlword/statusword pair) and its history."""
+
+    node_id: int
+    wheels: tuple[int, ...]
+    label: str
+    changes: tuple[StateChange, ...]
+
+
+@dataclass(frozen=True)
+class EmcyEvent:
+    t: float
+    node_id: int
+    code: int
+    register: int
+
+    @property
+    def text(self) -> str:
+        return "error reset" if self.code == 0 else describe_emcy(self.code)
+
+
+@dataclass(frozen=True)
+class Replay:
+    """A decoded recording. Times are seconds from the first frame; speeds m/s at the
+    rim; travel m; poses (x m, y m, theta rad, continuous) in the start pose's frame.
+
+    ``sync_t``, ``counts``, ``travel``, ``actual_speed`` and ``poses`` have one row per
+    complete SYNC set (what the odometry integrated); the first row only seeds."""
+
+    start_time: float  # wall-clock time of the first frame
+    duration: float
+    frames: int
+    wheel_names: tuple[str, ...]
+    target_t: tuple[FloatArray, ...]  # per wheel: when each cyclic target was sent
+    target_speed: tuple[FloatArray, ...]  # per wheel: commanded rim speed
+    sync_t: FloatArray  # (M,)
+    counts: FloatArray  # (M, N) continuous encoder counts
+    travel: FloatArray  # (M, N) counts / position_scale
+    actual_speed: FloatArray  # (M, N) rim speed over the last SPEED_WINDOW_S (row 0: 0)
+    poses: FloatArray  # (M, 3)
+    stages: tuple[StageTrack, ...]
+    emcy: tuple[EmcyEvent, ...]
+    syncs: int  # every SYNC in the recording
+    reboots: tuple[tuple[float, int], ...]  # (t, node id): boot-ups the host did not ask for
+    node_frames: int  # frames from or to the configured nodes (0: wrong config?)
+
+    @property
+    def complete_syncs(self) -> int:
+        return int(self.sync_t.size)
+
+    @property
+    def num_wheels(self) -> int:
+        return len(self.wheel_names)
+
+
+@dataclass
+class _Slot:
+    offset: int
+    entry: Entry
+    role: str  # "target", "position", "statusword"
+    index: int  # wheel index, or stage number
+
+
+@dataclass
+class _Stage:
+    node_id: int
+    wheels: list[int]
+    changes: list[StateChange] = field(default_factory=list)
+
+
+def _slots(layouts: Sequence[NodeLayout], first_stage: list[int]) -> dict[int, list[_Slot]]:
+    """COB-ID -> what each of its PDOs carries, from the planned mapping."""
+    out: dict[int, list[_Slot]] = {}
+    for layout, base in zip(layouts, first_stage, strict=True):
+        plan = layout.plan
+        wanted: list[tuple[Entry, bool, str, int]] = []
+        for axis in layout.axes:
+            wanted.append((axis.target, False, "target", axis.wheel_index))
+            wanted.append((axis.position, True, "position", axis.wheel_index))
+        for k, stage in enumerate(layout.stages):
+            wanted.append((stage.statusword, True, "statusword", base + k))
+        for entry, tx, role, index in wanted:
+            found = plan.find(entry, tx)
+            if found is not None:
+                pdo, offset = found
+                out.setdefault(pdo.cob_id, []).append(_Slot(offset, entry, role, index))
+    return out
+
+
+def _pdo_lengths(layouts: Sequence[NodeLayout]) -> dict[int, int]:
+    return {p.cob_id: p.data_bytes for n in layouts for p in (*n.plan.rpdos, *n.plan.tpdos)}
+
+
+def window_speeds(t: FloatArray, travel: FloatArray,
+                  window_s: float = SPEED_WINDOW_S) -> FloatArray:
+    """Speeds (M, N) at each row of ``travel`` (M, N) sampled at times ``t`` (M,): the
+    travel since the latest sample at least ``window_s`` older (or the first sample),
+    over the time between, as the chassis measures them; row 0 (and rows with no time
+    between) are zero."""
+    speed = np.zeros_like(travel)
+    if len(t) < 2:
+        return speed
+    ref = np.searchsorted(t, t - window_s, side="right") - 1
+    ref = np.clip(np.minimum(ref, np.arange(len(t)) - 1), 0, None)
+    dt = t - t[ref]
+    ok = dt > 0
+    speed[ok] = (travel[ok] - travel[ref[ok]]) / dt[ok, None]
+    return speed
+
+
+def decode(frames: Iterable[Frame], cfg: ChassisConfig,
+           layouts: Sequence[NodeLayout] | None = None) -> Replay:
+    """Decode ``frames`` (any order; sorted by timestamp, stably) recorded on ``cfg``'s bus.
+
+    ``layouts`` (``node_layouts(cfg)``) may be passed in to save parsing the EDS files."""
+    if layouts is None:
+        layouts = node_layouts(cfg)
+    kin = cfg.kinematics()
+    n = len(cfg.wheels)
+    bits = [0] * n
+    node_of = [0] * n
+    for layout in layouts:
+        for axis in layout.axes:
+            bits[axis.wheel_index] = axis.position.bits
+            node_of[axis.wheel_index] = layout.node_id
+    stages: list[_Stage] = []
+    first_stage: list[int] = []
+    for layout in layouts:
+        first_stage.append(len(stages))
+        for k in range(len(layout.stages)):
+            stages.append(_Stage(layout.node_id,
+                                 [a.wheel_index for a in layout.axes if a.stage == k]))
+    slots = _slots(layouts, first_stage)
+    lengths = _pdo_lengths(layouts)
+    node_ids = {layout.node_id for layout in layouts}
+    vscale = [w.velocity_scale for w in cfg.wheels]
+    pscale = [w.position_scale for w in cfg.wheels]
+
+    ordered = sorted(frames, key=lambda f: f.timestamp)
+    t0 = ordered[0].timestamp if ordered else 0.0
+    target_t: list[list[float]] = [[] for _ in range(n)]
+    target_v: list[list[float]] = [[] for _ in range(n)]
+    sync_t: list[float] = []
+    counts_rows: list[list[float]] = []
+    emcy: list[EmcyEvent] = []
+    reboots: list[tuple[float, int]] = []
+    booted: set[int] = set()
+    reset: set[int] = set()  # nodes the host reset (NMT): their next boot-up is no reboot
+    counts = [0.0] * n
+    last_raw: list[int | None] = [None] * n
+    pending: dict[int, int] = {}  # wheel -> raw sample of the current SYNC
+    current_sync: float | None = None
+    reseed: set[int] = set()  # wheels whose drive rebooted since the SYNC
+    syncs = 0
+    node_frames = 0
+
+    def close_sync() -> None:
+        """The chassis' rule: integrate the SYNC's samples only if every wheel answered.
+        A drive that rebooted meanwhile restarts its fold after that (its samples of the
+        SYNC were taken before the reboot)."""
+        if current_sync is not None and len(pending) == n:
+            for w in range(n):
+                raw = pending[w]
+                counts[w] = fold_counter(counts[w], last_raw[w], raw, bits[w])
+                last_raw[w] = raw
+            sync_t.append(current_sync)
+            counts_rows.append(list(counts))
+        for w in reseed:
+            last_raw[w] = None
+        reseed.clear()
+
+    for frame in ordered:
+        if getattr(frame, "is_error_frame", False) or getattr(frame, "is_remote_frame", False) \
+                or getattr(frame, "is_extended_id", False):
+            continue
+        cob, data, t = frame.arbitration_id, frame.data, frame.timestamp - t0
+        if cob == SYNC_COB_ID:
+            close_sync()
+            pending.clear()
+            current_sync = t
+            syncs += 1
+            continue
+        if cob in slots:
+            node_frames += 1
+            if len(data) < lengths[cob]:
+                continue  # not the planned PDO (or a broken frame), as the chassis ignores it
+            for slot in slots[cob]:
+                value = slot.entry.decode(data[slot.offset:slot.offset + slot.entry.bits // 8])
+                if slot.role == "target":
+                    target_t[slot.index].append(t)
+                    target_v[slot.index].append(value / vscale[slot.index])
+                elif slot.role == "position":
+                    if current_sync is not None:
+                        pending[slot.index] = value
+                else:
+                    sw = value & 0xFFFF
+                    state = decode_state(sw)
+                    changes = stages[slot.index].changes
+                    if not changes or changes[-1].state is not state:
+                        changes.append(StateChange(t, state, sw))
+            continue
+        if cob == NMT_COB_ID and len(data) >= 2:
+            if data[0] in NMT_RESETS:
+                reset.update(node_ids if data[1] == 0 else {data[1]})
+            continue
+        node = cob - EMCY_BASE
+        if node in node_ids and len(data) >= 3:
+            node_frames += 1
+            emcy.append(EmcyEvent(t, node, int.from_bytes(bytes(data[:2]), "little"), data[2]))
+            continue
+        node = cob - HEARTBEAT_BASE
+        if node in node_ids and data:
+            node_frames += 1
+            if data[0] & 0x7F == 0:  # boot-up: the counter restarts, the travel continues
+                if node in booted and node not in reset:
+                    reboots.append((t, node))
+                booted.add(node)
+                reset.discard(node)
+                reseed.update(w for w in range(n) if node_of[w] == node)
+    close_sync()
+
+    sync_arr = np.array(sync_t, dtype=np.float64)
+    counts_arr = np.array(counts_rows, dtype=np.float64).reshape(-1, n)
+    travel = counts_arr / np.array(pscale, dtype=np.float64)
+    speed = window_speeds(sync_arr, travel)
+    odo = Odometry(kin)
+    poses = np.zeros((len(sync_arr), 3))
+    for k, row in enumerate(travel):
+        p = odo.update(row)
+        poses[k] = (p.x, p.y, p.theta)
+    names = tuple(f"wheel {i} ({w.name})" for i, w in enumerate(cfg.wheels))
+    tracks = []
+    for s in stages:
+        wheels = ", ".join(str(w) for w in s.wheels)
+        label = f"node {s.node_id} (wheel{'s' if len(s.wheels) > 1 else ''} {wheels})"
+        tracks.append(StageTrack(s.node_id, tuple(s.wheels), label, tuple(s.changes)))
+    duration = ordered[-1].timestamp - t0 if ordered else 0.0
+    return Replay(
+        start_time=t0,
+        duration=duration,
+        frames=len(ordered),
+        wheel_names=names,
+        target_t=tuple(np.array(v, dtype=np.float64) for v in target_t),
+        target_speed=tuple(np.array(v, dtype=np.float64) for v in target_v),
+        sync_t=sync_arr,
+        counts=counts_arr,
+        travel=travel,
+        actual_speed=speed,
+        poses=poses,
+        stages=tuple(tracks),
+        emcy=tuple(emcy),
+        syncs=syncs,
+        reboots=tuple(reboots),
+        node_frames=node_frames,
+    )
+
+
+def read_frames(path: str | Path) -> list[Any]:
+    """Every frame of a python-can log file (format by extension: .log, .asc, .blf, ...).
+
+    Raises RecordingError (one line) for a missing, unreadable or empty file or an
+    unknown format."""
+    import can
+
+    p = Path(path)
+    if not p.is_file():
+        raise RecordingError(f"recording not found: {p}")
+    try:
+        if p.suffix.lower() == ".blf":  # python-can's BLFReader leaks its file on a bad header
+            with p.open("rb") as f:
+                if f.read(4) != b"LOGG":
+                    raise RecordingError(f"{p}: not a readable .blf recording: no BLF header")
+        reader = can.LogReader(str(p))
+        with reader:
+            frames = list(reader)
+    except OSError as exc:
+        raise RecordingError(f"cannot read recording {p}: {exc.strerror or exc}") from None
+    except RecordingError:
+        raise
+    except Exception as exc:  # unknown suffix (ValueError); the readers raise many kinds
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "unknown log format" in text:
+            raise RecordingError(f"{p}: {text}") from None
+        raise RecordingError(f"{p}: not a readable {p.suffix or 'CAN'} recording: {text}") \
+            from None
+    if not frames:
+        raise RecordingError(f"{p}: no CAN frames in the recording")
+    return frames
+
+
+def load(path: str | Path, cfg: ChassisConfig) -> Replay:
+    """Read and decode a recording made on ``cfg``'s base."""
+    return decode(read_frames(path), cfg)
