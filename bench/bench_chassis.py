@@ -184,8 +184,7 @@ def bench_square(rate_hz: float, side_m: float, speed: float) -> None:
         time.sleep(1.0)
         truth, pose = sim.true_pose, base.pose
         emit(bench="chassis.odometry_square", rate_hz=rate_hz, side_m=side_m,
-             path_m=round(sum(abs(w.travel) for w in base.wheels) / 3, 2),
-             seconds=round(time.monotonic() - t0, 1),
+             path_m=4 * side_m, seconds=round(time.monotonic() - t0, 1),
              true_pose=[round(truth.x, 4), round(truth.y, 4), round(truth.theta, 4)],
              position_error_mm=round(pose.distance_to(truth) * 1000, 2),
              heading_error_mrad=round(abs(pose.theta - truth.theta) * 1000, 2))
