@@ -55,3 +55,11 @@ def vendor_config(channel: str, layout: str, **chassis: Any) -> ChassisConfig:
     settings = replace(ChassisSettings(), **chassis)
     return ChassisConfig(chassis=settings, wheels=wheels,
                          bus={"interface": "virtual", "channel": channel})
+
+
+def one_error_line(err: str) -> str:
+    """The single line a bad invocation may print on stderr (never a traceback)."""
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]

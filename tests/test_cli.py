@@ -21,17 +21,13 @@ from omnican.cli import main
 from omnican.sim import SimulatedBase
 
 from .conftest import VENDOR_EDS
+from .helpers import one_error_line
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "robot.toml"
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b[()][A-Z0-9]|\x1b[=>]")
 
 
-def one_error_line(err: str) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 # ---------------------------------------------------------------- drive

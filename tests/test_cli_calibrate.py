@@ -21,6 +21,8 @@ from omnican.cli.drive import Leg, execute
 from omnican.kinematics import Twist
 from omnican.sim import SimulatedBase
 
+from .helpers import one_error_line
+
 # Steep limits keep the runs short. Wheel 0 gives physical parameters, the others scales.
 QUICK = """\
 # quick test base
@@ -50,13 +52,6 @@ RUN = ["--distance", "0.2", "--turns", "0.25", "--speed", "0.5", "--omega", "3"]
 SCALE_ERROR, RADIUS_ERROR = 0.04, -0.03
 FACTOR = re.compile(r"wheel scale factor (\S+) ")
 RADIUS = re.compile(r"base_radius (\S+) -> (\S+) m")
-
-
-def one_error_line(err: str) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 def run_main(argv: list[str]) -> tuple[int, str, str]:

@@ -13,6 +13,8 @@ import pytest
 
 from omnican.cli import main, monitor
 
+from .helpers import one_error_line
+
 ROW = re.compile(r"^(0x[0-9A-F]{3,8})\s+(.+?)\s+(\d+)\s+(\d+\.\d)(?:  (.*))?$")
 
 
@@ -40,11 +42,7 @@ def run_ok(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 
 
 def one_line_error(capsys: pytest.CaptureFixture[str]) -> str:
-    captured = capsys.readouterr()
-    lines = captured.err.strip().splitlines()
-    assert len(lines) == 1, captured.err
-    assert "Traceback" not in captured.err
-    return lines[0]
+    return one_error_line(capsys.readouterr().err)
 
 
 # ------------------------------------------------------------------ --sim

@@ -17,17 +17,12 @@ from omnican import default_config, replay
 from omnican.cli import main
 from omnican.cli import plot as plot_cli
 
+from .helpers import one_error_line
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 WROTE = re.compile(r"wrote (\S+): (\S+) s, (\d+) frames, (\d+)/(\d+) complete SYNCs, (\d+) EMCY; "
                    r"end pose x=(\S+) y=(\S+) theta=(\S+); last states: node 1 SWITCH ON "
                    r"DISABLED, node 2 SWITCH ON DISABLED, node 3 SWITCH ON DISABLED")
-
-
-def one_error_line(err: str) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 @dataclass
