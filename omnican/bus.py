@@ -112,10 +112,14 @@ class CanBus:
         try:
             self.network.connect(**self.bus_kwargs)
         except Exception as exc:  # python-can raises many kinds for a bad interface/channel
-            where = ", ".join(f"{k}={v}" for k, v in self.bus_kwargs.items()) or \
-                "python-can's configuration"
             if self.recorder is not None:
                 self.recorder.close()
+            if not self.bus_kwargs and "interface" in str(exc).lower():
+                raise BusError("no CAN interface configured: pass -i/-c (e.g. -i socketcan "
+                               "-c can0), add a [bus] table to the config, or set up python-can's "
+                               "config file; --sim runs without hardware") from None
+            where = ", ".join(f"{k}={v}" for k, v in self.bus_kwargs.items()) or \
+                "python-can's configuration"
             raise BusError(f"cannot open CAN bus ({where}): {exc}") from None
         logger.info("bus open: %s", self.network.bus.channel_info if self.network.bus else "?")
 
