@@ -115,7 +115,7 @@ class CanBus:
             if self.recorder is not None:
                 self.recorder.close()
             if not self.bus_kwargs and "interface" in str(exc).lower():
-                raise BusError("no CAN interface configured: pass -i/-c (e.g. -i socketcan "
+                raise ConfigError("no CAN interface configured: pass -i/-c (e.g. -i socketcan "
                                "-c can0), add a [bus] table to the config, or set up python-can's "
                                "config file; --sim runs without hardware") from None
             where = ", ".join(f"{k}={v}" for k, v in self.bus_kwargs.items()) or \
