@@ -38,10 +38,9 @@ from omnican.drive import AxisIO, DriveNode
 from omnican.encoder import SPEED_WINDOW_S
 from omnican.errors import DriveError, OmnicanError
 from omnican.kinematics import Twist
-from omnican.layout import node_layouts
+from omnican.layout import cycle_bits, node_layouts
 from omnican.limits import VelocityLimiter
 from omnican.odometry import Odometry, Pose2D
-from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
 
@@ -553,7 +552,7 @@ class Chassis:
 
     def cycle_bits(self) -> int:
         """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
-        return sum(n.cyclic_bits() for n in self.nodes) + frame_bits(0)
+        return cycle_bits(n.plan for n in self.nodes)  # the plans in use (maybe adopted)
 
     # ------------------------------------------------------------ closing
 

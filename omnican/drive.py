@@ -535,9 +535,6 @@ class DriveNode:
                 io.frame[off : off + entry.bits // 8] = entry.encode(owner.cw)
         return io.pdo.cob_id, bytes(io.frame)
 
-    def cyclic_bits(self) -> int:
-        return self.plan.cyclic_bits()
-
     def stop(self) -> None:
         """Stop watching the host (consumer off) and leave OPERATIONAL; best effort."""
         if self.has_consumer:

@@ -7,6 +7,7 @@ picture without a bus (check-config, monitor, plot, calibrate).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from canopen import objectdictionary as od
@@ -109,9 +110,9 @@ def node_layouts(cfg: ChassisConfig) -> list[NodeLayout]:
             for node_id, wheels in cfg.nodes().items()]
 
 
-def cycle_bits(layouts: list[NodeLayout]) -> int:
+def cycle_bits(plans: Iterable[NodePlan]) -> int:
     """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
-    return sum(n.plan.cyclic_bits() for n in layouts) + frame_bits(0)
+    return sum(plan.cyclic_bits() for plan in plans) + frame_bits(0)
 
 
 def heartbeat_bits_per_s(cfg: ChassisConfig) -> float:

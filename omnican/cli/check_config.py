@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
                   "itself if the host dies")
         for line in layout.plan.describe():
             print(f"    {line}")
-    bits = cycle_bits(layouts)
+    bits = cycle_bits(layout.plan for layout in layouts)
     hb = heartbeat_bits_per_s(cfg)
     bitrate = args.bitrate or (cfg.bus or {}).get("bitrate")
     per_s = bits * c.rate_hz + hb
