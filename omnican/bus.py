@@ -8,6 +8,7 @@ frame, received and sent, to a python-can log file when asked (format by extensi
 from __future__ import annotations
 
 import logging
+import struct
 import threading
 import time
 from collections.abc import Mapping
@@ -37,9 +38,27 @@ class _Recorder(can.Listener):
         self.path = path
 
     def on_message_received(self, msg: can.Message) -> None:
+        # Runs on the Notifier thread: an exception here would stop all reception.
         with self._lock:
-            if self._writer is not None:
+            if self._writer is None:
+                return
+            try:
                 self._writer.on_message_received(msg)
+            except (struct.error, ValueError, OverflowError):
+                # BLF stores the channel as a 16-bit number taken from the trailing digits
+                # of its name ("omnican-sim-95857398" overflows): write it without one.
+                try:
+                    self._writer.on_message_received(can.Message(
+                        timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+                        is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
+                        is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=msg.data,
+                        is_rx=msg.is_rx, channel=None))
+                except Exception as exc:  # a broken log must not take the bus down with it
+                    logger.error("recording to %s stopped: %s", self.path, exc)
+                    self._writer = None
+            except Exception as exc:
+                logger.error("recording to %s stopped: %s", self.path, exc)
+                self._writer = None
 
     def stop(self) -> None:
         """Called by the Notifier when it stops: keep writing after a reconnect."""

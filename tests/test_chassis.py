@@ -186,6 +186,18 @@ def test_recording(channel: str, tmp_path: Path) -> None:
     assert any(not m.is_rx for m in frames) and any(m.is_rx for m in frames)
 
 
+def test_blf_recording_of_a_channel_named_with_big_digits(channel: str, tmp_path: Path) -> None:
+    """BLF keeps a 16-bit channel number from the name's trailing digits; a name ending
+    in 123456789 must neither break the recording nor stop reception."""
+    cfg = sim_config(f"{channel}-123456789")
+    log = tmp_path / "run.blf"
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=log) as base:
+        drive_for(base, 0.3, vx=0.2)
+        assert base.status.enabled and sim.true_twist.vx > 0.1
+    frames = list(can.LogReader(str(log)))
+    assert {0x80, 0x301, 0x281} <= {m.arbitration_id for m in frames}
+
+
 @pytest.mark.parametrize("layout", ["zlac", "roboteq", "epos4"])
 def test_vendor_layouts_drive_and_track_truth(channel: str, layout: str) -> None:
     cfg = vendor_config(channel, layout)
