@@ -237,8 +237,12 @@ class DriveNode:
         # Liveness and events (Notifier thread writes; loop reads).
         self.last_heartbeat: float | None = None
         self.nmt_state: int | None = None
-        self.booted = threading.Event()
-        self.rebooted = False
+        # Boot-ups seen (only the Notifier thread writes it) and the one the present
+        # configuration followed (only the configuring thread writes it): a drive that
+        # booted since it was configured has lost its configuration.
+        self.boot_count = 0
+        self.configured_boot = 0
+        self._boot_seen = threading.Condition()
         self.emcy: EmcyError | None = None
         self.fault_text: str | None = None
         self._hb_period = settings.heartbeat_ms / 1000.0
@@ -314,8 +318,14 @@ class DriveNode:
         self.last_heartbeat = time.monotonic()
         self.nmt_state = state
         if state == 0:
-            self.booted.set()
-            self.rebooted = True
+            with self._boot_seen:
+                self.boot_count += 1
+                self._boot_seen.notify_all()
+
+    @property
+    def rebooted(self) -> bool:
+        """The drive booted since its configuration (so it lost that configuration)."""
+        return self.boot_count != self.configured_boot
 
     def _on_emcy(self, error: EmcyError) -> None:
         if error.code == 0:
@@ -356,12 +366,16 @@ class DriveNode:
     def configure(self, warn: list[str] | None = None) -> None:
         """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded."""
         s = self.settings
-        self.booted.clear()
+        with self._boot_seen:
+            before = self.boot_count
         self.network.send_message(0, bytes([_NMT_RESET_COMM, self.node_id]))
-        if not self.booted.wait(s.boot_timeout_s):
-            raise DriveError(f"node {self.node_id}: no boot-up within {s.boot_timeout_s:g} s "
-                             "after NMT reset communication (powered? node id? bitrate?)")
-        self.rebooted = False
+        with self._boot_seen:
+            if not self._boot_seen.wait_for(lambda: self.boot_count != before,
+                                            s.boot_timeout_s):
+                raise DriveError(f"node {self.node_id}: no boot-up within "
+                                 f"{s.boot_timeout_s:g} s after NMT reset communication "
+                                 "(powered? node id? bitrate?)")
+            self.configured_boot = self.boot_count
         for stage in self.stages:
             stage.forget()
             if stage.mode is not None:

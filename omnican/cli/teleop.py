@@ -195,6 +195,8 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
     load = (f"{st.bus_load:.0%} of {bitrate // 1000} kbit/s"
             if st.bus_load is not None and bitrate else f"{st.bus_bits_per_s / 1000:.1f} kbit/s")
     header.append(f"   loop {st.loop_hz:.0f} Hz   bus {load}", style="dim")
+    if not st.bus_up:
+        header.append("   BUS DOWN", style="bold red")
 
     pose_t = Table.grid(padding=(0, 1))
     pose_t.add_row("x", f"{pose.x:+8.3f} m")
@@ -204,10 +206,11 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
     tw = Table(box=None, padding=(0, 1))
     for col in ("", "keys", "applied", "measured"):
         tw.add_column(col, justify="right")
+    unknown = any(w.stale for w in base.wheels)  # no fresh samples: no measured twist
     for name, unit, a, b, c in (("vx", "m/s", command.vx, applied.vx, twist.vx),
                                 ("vy", "m/s", command.vy, applied.vy, twist.vy),
                                 ("wz", "rad/s", command.wz, applied.wz, twist.wz)):
-        tw.add_row(f"{name} {unit}", f"{a:+.3f}", f"{b:+.3f}", f"{c:+.3f}")
+        tw.add_row(f"{name} {unit}", f"{a:+.3f}", f"{b:+.3f}", "-" if unknown else f"{c:+.3f}")
 
     wheels = Table(box=None, padding=(0, 1))
     for col in ("wheel", "node", "state", "target m/s", "actual m/s", "travel m", "fault"):
@@ -218,7 +221,7 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
         if not w.online:
             state = Text("OFFLINE", style="bold red")
         wheels.add_row(str(w.index), node, state, f"{w.target_speed:+.3f}",
-                       f"{w.actual_speed:+.3f}", f"{w.travel:+.3f}",
+                       "-" if w.stale else f"{w.actual_speed:+.3f}", f"{w.travel:+.3f}",
                        Text(w.fault or w.error or "", style="red"))
 
     if st.stopped_reason:
