@@ -20,7 +20,9 @@ from typing import Any
 import can
 import canopen
 
+from omnican.clock import REAL_TIME, Clock
 from omnican.errors import BusError, ConfigError
+from omnican.lockstep import LockstepBus, listeners_receiver
 from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
@@ -126,6 +128,10 @@ class _Network(canopen.Network):
         self._owner = owner
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        if self._owner.lockstep:  # the answers arrive inside the send: record it first
+            self._owner._sent(can_id, data)
+            super().send_message(can_id, data, remote)
+            return
         super().send_message(can_id, data, remote)
         self._owner._sent(can_id, data)
 
@@ -174,11 +180,17 @@ class CanBus:
     the bus on a thread of its own (the control loop never waits for it); each reopening
     that succeeds increments :attr:`generation`.
 
+    With a lock-step ``clock`` (:class:`omnican.clock.SimClock`) the bus is an in-process
+    :class:`omnican.lockstep.LockstepBus` on the configured channel name: no Notifier
+    thread, frames delivered on the sender's thread.
+
     A context manager; :meth:`close` is idempotent."""
 
     def __init__(self, bus: Mapping[str, Any] | None = None, record: str | Path | None = None,
-                 notifier_cycle_s: float = 0.1) -> None:
+                 notifier_cycle_s: float = 0.1, clock: Clock = REAL_TIME) -> None:
         self.bus_kwargs: dict[str, Any] = dict(bus or {})
+        self.clock = clock
+        self.lockstep = clock.lockstep
         self.traffic = _Traffic(self)
         self.recorder = _Recorder(Path(record)) if record is not None else None
         self.network = _Network(self)
@@ -219,6 +231,9 @@ class CanBus:
         return self._reconnect_wanted.is_set()
 
     def _connect(self) -> None:
+        if self.lockstep:
+            self._connect_lockstep()
+            return
         try:
             self.network.connect(**self.bus_kwargs)
         except Exception as exc:  # python-can raises many kinds for a bad interface/channel
@@ -233,12 +248,23 @@ class CanBus:
             raise BusError(f"cannot open CAN bus ({where}): {exc}") from None
         logger.info("bus open: %s", self.network.bus.channel_info if self.network.bus else "?")
 
+    def _connect_lockstep(self) -> None:
+        interface = self.bus_kwargs.get("interface", "virtual")
+        channel = self.bus_kwargs.get("channel")
+        if interface != "virtual" or not channel:
+            raise ConfigError("lock-step simulation runs on an in-process channel: the bus "
+                              f"must be interface 'virtual' with a channel, not {interface!r}")
+        lockstep = LockstepBus(str(channel), self.clock)
+        listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
+        lockstep.set_receiver(listeners_receiver(listeners))
+        self.network.bus = lockstep
+
     def _sent(self, can_id: int, data: bytes) -> None:
         self.traffic.count_sent(len(data))
         if self.recorder is not None:
             self.recorder.on_message_received(
                 can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                            timestamp=time.time(), is_rx=False,
+                            timestamp=self.clock.wall(), is_rx=False,
                             channel=self.bus_kwargs.get("channel")))
 
     def send(self, can_id: int, data: bytes) -> bool:
@@ -251,6 +277,8 @@ class CanBus:
         second message object and a Notifier check per frame)."""
         msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
         network = self.network
+        if self.lockstep:  # the answers arrive inside the send: record it first
+            self._sent(can_id, data)
         try:
             with network.send_lock:
                 bus = network.bus
@@ -262,7 +290,8 @@ class CanBus:
             self.dropped_frames += 1
             self.last_error = describe_send_error(can_id, exc)
             return False
-        self._sent(can_id, data)
+        if not self.lockstep:
+            self._sent(can_id, data)
         if self.send_errors:
             logger.info("bus sends work again after %d errors", self.send_errors)
             self.send_errors = 0
@@ -273,7 +302,7 @@ class CanBus:
         """Send a SYNC; samples the drives take for it carry the new epoch."""
         with self._lock:
             self.sync_epoch += 1
-            self.sync_time = time.monotonic()
+            self.sync_time = self.clock.now()
         return self.send(SYNC_COB_ID, b"")
 
     # ------------------------------------------------------------ reconnecting
@@ -282,7 +311,7 @@ class CanBus:
         """Reopen the bus in the background, retrying every ``RECONNECT_EVERY_S`` until
         it opens (or the bus is closed). Returns at once."""
         with self._lock:
-            if self._closed or self._reconnect_wanted.is_set():
+            if self._closed or self._reconnect_wanted.is_set() or self.lockstep:
                 return
             self._reconnect_wanted.set()
             if self._reconnect_thread is None or not self._reconnect_thread.is_alive():

@@ -35,6 +35,7 @@ from typing import Any
 from omnican import bus as bus_module
 from omnican.bus import CanBus
 from omnican.cia402 import State, describe_emcy
+from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
 from omnican.encoder import SPEED_WINDOW_S
@@ -188,8 +189,12 @@ def _close_all() -> None:
 class Chassis:
     """A running base. Use :meth:`open` (a context manager)."""
 
-    def __init__(self, cfg: ChassisConfig, bus: CanBus, nodes: list[DriveNode]) -> None:
+    def __init__(self, cfg: ChassisConfig, bus: CanBus, nodes: list[DriveNode],
+                 clock: Clock = REAL_TIME) -> None:
         self.cfg = cfg
+        self.clock = clock
+        self._lockstep = clock.lockstep
+        self._task: object | None = None  # the clock's handle on step() (lock-step)
         self._bus = bus
         self.nodes = nodes
         self._kin = cfg.kinematics()
@@ -202,6 +207,7 @@ class Chassis:
         self._stages = [s for n in nodes for s in n.stages]
         self._cmd: tuple[Twist, float] = (Twist(), -math.inf)
         self._latched: str | None = None
+        self._recovering = False
         self._want_enabled = True
         self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         self._configuring: set[int] = set()
@@ -223,9 +229,9 @@ class Chassis:
         self._late = 0
         self._last_hb = -math.inf
         self._bus_fail_since: float | None = None
-        self._load_mark = (time.monotonic(), 0)
+        self._load_mark = (clock.now(), 0)
         self._bus_bits_per_s = 0.0
-        self._rate_mark = (time.monotonic(), 0)
+        self._rate_mark = (clock.now(), 0)
         self._loop_hz = 0.0
         self.warnings: list[str] = []
         self._workers: list[threading.Thread] = []
@@ -237,7 +243,7 @@ class Chassis:
         self._down_since_generation = bus.generation
         self._reconnect_asked_at = -math.inf
         self.loop_cpu_s = 0.0  # CPU time of the loop thread (for benchmarks)
-        self._snapshot = self._make_snapshot(time.monotonic())
+        self._snapshot = self._make_snapshot(clock.now())
         self._thread = threading.Thread(target=self._run, name="omnican-loop", daemon=True)
 
     # ------------------------------------------------------------ opening
@@ -250,6 +256,7 @@ class Chassis:
         bus: Mapping[str, Any] | None = None,
         record: str | Path | None = None,
         handle_signals: bool = True,
+        clock: Clock | None = None,
     ) -> Chassis:
         """Open the bus, configure and enable every drive, start the loop.
 
@@ -260,18 +267,23 @@ class Chassis:
             handle_signals: in the main thread, turn SIGTERM into SystemExit so the
                 ``with`` block unwinds and the drives are disabled, and keep a second
                 SIGINT/SIGTERM from cutting that stop short.
+            clock: :data:`omnican.clock.REAL_TIME` (default: a loop thread) or a
+                :class:`omnican.clock.SimClock` (lock-step against a
+                :class:`~omnican.sim.SimulatedBase` on the same clock: no threads; the
+                clock's ``sleep`` runs the control cycles).
 
         Raises:
             BusError: the bus cannot be opened.
             DriveError: a drive did not come up (the message says which and why).
         """
+        clock = clock if clock is not None else REAL_TIME
         layouts = node_layouts(cfg)  # EDS problems surface before the bus is touched
-        can_bus = CanBus(bus if bus is not None else cfg.bus, record=record)
+        can_bus = CanBus(bus if bus is not None else cfg.bus, record=record, clock=clock)
         nodes: list[DriveNode] = []
         try:
             for layout in layouts:
-                nodes.append(DriveNode(can_bus.network, layout, can_bus))
-            base = cls(cfg, can_bus, nodes)
+                nodes.append(DriveNode(can_bus.network, layout, can_bus, clock))
+            base = cls(cfg, can_bus, nodes, clock)
         except BaseException:
             for n in nodes:
                 n.detach()
@@ -308,22 +320,35 @@ class Chassis:
         _open_chassis.add(self)
         if handle_signals:
             self._guards_signals = _signals.acquire()
-        self._thread.start()
+        if self._lockstep:
+            self._task = self.clock.every(self._period, self.step, first_s=self.clock.now())
+        else:
+            self._thread.start()
         self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
         for stage in self._stages:
             stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=False)
 
     def _configure_all(self, nodes: list[DriveNode], warnings: list[str]) -> None:
         errors: list[str] = []
-        with ThreadPoolExecutor(len(nodes), thread_name_prefix="omnican-cfg") as ex:
-            futures = {ex.submit(n.configure, warnings): n for n in nodes}
-            for fut, node in futures.items():
+
+        def note(node: DriveNode, exc: Exception) -> None:
+            errors.append(str(exc) if isinstance(exc, OmnicanError) else
+                          f"node {node.node_id}: {exc}")
+
+        if self._lockstep:  # one thread, in order: deterministic
+            for node in nodes:
                 try:
-                    fut.result()
-                except OmnicanError as exc:
-                    errors.append(str(exc))
+                    node.configure(warnings)
                 except Exception as exc:
-                    errors.append(f"node {node.node_id}: {exc}")
+                    note(node, exc)
+        else:
+            with ThreadPoolExecutor(len(nodes), thread_name_prefix="omnican-cfg") as ex:
+                futures = {ex.submit(n.configure, warnings): n for n in nodes}
+                for fut, node in futures.items():
+                    try:
+                        fut.result()
+                    except Exception as exc:
+                        note(node, exc)
         if errors:
             raise DriveError("; ".join(errors))
 
@@ -340,15 +365,17 @@ class Chassis:
                 stage.statusword_value = sw.decode(raw) & 0xFFFF
 
     def _wait_enabled(self, timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        clock = self.clock
+        deadline = clock.now() + timeout
+        while clock.now() < deadline:
             snap = self._snapshot
             if snap.status.enabled and snap.status.cycles > 0:
                 return
             if self._closed:
                 raise DriveError(f"{what}: the base was closed")
-            time.sleep(0.002)
-        problems = [s.error for s in self._stages if s.error]
+            clock.sleep(self._period if self._lockstep else 0.002)
+        problems = [f"node {nid} heartbeat lost" for nid in sorted(self._offline)]
+        problems += [s.error for s in self._stages if s.error]
         states = ", ".join(f"node {s.node_id}: {s.state}" for s in self._stages
                            if s.state is not State.OPERATION_ENABLED)
         reason = self._latched or "; ".join(problems) or states or "not enabled"
@@ -365,11 +392,11 @@ class Chassis:
             raise ValueError(f"velocity command must be finite, got {twist}")
         if self._closed:
             raise DriveError("the base is closed")
-        self._cmd = (twist, time.monotonic())
+        self._cmd = (twist, self.clock.now())
 
     def stop(self) -> None:
         """Controlled stop now (at the stop deceleration); a new command moves again."""
-        self._cmd = (Twist(), time.monotonic())
+        self._cmd = (Twist(), self.clock.now())
 
     def recover(self, timeout_s: float | None = None) -> None:
         """Clear a latched stop: reset faulted drives, re-enable every drive, and wait
@@ -382,36 +409,41 @@ class Chassis:
             self.cfg.chassis.enable_timeout_s + self.cfg.chassis.boot_timeout_s)
 
         def begin() -> None:
-            self._cmd = (Twist(), time.monotonic())
+            now = self.clock.now()
+            self._cmd = (Twist(), now)
             self._want_enabled = True
+            self._recovering = True  # a silent node may come back meanwhile
             for node in self.nodes:
-                if node.node_id in self._offline and not node.heartbeat_lost(time.monotonic()):
+                if node.node_id in self._offline and not node.heartbeat_lost(now):
                     self._offline.discard(node.node_id)
             for stage in self._stages:
                 stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
             self._latched = None
 
         self._requests.put(begin)
-        time.sleep(2 * self._period)
+        self.clock.sleep(2 * self._period)
         try:
             self._wait_enabled(timeout, "recover")
         finally:
             def done() -> None:
+                self._recovering = False
                 for stage in self._stages:
                     stage.set_goal(stage.goal, allow_fault_reset=False)
+                for nid in sorted(self._offline):
+                    self._latch(f"node {nid} heartbeat lost")
             self._requests.put(done)
-        self._cmd = (Twist(), time.monotonic())
+        self._cmd = (Twist(), self.clock.now())
 
     def reset_pose(self, pose: Pose2D | None = None) -> None:
         """Set the odometry pose (default: origin)."""
         target = pose if pose is not None else Pose2D()
         self._requests.put(lambda: self._odo.reset(target))
-        deadline = time.monotonic() + 1.0
-        while self._snapshot.pose != target and time.monotonic() < deadline:
-            if not self._thread.is_alive():
+        deadline = self.clock.now() + 1.0
+        while self._snapshot.pose != target and self.clock.now() < deadline:
+            if not self._loop_running():
                 self._odo.reset(target)
                 break
-            time.sleep(self._period / 2)
+            self.clock.sleep(self._period if self._lockstep else self._period / 2)
 
     @property
     def pose(self) -> Pose2D:
@@ -440,6 +472,22 @@ class Chassis:
         return self._bus
 
     # ------------------------------------------------------------ loop
+
+    def _loop_running(self) -> bool:
+        if self._lockstep:
+            return self._task is not None
+        return self._thread.is_alive()
+
+    def step(self, now: float) -> None:
+        """One control cycle at ``now`` (lock-step: the clock calls this every period)."""
+        if not self._lockstep:
+            raise RuntimeError("step() is for lock-step simulation: a real-time base runs "
+                               "its own loop thread")
+        try:
+            self._cycle(now)
+        except Exception:  # keep stopping the base whatever went wrong
+            logger.exception("control cycle failed")
+            self._latch("internal error in the control loop (see log)")
 
     def _run(self) -> None:
         next_t = time.monotonic()
@@ -524,8 +572,9 @@ class Chassis:
                 continue
             if node.heartbeat_lost(now):
                 self._offline.add(nid)
-                self._latch(f"node {nid} heartbeat lost")
-            elif nid in self._offline and self._latched is None:
+                if not self._recovering:  # recover() waits for it, and says if it never came
+                    self._latch(f"node {nid} heartbeat lost")
+            elif nid in self._offline and (self._latched is None or self._recovering):
                 self._offline.discard(nid)
             for stage in node.stages:
                 state = stage.state
@@ -563,6 +612,9 @@ class Chassis:
             finally:
                 self._requests.put(lambda: self._configuring.discard(node.node_id))
 
+        if self._lockstep:  # the simulated drives answer at once: no thread, no waiting
+            work()
+            return
         t = threading.Thread(target=work, name=f"omnican-reconfigure-{node.node_id}", daemon=True)
         self._workers = [w for w in self._workers if w.is_alive()]
         self._workers.append(t)
@@ -707,11 +759,15 @@ class Chassis:
         _open_chassis.discard(self)
         with _signals.closing():
             try:
-                if self._thread.is_alive():
+                if self._loop_running():
                     if controlled:
                         self._controlled_shutdown()
+                    if self._task is not None:
+                        self.clock.cancel(self._task)
+                        self._task = None
                     self._stop.set()
-                    self._thread.join(timeout=2.0)
+                    if self._thread.is_alive():
+                        self._thread.join(timeout=2.0)
                 for t in self._workers:
                     t.join(timeout=self.cfg.chassis.boot_timeout_s + 1.0)
                 for node in self.nodes:
@@ -730,13 +786,14 @@ class Chassis:
     def _controlled_shutdown(self) -> None:
         self._cmd = (Twist(), -math.inf)
         s = self.cfg.chassis
+        clock = self.clock
         speed = max(abs(self._limiter.output.linear_speed),
                     abs(self._limiter.output.wz) * max(self._kin.base_radius))
-        deadline = time.monotonic() + speed / s.stop_decel + 0.5
-        while time.monotonic() < deadline:
+        deadline = clock.now() + speed / s.stop_decel + 0.5
+        while clock.now() < deadline:
             if self._limiter.output.is_zero() and all(abs(v) < 0.005 for v in self._speeds):
                 break
-            time.sleep(self._period)
+            clock.sleep(self._period)
 
         def disable() -> None:
             self._want_enabled = False
@@ -744,12 +801,12 @@ class Chassis:
                 stage.set_goal(State.SWITCH_ON_DISABLED)
 
         self._requests.put(disable)
-        deadline = time.monotonic() + 0.5
-        while time.monotonic() < deadline:
+        deadline = clock.now() + 0.5
+        while clock.now() < deadline:
             if all(s.state in (State.SWITCH_ON_DISABLED, State.FAULT, State.UNKNOWN)
                    for s in self._stages):
                 break
-            time.sleep(self._period)
+            clock.sleep(self._period)
 
     def __enter__(self) -> Chassis:
         return self

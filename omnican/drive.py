@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -28,6 +27,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from omnican import cia402
 from omnican.cia402 import Command, Mode, State
+from omnican.clock import REAL_TIME, Clock
 from omnican.config import WheelConfig
 from omnican.encoder import fold_counter
 from omnican.errors import DriveError
@@ -210,8 +210,9 @@ class DriveNode:
     """One node of the base, with the wheels (axes) it drives, on a live network."""
 
     def __init__(self, network: canopen.Network, layout: NodeLayout,
-                 epoch_source: EpochSource) -> None:
+                 epoch_source: EpochSource, clock: Clock = REAL_TIME) -> None:
         self.layout = layout
+        self.clock = clock
         self.node_id = node_id = layout.node_id
         self.settings = settings = layout.settings
         self.network = network
@@ -315,7 +316,7 @@ class DriveNode:
         if not data:
             return
         state = data[0] & 0x7F
-        self.last_heartbeat = time.monotonic()
+        self.last_heartbeat = self.clock.now()
         self.nmt_state = state
         if state == 0:
             with self._boot_seen:

@@ -10,12 +10,19 @@ from typing import Any
 
 from omnican import WHEEL_EDS, ChassisConfig, WheelConfig, default_config
 from omnican.cia402 import Mode
+from omnican.clock import REAL_TIME, Clock, SimClock
 from omnican.config import ChassisSettings
 
 from .conftest import VENDOR_EDS
 
 
-def wait_for(pred: Callable[[], bool], timeout: float = 2.0, step: float = 0.005) -> bool:
+def wait_for(pred: Callable[[], bool], timeout: float = 2.0, step: float = 0.005,
+             clock: Clock = REAL_TIME) -> bool:
+    """``pred()`` became true within ``timeout`` s (of ``clock``'s time: on a lock-step
+    clock, waiting runs the simulation)."""
+    if clock.lockstep:
+        assert isinstance(clock, SimClock)
+        return clock.run_until(pred, timeout, step)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if pred():
@@ -26,11 +33,12 @@ def wait_for(pred: Callable[[], bool], timeout: float = 2.0, step: float = 0.005
 
 def drive_for(base: Any, seconds: float, vx: float = 0.0, vy: float = 0.0, wz: float = 0.0,
               every: float = 0.02) -> None:
-    """Keep commanding a velocity (the watchdog wants fresh commands)."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
+    """Keep commanding a velocity (the watchdog wants fresh commands), on the base's clock."""
+    clock = base.clock
+    end = clock.now() + seconds
+    while clock.now() < end:
         base.set_velocity(vx, vy, wz)
-        time.sleep(every)
+        clock.sleep(every)
 
 
 def sim_config(channel: str, **chassis: Any) -> ChassisConfig:

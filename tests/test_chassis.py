@@ -1,18 +1,24 @@
-"""Chassis against the simulated base: motion, odometry, and every safety scenario."""
+"""Chassis against the simulated base: motion, odometry, and every safety scenario.
+
+Scenarios run in lock-step on a simulated clock (deterministic, faster than real
+time); a few run in real time too, on the control loop's own thread, as a robot runs."""
 
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import can
 import pytest
 
-from omnican import Chassis, Pose2D
+from omnican import Chassis, ChassisConfig, Pose2D
 from omnican.cia402 import State
+from omnican.clock import REAL_TIME, SimClock
 from omnican.errors import DriveError
+from omnican.lockstep import LockstepBus
 from omnican.sim import SimulatedBase
 
 from .helpers import drive_for, sim_config, vendor_config, wait_for
@@ -20,9 +26,26 @@ from .helpers import drive_for, sim_config, vendor_config, wait_for
 
 @pytest.fixture
 def rig(channel: str) -> Iterator[tuple[SimulatedBase, Chassis]]:
+    """Simulated drives and a base in lock-step on one simulated clock."""
+    cfg = sim_config(channel)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
+            Chassis.open(cfg, clock=clock) as base:
+        yield sim, base
+
+
+@pytest.fixture
+def realtime_rig(channel: str) -> Iterator[tuple[SimulatedBase, Chassis]]:
     cfg = sim_config(channel)
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
         yield sim, base
+
+
+def lockstep(cfg: ChassisConfig, **sim_options: Any) -> tuple[SimClock, Any, Any]:
+    """(clock, simulated base, chassis opener) on one simulated clock."""
+    clock = SimClock()
+    return (clock, SimulatedBase.from_config(cfg, clock=clock, **sim_options),
+            lambda: Chassis.open(cfg, clock=clock))
 
 
 def still(sim: SimulatedBase) -> bool:
@@ -30,14 +53,16 @@ def still(sim: SimulatedBase) -> bool:
     return math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2
 
 
-def test_drives_and_odometry_follows_truth(rig: tuple[SimulatedBase, Chassis]) -> None:
-    sim, base = rig
+@pytest.mark.parametrize("rig_name", ["rig", "realtime_rig"])
+def test_drives_and_odometry_follows_truth(request: pytest.FixtureRequest,
+                                           rig_name: str) -> None:
+    sim, base = request.getfixturevalue(rig_name)
     assert base.status.enabled
     assert all(w.state is State.OPERATION_ENABLED for w in base.wheels)
     drive_for(base, 0.8, vx=0.3, wz=0.4)
     base.stop()
-    assert wait_for(lambda: still(sim), 2.0)
-    time.sleep(0.05)
+    assert wait_for(lambda: still(sim), 2.0, clock=sim.clock)
+    sim.clock.sleep(0.05)
     truth, pose = sim.true_pose, base.pose
     assert truth.x > 0.1
     assert pose.distance_to(truth) < 0.005
@@ -48,8 +73,8 @@ def test_drives_and_odometry_follows_truth(rig: tuple[SimulatedBase, Chassis]) -
 def test_watchdog_stops_without_commands(rig: tuple[SimulatedBase, Chassis]) -> None:
     sim, base = rig
     base.set_velocity(0.4, 0.0, 0.0)  # once, then silence
-    assert wait_for(lambda: sim.true_twist.vx > 0.2, 1.0)
-    assert wait_for(lambda: still(sim), 0.5 + 0.4 / 2.0 + 0.5)
+    assert wait_for(lambda: sim.true_twist.vx > 0.2, 1.0, clock=sim.clock)
+    assert wait_for(lambda: still(sim), 0.5 + 0.4 / 2.0 + 0.5, clock=sim.clock)
     assert base.status.command_age_s > 0.5
     assert base.status.enabled and base.status.stopped_reason is None  # not latched
     drive_for(base, 0.3, vx=0.2)
@@ -60,17 +85,18 @@ def test_fault_stops_all_wheels_until_recover(rig: tuple[SimulatedBase, Chassis]
     sim, base = rig
     drive_for(base, 0.4, vy=0.3)
     sim.drives[0].inject_fault(0x2310)
-    assert wait_for(lambda: base.status.stopped_reason is not None, 1.0)
+    assert wait_for(lambda: base.status.stopped_reason is not None, 1.0, clock=sim.clock)
     assert base.status.stopped_reason == "node 1 fault: 0x2310 continuous over-current"
     assert base.wheels[0].fault == "0x2310 continuous over-current"
-    assert wait_for(lambda: base.wheels[0].state is State.FAULT, 1.0)  # after the reaction
-    assert wait_for(lambda: still(sim), 1.5)
+    assert wait_for(lambda: base.wheels[0].state is State.FAULT, 1.0,
+                    clock=sim.clock)  # after the reaction
+    assert wait_for(lambda: still(sim), 1.5, clock=sim.clock)
     drive_for(base, 0.3, vy=0.3)  # commands are ignored while stopped
     assert still(sim)
     base.recover()
     assert base.status.enabled and base.wheels[0].state is State.OPERATION_ENABLED
     assert base.wheels[0].fault is None
-    time.sleep(0.1)
+    sim.clock.sleep(0.1)
     assert still(sim)  # no motion until a new command
     drive_for(base, 0.3, vy=0.3)
     assert sim.true_twist.vy > 0.1
@@ -80,9 +106,9 @@ def test_heartbeat_loss_stops_all(rig: tuple[SimulatedBase, Chassis]) -> None:
     sim, base = rig
     drive_for(base, 0.3, vx=0.3)
     sim.drives[1].stop_heartbeat()
-    assert wait_for(lambda: base.status.stopped_reason == "node 2 heartbeat lost", 1.0)
+    assert wait_for(lambda: base.status.stopped_reason == "node 2 heartbeat lost", 1.0, clock=sim.clock)
     assert not base.wheels[1].online
-    assert wait_for(lambda: still(sim), 1.5)
+    assert wait_for(lambda: still(sim), 1.5, clock=sim.clock)
     with pytest.raises(DriveError, match="not enabled"):
         base.recover(timeout_s=0.3)  # the node is still silent
     sim.drives[1].start_heartbeat()
@@ -94,40 +120,43 @@ def test_frozen_node_is_a_lost_heartbeat(rig: tuple[SimulatedBase, Chassis]) -> 
     sim, base = rig
     drive_for(base, 0.2, vx=0.2)
     sim.drives[2].freeze()
-    assert wait_for(lambda: base.status.stopped_reason == "node 3 heartbeat lost", 1.0)
+    assert wait_for(lambda: base.status.stopped_reason == "node 3 heartbeat lost", 1.0, clock=sim.clock)
     sim.drives[2].thaw()
 
 
 def test_reboot_reconfigures_without_motion_or_odometry_jump(
         rig: tuple[SimulatedBase, Chassis]) -> None:
     sim, base = rig
+    clock = sim.clock
     drive_for(base, 0.5, vx=0.3)
     base.stop()
-    assert wait_for(lambda: still(sim), 1.0)
-    time.sleep(0.05)
+    assert wait_for(lambda: still(sim), 1.0, clock=clock)
+    clock.sleep(0.05)
     before = base.pose
     sim.drives[2].reboot()
-    assert wait_for(lambda: base.status.stopped_reason == "node 3 rebooted", 1.0)
+    assert wait_for(lambda: base.status.stopped_reason == "node 3 rebooted", 1.0, clock=clock)
     assert wait_for(lambda: base.wheels[2].online and base.wheels[2].state is not State.UNKNOWN,
-                    3.0)  # re-configured automatically
+                    3.0, clock=clock)  # re-configured automatically
     assert sim.drives[2].nmt_state == "OPERATIONAL"
     drive_for(base, 0.3, vx=0.3)
     assert still(sim)  # no motion before recover()
     base.recover()
-    time.sleep(0.1)
+    clock.sleep(0.1)
     assert still(sim)  # nor right after it
     assert base.pose.distance_to(before) < 1e-3  # no odometry jump from the counter reset
     drive_for(base, 0.4, vx=0.3)
     base.stop()
-    assert wait_for(lambda: still(sim), 1.0)
-    time.sleep(0.05)
+    assert wait_for(lambda: still(sim), 1.0, clock=clock)
+    clock.sleep(0.05)
     assert base.pose.x - before.x == pytest.approx(sim.true_pose.x - before.x, abs=0.01)
 
 
-def test_leaving_the_block_disables_every_drive(channel: str) -> None:
+@pytest.mark.parametrize("realtime", [False, True])
+def test_leaving_the_block_disables_every_drive(channel: str, realtime: bool) -> None:
     cfg = sim_config(channel)
-    with SimulatedBase.from_config(cfg) as sim:
-        with Chassis.open(cfg) as base:
+    clock = REAL_TIME if realtime else SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        with Chassis.open(cfg, clock=clock) as base:
             drive_for(base, 0.3, vx=0.4)
         assert [d.state() for d in sim.drives] == [State.SWITCH_ON_DISABLED] * 3
         assert still(sim)
@@ -135,9 +164,9 @@ def test_leaving_the_block_disables_every_drive(channel: str) -> None:
 
 
 def test_exception_in_block_disables_every_drive(channel: str) -> None:
-    cfg = sim_config(channel)
-    with SimulatedBase.from_config(cfg) as sim:
-        with pytest.raises(KeyboardInterrupt), Chassis.open(cfg) as base:
+    _clock, simulated, opener = lockstep(sim_config(channel))
+    with simulated as sim:
+        with pytest.raises(KeyboardInterrupt), opener() as base:
             drive_for(base, 0.2, vx=0.4)
             raise KeyboardInterrupt
         assert [d.state() for d in sim.drives] == [State.SWITCH_ON_DISABLED] * 3
@@ -148,24 +177,28 @@ def test_nan_and_inf_are_rejected(rig: tuple[SimulatedBase, Chassis]) -> None:
     for bad in ((math.nan, 0, 0), (0, math.inf, 0), (0, 0, -math.inf)):
         with pytest.raises(ValueError, match="finite"):
             base.set_velocity(*bad)
-    time.sleep(0.1)
+    sim.clock.sleep(0.1)
     assert still(sim) and base.status.enabled
 
 
 def test_foreign_traffic_is_ignored(rig: tuple[SimulatedBase, Chassis], channel: str) -> None:
     sim, base = rig
-    with can.Bus(interface="virtual", channel=channel) as other:
+    clock = sim.clock
+    other = LockstepBus(channel, clock)
+    try:
         for i in range(200):
             other.send(can.Message(arbitration_id=0x123 + i % 7, data=bytes([i % 256] * 8),
                                    is_extended_id=False))
             other.send(can.Message(arbitration_id=0x1ABCDEF, data=b"\xff", is_extended_id=True))
             other.send(can.Message(arbitration_id=0x281, data=b"\x01", is_extended_id=False))
             base.set_velocity(0.2, 0.0, 0.0)
-            time.sleep(0.002)
+            clock.sleep(0.002)
+    finally:
+        other.shutdown()
     assert base.status.enabled and base.status.stopped_reason is None
     base.stop()
-    assert wait_for(lambda: still(sim), 1.0)
-    time.sleep(0.05)
+    assert wait_for(lambda: still(sim), 1.0, clock=clock)
+    clock.sleep(0.05)
     assert base.pose.distance_to(sim.true_pose) < 0.005
 
 
@@ -175,10 +208,13 @@ def test_reset_pose(rig: tuple[SimulatedBase, Chassis]) -> None:
     assert base.pose == Pose2D(1.0, 2.0, 0.5)
 
 
-def test_recording(channel: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("realtime", [False, True])
+def test_recording(channel: str, tmp_path: Path, realtime: bool) -> None:
     cfg = sim_config(channel)
     log = tmp_path / "run.log"
-    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=log) as base:
+    clock = REAL_TIME if realtime else SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock), \
+            Chassis.open(cfg, record=log, clock=clock) as base:
         drive_for(base, 0.2, vx=0.2)
     frames = list(can.LogReader(str(log)))
     ids = {m.arbitration_id for m in frames}
@@ -200,35 +236,33 @@ def test_blf_recording_of_a_channel_named_with_big_digits(channel: str, tmp_path
 
 @pytest.mark.parametrize("layout", ["zlac", "roboteq", "epos4"])
 def test_vendor_layouts_drive_and_track_truth(channel: str, layout: str) -> None:
-    cfg = vendor_config(channel, layout)
-    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
+    clock, simulated, opener = lockstep(vendor_config(channel, layout))
+    with simulated as sim, opener() as base:
         assert base.status.enabled
         if layout == "zlac":
             assert any("no heartbeat consumer" in w for w in base.status.warnings)
         drive_for(base, 0.6, vx=0.2, vy=-0.1, wz=0.3)
         base.stop()
-        assert wait_for(lambda: still(sim), 2.0)
-        time.sleep(0.05)
+        assert wait_for(lambda: still(sim), 2.0, clock=clock)
+        clock.sleep(0.05)
         assert sim.true_pose.x > 0.05
         assert base.pose.distance_to(sim.true_pose) < 0.005
         assert base.pose.theta == pytest.approx(sim.true_pose.theta, abs=0.01)
 
 
 def test_drive_that_refuses_remapping_uses_its_mapping(channel: str) -> None:
-    cfg = vendor_config(channel, "epos4")
-    with SimulatedBase.from_config(cfg, remappable=False) as sim, Chassis.open(cfg) as base:
+    clock, simulated, opener = lockstep(vendor_config(channel, "epos4"), remappable=False)
+    with simulated as sim, opener() as base:
         assert any("refuses remapping" in w for w in base.status.warnings)
         drive_for(base, 0.4, vx=0.2)
         base.stop()
-        assert wait_for(lambda: still(sim), 2.0)
-        time.sleep(0.05)
+        assert wait_for(lambda: still(sim), 2.0, clock=clock)
+        clock.sleep(0.05)
         assert base.pose.distance_to(sim.true_pose) < 0.005
 
 
 @pytest.mark.parametrize("mode", ["csv", "vl"])
 def test_other_modes(channel: str, mode: str) -> None:
-    from dataclasses import replace
-
     from omnican.cia402 import Mode
     cfg = sim_config(channel)
     m = Mode.from_name(mode)
@@ -237,8 +271,8 @@ def test_other_modes(channel: str, mode: str) -> None:
                        for w in cfg.wheels)
     else:
         wheels = tuple(replace(w, mode=m) for w in cfg.wheels)
-    cfg = replace(cfg, wheels=wheels)
-    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
+    _clock, simulated, opener = lockstep(replace(cfg, wheels=wheels))
+    with simulated as sim, opener() as base:
         assert {w.mode for w in base.wheels} == {int(m)}
         drive_for(base, 0.5, vx=0.25)
         assert sim.true_twist.vx == pytest.approx(0.25, rel=0.05)
@@ -248,11 +282,12 @@ def test_encoder_wrap_around_keeps_odometry(channel: str) -> None:
     cfg = sim_config(channel)
     counts_per_m = cfg.wheels[0].position_scale
     near = 2**31 - int(0.05 * counts_per_m)  # wraps after 5 cm of rim travel
-    with SimulatedBase.from_config(cfg, initial_position=near) as sim, Chassis.open(cfg) as base:
+    clock, simulated, opener = lockstep(cfg, initial_position=near)
+    with simulated as sim, opener() as base:
         drive_for(base, 0.8, vx=0.4)
         base.stop()
-        assert wait_for(lambda: still(sim), 2.0)
-        time.sleep(0.05)
+        assert wait_for(lambda: still(sim), 2.0, clock=clock)
+        clock.sleep(0.05)
         assert sim.true_pose.x > 0.2
         assert base.pose.distance_to(sim.true_pose) < 0.005
 
@@ -266,8 +301,31 @@ def test_missing_node_fails_with_a_clear_error(channel: str) -> None:
 
 
 def test_drive_stuck_in_fault_at_startup_is_reset(channel: str) -> None:
-    cfg = sim_config(channel)
-    with SimulatedBase.from_config(cfg) as sim:
+    _clock, simulated, opener = lockstep(sim_config(channel))
+    with simulated as sim:
         sim.drives[0].inject_fault(0x3210)
-        with Chassis.open(cfg) as base:
+        with opener() as base:
             assert base.status.enabled
+
+
+def test_lockstep_runs_are_identical(channel: str, tmp_path: Path) -> None:
+    """The same scripted run on a simulated clock, twice, with seeded frame loss and
+    encoder noise: the same odometry to the last bit, the same recording."""
+    results = []
+    for run in (1, 2):
+        cfg = sim_config(channel)
+        log = tmp_path / f"run{run}.log"
+        clock = SimClock()
+        with SimulatedBase.from_config(cfg, clock=clock, frame_loss=0.02, encoder_noise=2.0,
+                                       seed=7) as sim, \
+                Chassis.open(cfg, clock=clock, record=log) as base:
+            drive_for(base, 1.0, vx=0.3, wz=0.5)
+            sim.drives[1].inject_fault(0x2310)
+            clock.sleep(0.3)
+            base.recover()
+            drive_for(base, 0.5, vy=0.2)
+            results.append((base.pose, sim.true_pose, base.status.stopped_reason))
+        results.append(tuple(line.split(maxsplit=1)[1] for line in
+                             log.read_text().splitlines()))  # frames without timestamps
+    assert results[0] == results[2]
+    assert results[1] == results[3]

@@ -4,8 +4,9 @@ A product feature (``omnican sim``, ``--sim``), not a test helper: the drives be
 on the wire like real ones, so code that works against them works on a robot.
 """
 
+from omnican.clock import SimClock
 from omnican.sim.base import SimulatedBase
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.scheduler import SimScheduler
 
-__all__ = ["SimScheduler", "SimulatedBase", "SimulatedDrive"]
+__all__ = ["SimClock", "SimScheduler", "SimulatedBase", "SimulatedDrive"]

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -17,9 +16,11 @@ import canopen
 import numpy as np
 import numpy.typing as npt
 
+from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, WheelConfig
 from omnican.errors import BusError, ConfigError
 from omnican.kinematics import OmniKinematics, Twist
+from omnican.lockstep import LockstepBus, listeners_receiver
 from omnican.odometry import Odometry, Pose2D
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.scheduler import SimScheduler
@@ -42,8 +43,10 @@ class SimulatedBase:
         wheel_axes: list[tuple[SimulatedDrive, int]],
         true_kinematics: OmniKinematics,
         counts_per_metre: npt.NDArray[np.float64],
+        clock: Clock = REAL_TIME,
     ) -> None:
         self.cfg = cfg
+        self.clock = clock
         self.network = network
         self.scheduler = scheduler
         self.drives = drives
@@ -67,6 +70,7 @@ class SimulatedBase:
         true_scale: float | Sequence[float] = 1.0,
         tick_s: float = 0.002,
         drive_options: Mapping[int, Mapping[str, Any]] | None = None,
+        clock: Clock | None = None,
         **options: Any,
     ) -> SimulatedBase:
         """Start simulated drives for ``cfg``.
@@ -78,6 +82,11 @@ class SimulatedBase:
                 (a wheel worn smaller than configured has ``true_scale > 1``).
             tick_s: housekeeping period.
             drive_options: extra :class:`SimulatedDrive` arguments per node id.
+            clock: :data:`~omnican.clock.REAL_TIME` (default: drives on a housekeeping
+                thread, frames through the configured bus) or a
+                :class:`~omnican.clock.SimClock`: lock-step, single-threaded, on an
+                in-process channel named after the configured one (a
+                :class:`~omnican.Chassis` opened with the same clock reaches it).
             **options: :class:`SimulatedDrive` arguments for every drive
                 (``encoder_noise``, ``slip``, ``frame_loss``, ``tau_s``, ...).
         """
@@ -86,27 +95,37 @@ class SimulatedBase:
                   else [float(true_scale)] * len(cfg.wheels))
         if len(scales) != len(cfg.wheels):
             raise ConfigError(f"true_scale has {len(scales)} values for {len(cfg.wheels)} wheels")
+        clock = clock if clock is not None else REAL_TIME
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the Notifier
-        try:
-            network.connect(**bus_kwargs)
-        except Exception as exc:
-            raise BusError(f"cannot open CAN bus {bus_kwargs or '(python-can config)'}: {exc}") \
-                from None
-        scheduler = SimScheduler(tick_s, name="omnican-sim")
+        if clock.lockstep:
+            channel = bus_kwargs.get("channel")
+            if bus_kwargs.get("interface", "virtual") != "virtual" or not channel:
+                raise ConfigError("lock-step simulation runs on an in-process channel: the "
+                                  "bus must be interface 'virtual' with a channel")
+            lockstep = LockstepBus(str(channel), clock)
+            lockstep.set_receiver(listeners_receiver(network.listeners))
+            network.bus = lockstep
+        else:
+            try:
+                network.connect(**bus_kwargs)
+            except Exception as exc:
+                raise BusError(f"cannot open CAN bus {bus_kwargs or '(python-can config)'}: "
+                               f"{exc}") from None
+        scheduler = SimScheduler(tick_s, name="omnican-sim", clock=clock)
         drives: list[SimulatedDrive] = []
         try:
             by_node: dict[int, SimulatedDrive] = {}
             for node_id, wheels in cfg.nodes().items():
                 by_node[node_id] = cls._make_drive(network, node_id, wheels, scheduler,
                                                    {**options, **(drive_options or {}).get(
-                                                       node_id, {})})
+                                                       node_id, {}), "clock": clock})
                 drives.append(by_node[node_id])
             wheel_axes = [(by_node[w.node_id], w.axis) for w in cfg.wheels]
             counts = np.array([w.position_scale * s for w, s in zip(cfg.wheels, scales,
                                                                      strict=True)])
             base = cls(cfg, network, scheduler, drives, wheel_axes,
-                       true_kinematics or cfg.kinematics(), counts)
+                       true_kinematics or cfg.kinematics(), counts, clock)
         except BaseException:
             for d in drives:
                 d.close()
@@ -124,7 +143,8 @@ class SimulatedBase:
         if len(eds) > 1:
             raise ConfigError(f"node {node_id}: its wheels name different EDS files "
                               f"({', '.join(sorted(str(e) for e in eds))})")
-        probe = SimulatedDrive(network, node_id, wheels[0].eds, scheduler=scheduler, boot=False)
+        probe = SimulatedDrive(network, node_id, wheels[0].eds, scheduler=scheduler, boot=False,
+                               clock=options.get("clock", REAL_TIME))
         n_axes = probe.num_axes
         probe.close()
         cpu = [1.0] * n_axes
@@ -136,7 +156,7 @@ class SimulatedBase:
     # ------------------------------------------------------------ truth
 
     def _true_travel(self, now: float | None = None) -> list[float]:
-        t = time.monotonic() if now is None else now
+        t = self.clock.now() if now is None else now
         return [d.physical_counts(axis, t) * (1.0 - d.slip) / scale
                 for (d, axis), scale in zip(self.wheel_axes, self._scales, strict=True)]
 
@@ -169,9 +189,14 @@ class SimulatedBase:
 
     # ------------------------------------------------------------ lifecycle
 
+    def step(self, now: float) -> None:
+        """Advance every simulated drive to ``now``: heartbeats, timeouts, event TPDOs
+        (lock-step: the clock calls this every ``tick_s``)."""
+        self.scheduler.step(now)
+
     def wait(self, seconds: float) -> None:
-        """Let simulated time pass (real time)."""
-        time.sleep(seconds)
+        """Let simulated time pass (in lock-step this runs the simulation)."""
+        self.clock.sleep(seconds)
 
     def close(self) -> None:
         with self._lock:

@@ -19,7 +19,6 @@ import math
 import random
 import struct
 import threading
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -34,6 +33,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 
 from omnican import cia402
 from omnican.cia402 import Mode, State
+from omnican.clock import REAL_TIME, Clock
 from omnican.config import WHEEL_EDS
 from omnican.odmap import AxisObjects, Entry, Obj
 from omnican.sim import motor
@@ -133,6 +133,9 @@ class SimulatedDrive:
         scheduler: share a housekeeping thread; default one of its own.
         boot: send the boot-up frame and enter PRE-OPERATIONAL now.
         seed: random seed for noise and frame loss.
+        clock: :data:`~omnican.clock.REAL_TIME`, or the
+            :class:`~omnican.clock.SimClock` of a lock-step simulation (then the
+            scheduler is stepped by that clock, not by a thread).
     """
 
     def __init__(
@@ -152,11 +155,13 @@ class SimulatedDrive:
         scheduler: SimScheduler | None = None,
         boot: bool = True,
         seed: int | None = None,
+        clock: Clock = REAL_TIME,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node_id must be 1-127, got {node_id}")
         self.network = network
         self.node_id = node_id
+        self.clock = clock
         self.eds = Path(eds) if eds is not None else WHEEL_EDS
         self.node = canopen.LocalNode(node_id, str(self.eds))
         self.dictionary: od.ObjectDictionary = self.node.object_dictionary
@@ -214,7 +219,7 @@ class SimulatedDrive:
         self._tpdos: list[PdoConfig] = []
         self._rpdos: dict[int, PdoConfig] = {}
         self._pending: dict[int, bytes] = {}
-        self._last_advance = time.monotonic()
+        self._last_advance = clock.now()
         self._window = 1.0
         self._closed = False
 
@@ -232,7 +237,7 @@ class SimulatedDrive:
         network.subscribe(self._sync_cob, self._on_sync)
 
         self._own_scheduler = scheduler is None
-        self.scheduler = scheduler if scheduler is not None else SimScheduler()
+        self.scheduler = scheduler if scheduler is not None else SimScheduler(clock=clock)
         self._prefill_defaults()
         self._window = self._velocity_window()
         if boot:
@@ -336,18 +341,18 @@ class SimulatedDrive:
         """Encoder counts the wheel really turned since power-up (never reset or wrapped),
         at ``now`` (default: the present)."""
         with self.lock:
-            self._advance(time.monotonic() if now is None else now)
+            self._advance(self.clock.now() if now is None else now)
             return self.axes[axis].state.position
 
     def velocity_counts(self, axis: int = 0) -> float:
         with self.lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock.now())
             return self.axes[axis].state.velocity
 
     def read(self, index: int, subindex: int = 0) -> bytes:
         """Current raw value of an object, as an SDO upload would return it."""
         with self.lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock.now())
             return bytes(self.node.get_data(index, subindex))
 
     # ------------------------------------------------------------- injection
@@ -355,7 +360,7 @@ class SimulatedDrive:
     def inject_fault(self, code: int = 0x2310, axis: int = 0) -> None:
         """Trip a fault: EMCY with ``code``, then FAULT REACTION ACTIVE -> FAULT."""
         with self.lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock.now())
             self._fault(self.axes[axis].stage, code)
 
     def stop_heartbeat(self) -> None:
@@ -370,7 +375,7 @@ class SimulatedDrive:
     def reboot(self) -> None:
         """Power-cycle: boot-up frame, OD defaults, position counters at their power-up value."""
         with self.lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock.now())
             self._boot(reset_node=True)
 
     def freeze(self) -> None:
@@ -407,7 +412,7 @@ class SimulatedDrive:
         self._send(0x700 + self.node_id, b"\x00", droppable=False)
         self._nmt = NMT_PRE_OPERATIONAL
         self._load_heartbeat_config()
-        self._last_heartbeat = time.monotonic()
+        self._last_heartbeat = self.clock.now()
 
     def _reset_comm_objects(self) -> None:
         for index in [i for i in self.node.data_store if 0x1000 <= i < 0x2000]:
@@ -440,7 +445,7 @@ class SimulatedDrive:
             if self._frozen:
                 return
             cmd = data[0]
-            now = time.monotonic()
+            now = self.clock.now()
             self._advance(now)
             if cmd == _NMT_START:
                 self._enter_operational()
@@ -474,7 +479,7 @@ class SimulatedDrive:
         with self.lock:
             if self._frozen or self._nmt in (NMT_STOPPED, NMT_BOOTUP):
                 return
-            self._advance(time.monotonic())
+            self._advance(self.clock.now())
             self.node.sdo.on_request(can_id, data, timestamp)
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -501,8 +506,11 @@ class SimulatedDrive:
     def _frame_time(self, timestamp: float) -> float:
         """When a frame reached the bus, on the monotonic clock: every drive acts on a
         SYNC at the instant it was sent, not when its handler got to run."""
-        age = time.time() - timestamp if timestamp else 0.0
-        return max(self._last_advance, time.monotonic() - min(max(age, 0.0), 0.05))
+        clock = self.clock
+        if clock.lockstep:
+            return clock.now()  # delivered the instant it was sent
+        age = clock.wall() - timestamp if timestamp else 0.0
+        return max(self._last_advance, clock.now() - min(max(age, 0.0), 0.05))
 
     def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
@@ -541,7 +549,7 @@ class SimulatedDrive:
         with self.lock:
             if self._frozen or producer not in self._consumers:
                 return
-            self._consumer_seen[producer] = time.monotonic()
+            self._consumer_seen[producer] = self.clock.now()
             if producer in self._consumer_lost:
                 self._consumer_lost.discard(producer)
                 for stage in self.stages:
@@ -562,7 +570,7 @@ class SimulatedDrive:
                                 self.max_mapping_entries)
             return
         if key in self._motion_objects:
-            self._advance(time.monotonic())  # the old value applied until now
+            self._advance(self.clock.now())  # the old value applied until now
         writer = self._writers.get(key)
         if writer is not None:  # may refuse the value (SDO abort): then nothing is stored
             value = int.from_bytes(data, "little", signed=od.data_type in SIGNED_TYPES)
@@ -601,7 +609,7 @@ class SimulatedDrive:
         return stage.mode_cache
 
     def _on_controlword(self, stage: _PowerStage, value: int) -> None:
-        self._advance(time.monotonic())
+        self._advance(self.clock.now())
         previous, stage.last_cw = stage.last_cw, value & 0xFFFF
         rising_reset = value & cia402.CW_FAULT_RESET and not previous & cia402.CW_FAULT_RESET
         if stage.state is State.FAULT:
@@ -639,7 +647,7 @@ class SimulatedDrive:
         powered = stage.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
         self._set_state(stage, State.FAULT_REACTION_ACTIVE if powered else State.FAULT)
         self._emcy(code, self._error_register())
-        self._event_tpdos(time.monotonic())
+        self._event_tpdos(self.clock.now())
 
     def _error_register(self) -> int:
         reg = 0

@@ -12,20 +12,26 @@ import threading
 import time
 from collections.abc import Callable
 
+from omnican.clock import REAL_TIME, Clock
+
 logger = logging.getLogger(__name__)
 
 Tick = Callable[[float], None]
 
 
 class SimScheduler:
-    """Calls each registered ``tick(now)`` every ``period_s`` on one thread.
+    """Calls each registered ``tick(now)`` every ``period_s`` on one thread, or, on a
+    lock-step :class:`~omnican.clock.SimClock`, from that clock's ``sleep``.
 
     A context manager; :meth:`close` stops and joins the thread (idempotent)."""
 
-    def __init__(self, period_s: float = 0.002, name: str = "omnican-sim") -> None:
+    def __init__(self, period_s: float = 0.002, name: str = "omnican-sim",
+                 clock: Clock = REAL_TIME) -> None:
         if period_s <= 0:
             raise ValueError("period_s must be positive")
         self.period_s = period_s
+        self.clock = clock
+        self._task: object | None = None
         self._ticks: list[Tick] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -44,20 +50,26 @@ class SimScheduler:
     def start(self) -> SimScheduler:
         if not self._started:
             self._started = True
-            self._thread.start()
+            if self.clock.lockstep:
+                self._task = self.clock.every(self.period_s, self.step)
+            else:
+                self._thread.start()
         return self
+
+    def step(self, now: float) -> None:
+        """Run every tick once at ``now``."""
+        with self._lock:
+            ticks = list(self._ticks)
+        for tick in ticks:
+            try:
+                tick(now)
+            except Exception:  # one broken drive must not stop the others
+                logger.exception("simulated drive tick failed")
 
     def _run(self) -> None:
         next_t = time.monotonic()
         while not self._stop.is_set():
-            now = time.monotonic()
-            with self._lock:
-                ticks = list(self._ticks)
-            for tick in ticks:
-                try:
-                    tick(now)
-                except Exception:  # one broken drive must not stop the others
-                    logger.exception("simulated drive tick failed")
+            self.step(time.monotonic())
             next_t += self.period_s
             delay = next_t - time.monotonic()
             if delay < 0:  # fell behind (a loaded machine): skip, do not burst
@@ -67,6 +79,9 @@ class SimScheduler:
 
     def close(self) -> None:
         self._stop.set()
+        if self._task is not None:
+            self.clock.cancel(self._task)
+            self._task = None
         if self._started and self._thread.is_alive():
             self._thread.join(timeout=2.0)
 

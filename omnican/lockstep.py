@@ -1,0 +1,91 @@
+"""An in-process CAN channel for lock-step simulation.
+
+python-can's ``virtual`` bus hands frames to the other buses of a channel through
+queues that a receiving thread must poll. In lock-step there are no such threads:
+a frame sent on a :class:`LockstepBus` reaches the receiver of every other bus on the
+channel at once, on the sender's thread, stamped with the simulated clock. An SDO
+request is therefore answered before ``send`` returns, and a SYNC's TPDOs are
+delivered before the SYNC's ``send`` returns, in the order a real bus would carry
+them.
+
+Receivers only copy values and must not send from the receiving call while holding
+a lock the sender holds (omnican's frame handlers never send).
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+import can
+
+from omnican.clock import Clock
+
+Receiver = Callable[[can.Message], None]
+
+
+class LockstepBus(can.BusABC):
+    """One node's connection to an in-process lock-step channel."""
+
+    _channels: ClassVar[dict[str, list[LockstepBus]]] = {}
+    _registry_lock: ClassVar[threading.Lock] = threading.Lock()
+
+    def __init__(self, channel: str, clock: Clock, **kwargs: Any) -> None:
+        self.channel_info = f"lock-step channel {channel!r}"
+        self.channel = channel
+        self._clock = clock
+        self._receiver: Receiver | None = None
+        self._queue: collections.deque[can.Message] = collections.deque()
+        with self._registry_lock:
+            self._channels.setdefault(channel, []).append(self)
+        super().__init__(channel=channel, **kwargs)
+
+    def set_receiver(self, receiver: Receiver | None) -> None:
+        """Frames for this bus go to ``receiver`` at once (None: queue them for recv())."""
+        self._receiver = receiver
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._is_shutdown:
+            raise can.CanOperationError("the lock-step bus is shut down")
+        stamp = self._clock.wall()
+        for peer in self._channels.get(self.channel, ()):
+            if peer is not self and not peer._is_shutdown:
+                peer._deliver(can.Message(
+                    timestamp=stamp, arbitration_id=msg.arbitration_id,
+                    is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
+                    is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=bytes(msg.data),
+                    channel=self.channel, is_rx=True))
+
+    def _deliver(self, msg: can.Message) -> None:
+        receiver = self._receiver
+        if receiver is not None:
+            receiver(msg)
+        else:
+            self._queue.append(msg)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        try:
+            return self._queue.popleft(), False
+        except IndexError:
+            return None, False
+
+    def shutdown(self) -> None:
+        with self._registry_lock:
+            peers = self._channels.get(self.channel, [])
+            if self in peers:
+                peers.remove(self)
+            if not peers:
+                self._channels.pop(self.channel, None)
+        super().shutdown()
+
+
+def listeners_receiver(listeners: list[Any]) -> Receiver:
+    """A receiver that hands each frame to python-can listeners, as a Notifier would."""
+
+    def receive(msg: can.Message) -> None:
+        for listener in listeners:
+            listener.on_message_received(msg)
+
+    return receive

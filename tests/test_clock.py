@@ -1,0 +1,87 @@
+"""The simulated clock: tasks run at their own periods, in time order, deterministically."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from omnican.clock import REAL_TIME, SimClock
+
+
+@given(periods=st.lists(st.sampled_from([0.001, 0.002, 0.005, 0.01, 0.02, 0.1]), min_size=1,
+                        max_size=4),
+       sleeps=st.lists(st.floats(min_value=0.0, max_value=0.05), min_size=1, max_size=20))
+@settings(max_examples=60, deadline=None)
+def test_tasks_run_at_their_periods_in_time_order(periods: list[float],
+                                                  sleeps: list[float]) -> None:
+    clock = SimClock()
+    calls: list[tuple[float, int]] = []
+    for k, period in enumerate(periods):
+        clock.every(period, lambda now, k=k: calls.append((now, k)))
+    for s in sleeps:
+        clock.sleep(s)
+    total = sum(sleeps)
+    assert clock.now() == pytest.approx(total)
+    assert [t for t, _ in calls] == sorted(t for t, _ in calls)  # never back in time
+    for k, period in enumerate(periods):
+        times = [t for t, j in calls if j == k]
+        assert len(times) == int(total / period + 1e-9)  # every due call, no more
+        assert times == pytest.approx([period * (i + 1) for i in range(len(times))])
+
+
+def test_ties_run_in_the_order_tasks_were_added() -> None:
+    clock = SimClock()
+    calls: list[str] = []
+    clock.every(0.01, lambda now: calls.append("a"))
+    clock.every(0.01, lambda now: calls.append("b"))
+    clock.sleep(0.03)
+    assert calls == ["a", "b"] * 3
+
+
+def test_cancelled_tasks_stop_and_sleep_inside_a_task_is_refused() -> None:
+    clock = SimClock()
+    calls: list[float] = []
+    handle = clock.every(0.01, calls.append)
+    clock.sleep(0.025)
+    clock.cancel(handle)
+    clock.sleep(0.1)
+    assert calls == pytest.approx([0.01, 0.02])
+    clock.every(0.01, lambda now: clock.sleep(0.01))
+    with pytest.raises(RuntimeError, match="task must return"):
+        clock.sleep(0.02)
+
+
+def test_run_until_stops_when_done_or_at_the_timeout() -> None:
+    clock = SimClock()
+    assert clock.run_until(lambda: clock.now() >= 0.05, 1.0)
+    assert clock.now() == pytest.approx(0.05, abs=0.0011)
+    assert not clock.run_until(lambda: False, 0.2)
+    assert clock.now() == pytest.approx(0.25, abs=0.0011)
+
+
+def test_speed_paces_simulated_time_against_real_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    class FakeTime:  # real time that passes only when slept
+        t = 100.0
+
+        def monotonic(self) -> float:
+            return self.t
+
+        def sleep(self, seconds: float) -> None:
+            self.t += seconds
+
+    fake = FakeTime()
+    monkeypatch.setattr("omnican.clock.time", fake)
+    clock = SimClock(speed=10.0)
+    clock.every(0.01, lambda now: None)
+    clock.sleep(1.0)
+    assert fake.t - 100.0 == pytest.approx(0.1, abs=0.002)  # 1 s at 10x: 0.1 s of real time
+    with pytest.raises(ValueError, match="speed"):
+        SimClock(speed=0)
+
+
+def test_real_time_clock_runs_no_tasks() -> None:
+    assert not REAL_TIME.lockstep
+    with pytest.raises(RuntimeError, match="lock-step"):
+        REAL_TIME.every(0.01, lambda now: None)
