@@ -1,0 +1,316 @@
+"""What one control cycle costs, side by side with its floor and a plain canopen loop.
+
+For each rate (default 100 Hz and 1 kHz), in the same run:
+
+* floor: python-can's own cost per frame on the virtual bus (send with one receiver,
+  and receive), and an idle sleeper thread that only wakes at the rate: its CPU per
+  cycle and its late fraction (this machine's timer tail);
+* omnican: a Chassis against three simulated drives in this process, host CPU per
+  cycle counted over every thread omnican's host side runs (control loop, Notifier,
+  reconnect, recorder), late cycles, SYNC period jitter; with and without recording;
+* plain canopen: the same cycle written with canopen's PdoMap and SYNC calls.
+
+SYNC times are the bus timestamps the simulated drives' network sees (no extra
+receiver on the channel: a receiver would make every send copy each frame once more).
+A cycle is late when it starts more than a fifth of a period after its tick.
+
+Run: ``python bench/bench_cycle.py`` (about a minute); ``--quick``; ``--rates 1000``;
+``--record mcap`` (or log, blf); pinned to one core: ``taskset -c 0 python bench/...``.
+Prints one JSON object per line, then a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import tempfile
+import threading
+import time
+import uuid
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+import numpy as np
+
+from omnican import Chassis, default_config
+from omnican.config import ChassisConfig
+from omnican.sim import SimulatedBase
+
+LATE = 0.2  # of a period
+ROWS: list[dict[str, Any]] = []
+
+
+def emit(**fields: Any) -> None:
+    ROWS.append(fields)
+    print(json.dumps(fields), flush=True)
+
+
+def config(rate_hz: float) -> ChassisConfig:
+    cfg = default_config(bus={"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"})
+    return replace(cfg, chassis=replace(cfg.chassis, rate_hz=rate_hz, max_accel=2.0,
+                                         max_angular_accel=6.0))
+
+
+def thread_cpu(thread: threading.Thread) -> float:
+    assert thread.ident is not None
+    return time.clock_gettime(time.pthread_getcpuclockid(thread.ident))
+
+
+def percentile(values: Any, q: float) -> float:
+    arr = np.asarray(values, dtype=float)
+    return float(np.percentile(arr, q)) if arr.size else float("nan")
+
+
+def jitter(stamps: list[float], rate_hz: float) -> dict[str, float]:
+    periods = np.diff(np.asarray(stamps))
+    dev = np.abs(periods - 1.0 / rate_hz) * 1e6
+    return {"sync_jitter_us_p50": round(percentile(dev, 50), 1),
+            "sync_jitter_us_p99": round(percentile(dev, 99), 1),
+            "sync_jitter_us_max": round(float(dev.max()) if dev.size else math.nan, 1)}
+
+
+# ---------------------------------------------------------------- floor
+
+
+def virtual_bus_cost() -> tuple[float, float]:
+    """CPU microseconds per frame: send (one receiver on the channel), receive."""
+    channel = f"bench-floor-{uuid.uuid4().hex[:8]}"
+    n = 20000
+    with can.Bus(interface="virtual", channel=channel) as tx, \
+            can.Bus(interface="virtual", channel=channel) as rx:
+        msg = can.Message(arbitration_id=0x301, data=bytes(4), is_extended_id=False)
+        t0 = time.thread_time()
+        for _ in range(n):
+            tx.send(msg)
+        send = (time.thread_time() - t0) / n * 1e6
+        t0 = time.thread_time()
+        got = 0
+        while rx.recv(0) is not None:
+            got += 1
+        recv = (time.thread_time() - t0) / max(got, 1) * 1e6
+    return send, recv
+
+
+def idle_sleeper(rate_hz: float, seconds: float) -> tuple[float, float]:
+    """(CPU us per cycle, late fraction) of a thread that only sleeps to each tick."""
+    period = 1.0 / rate_hz
+    out: dict[str, float] = {}
+
+    def run() -> None:
+        cycles = late = 0
+        next_t = time.monotonic()
+        end = next_t + seconds
+        cpu0 = time.thread_time()
+        while next_t < end:
+            now = time.monotonic()
+            if now - next_t > period * LATE:
+                late += 1
+            cycles += 1
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < -period:
+                next_t = time.monotonic()
+            elif delay > 0:
+                time.sleep(delay)
+        out["cpu"] = (time.thread_time() - cpu0) / cycles * 1e6
+        out["late"] = late / cycles
+
+    t = threading.Thread(target=run, name="bench-sleeper")
+    t.start()
+    t.join()
+    return out["cpu"], out["late"]
+
+
+# ---------------------------------------------------------------- omnican
+
+
+def host_threads(base: Chassis, sim_network: canopen.Network) -> list[threading.Thread]:
+    """Every live thread of the host side (not the simulator's)."""
+    sim_readers = set(getattr(sim_network.notifier, "_readers", []) or [])
+    out = []
+    for t in threading.enumerate():
+        if t is threading.main_thread() or t in sim_readers:
+            continue
+        if t.name.startswith("omnican-sim") or t.name.startswith("bench-"):
+            continue
+        if t.name.startswith("omnican") or t.name.startswith("Notifier"):
+            out.append(t)
+    return out
+
+
+def omnican_loop(rate_hz: float, seconds: float, record: str | None) -> None:
+    cfg = config(rate_hz)
+    stamps: list[float] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"run.{record}" if record else None
+        with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=path) as base:
+            sim.network.subscribe(0x80, lambda cid, data, ts: stamps.append(ts))
+            time.sleep(0.3)
+            threads = host_threads(base, sim.network)
+            cpu0 = {t: thread_cpu(t) for t in threads}
+            cycles0, late0 = base.status.cycles, base._late
+            stamps.clear()
+            t0 = time.monotonic()
+            end = t0 + seconds
+            while time.monotonic() < end:
+                base.set_velocity(0.3 * math.sin(time.monotonic()), 0.1, 0.2)
+                time.sleep(0.01)
+            elapsed = time.monotonic() - t0
+            cycles = base.status.cycles - cycles0
+            late = base._late - late0
+            cpu = sum(thread_cpu(t) - c for t, c in cpu0.items() if t.is_alive())
+            names = sorted({t.name.split(" for ")[0] for t in threads})
+            sync = list(stamps)
+    emit(bench="omnican", rate_hz=rate_hz, record=record or "-",
+         achieved_hz=round(cycles / elapsed, 1),
+         host_cpu_us_per_cycle=round(cpu / max(cycles, 1) * 1e6, 1),
+         late_fraction=round(late / max(cycles, 1), 4), threads=names, **jitter(sync, rate_hz))
+
+
+# ---------------------------------------------------------------- plain canopen
+
+
+def plain_canopen(rate_hz: float, seconds: float) -> None:
+    """The same cycle with canopen's PdoMap calls: targets, SYNC, positions, odometry."""
+    cfg = config(rate_hz)
+    assert cfg.bus is not None
+    kin = cfg.kinematics()
+    stamps: list[float] = []
+    with SimulatedBase.from_config(cfg) as sim:
+        sim.network.subscribe(0x80, lambda cid, data, ts: stamps.append(ts))
+        net = canopen.Network()
+        net.NOTIFIER_CYCLE = 0.1
+        net.connect(**cfg.bus)
+        nodes = []
+        for w in cfg.wheels:
+            node = canopen.RemoteNode(w.node_id, str(w.eds))
+            net.add_node(node)
+            node.sdo[0x6060].raw = 3
+            node.tpdo.read()
+            node.rpdo.read()
+            nodes.append(node)
+        net.nmt.state = "OPERATIONAL"
+        time.sleep(0.05)
+        for node in nodes:
+            for cw in (6, 7, 15):
+                node.rpdo[1]["Controlword"].raw = cw
+                node.rpdo[1].transmit()
+                time.sleep(0.01)
+        stop = threading.Event()
+        counters = {"cycles": 0, "late": 0}
+
+        def loop() -> None:
+            period = 1.0 / rate_hz
+            nxt = time.monotonic()
+            last = None
+            while not stop.is_set():
+                if time.monotonic() - nxt > period * LATE:
+                    counters["late"] += 1
+                speeds = kin.to_wheel_speeds_array(np.array([[0.2, 0.1, 0.3]]))[0]
+                for node, w, v in zip(nodes, cfg.wheels, speeds, strict=True):
+                    node.rpdo[2]["Target velocity"].raw = round(v * w.velocity_scale)
+                    node.rpdo[2].transmit()
+                net.sync.transmit()
+                pos = [node.tpdo[2]["Position actual value"].raw for node in nodes]
+                travel = np.array(pos) / cfg.wheels[0].position_scale
+                if last is not None:
+                    kin.to_twist(travel - last)
+                last = travel
+                counters["cycles"] += 1
+                nxt += period
+                delay = nxt - time.monotonic()
+                if delay < -period:
+                    nxt = time.monotonic()
+                elif delay > 0:
+                    time.sleep(delay)
+
+        t = threading.Thread(target=loop, name="plain-canopen-loop")
+        t.start()
+        time.sleep(0.3)
+        notif = [r for r in getattr(net.notifier, "_readers", []) if isinstance(r, threading.Thread)]
+        c0, l0 = counters["cycles"], counters["late"]
+        cpu0 = thread_cpu(t) + sum(thread_cpu(n) for n in notif)
+        stamps.clear()
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        cycles, late = counters["cycles"] - c0, counters["late"] - l0
+        cpu = thread_cpu(t) + sum(thread_cpu(n) for n in notif) - cpu0
+        elapsed = time.monotonic() - t0
+        sync = list(stamps)
+        stop.set()
+        t.join()
+        for node in nodes:
+            node.rpdo[1]["Controlword"].raw = 0
+            node.rpdo[1].transmit()
+        net.disconnect()
+    emit(bench="plain_canopen", rate_hz=rate_hz, achieved_hz=round(cycles / elapsed, 1),
+         host_cpu_us_per_cycle=round(cpu / max(cycles, 1) * 1e6, 1),
+         late_fraction=round(late / max(cycles, 1), 4), **jitter(sync, rate_hz))
+
+
+# ---------------------------------------------------------------- report
+
+
+def table() -> None:
+    print()
+    print(f"{'rate':>6} {'what':<22} {'CPU us/cycle':>12} {'late':>7} "
+          f"{'SYNC jitter p50/p99 us':>23}")
+    for r in ROWS:
+        if r["bench"] not in ("omnican", "plain_canopen", "sleeper"):
+            continue
+        what = r["bench"] + (f" +rec {r['record']}" if r.get("record", "-") != "-" else "")
+        jit = (f"{r['sync_jitter_us_p50']:.0f} / {r['sync_jitter_us_p99']:.0f}"
+               if "sync_jitter_us_p50" in r else "-")
+        print(f"{r['rate_hz']:>6.0f} {what:<22} {r['host_cpu_us_per_cycle']:>12.1f} "
+              f"{r['late_fraction']:>7.2%} {jit:>23}")
+    for rate in sorted({r["rate_hz"] for r in ROWS if "rate_hz" in r}):
+        om = [r for r in ROWS if r["bench"] == "omnican" and r["rate_hz"] == rate
+              and r["record"] == "-"]
+        pc = [r for r in ROWS if r["bench"] == "plain_canopen" and r["rate_hz"] == rate]
+        rec = [r for r in ROWS if r["bench"] == "omnican" and r["rate_hz"] == rate
+               and r["record"] != "-"]
+        if om and pc:
+            print(f"{rate:>6.0f} omnican is {pc[0]['host_cpu_us_per_cycle'] / om[0]['host_cpu_us_per_cycle']:.2f}x "
+                  "cheaper than plain canopen", end="")
+            if rec:
+                extra = rec[0]["host_cpu_us_per_cycle"] / om[0]["host_cpu_us_per_cycle"] - 1
+                print(f"; recording adds {extra:+.0%}", end="")
+            print()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="2 s per run instead of 5")
+    parser.add_argument("--rates", default="100,1000", help="comma-separated rates in Hz")
+    parser.add_argument("--record", default="log", help="recording format to compare "
+                        "(log, blf, mcap; '' for none)")
+    args = parser.parse_args()
+    seconds = 2.0 if args.quick else 5.0
+    rates = [float(r) for r in args.rates.split(",")]
+    cpus = sorted(os.sched_getaffinity(0))
+    send, recv = virtual_bus_cost()
+    emit(bench="floor.virtual_bus", send_us_per_frame=round(send, 2),
+         recv_us_per_frame=round(recv, 2), cpus=cpus)
+    for rate in rates:
+        cpu, late = idle_sleeper(rate, seconds)
+        emit(bench="sleeper", rate_hz=rate, host_cpu_us_per_cycle=round(cpu, 1),
+             late_fraction=round(late, 4))
+        omnican_loop(rate, seconds, None)
+        if args.record:
+            omnican_loop(rate, seconds, args.record)
+        plain_canopen(rate, seconds)
+    table()
+    print(f"\nfloor: virtual bus {send:.1f} us per frame sent, {recv:.1f} us received; "
+          f"cpus {cpus}; median late of sleepers "
+          f"{statistics.median(r['late_fraction'] for r in ROWS if r['bench'] == 'sleeper'):.2%}")
+
+
+if __name__ == "__main__":
+    main()
