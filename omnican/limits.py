@@ -74,7 +74,7 @@ def desaturate_twist(twist: Twist, kinematics: OmniKinematics, max_wheel_speed: 
         return twist
     vx, vy, wz = twist.vx, twist.vy, twist.wz
     # Plain floats: this runs every control cycle, on three to six numbers.
-    peak = max(abs(a * vx + b * vy + c * wz) for a, b, c in kinematics.matrix.tolist())
+    peak = max(abs(a * vx + b * vy + c * wz) for a, b, c in kinematics.rows)
     k = _ratio(max_wheel_speed, peak)
     return twist if k == 1.0 else twist.scaled(k)
 

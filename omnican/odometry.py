@@ -97,27 +97,35 @@ class Odometry:
 
     def __init__(self, kinematics: OmniKinematics, pose: Pose2D | None = None) -> None:
         self._kin = kinematics
-        # Rows of the forward map as plain floats: per-step work on 3-6 numbers is
-        # several times faster in Python than through numpy.
-        self._rows = tuple(tuple(float(v) for v in row) for row in kinematics.forward_matrix)
-        self._pose = pose if pose is not None else Pose2D()
+        self._n = kinematics.num_wheels
+        start = pose if pose is not None else Pose2D()
+        # The pose as plain floats; Pose2D objects are made when asked for.
+        self._x, self._y, self._th = start.x, start.y, start.theta
+        self._pose: Pose2D | None = start
         self._last: list[float] | None = None
-        self._delta = Twist()
-        self._twist = Twist()
+        self._d = (0.0, 0.0, 0.0)
+        self._dt: float | None = None
 
     @property
     def pose(self) -> Pose2D:
-        return self._pose
+        pose = self._pose
+        if pose is None:
+            pose = self._pose = Pose2D(self._x, self._y, self._th)
+        return pose
 
     @property
     def delta(self) -> Twist:
         """Body displacement of the last step (m, m, rad), in the body frame at its start."""
-        return self._delta
+        return Twist(*self._d)
 
     @property
     def twist(self) -> Twist:
         """Body velocity of the last step (m/s, rad/s); zero unless ``dt_s`` was given."""
-        return self._twist
+        dt = self._dt
+        if not dt:
+            return Twist()
+        dx, dy, dw = self._d
+        return Twist(dx / dt, dy / dt, dw / dt)
 
     @property
     def seeded(self) -> bool:
@@ -125,9 +133,10 @@ class Odometry:
 
     def reset(self, pose: Pose2D | None = None) -> None:
         """Set the pose (default: origin); keeps the travel reference so nothing jumps."""
-        self._pose = pose if pose is not None else Pose2D()
-        self._delta = Twist()
-        self._twist = Twist()
+        start = pose if pose is not None else Pose2D()
+        self._x, self._y, self._th = start.x, start.y, start.theta
+        self._pose = start
+        self._d, self._dt = (0.0, 0.0, 0.0), None
 
     def reseed(self) -> None:
         """Forget the travel reference: the next update only seeds (after an encoder reset)."""
@@ -140,21 +149,28 @@ class Odometry:
 
         ``dt_s`` (s) is the time the step took; it is only used for :attr:`twist`."""
         travel = [float(v) for v in wheel_travel_m]
-        if len(travel) != self._kin.num_wheels:
-            raise ValueError(f"expected {self._kin.num_wheels} wheel travels, got {len(travel)}")
+        if len(travel) != self._n:
+            raise ValueError(f"expected {self._n} wheel travels, got {len(travel)}")
         if not all(math.isfinite(v) for v in travel):
             raise ValueError(f"wheel travel contains a non-finite value: {travel}")
+        self.step(travel, dt_s)
+        return self.pose
+
+    def step(self, travel: list[float], dt_s: float | None = None) -> None:
+        """:meth:`update` for the control loop: ``travel`` is a list of N finite floats
+        (unchecked), and no Pose2D is made until :attr:`pose` is read."""
         last = self._last
         self._last = travel
         if last is None:
-            return self._pose
-        d = [a - b for a, b in zip(travel, last, strict=True)]
-        rx, ry, rw = self._rows
-        delta = Twist(sum(k * v for k, v in zip(rx, d, strict=True)),
-                      sum(k * v for k, v in zip(ry, d, strict=True)),
-                      sum(k * v for k, v in zip(rw, d, strict=True)))
-        self._delta = delta
-        self._pose = self._pose.compose(Pose2D.exp(delta))
-        if dt_s is not None and dt_s > 0:
-            self._twist = delta.scaled(1.0 / dt_s)
-        return self._pose
+            return
+        dx, dy, dw = self._kin.body_of([a - b for a, b in zip(travel, last, strict=True)])
+        self._d, self._dt = (dx, dy, dw), dt_s
+        # Compose the SE(2) exponential of the step onto the pose.
+        a, b = _sinc_terms(dw)
+        lx, ly = a * dx - b * dy, b * dx + a * dy
+        th = self._th
+        c, s = math.cos(th), math.sin(th)
+        self._x += c * lx - s * ly
+        self._y += s * lx + c * ly
+        self._th = th + dw
+        self._pose = None
