@@ -52,6 +52,9 @@ class Key:
 
 _NUM = (int, float)
 
+#: Values of chassis.pdo_mapping (what omnican.pdoplan does with each).
+PDO_MAPPINGS = ("try", "eds", "sdo")
+
 # Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
 SCHEMA: dict[str, dict[str, Key]] = {
     "chassis": {
@@ -74,6 +77,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "sdo_timeout_s": Key(_NUM, 0.3, "one SDO request's timeout (retried once)"),
         "boot_timeout_s": Key(_NUM, 2.0, "wait for a drive's boot-up after NMT reset"),
         "enable_timeout_s": Key(_NUM, 1.0, "bring a drive to OPERATION ENABLED within this"),
+        "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
+                           "them anyway (warning; a drive that refuses runs on its own mapping, "
+                           "and what that lacks goes by SDO every cycle), \"eds\" sends them by "
+                           "SDO every cycle, \"sdo\" sends targets and positions by SDO every "
+                           "cycle"),
     },
     "wheel": {
         "node_id": Key((int,), None, "CANopen node id 1-127", required=True),
@@ -158,6 +166,7 @@ class ChassisSettings:
     sdo_timeout_s: float = 0.3
     boot_timeout_s: float = 2.0
     enable_timeout_s: float = 1.0
+    pdo_mapping: str = "try"  # see pdoplan.MAPPING_POLICIES
 
 
 @dataclass(frozen=True)
@@ -331,6 +340,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         raise r.fail("chassis.host_node_id", f"must be 1-127, got {c['host_node_id']}")
     if not 1 <= c["heartbeat_ms"] <= 65535:
         raise r.fail("chassis.heartbeat_ms", f"must be 1-65535, got {c['heartbeat_ms']}")
+    if c["pdo_mapping"] not in PDO_MAPPINGS:
+        raise r.fail("chassis.pdo_mapping", f"must be one of {', '.join(PDO_MAPPINGS)}, got "
+                     f"{c['pdo_mapping']!r}")
     layout = c["layout"]
     if layout is not None and layout not in LAYOUTS:
         raise r.fail("chassis.layout", f"unknown layout {layout!r} (known: {', '.join(LAYOUTS)})")
@@ -353,6 +365,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         sdo_timeout_s=float(c["sdo_timeout_s"]),
         boot_timeout_s=float(c["boot_timeout_s"]),
         enable_timeout_s=float(c["enable_timeout_s"]),
+        pdo_mapping=c["pdo_mapping"],
     )
 
     raw_wheels = data.get("wheel")

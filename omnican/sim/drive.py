@@ -129,6 +129,9 @@ class SimulatedDrive:
         frame_loss: probability that a PDO or heartbeat frame is lost (either way).
         max_mapping_entries: mapping entries a PDO accepts (None: the EDS decides).
         remappable: False for a drive that refuses any PDO remapping.
+        accept_unmappable: True for a drive that maps objects its EDS marks not
+            PDO-mappable (PDOMapping=0), as real drives behind understating EDS files
+            do; False (default) refuses them with abort 0x06040041.
         initial_position: encoder counts at power-up, per axis (to test wrap-around).
         scheduler: share a housekeeping thread; default one of its own.
         boot: send the boot-up frame and enter PRE-OPERATIONAL now.
@@ -151,6 +154,7 @@ class SimulatedDrive:
         frame_loss: float = 0.0,
         max_mapping_entries: int | None = None,
         remappable: bool = True,
+        accept_unmappable: bool = False,
         initial_position: float | Sequence[float] = 0.0,
         scheduler: SimScheduler | None = None,
         boot: bool = True,
@@ -171,6 +175,7 @@ class SimulatedDrive:
         self.frame_loss = frame_loss
         self.max_mapping_entries = max_mapping_entries
         self.remappable = remappable
+        self.accept_unmappable = accept_unmappable
         self._rng = random.Random(seed)
         self.lock = threading.RLock()
 
@@ -567,7 +572,7 @@ class SimulatedDrive:
             if not self.remappable:
                 raise SdoAbortedError(ABORT_READ_ONLY)
             check_mapping_write(self.dictionary, self.node.get_data, index, subindex, data,
-                                self.max_mapping_entries)
+                                self.max_mapping_entries, self.accept_unmappable)
             return
         if key in self._motion_objects:
             self._advance(self.clock.now())  # the old value applied until now

@@ -136,11 +136,14 @@ def check_mapping_write(
     subindex: int,
     data: bytes,
     max_entries: int | None = None,
+    accept_unmappable: bool = False,
 ) -> None:
     """Raise the SDO abort a drive would send for this write to a mapping parameter.
 
     Entries must name an existing, PDO-mappable object with its own size;
-    the number of entries must fit in 8 bytes (and the drive's entry limit)."""
+    the number of entries must fit in 8 bytes (and the drive's entry limit).
+    ``accept_unmappable``: the drive maps objects its EDS marks not PDO-mappable
+    (an EDS that understates the drive, as many vendor files do)."""
     if subindex == 0:
         count = data[0]
         limit = max_entries if max_entries is not None else 0x40
@@ -159,7 +162,7 @@ def check_mapping_write(
     if max_entries is not None and subindex > max_entries:
         raise SdoAbortedError(ABORT_PDO_LENGTH)
     var = _find(dictionary, obj_index, obj_sub)
-    if not var.pdo_mappable:
+    if not var.pdo_mappable and not accept_unmappable:
         raise SdoAbortedError(ABORT_NOT_MAPPABLE)
     if bits != len(var) or bits % 8:
         raise SdoAbortedError(ABORT_GENERAL_INCOMPATIBLE)
