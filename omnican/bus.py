@@ -13,7 +13,7 @@ import logging
 import struct
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +27,13 @@ from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
 
+FrameHandler = Callable[[int, bytearray, float], None]
+
 SYNC_COB_ID = 0x80
 RECONNECT_EVERY_S = 1.0  # between attempts to reopen a bus that went down
 NOTIFIER_STOP_S = 0.5
 RX_ERROR_PAUSE_S = 0.05
+_FRAME_BITS = tuple(frame_bits(n) for n in range(65))  # worst case, by data length
 
 
 class _Recorder(can.Listener):
@@ -87,20 +90,31 @@ class _Traffic(can.Listener):
     def __init__(self, owner: CanBus) -> None:
         self._owner = owner
         self._lock = threading.Lock()
-        self.frames = 0
-        self.bits = 0
+        self._frames = 0
+        self._bits = 0
+        # The control loop's own sends: one writer, no lock needed.
+        self.loop_frames = 0
+        self.loop_bits = 0
+
+    @property
+    def frames(self) -> int:
+        return self._frames + self.loop_frames
+
+    @property
+    def bits(self) -> int:
+        return self._bits + self.loop_bits
 
     def on_message_received(self, msg: can.Message) -> None:
         with self._lock:
-            self.frames += 1
-            self.bits += frame_bits(len(msg.data))
+            self._frames += 1
+            self._bits += _FRAME_BITS[len(msg.data)]
         if self._owner.rx_error is not None:
             self._owner.rx_error = None  # frames arrive again
 
     def count_sent(self, data_len: int) -> None:
         with self._lock:
-            self.frames += 1
-            self.bits += frame_bits(data_len)
+            self._frames += 1
+            self._bits += _FRAME_BITS[data_len]
 
     def on_error(self, exc: Exception) -> None:
         """python-can's Notifier calls this when a receive fails (an interface that went
@@ -202,6 +216,7 @@ class CanBus:
             listeners.append(self.recorder)
         self.sync_epoch = 0
         self.sync_time = 0.0
+        self._sync_msg = prepared_message(SYNC_COB_ID, b"")
         self.last_error: str | None = None
         self.send_errors = 0
         self.dropped_frames = 0  # frames the bus refused (never queued for later)
@@ -211,6 +226,9 @@ class CanBus:
         self._closed = False
         self._lock = threading.Lock()
         self._reconnect_wanted = threading.Event()
+        self._polling = False
+        self._fast: dict[int, FrameHandler] = {}
+        self._poll_cache: tuple[tuple[Any, ...], tuple[can.Listener, ...]] = ((), ())
         self._reconnect_thread: threading.Thread | None = None
         self._connect()
 
@@ -229,6 +247,93 @@ class CanBus:
     @property
     def reconnecting(self) -> bool:
         return self._reconnect_wanted.is_set()
+
+    # ------------------------------------------------------------ polling
+
+    @property
+    def polling(self) -> bool:
+        return self._polling
+
+    def start_polling(self, fast: dict[int, FrameHandler]) -> None:
+        """Hand reception to the control loop: stop the Notifier thread; from now on
+        :meth:`poll` reads what arrived, once a cycle. ``fast`` maps COB-IDs to handlers
+        called directly (the cyclic TPDOs); every other frame goes to the listeners and
+        canopen as a Notifier would hand it (SDO answers, EMCY, heartbeats, NMT).
+
+        One thread waking per cycle instead of one per frame is most of what a cycle
+        costs at 1 kHz; SDO answers to configuration workers then wait up to a period."""
+        if self.lockstep or self._polling:
+            return
+        self._fast = dict(fast)
+        with self.network.send_lock:
+            notifier, self.network.notifier = self.network.notifier, None
+            self._polling = True
+        if notifier is not None:
+            notifier.stop(NOTIFIER_STOP_S)
+
+    def stop_polling(self) -> None:
+        """Give reception back to a Notifier thread (before the loop stops)."""
+        with self.network.send_lock:
+            if not self._polling:
+                return
+            self._polling = False
+            bus = self.network.bus
+        if bus is not None and not self._closed:
+            listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
+            try:
+                self.network.notifier = can.Notifier(bus, listeners, self.network.NOTIFIER_CYCLE)
+            except Exception as exc:  # a dead bus: the reconnect path opens a new one
+                logger.debug("restarting the Notifier: %s", exc)
+
+    def poll(self, limit: int = 256) -> int:
+        """Read and dispatch the frames that arrived (at most ``limit``); the control
+        loop's receive. Returns how many were read."""
+        bus = self.network.bus
+        if bus is None:
+            return 0
+        recv = bus.recv
+        fast = self._fast
+        traffic = self.traffic
+        extra = self._poll_listeners()
+        canopen_notify = self.network.notify
+        n = 0
+        while n < limit:
+            try:
+                msg = recv(0)
+            except Exception as exc:  # an interface gone down: as the Notifier reports it
+                self.rx_error = f"receive failed: {exc}"
+                break
+            if msg is None:
+                break
+            n += 1
+            data = msg.data
+            traffic.loop_frames += 1
+            traffic.loop_bits += _FRAME_BITS[len(data)]
+            for listener in extra:
+                listener.on_message_received(msg)
+            if msg.is_error_frame or msg.is_remote_frame:
+                continue
+            can_id = msg.arbitration_id
+            handler = fast.get(can_id) if not msg.is_extended_id else None
+            try:
+                if handler is not None:
+                    handler(can_id, data, msg.timestamp)
+                else:
+                    canopen_notify(can_id, data, msg.timestamp)
+            except Exception as exc:  # a callback's failure must not stop reception
+                logger.error("handling frame 0x%03X: %s", can_id, exc)
+        if n and self.rx_error is not None:
+            self.rx_error = None
+        return n
+
+    def _poll_listeners(self) -> tuple[can.Listener, ...]:
+        """Listeners other than the ones poll() serves inline (traffic, canopen)."""
+        listeners: tuple[Any, ...] = tuple(self.network.listeners)
+        if listeners != self._poll_cache[0]:
+            kept = tuple(x for x in listeners if x is not self.traffic and
+                         not isinstance(x, canopen.network.MessageListener))
+            self._poll_cache = (listeners, kept)
+        return self._poll_cache[1]
 
     def _connect(self) -> None:
         if self.lockstep:
@@ -261,11 +366,14 @@ class CanBus:
 
     def _sent(self, can_id: int, data: bytes) -> None:
         self.traffic.count_sent(len(data))
+        self._record(can_id, data)
+
+    def _record(self, can_id: int, data: bytes | bytearray) -> None:
         if self.recorder is not None:
             self.recorder.on_message_received(
-                can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                            timestamp=self.clock.wall(), is_rx=False,
-                            channel=self.bus_kwargs.get("channel")))
+                can.Message(arbitration_id=can_id, data=bytes(data),
+                            is_extended_id=can_id > 0x7FF, timestamp=self.clock.wall(),
+                            is_rx=False, channel=self.bus_kwargs.get("channel")))
 
     def send(self, can_id: int, data: bytes) -> bool:
         """Send one frame; a failure is counted and reported, not raised.
@@ -298,12 +406,40 @@ class CanBus:
             self.last_error = None
         return True
 
+    def send_prepared(self, msg: can.Message, bits: int) -> bool:
+        """The control loop's send: ``msg`` is made once and reused (its ``data`` a
+        ``bytes`` object, which python-can's virtual bus copies for free), ``bits`` its
+        worst-case size. Only the loop thread calls this; failures as in :meth:`send`."""
+        network = self.network
+        if self.lockstep:
+            self._record(msg.arbitration_id, msg.data)
+        try:
+            with network.send_lock:
+                bus = network.bus
+                if bus is None:
+                    raise can.CanOperationError("bus is closed (reopening)")
+                bus.send(msg)
+        except (can.CanError, OSError, RuntimeError, ValueError) as exc:
+            self.send_errors += 1
+            self.dropped_frames += 1
+            self.last_error = describe_send_error(msg.arbitration_id, exc)
+            return False
+        traffic = self.traffic
+        traffic.loop_frames += 1
+        traffic.loop_bits += bits
+        if self.recorder is not None and not self.lockstep:
+            self._record(msg.arbitration_id, msg.data)
+        if self.send_errors:
+            logger.info("bus sends work again after %d errors", self.send_errors)
+            self.send_errors = 0
+            self.last_error = None
+        return True
+
     def sync(self) -> bool:
         """Send a SYNC; samples the drives take for it carry the new epoch."""
-        with self._lock:
-            self.sync_epoch += 1
-            self.sync_time = self.clock.now()
-        return self.send(SYNC_COB_ID, b"")
+        self.sync_epoch += 1  # the loop thread is the only writer
+        self.sync_time = self.clock.now()
+        return self.send_prepared(self._sync_msg, _FRAME_BITS[0])
 
     # ------------------------------------------------------------ reconnecting
 
@@ -354,15 +490,18 @@ class CanBus:
             logger.debug("%s", self.reconnect_error)
             return False
         listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
-        try:
-            notifier = can.Notifier(new_bus, listeners, self.network.NOTIFIER_CYCLE)
-        except Exception as exc:
-            shutdown_quietly(new_bus)
-            self.reconnect_error = f"reopening the bus failed: {exc}"
-            return False
+        notifier = None
+        if not self._polling:  # the control loop reads the new bus itself otherwise
+            try:
+                notifier = can.Notifier(new_bus, listeners, self.network.NOTIFIER_CYCLE)
+            except Exception as exc:
+                shutdown_quietly(new_bus)
+                self.reconnect_error = f"reopening the bus failed: {exc}"
+                return False
         with self.network.send_lock:
             if self._closed:
-                notifier.stop(NOTIFIER_STOP_S)
+                if notifier is not None:
+                    notifier.stop(NOTIFIER_STOP_S)
                 shutdown_quietly(new_bus)
                 return False
             self.network.bus, self.network.notifier = new_bus, notifier
@@ -396,6 +535,17 @@ class CanBus:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def prepared_message(can_id: int, data: bytes) -> can.Message:
+    """A frame made once and sent every cycle with new ``data``.
+
+    Its data is kept as ``bytes``: python-can's virtual bus deep-copies every frame it
+    sends, and a ``bytes`` object (immutable) costs nothing to copy where a bytearray
+    costs microseconds. Every interface only reads ``data`` while sending."""
+    msg = can.Message(arbitration_id=can_id, is_extended_id=False, dlc=len(data))
+    msg.data = data  # type: ignore[assignment]  # bytes where python-can says bytearray
+    return msg
 
 
 def describe_send_error(can_id: int, exc: BaseException) -> str:

@@ -91,16 +91,46 @@ class ChassisStatus:
 
 
 class _Snapshot:
-    """What one cycle published. Wheel states are built on first read: the loop only
-    packs tuples, which keeps it cheap at 1 kHz."""
+    """What one cycle published, as plain numbers and tuples: the objects (Pose2D,
+    Twist, WheelState, ChassisStatus) are made on first read, by the reader. The loop
+    only packs tuples, which keeps it cheap at 1 kHz."""
 
-    __slots__ = ("_rows", "_wheels", "command", "pose", "status", "twist")
+    __slots__ = ("_command", "_pose", "_rows", "_status", "_twist", "_values", "_wheels")
 
-    def __init__(self, pose: Pose2D, twist: Twist, command: Twist,
-                 rows: tuple[tuple[Any, ...], ...], status: ChassisStatus) -> None:
-        self.pose, self.twist, self.command, self.status = pose, twist, command, status
+    def __init__(self, pose: tuple[float, float, float], twist: tuple[float, float, float],
+                 command: tuple[float, float, float], rows: tuple[tuple[Any, ...], ...],
+                 status: tuple[Any, ...]) -> None:
+        self._values = (pose, twist, command, status)
         self._rows = rows
+        self._pose: Pose2D | None = None
+        self._twist: Twist | None = None
+        self._command: Twist | None = None
+        self._status: ChassisStatus | None = None
         self._wheels: tuple[WheelState, ...] | None = None
+
+    @property
+    def pose(self) -> Pose2D:
+        if self._pose is None:
+            self._pose = Pose2D(*self._values[0])
+        return self._pose
+
+    @property
+    def twist(self) -> Twist:
+        if self._twist is None:
+            self._twist = Twist(*self._values[1])
+        return self._twist
+
+    @property
+    def command(self) -> Twist:
+        if self._command is None:
+            self._command = Twist(*self._values[2])
+        return self._command
+
+    @property
+    def status(self) -> ChassisStatus:
+        if self._status is None:
+            self._status = ChassisStatus(*self._values[3])
+        return self._status
 
     @property
     def wheels(self) -> tuple[WheelState, ...]:
@@ -201,6 +231,8 @@ class Chassis:
         self._odo = Odometry(self._kin)
         self._limiter = VelocityLimiter(cfg.limits(), self._kin)
         self._period = 1.0 / cfg.chassis.rate_hz
+        self._cmd_timeout = cfg.chassis.cmd_timeout_s
+        self._max_wheel_speed = cfg.chassis.max_wheel_speed
         self._axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
                                           key=lambda a: a.wheel_index)
         self._node_of = {id(a): n for n in nodes for a in n.axes}
@@ -216,10 +248,8 @@ class Chassis:
         self._speeds = [0.0] * n  # measured rim speeds, m/s, by wheel index
         self._targets = [0.0] * n  # commanded rim speeds, m/s, by wheel index
         self._travel = [0.0] * n
-        self._inverse_rows = tuple(tuple(float(v) for v in row) for row in self._kin.matrix)
-        self._forward_rows = tuple(tuple(float(v) for v in row) for row in self._kin.forward_matrix)
         self._history: collections.deque[tuple[float, list[float]]] = collections.deque()
-        self._measured = Twist()
+        self._measured = (0.0, 0.0, 0.0)
         self._stale: tuple[int, ...] = ()  # wheels (by index) without a fresh sample
         self._stale_cycles = max(3, math.ceil(STALE_AFTER_S * cfg.chassis.rate_hz))
         self._last_sync_time = 0.0
@@ -234,6 +264,8 @@ class Chassis:
         self._rate_mark = (clock.now(), 0)
         self._loop_hz = 0.0
         self.warnings: list[str] = []
+        self._warnings_list: list[str] = []
+        self._warnings: tuple[str, ...] = ()
         self._workers: list[threading.Thread] = []
         self._closed = False
         self._close_lock = threading.Lock()
@@ -516,27 +548,30 @@ class Chassis:
             logger.warning("base stopped: %s", reason)
 
     def _cycle(self, now: float) -> None:
-        while True:
-            try:
-                self._requests.get_nowait()()
-            except queue.Empty:
-                break
+        requests = self._requests
+        while not requests.empty():
+            requests.get_nowait()()
         self._check_health(now)
         self._integrate_samples()
         # Command -> limits -> wheel speeds.
         cmd, t_cmd = self._cmd
-        all_enabled = all(s.state is State.OPERATION_ENABLED for s in self._stages)
-        if self._latched or not all_enabled or now - t_cmd > self.cfg.chassis.cmd_timeout_s:
-            cmd = Twist()
+        all_enabled = True
+        for stage in self._stages:
+            if stage.state is not State.OPERATION_ENABLED:
+                all_enabled = False
+                break
+        if self._latched or not all_enabled or now - t_cmd > self._cmd_timeout:
+            vx = vy = wz = 0.0
+        else:
+            vx, vy, wz = cmd.vx, cmd.vy, cmd.wz
         if not all_enabled:
             self._limiter.reset()
         dt = now - self._last_sync_time if self._last_sync_time else self._period
-        limited = self._limiter.step(cmd, min(dt, 5 * self._period))
-        vx, vy, wz = limited.vx, limited.vy, limited.wz
-        speeds = [a * vx + b * vy + c * wz for a, b, c in self._inverse_rows]
+        limited = self._limiter.step_xyz(vx, vy, wz, min(dt, 5 * self._period))
+        speeds = self._kin.wheel_speeds_of(*limited)
         peak = max(abs(v) for v in speeds)
-        if peak > self.cfg.chassis.max_wheel_speed:  # the limiter keeps this from happening
-            speeds = [v * self.cfg.chassis.max_wheel_speed / peak for v in speeds]
+        if peak > self._max_wheel_speed:  # the limiter keeps this from happening
+            speeds = [v * self._max_wheel_speed / peak for v in speeds]
         self._targets = speeds
         # State machines, then the cycle's RPDOs, then SYNC.
         for node in self.nodes:
@@ -635,22 +670,19 @@ class Chassis:
         t = self._last_sync_time
         history = self._history
         if not self._odo.seeded:
-            self._odo.update(travel)
+            self._odo.step(travel)
             history.clear()
             history.append((t, travel))
             return
-        self._odo.update(travel)
+        self._odo.step(travel)
         history.append((t, travel))
         while len(history) > 2 and t - history[1][0] >= SPEED_WINDOW_S:
             history.popleft()
         t0, travel0 = history[0]
         if t > t0:  # speeds over the window: SYNC timing jitter averages out
-            self._speeds = [(a - b) / (t - t0) for a, b in zip(travel, travel0, strict=True)]
-            rx, ry, rw = self._forward_rows
-            sp = self._speeds
-            self._measured = Twist(sum(k * v for k, v in zip(rx, sp, strict=True)),
-                                   sum(k * v for k, v in zip(ry, sp, strict=True)),
-                                   sum(k * v for k, v in zip(rw, sp, strict=True)))
+            span = t - t0
+            sp = self._speeds = [(a - b) / span for a, b in zip(travel, travel0, strict=True)]
+            self._measured = self._kin.body_of(sp)
 
     def _mark_stale(self, epoch: int) -> None:
         stale = tuple(i for i, a in enumerate(self._axes)
@@ -660,7 +692,7 @@ class Chassis:
         self._stale = stale
         if stale:
             self._speeds = [0.0 if i in stale else v for i, v in enumerate(self._speeds)]
-            self._measured = Twist()
+            self._measured = (0.0, 0.0, 0.0)
             self._history.clear()  # the speed window restarts with the next complete set
 
     def _check_bus(self, now: float) -> None:
@@ -698,7 +730,8 @@ class Chassis:
             if node.node_id not in self._configuring:
                 self._reconfigure(node, "the bus came back")
 
-    def _make_snapshot(self, now: float, command: Twist | None = None) -> _Snapshot:
+    def _make_snapshot(self, now: float,
+                       command: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> _Snapshot:
         mark_t, mark_bits = self._load_mark
         if now - mark_t >= 0.5:
             bits = self._bus.traffic.bits
@@ -707,6 +740,8 @@ class Chassis:
             rate_t, rate_n = self._rate_mark
             self._loop_hz = (self._cycles - rate_n) / (now - rate_t)
             self._rate_mark = (now, self._cycles)
+        offline, configuring, bus_down = self._offline, self._configuring, self._bus_down
+        stale_set, targets, speeds = self._stale, self._targets, self._speeds
         rows = []
         for i, ax in enumerate(self._axes):
             stage = ax.stage
@@ -717,32 +752,40 @@ class Chassis:
                 fault = node.fault_text or (describe_emcy(stage.error_value)
                                             if stage.error_value else "fault")
             nid = node.node_id
-            online = nid not in self._offline and nid not in self._configuring
-            stale = i in self._stale or not online or self._bus_down
+            online = nid not in offline and nid not in configuring
+            stale = bus_down or not online or i in stale_set
             rows.append((ax.wheel_index, nid, ax.wheel.axis, state, stage.statusword_value,
-                         stage.mode_value, self._targets[i], 0.0 if stale else self._speeds[i],
+                         stage.mode_value, targets[i], 0.0 if stale else speeds[i],
                          ax.counts / ax.wheel.position_scale, online, fault, stage.error,
                          stale))
-        enabled = (self._latched is None and not self._offline and not self._configuring and
-                   all(s.state is State.OPERATION_ENABLED for s in self._stages))
-        bitrate = self._bus.bitrate
-        status = ChassisStatus(
-            enabled=enabled,
-            stopped_reason=self._latched,
-            command_age_s=now - self._cmd[1],
-            loop_hz=self._loop_hz,
-            late_fraction=self._late / self._cycles if self._cycles else 0.0,
-            cycles=self._cycles,
-            bus_load=self._bus_bits_per_s / bitrate if bitrate else None,
-            bus_bits_per_s=self._bus_bits_per_s,
-            bus_error=self._bus.failing or (self._bus.reconnect_error if self._bus_down
-                                            else None),
-            warnings=tuple(self.warnings),
-            bus_up=not self._bus_down,
+        enabled = self._latched is None and not offline and not configuring
+        if enabled:
+            for stage in self._stages:
+                if stage.state is not State.OPERATION_ENABLED:
+                    enabled = False
+                    break
+        bus = self._bus
+        bitrate = bus.bitrate
+        failing = bus.failing
+        cycles = self._cycles
+        if self.warnings != self._warnings_list:
+            self._warnings_list, self._warnings = list(self.warnings), tuple(self.warnings)
+        status = (
+            enabled,
+            self._latched,
+            now - self._cmd[1],
+            self._loop_hz,
+            self._late / cycles if cycles else 0.0,
+            cycles,
+            self._bus_bits_per_s / bitrate if bitrate else None,
+            self._bus_bits_per_s,
+            failing or (bus.reconnect_error if bus_down else None),
+            self._warnings,
+            not bus_down,
         )
-        unknown = self._offline or self._configuring or self._bus_down
-        measured = Twist() if unknown else self._measured
-        return _Snapshot(self._odo.pose, measured, command or Twist(), tuple(rows), status)
+        unknown = offline or configuring or bus_down
+        return _Snapshot(self._odo.xyt, (0.0, 0.0, 0.0) if unknown else self._measured,
+                         command, tuple(rows), status)
 
     def cycle_bits(self) -> int:
         """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""

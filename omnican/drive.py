@@ -384,7 +384,7 @@ class DriveNode:
                 AnswerKind.DOWNLOADED if io.transfer.write else AnswerKind.UPLOADED):
             self.remote.sdo.on_response(can_id, data, timestamp)  # a configuration SDO's
             return
-        given_up = time.monotonic() - self.settings.sdo_timeout_s
+        given_up = self.clock.now() - self.settings.sdo_timeout_s
         while len(io.pending) > 1 and io.pending[0][0] < given_up:
             io.pending.popleft()  # its answer was lost: do not take this one for it
         try:
@@ -705,7 +705,7 @@ class DriveNode:
             data = download_request(entry.index, entry.subindex, entry.encode(round(units)))
         else:
             data = download_request(entry.index, entry.subindex, entry.encode(io.owner.cw))
-        io.pending.append((time.monotonic(), epoch))  # before the request can be answered
+        io.pending.append((self.clock.now(), epoch))  # before the request can be answered
         self.sdo_counts.requests += 1
         return SDO_REQUEST_BASE + self.node_id, data
 

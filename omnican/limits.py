@@ -103,16 +103,17 @@ class VelocityLimiter:
     def __init__(self, limits: VelocityLimits, kinematics: OmniKinematics | None = None) -> None:
         self.limits = limits
         self._kin = kinematics
-        self._last = Twist()
+        self._rows = kinematics.rows if kinematics is not None else ()
+        self._last = (0.0, 0.0, 0.0)
 
     @property
     def output(self) -> Twist:
         """The last twist returned by :meth:`step`."""
-        return self._last
+        return Twist(*self._last)
 
     def reset(self, twist: Twist | None = None) -> None:
         """Set the current output (e.g. to zero after the drives were stopped)."""
-        self._last = twist if twist is not None else Twist()
+        self._last = (twist.vx, twist.vy, twist.wz) if twist is not None else (0.0, 0.0, 0.0)
 
     def target(self, command: Twist) -> Twist:
         """Steps 1 and 2: the feasible twist the limiter will approach for ``command``."""
@@ -127,5 +128,33 @@ class VelocityLimiter:
         """Limit ``command`` for a cycle of ``dt`` seconds; returns the twist to apply."""
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"dt must be a non-negative number, got {dt!r}")
-        self._last = limit_step(self._last, self.target(command), dt, self.limits)
-        return self._last
+        if not command.is_finite():
+            raise ValueError(f"command contains a non-finite value: {command}")
+        return Twist(*self.step_xyz(command.vx, command.vy, command.wz, dt))
+
+    def step_xyz(self, vx: float, vy: float, wz: float,
+                 dt: float) -> tuple[float, float, float]:
+        """:meth:`step` on plain floats, unchecked (finite command, dt >= 0): the control
+        loop's form. Same three steps, no objects made."""
+        lim = self.limits
+        # 1. speed limits, one factor
+        lin = math.hypot(vx, vy)
+        k = min(_ratio(lim.max_linear, lin), _ratio(lim.max_angular, abs(wz)))
+        if k != 1.0:
+            vx, vy, wz = vx * k, vy * k, wz * k
+        # 2. wheel desaturation, one factor
+        if self._rows and not math.isinf(lim.max_wheel_speed):
+            peak = max(abs(a * vx + b * vy + c * wz) for a, b, c in self._rows)
+            k = _ratio(lim.max_wheel_speed, peak)
+            if k != 1.0:
+                vx, vy, wz = vx * k, vy * k, wz * k
+        # 3. acceleration limits on the change, one factor
+        cx, cy, cw = self._last
+        stopping = vx == 0.0 and vy == 0.0 and wz == 0.0
+        lin_a = lim.stop_linear_decel if stopping else lim.max_linear_accel
+        ang_a = lim.stop_angular_decel if stopping else lim.max_angular_accel
+        dvx, dvy, dwz = vx - cx, vy - cy, wz - cw
+        k = min(_ratio(lin_a * dt, math.hypot(dvx, dvy)), _ratio(ang_a * dt, abs(dwz)))
+        out = (vx, vy, wz) if k == 1.0 else (cx + k * dvx, cy + k * dvy, cw + k * dwz)
+        self._last = out
+        return out

@@ -114,6 +114,11 @@ class Odometry:
         return pose
 
     @property
+    def xyt(self) -> tuple[float, float, float]:
+        """The pose as plain floats (x, y, theta)."""
+        return self._x, self._y, self._th
+
+    @property
     def delta(self) -> Twist:
         """Body displacement of the last step (m, m, rad), in the body frame at its start."""
         return Twist(*self._d)

@@ -97,3 +97,23 @@ def test_bad_input_is_rejected() -> None:
     with pytest.raises(ValueError, match="max_linear must be a positive number"):
         VelocityLimits(max_linear=0.0)
     assert lim.output == Twist()
+
+
+@given(
+    cmds=st.lists(st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-10, 10)),
+                  min_size=1, max_size=30),
+    dt=st.floats(0.0, 0.05),
+)
+def test_loop_form_matches_the_three_steps(cmds: list[tuple[float, float, float]],
+                                           dt: float) -> None:
+    """step_xyz (the control loop's float form) is the same limiter as clamp ->
+    desaturate -> limit_step composed on Twist objects."""
+    from omnican.limits import limit_step
+
+    lim = VelocityLimiter(LIMITS, KIN)
+    prev = Twist()
+    for vx, vy, wz in cmds:
+        expected = limit_step(prev, lim.target(Twist(vx, vy, wz)), dt, LIMITS)
+        got = lim.step_xyz(vx, vy, wz, dt)
+        assert got == pytest.approx((expected.vx, expected.vy, expected.wz), abs=1e-12)
+        prev = expected
