@@ -13,7 +13,7 @@ import logging
 import struct
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +26,6 @@ from omnican.lockstep import LockstepBus, listeners_receiver
 from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
-
-FrameHandler = Callable[[int, bytearray, float], None]
 
 SYNC_COB_ID = 0x80
 RECONNECT_EVERY_S = 1.0  # between attempts to reopen a bus that went down
@@ -227,7 +225,6 @@ class CanBus:
         self._lock = threading.Lock()
         self._reconnect_wanted = threading.Event()
         self._polling = False
-        self._fast: dict[int, FrameHandler] = {}
         self._poll_cache: tuple[tuple[Any, ...], tuple[can.Listener, ...]] = ((), ())
         self._reconnect_thread: threading.Thread | None = None
         self._connect()
@@ -254,17 +251,16 @@ class CanBus:
     def polling(self) -> bool:
         return self._polling
 
-    def start_polling(self, fast: dict[int, FrameHandler]) -> None:
+    def start_polling(self) -> None:
         """Hand reception to the control loop: stop the Notifier thread; from now on
-        :meth:`poll` reads what arrived, once a cycle. ``fast`` maps COB-IDs to handlers
-        called directly (the cyclic TPDOs); every other frame goes to the listeners and
-        canopen as a Notifier would hand it (SDO answers, EMCY, heartbeats, NMT).
+        :meth:`poll` reads what arrived, once a cycle, and hands each frame to the
+        listeners and to canopen as the Notifier would (TPDOs, SDO answers, EMCY,
+        heartbeats).
 
         One thread waking per cycle instead of one per frame is most of what a cycle
         costs at 1 kHz; SDO answers to configuration workers then wait up to a period."""
         if self.lockstep or self._polling:
             return
-        self._fast = dict(fast)
         with self.network.send_lock:
             notifier, self.network.notifier = self.network.notifier, None
             self._polling = True
@@ -292,7 +288,6 @@ class CanBus:
         if bus is None:
             return 0
         recv = bus.recv
-        fast = self._fast
         traffic = self.traffic
         extra = self._poll_listeners()
         canopen_notify = self.network.notify
@@ -313,15 +308,10 @@ class CanBus:
                 listener.on_message_received(msg)
             if msg.is_error_frame or msg.is_remote_frame:
                 continue
-            can_id = msg.arbitration_id
-            handler = fast.get(can_id) if not msg.is_extended_id else None
             try:
-                if handler is not None:
-                    handler(can_id, data, msg.timestamp)
-                else:
-                    canopen_notify(can_id, data, msg.timestamp)
+                canopen_notify(msg.arbitration_id, data, msg.timestamp)
             except Exception as exc:  # a callback's failure must not stop reception
-                logger.error("handling frame 0x%03X: %s", can_id, exc)
+                logger.error("handling frame 0x%03X: %s", msg.arbitration_id, exc)
         if n and self.rx_error is not None:
             self.rx_error = None
         return n

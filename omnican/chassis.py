@@ -574,6 +574,7 @@ class Chassis:
             speeds = [v * self._max_wheel_speed / peak for v in speeds]
         self._targets = speeds
         # State machines, then the cycle's RPDOs, then SYNC.
+        send = self._bus.send_prepared
         for node in self.nodes:
             if node.node_id in self._configuring:
                 continue
@@ -582,10 +583,10 @@ class Chassis:
                     if stage.step(now) is not None:
                         frame = node.controlword_frame(stage)
                         if frame is not None:
-                            self._bus.send(*frame)
+                            send(*frame)
             # Targets go to every node, a silent one too: it may still listen, and stop.
-            for cob, data in node.cyclic_frames(speeds):
-                self._bus.send(cob, data)
+            for msg, bits in node.cyclic_frames(speeds):
+                send(msg, bits)
         self._bus.sync()
         self._last_sync_time = self._bus.sync_time
         hb_period = self.cfg.chassis.heartbeat_ms / 1000.0

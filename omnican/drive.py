@@ -24,11 +24,13 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import can
 import canopen
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from omnican import cia402
+from omnican.bus import prepared_message
 from omnican.cia402 import Command, Mode, State
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import WheelConfig
@@ -43,6 +45,7 @@ from omnican.pdoplan import (
     NodePlan,
     PlannedPdo,
     SdoTransfer,
+    frame_bits,
 )
 from omnican.sdocycle import (
     SDO_REQUEST_BASE,
@@ -51,6 +54,7 @@ from omnican.sdocycle import (
     parse_answer,
     upload_request,
 )
+from omnican.wire import PdoCodec
 
 logger = logging.getLogger(__name__)
 
@@ -219,9 +223,24 @@ class StageDriver:
 
 @dataclass
 class _RpdoIO:
+    """One RPDO: its codec, the frame sent every time (made once), and what fills each
+    field: a wheel's target (its scale), a stage's controlword, or 0 (an object of a
+    drive's fixed mapping that omnican does not own)."""
+
     pdo: PlannedPdo
-    frame: bytearray
-    slots: list[tuple[int, Entry, object]] = field(default_factory=list)  # offset, entry, owner
+    codec: PdoCodec
+    msg: can.Message
+    bits: int
+    sources: list[tuple[AxisIO | None, float, StageDriver | None]] = field(
+        default_factory=list)
+
+    def values(self, speeds: Sequence[float]) -> list[int]:
+        """Field values for ``speeds`` (m/s by wheel index; empty: targets 0)."""
+        if not speeds:
+            return [stage.cw if stage is not None else 0 for _, _, stage in self.sources]
+        return [round(speeds[ax.wheel_index] * scale) if ax is not None else
+                stage.cw if stage is not None else 0
+                for ax, scale, stage in self.sources]
 
 
 @dataclass
@@ -275,7 +294,8 @@ class DriveNode:
         self.axes = [AxisIO(a.wheel_index, a.wheel, a.objs, a.target, a.position,
                             self.stages[a.stage]) for a in layout.axes]
         self._rpdo_io: list[_RpdoIO] = []
-        self._cw_io: dict[int, tuple[_RpdoIO, int]] = {}  # id(stage) -> (pdo, offset)
+        self._cyclic_io: list[_RpdoIO] = []
+        self._cw_io: dict[int, _RpdoIO] = {}  # id(stage) -> the RPDO carrying its controlword
         self._subscribed: list[tuple[int, TpdoHandler]] = []
         self._sdo_io: dict[tuple[int, int], _SdoIO] = {}  # (index, subindex) -> transfer
         self._sdo_cyclic: list[_SdoIO] = []
@@ -303,38 +323,40 @@ class DriveNode:
         for cob, handler in self._subscribed:
             self.network.unsubscribe(cob, handler)
         self._subscribed = []
-        self._rpdo_io, self._cw_io = [], {}
+        rpdo_io: list[_RpdoIO] = []
+        cw_io: dict[int, _RpdoIO] = {}
         for pdo in plan.rpdos:
-            io = _RpdoIO(pdo, bytearray(pdo.data_bytes))
-            offset = 0
-            for entry in pdo.entries:
-                owner: object = None
-                for ax in self.axes:
-                    if (ax.target.index, ax.target.subindex) == (entry.index, entry.subindex):
-                        owner = ax
-                for stage in self.stages:
-                    key = (stage.controlword.index, stage.controlword.subindex)
-                    if key == (entry.index, entry.subindex):
-                        owner = stage
-                        self._cw_io[id(stage)] = (io, offset)
-                io.slots.append((offset, entry, owner))
-                offset += entry.bits // 8
-            self._rpdo_io.append(io)
+            codec = PdoCodec(pdo)
+            io = _RpdoIO(pdo, codec, prepared_message(pdo.cob_id, bytes(codec.length)),
+                         frame_bits(codec.length))
+            for f in codec.fields:
+                key = (f.entry.index, f.entry.subindex)
+                axis = next((ax for ax in self.axes
+                             if (ax.target.index, ax.target.subindex) == key), None)
+                stage = next((st for st in self.stages
+                              if (st.controlword.index, st.controlword.subindex) == key), None)
+                if stage is not None:
+                    cw_io[id(stage)] = io
+                scale = axis.wheel.velocity_scale if axis is not None else 0.0
+                io.sources.append((axis, scale, stage))
+            rpdo_io.append(io)
+        # Swapped whole: the loop may be sending from the old ones meanwhile.
+        self._rpdo_io, self._cw_io = rpdo_io, cw_io
+        self._cyclic_io = [io for io in rpdo_io if io.pdo.cyclic]
         for pdo in plan.tpdos:
-            decoders: list[tuple[int, Entry, str, object]] = []
-            offset = 0
-            for entry in pdo.entries:
-                key = (entry.index, entry.subindex)
+            codec = PdoCodec(pdo)
+            roles: list[tuple[int, str, object]] = []
+            for i, f in enumerate(codec.fields):
+                key = (f.entry.index, f.entry.subindex)
                 for ax in self.axes:
                     if key == (ax.position.index, ax.position.subindex):
-                        decoders.append((offset, entry, "position", ax))
+                        roles.append((i, "position", ax))
                 for stage in self.stages:
                     for role, e in (("statusword", stage.statusword), ("mode", stage.mode_display),
                                     ("error", stage.error_code)):
                         if e is not None and key == (e.index, e.subindex):
-                            decoders.append((offset, entry, role, stage))
-                offset += entry.bits // 8
-            handler = self._make_tpdo_handler(pdo.data_bytes, decoders)
+                            roles.append((i, role, stage))
+            handler = self._make_tpdo_handler(codec, roles)
             self.network.subscribe(pdo.cob_id, handler)
             self._subscribed.append((pdo.cob_id, handler))
         sdo_io = {}
@@ -406,24 +428,28 @@ class DriveNode:
             elif io.role == "statusword":
                 io.owner.statusword_value = value & 0xFFFF  # type: ignore[union-attr]
 
-    def _make_tpdo_handler(self, length: int,
-                           decoders: list[tuple[int, Entry, str, object]]) -> TpdoHandler:
+    def _make_tpdo_handler(self, codec: PdoCodec,
+                           roles: list[tuple[int, str, object]]) -> TpdoHandler:
+        """A handler that unpacks the whole TPDO in one call and copies the values."""
         source = self._epoch_source
+        unpack = codec.unpack
+        positions = tuple((i, o) for i, r, o in roles if r == "position")
+        others = tuple((i, r, o) for i, r, o in roles if r != "position")
 
         def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
-            if len(data) < length:
+            values = unpack(data)
+            if values is None:
                 return  # not our frame (or a broken one): ignore
             epoch = source.sync_epoch
-            for offset, entry, role, owner in decoders:
-                value = entry.decode(data[offset : offset + entry.bits // 8])
-                if role == "position":
-                    owner.raw, owner.epoch = value, epoch  # type: ignore[attr-defined]
-                elif role == "statusword":
-                    owner.statusword_value = value & 0xFFFF  # type: ignore[attr-defined]
+            for i, ax in positions:
+                ax.raw, ax.epoch = values[i], epoch  # type: ignore[attr-defined]
+            for i, role, owner in others:
+                if role == "statusword":
+                    owner.statusword_value = values[i] & 0xFFFF  # type: ignore[attr-defined]
                 elif role == "mode":
-                    owner.mode_value = value  # type: ignore[attr-defined]
+                    owner.mode_value = values[i]  # type: ignore[attr-defined]
                 else:
-                    owner.error_value = value  # type: ignore[attr-defined]
+                    owner.error_value = values[i]  # type: ignore[attr-defined]
 
         return on_tpdo
 
@@ -671,24 +697,21 @@ class DriveNode:
 
     # ------------------------------------------------------------ cyclic I/O
 
-    def cyclic_frames(self, speeds: Sequence[float]) -> list[tuple[int, bytes]]:
+    def cyclic_frames(self, speeds: Sequence[float]) -> list[tuple[can.Message, int]]:
         """SYNC-applied RPDO frames with the targets of ``speeds`` (m/s by wheel index),
-        then the requests of the objects moved by SDO every cycle. Called once per cycle,
-        before the cycle's SYNC: a read requested now belongs to that SYNC."""
+        then the requests of the objects moved by SDO every cycle, as (frame, worst-case
+        bits). The RPDO frames are made once and refilled: send them before the next
+        call. Called once per cycle, before the cycle's SYNC: a read requested now
+        belongs to that SYNC."""
         frames = []
-        for io in self._rpdo_io:
-            if not io.pdo.cyclic:
-                continue
-            for offset, entry, owner in io.slots:
-                if isinstance(owner, AxisIO):
-                    units = speeds[owner.wheel_index] * owner.wheel.velocity_scale
-                    io.frame[offset : offset + entry.bits // 8] = entry.encode(round(units))
-                elif isinstance(owner, StageDriver):
-                    io.frame[offset : offset + entry.bits // 8] = entry.encode(owner.cw)
-            frames.append((io.pdo.cob_id, bytes(io.frame)))
+        for io in self._cyclic_io:
+            io.msg.data = io.codec.pack(io.values(speeds))  # type: ignore[assignment]
+            frames.append((io.msg, io.bits))
         if self._sdo_cyclic:
             epoch = self._epoch_source.sync_epoch + 1  # the SYNC this cycle sends next
-            frames += [self._sdo_request(sdo, speeds, epoch) for sdo in self._sdo_cyclic]
+            for sdo in self._sdo_cyclic:
+                cob, data = self._sdo_request(sdo, speeds, epoch)
+                frames.append((prepared_message(cob, data), frame_bits(len(data))))
             counts = self.sdo_counts
             if counts.aborts != self._aborts_logged:
                 self._aborts_logged = counts.aborts
@@ -709,18 +732,18 @@ class DriveNode:
         self.sdo_counts.requests += 1
         return SDO_REQUEST_BASE + self.node_id, data
 
-    def controlword_frame(self, stage: StageDriver) -> tuple[int, bytes] | None:
-        """The frame that carries ``stage``'s controlword now (None if it rides on SYNC)."""
+    def controlword_frame(self, stage: StageDriver) -> tuple[can.Message, int] | None:
+        """The frame that carries ``stage``'s controlword now, as (frame, worst-case
+        bits); None if it rides on the cyclic RPDO."""
         by_sdo = self._sdo_cw.get(id(stage))
         if by_sdo is not None:
-            return self._sdo_request(by_sdo, (), -1)
-        io, _ = self._cw_io[id(stage)]
+            cob, data = self._sdo_request(by_sdo, (), -1)
+            return prepared_message(cob, data), frame_bits(len(data))
+        io = self._cw_io[id(stage)]
         if io.pdo.cyclic:
             return None
-        for off, entry, owner in io.slots:
-            if isinstance(owner, StageDriver):
-                io.frame[off : off + entry.bits // 8] = entry.encode(owner.cw)
-        return io.pdo.cob_id, bytes(io.frame)
+        io.msg.data = io.codec.pack(io.values(()))  # type: ignore[assignment]
+        return io.msg, io.bits
 
     def stop(self) -> None:
         """Stop watching the host (consumer off) and leave OPERATIONAL; best effort."""
