@@ -6,7 +6,7 @@ drives' health, limits the newest command, writes the targets on the SYNC RPDOs,
 walks the CiA 402 state machines, sends SYNC and the host heartbeat, and publishes
 an immutable snapshot that any thread may read.
 
-Safety (DESIGN.md): no command for ``cmd_timeout_s`` -> controlled stop; a drive
+Safety: no command for ``cmd_timeout_s`` -> controlled stop; a drive
 fault, a lost heartbeat, a drive reboot or a bus that stays down -> every wheel
 stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
 host's heartbeat, so they stop by themselves if this process dies; leaving the
@@ -32,6 +32,7 @@ from types import FrameType
 from typing import Any
 
 from omnican.bus import CanBus
+from omnican.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.cia402 import State, describe_emcy
 from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
@@ -415,7 +416,8 @@ class Chassis:
         hb_period = self.cfg.chassis.heartbeat_ms / 1000.0
         if now - self._last_hb >= hb_period:
             self._last_hb = now
-            self._bus.send(0x700 + self.cfg.chassis.host_node_id, b"\x05")
+            self._bus.send(HEARTBEAT_BASE + self.cfg.chassis.host_node_id,
+                           bytes([NmtState.OPERATIONAL]))
         self._check_bus(now)
         self._cycles += 1
         self._snapshot = self._make_snapshot(now, limited)

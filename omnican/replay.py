@@ -23,6 +23,15 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from omnican.cia301 import (
+    EMCY_BASE,
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    NMT_RESETS,
+    NMT_STATE_MASK,
+    SYNC_COB_ID,
+    NmtState,
+)
 from omnican.cia402 import State, decode_state, describe_emcy
 from omnican.config import ChassisConfig
 from omnican.encoder import SPEED_WINDOW_S, fold_counter
@@ -32,12 +41,6 @@ from omnican.odmap import Entry
 from omnican.odometry import Odometry
 
 FloatArray = npt.NDArray[np.float64]
-
-SYNC_COB_ID = 0x80
-EMCY_BASE = 0x80
-HEARTBEAT_BASE = 0x700
-NMT_COB_ID = 0x000
-NMT_RESETS = (0x81, 0x82)  # reset node, reset communication
 
 
 class RecordingError(ConfigError):
@@ -281,7 +284,8 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         node = cob - HEARTBEAT_BASE
         if node in node_ids and data:
             node_frames += 1
-            if data[0] & 0x7F == 0:  # boot-up: the counter restarts, the travel continues
+            # boot-up: the counter restarts, the travel continues
+            if data[0] & NMT_STATE_MASK == NmtState.BOOT_UP:
                 if node in booted and node not in reset:
                     reboots.append((t, node))
                 booted.add(node)

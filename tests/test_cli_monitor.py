@@ -263,14 +263,6 @@ def test_decode_names_choices_and_words() -> None:
     assert monitor.decode(db, 0x080, True, b"") == ("", "(no data)")  # extended: not the SYNC
 
 
-def test_canopen_names() -> None:
-    assert [monitor.canopen_name(i) for i in (0x000, 0x080, 0x081, 0x100, 0x185, 0x37F, 0x580,
-                                              0x5FF, 0x67F, 0x70A, 0x7E5)] == [
-        "NMT", "SYNC", "EMCY node 1", "TIME", "TPDO1 node 5", "RPDO2 node 127", "",
-        "SDO response node 127", "SDO request node 127", "heartbeat node 10", ""]
-    assert monitor.canopen_name(0x181, extended=True) == ""
-
-
 def test_the_bundled_dbc_loads() -> None:
     db = monitor.load_dbc(monitor.DEFAULT_DBC)
     assert isinstance(db, cantools.database.can.Database)

@@ -32,6 +32,7 @@ import can
 
 import omnican
 from omnican import cia402
+from omnican.cia301 import canopen_name
 from omnican.cli.common import EXIT_OK, add_bus_arguments, load, positive_float, session
 from omnican.errors import BusError, ConfigError
 from omnican.pdoplan import frame_bits
@@ -86,31 +87,6 @@ def load_dbc(path: str | Path) -> Any:
     if not isinstance(db, cantools.database.can.Database):
         raise ConfigError(f"--dbc {path}: not a CAN database")
     return db
-
-
-# CANopen function codes (CiA 301 predefined connection set), for ids a DBC lacks.
-_FUNCTIONS = ((0x180, "TPDO1"), (0x200, "RPDO1"), (0x280, "TPDO2"), (0x300, "RPDO2"),
-              (0x380, "TPDO3"), (0x400, "RPDO3"), (0x480, "TPDO4"), (0x500, "RPDO4"),
-              (0x580, "SDO response"), (0x600, "SDO request"), (0x700, "heartbeat"))
-
-
-def canopen_name(can_id: int, extended: bool = False) -> str:
-    """What a standard frame is in CANopen's predefined connection set, e.g.
-    ``SDO request node 1`` for 0x601; empty for other ids."""
-    if extended:
-        return ""
-    if can_id == 0x000:
-        return "NMT"
-    if can_id == 0x080:
-        return "SYNC"
-    if can_id == 0x100:
-        return "TIME"
-    if 0x081 <= can_id <= 0x0FF:
-        return f"EMCY node {can_id - 0x80}"
-    for base, name in _FUNCTIONS:
-        if base < can_id <= base + 0x7F:
-            return f"{name} node {can_id - base}"
-    return ""
 
 
 def _format_value(name: str, value: Any, unit: str | None) -> str:

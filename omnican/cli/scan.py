@@ -21,12 +21,18 @@ from rich.console import Console
 from rich.table import Table
 
 from omnican.bus import CanBus
+from omnican.cia301 import (
+    DEVICE_NAME,
+    DEVICE_TYPE,
+    HEARTBEAT_BASE,
+    IDENTITY,
+    MAX_NODE_ID,
+    nmt_state_name,
+)
 from omnican.cia402 import MODE_NAMES, supported_modes
 from omnican.cli.common import EXIT_FAILURE, EXIT_OK, add_bus_arguments, positive_float, session
 from omnican.config import ChassisConfig
 from omnican.layout import NodeLayout, node_layouts
-
-NMT_NAMES = {0: "BOOT-UP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 
 
 def add_subparser(sub: Any) -> None:
@@ -65,11 +71,11 @@ def probe(network: canopen.Network, node_id: int, timeout: float) -> Found:
     network.add_node(node)
     try:
         found = Found(node_id)
-        found.device_type = _u32(node, 0x1000)
-        found.identity = [_u32(node, 0x1018, sub) for sub in (1, 2, 3, 4)]
+        found.device_type = _u32(node, DEVICE_TYPE)
+        found.identity = [_u32(node, IDENTITY, sub) for sub in (1, 2, 3, 4)]
         found.modes = _u32(node, 0x6502)
         try:
-            found.name = node.sdo.upload(0x1008, 0).decode("latin-1").strip("\x00 ")
+            found.name = node.sdo.upload(DEVICE_NAME, 0).decode("latin-1").strip("\x00 ")
         except (SdoAbortedError, SdoCommunicationError):
             found.name = None
         return found
@@ -97,12 +103,12 @@ def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout: float) -> list[Found]
 
     def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
         if data:
-            heartbeats[can_id - 0x700] = data[0] & 0x7F
+            heartbeats[can_id - HEARTBEAT_BASE] = data[0]
 
     with CanBus(cfg.bus) as bus:
         network = bus.network
-        for node_id in range(1, 128):
-            network.subscribe(0x700 + node_id, on_frame)
+        for node_id in range(1, MAX_NODE_ID + 1):
+            network.subscribe(HEARTBEAT_BASE + node_id, on_frame)
         network.scanner.search()  # SDO upload of 1000h to every node id
         time.sleep(listen_s)
         ids = sorted(set(network.scanner.nodes) | set(heartbeats))
@@ -113,7 +119,7 @@ def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout: float) -> list[Found]
                 continue
             found = probe(network, node_id, sdo_timeout)
             if node_id in heartbeats:
-                found.nmt = NMT_NAMES.get(heartbeats[node_id], str(heartbeats[node_id]))
+                found.nmt = nmt_state_name(heartbeats[node_id])
             results.append(found)
     return results
 
