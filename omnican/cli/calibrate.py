@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from omnican import calibration, replay
+from omnican import calibration, motion, replay
 from omnican.calibration import Correction, FitResult, FitRun
 from omnican.cli.common import (
     EXIT_FAILURE,
@@ -46,6 +46,7 @@ from omnican.cli.common import (
     finite_float,
     load,
     positive_float,
+    progress_bar,
     session,
 )
 from omnican.config import WHEEL_EDS, ChassisConfig
@@ -218,8 +219,6 @@ def _parse_turns(text: str) -> float:
 def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
     """Drive the straight line and the spin; return the config and the measurements."""
     from omnican.chassis import Chassis
-    from omnican.cli.drive import BaseStoppedError, Leg, execute
-    from omnican.kinematics import Twist
 
     cfg = load(args)
     options: dict[str, Any] = {}
@@ -234,9 +233,8 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
         measured_turns = args.measured_angle_deg / 360.0
     interactive = not args.sim and (args.measured_distance is None or measured_turns is None)
     angle = 2 * math.pi * args.turns
-    straight = Leg(Twist(args.speed, 0.0, 0.0), args.distance / args.speed, "straight",
-                   distance=args.distance)
-    spin = Leg(Twist(0.0, 0.0, args.omega), angle / args.omega, "spin", angle=angle)
+    straight = motion.straight(args.distance, args.speed)
+    spin = motion.spin(angle, args.omega)
     if interactive:
         print(f"The base will drive {args.distance:g} m straight ahead, stop for you to "
               f"measure, then spin {args.turns:g} turns counter-clockwise in place. Mark its "
@@ -249,7 +247,8 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
         truth: list[Pose2D] = [sim.true_pose] if sim is not None else []
         poses = [base.pose]
         try:
-            execute(base, [straight])
+            with progress_bar(straight.seconds) as bar:
+                motion.run(base, [straight], bar)
             poses.append(base.pose)
             if sim is not None:
                 truth.append(sim.true_pose)
@@ -257,8 +256,9 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
             if distance is None and interactive:
                 distance = _ask(f"Measured straight distance, m (odometry: "
                                 f"{poses[1].distance_to(poses[0]):.4f}): ", _parse_distance)
-            execute(base, [spin])
-        except BaseStoppedError as exc:
+            with progress_bar(spin.seconds) as bar:
+                motion.run(base, [spin], bar)
+        except motion.BaseStoppedError as exc:
             raise _RunError(f"base stopped: {exc}") from None
         poses.append(base.pose)
         if sim is not None:

@@ -113,6 +113,37 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
         yield Session(cfg, sim)
 
 
+class ProgressBar:
+    """A one-line progress display on stderr when it is a terminal and the work is long
+    enough to want one; a ``progress(done_s, total_s, label)`` callback."""
+
+    def __init__(self, total_s: float, stream: Any = None) -> None:
+        self.stream = stream or sys.stderr
+        self.enabled = self.stream.isatty() and total_s > 2.0
+
+    def __call__(self, done_s: float, total_s: float, label: str) -> None:
+        if self.enabled:
+            frac = min(1.0, done_s / total_s) if total_s > 0 else 1.0
+            bar = "=" * int(frac * 30)
+            self.stream.write(f"\r[{bar:<30}] {frac:4.0%} {label:<10}")
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\r" + " " * 50 + "\r")
+            self.stream.flush()
+
+
+@contextlib.contextmanager
+def progress_bar(total_s: float) -> Iterator[ProgressBar]:
+    """A :class:`ProgressBar` that is cleared from the line when the block ends."""
+    bar = ProgressBar(total_s)
+    try:
+        yield bar
+    finally:
+        bar.close()
+
+
 def setup_logging(verbosity: int, stream: Any = None) -> None:
     """Warnings by default; -v info; -vv debug (canopen's chatty INFO only at -vv)."""
     level = logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG

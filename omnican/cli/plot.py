@@ -24,7 +24,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from omnican import replay
+from omnican import motion, replay
 from omnican.cia402 import State
 from omnican.cli.common import (
     EXIT_OK,
@@ -33,6 +33,7 @@ from omnican.cli.common import (
     finite_float,
     load,
     positive_float,
+    progress_bar,
     session,
 )
 
@@ -283,23 +284,16 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
                                                                 list[tuple[float, float]]]:
     from omnican.calibration import truth_options
     from omnican.chassis import Chassis
-    from omnican.cli.drive import BaseStoppedError, Leg, execute
-    from omnican.kinematics import Twist
 
     cfg = load(args)
     options = truth_options(cfg, args.sim_scale_error, args.sim_radius_error)
-    side, speed, omega = args.square, args.speed, args.omega
-    plan = []
-    for k in range(1, args.sides + 1):
-        plan.append(Leg(Twist(speed, 0.0, 0.0), side / speed, f"side {k}/{args.sides}",
-                        distance=side))
-        plan.append(Leg(Twist(0.0, 0.0, omega), (math.pi / 2) / omega, f"turn {k}/{args.sides}",
-                        angle=math.pi / 2))
+    plan = motion.square(args.square, args.speed, args.omega, args.sides)
     with (session(args, **options) as s, Chassis.open(s.cfg, record=record) as base,
           _sample_truth(s.sim) as truth):
         try:
-            execute(base, plan)
-        except BaseStoppedError as exc:
+            with progress_bar(motion.nominal_duration(plan)) as bar:
+                motion.run(base, plan, bar)
+        except motion.BaseStoppedError as exc:
             print(f"omnican: warning: base stopped: {exc}", file=sys.stderr)
     return replay.load(record, s.cfg), truth
 
