@@ -28,7 +28,6 @@ import termios
 import time
 import tty
 from collections.abc import Iterator
-from dataclasses import dataclass
 from typing import Any
 
 from rich.console import Console, Group, RenderableType
@@ -48,22 +47,10 @@ from omnican.cli.common import (
 from omnican.cli.drive import pose_line
 from omnican.errors import OmnicanError
 from omnican.kinematics import Twist
+from omnican.teleop_model import ESC, TeleopModel
 
-# (x, y, th) multipliers, as in teleop_twist_keyboard's moveBindings.
-MOVE_KEYS: dict[str, tuple[int, int, int]] = {
-    "i": (1, 0, 0), "o": (1, 0, -1), "j": (0, 0, 1), "l": (0, 0, -1),
-    "u": (1, 0, 1), ",": (-1, 0, 0), ".": (-1, 0, 1), "m": (-1, 0, -1),
-    "O": (1, -1, 0), "I": (1, 0, 0), "J": (0, 1, 0), "L": (0, -1, 0),
-    "U": (1, 1, 0), "<": (-1, 0, 0), ">": (-1, -1, 0), "M": (-1, 1, 0),
-    "k": (0, 0, 0), "K": (0, 0, 0), " ": (0, 0, 0),
-}
-# (linear factor, angular factor), as in speedBindings.
-SPEED_KEYS: dict[str, tuple[float, float]] = {
-    "q": (1.1, 1.1), "z": (0.9, 0.9), "w": (1.1, 1.0), "x": (0.9, 1.0),
-    "e": (1.0, 1.1), "c": (1.0, 0.9),
-}
+# The last byte of an arrow key's escape sequence -> the key it stands for.
 ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}  # up, down, right, left
-ESC, CTRL_C = "\x1b", "\x03"
 LOOP_S = 0.05
 
 
@@ -80,43 +67,6 @@ def add_subparser(sub: Any) -> None:
                    help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
     add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
     p.set_defaults(func=run)
-
-
-@dataclass
-class Keyboard:
-    """What the keys asked for so far."""
-
-    speed: float
-    turn: float
-    max_speed: float
-    max_turn: float
-    key_timeout: float
-    direction: tuple[int, int, int] = (0, 0, 0)
-    last_key_at: float = -math.inf
-    last_key: str = ""
-    quit: bool = False
-    recover: bool = False
-
-    def press(self, key: str, now: float) -> None:
-        self.last_key, self.last_key_at = key, now
-        if key in MOVE_KEYS:
-            self.direction = MOVE_KEYS[key]
-        elif key in SPEED_KEYS:
-            lin, ang = SPEED_KEYS[key]
-            self.speed = min(self.speed * lin, self.max_speed)
-            self.turn = min(self.turn * ang, self.max_turn)
-        elif key in ("r", "R"):
-            self.recover = True
-        elif key in (ESC, CTRL_C):
-            self.quit = True
-        else:
-            self.direction = (0, 0, 0)  # anything else: stop, as in teleop_twist_keyboard
-
-    def command(self, now: float) -> Twist:
-        if self.key_timeout > 0 and now - self.last_key_at > self.key_timeout:
-            self.direction = (0, 0, 0)
-        x, y, th = self.direction
-        return Twist(x * self.speed, y * self.speed, th * self.turn)
 
 
 def read_keys(fd: int, timeout: float) -> list[str]:
@@ -186,7 +136,7 @@ STATE_STYLE = {
 }
 
 
-def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
+def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
               events: _Events, note: str) -> Group:
     st = base.status
     pose, twist, applied = base.pose, base.twist, base.command
@@ -230,7 +180,7 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
     if note:
         status.append(f"   {note}", style="yellow")
     settings = Text(f"speed {keys.speed:.2f} m/s   turn {keys.turn:.2f} rad/s   "
-                    f"key timeout {keys.key_timeout:g} s   last key {keys.last_key!r}")
+                    f"key timeout {keys.timeout_s:g} s   last key {keys.last_input!r}")
     help_text = Text("u i o / j k l / m , .  move    Shift: strafe    q/z w/x e/c: speeds    "
                      "space/k: stop    r: recover    Esc/Ctrl-C: quit", style="dim")
     grid = Table.grid(padding=(0, 2))
@@ -245,16 +195,16 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
     return Group(*body)
 
 
-def drive_loop(base: Chassis, keys: Keyboard, fd: int, live: Live, title: str,
+def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
                events: _Events) -> None:
     """Keys in, commands out, dashboard refreshed, until Esc."""
     note = ""
-    while not keys.quit:
+    while not keys.quit_requested:
         now = time.monotonic()
         for key in read_keys(fd, LOOP_S):
             keys.press(key, now)
-        if keys.recover:
-            keys.recover, note = False, "recovering..."
+        if keys.take_recover():
+            note = "recovering..."
             live.update(dashboard(base, keys, Twist(), title, events, note), refresh=True)
             try:
                 base.recover()
@@ -277,12 +227,7 @@ def run(args: argparse.Namespace) -> int:
     events = _Events()
     final = None
     with session(args) as s:
-        c = s.cfg.chassis
-        kin = s.cfg.kinematics()
-        max_speed = min(c.max_speed, c.max_wheel_speed)
-        max_turn = min(c.max_angular_speed, c.max_wheel_speed / max(kin.base_radius))
-        keys = Keyboard(min(args.speed, max_speed), min(args.turn, max_turn), max_speed,
-                        max_turn, args.key_timeout)
+        keys = TeleopModel.for_config(s.cfg, args.speed, args.turn, args.key_timeout)
         where = "simulated base" if s.sim else "base"
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"
