@@ -81,3 +81,32 @@ def test_calibrate_prints_what_it_writes_in_the_configs_own_terms(tmp_path: Path
         sorted((k, float(o), float(n)) for k, o, n in changed)
     wheel0 = next(line for line in out.splitlines() if "wheel 0 (node 1)" in line)
     assert "wheel_radius 0.05 -> " in wheel0 and "velocity_scale" not in wheel0
+
+
+# ---------------------------------------------------------------- 2: a missing extra
+
+
+@pytest.mark.parametrize("argv", [
+    ["plot", "run.log", "-o", "out.png"],
+    ["plot", "--help"],
+    ["plot"],
+    ["-v", "plot", "--sim", "-o", "demo.png"],
+])
+def test_a_command_whose_extra_is_missing_says_which_to_install(
+        argv: list[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib now fails
+    monkeypatch.delitem(sys.modules, "omnican.cli.plot", raising=False)
+    code, out, err = run_main(argv)
+    assert code == 2
+    line = one_error_line(err)
+    assert "'plot' needs matplotlib" in line and "pip install 'omnican[plot]'" in line
+    assert "unrecognized arguments" not in line
+
+
+def test_the_command_list_marks_the_unavailable_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    monkeypatch.delitem(sys.modules, "omnican.cli.plot", raising=False)
+    code, out, _ = run_main(["--help"])
+    assert code == 0
+    assert re.search(r"plot\s+\(unavailable: needs matplotlib: pip install 'omnican\[plot\]'\)",
+                     out), out
