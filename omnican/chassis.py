@@ -218,7 +218,7 @@ class Chassis:
                 except Exception as exc:
                     errors.append(f"node {node.node_id}: {exc}")
         if errors:
-            raise DriveError("; ".join(errors))
+            raise DriveError(_combine_node_errors(errors, len(self.nodes)))
         for node in self.nodes:
             node.rebooted = False
             self._seed_statuswords(node)
@@ -619,6 +619,28 @@ class Chassis:
 
     def __repr__(self) -> str:
         return f"<Chassis {len(self._axes)} wheels on nodes {[n.node_id for n in self.nodes]}>"
+
+
+def _combine_node_errors(errors: list[str], nodes: int) -> str:
+    """``node 1: X; node 2: X`` as ``nodes 1, 2: X``: one reason said once; when no node
+    at all sent its boot-up, say there is no drive on the bus."""
+    groups: dict[str, list[str]] = {}
+    for error in errors:
+        head, sep, reason = error.partition(": ")
+        if sep and head.startswith("node ") and head[5:].isdigit():
+            groups.setdefault(reason, []).append(head[5:])
+        else:
+            groups.setdefault(error, [])
+    parts = []
+    for reason, ids in groups.items():
+        if len(ids) > 1:
+            parts.append(f"nodes {', '.join(ids)}: {reason}")
+        else:
+            parts.append(f"node {ids[0]}: {reason}" if ids else reason)
+    text = "; ".join(parts)
+    if len(groups) == 1 and len(errors) == nodes and "no boot-up" in text:
+        text = f"no drive answered on the bus: {text}"
+    return text
 
 
 def _sigterm_to_exit(signum: int, frame: FrameType | None) -> None:

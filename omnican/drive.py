@@ -520,7 +520,7 @@ class DriveNode:
 
     def stop(self) -> None:
         """Stop watching the host (consumer off) and leave OPERATIONAL; best effort."""
-        if self.has_consumer:
+        if self.has_consumer and self.booted.is_set():  # a node never heard has no consumer on
             try:
                 self.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
             except (SdoAbortedError, SdoCommunicationError) as exc:

@@ -15,6 +15,7 @@ frames in time order and applies the chassis' rules:
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,8 @@ from omnican.errors import ConfigError
 from omnican.layout import NodeLayout, node_layouts
 from omnican.odmap import Entry
 from omnican.odometry import Odometry
+
+logger = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -329,6 +332,16 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
     )
 
 
+# What each python-can log format looks like, for the error of an unreadable file.
+_FORMATS = {
+    ".log": "candump -L lines such as '(1700000000.000000) can0 181#0637'",
+    ".asc": "a Vector ASC text log",
+    ".blf": "a Vector BLF binary log",
+    ".csv": "python-can CSV rows: timestamp,arbitration_id,extended,remote,error,dlc,data",
+    ".trc": "a PEAK PCAN-View trace",
+}
+
+
 def read_frames(path: str | Path) -> list[Any]:
     """Every frame of a python-can log file (format by extension: .log, .asc, .blf, ...).
 
@@ -355,7 +368,11 @@ def read_frames(path: str | Path) -> list[Any]:
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if "unknown log format" in text:
             raise RecordingError(f"{p}: {text}") from None
-        raise RecordingError(f"{p}: not a readable {p.suffix or 'CAN'} recording: {text}") \
+        # The reader's own words ("not enough values to unpack") say nothing to a user.
+        logger.debug("reading %s: %s: %s", p, type(exc).__name__, text)
+        expected = _FORMATS.get(p.suffix.lower())
+        hint = f" (expected {expected})" if expected else ""
+        raise RecordingError(f"{p}: not a readable {p.suffix or 'CAN'} recording{hint}") \
             from None
     if not frames:
         raise RecordingError(f"{p}: no CAN frames in the recording")

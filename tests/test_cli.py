@@ -246,6 +246,7 @@ def test_sim_serves_another_process(capsys: pytest.CaptureFixture[str]) -> None:
         url = re.search(r"on (ws://127\.0\.0\.1:\d+/)", first)
         assert url is not None
         assert lines.next() == f"connect with: omnican teleop -i remote -c {url[1]}"
+        assert lines.next().startswith("type a command here: fault NODE [CODE], reboot NODE")
         assert main(["drive", "-i", "remote", "-c", url[1], "--vx", "0.3", "--duration", "0.5",
                      "--json"]) == 0
         pose = json.loads(capsys.readouterr().out)["pose"]

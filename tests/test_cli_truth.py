@@ -110,3 +110,113 @@ def test_the_command_list_marks_the_unavailable_command(monkeypatch: pytest.Monk
     assert code == 0
     assert re.search(r"plot\s+\(unavailable: needs matplotlib: pip install 'omnican\[plot\]'\)",
                      out), out
+
+
+# ---------------------------------------------------------------- 3: one clean line
+
+
+def test_a_garbage_eds_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "junk.eds").write_text("garbage text\nnot an eds\n")
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(EXAMPLE.read_text().replace("node_id = 1\n", 'node_id = 1\neds = "junk.eds"\n',
+                                               1))
+    for argv in (["check-config", str(cfg)], ["drive", "--sim", "--config", str(cfg), "--vx",
+                                               "0.1"]):
+        code, _, err = run_main(argv)
+        assert code == 2
+        line = one_error_line(err)
+        assert "junk.eds" in line and "cannot parse EDS" in line, line
+
+
+def test_no_drive_on_the_bus_is_said_once(channel: str) -> None:
+    code, out, err = run_main(["drive", "-i", "virtual", "-c", channel, "--vx", "0.1"])
+    assert code == 1
+    line = one_error_line(err)
+    assert line.startswith("omnican: error: no drive answered on the bus: nodes 1, 2, 3:"), line
+    assert line.count("no boot-up") == 1
+    assert out == ""
+
+
+@pytest.mark.parametrize("text", ["hello world\nnot a log\n", "(1.0) can0\n", "\x00\x01\x02"])
+def test_a_junk_recording_is_one_line_without_internals(tmp_path: Path, text: str) -> None:
+    junk = tmp_path / "junk.log"
+    junk.write_text(text)
+    for argv in (["plot", str(junk), "-o", str(tmp_path / "out.png")],
+                 ["calibrate", "--fit", str(junk), "--pose", "1,0,0"]):
+        code, _, err = run_main(argv)
+        assert code == 2
+        line = one_error_line(err)
+        assert line.startswith(f"omnican: error: {junk}: not a readable .log recording"), line
+        assert "unpack" not in line and "expected 3" not in line and "index" not in line
+
+
+def test_the_sim_console_answers_a_bad_number_in_words() -> None:
+    from omnican.cli.sim import command
+
+    class Drive:
+        node_id = 1
+
+        def inject_fault(self, code: int) -> None:
+            raise AssertionError("must not fault on a bad code")
+
+    class Sim:
+        drives = [Drive()]
+
+    reply = command(Sim(), "fault 1 0xZZ")  # type: ignore[arg-type]
+    assert reply == "error: not an emergency code: '0xZZ' (e.g. 0x2310)"
+    assert command(Sim(), "fault x1") == "error: not a node id: 'x1' (nodes: 1)"  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------- 5: the sim console
+
+
+class _Drive:
+    def __init__(self, node_id: int) -> None:
+        self.node_id = node_id
+        self.calls: list[str] = []
+
+    def __getattr__(self, name: str):  # type: ignore[no-untyped-def]
+        return lambda *a: self.calls.append(name)
+
+
+class _Sim:
+    def __init__(self) -> None:
+        self.drives = [_Drive(1), _Drive(2)]
+
+
+@pytest.mark.parametrize(("line", "reply"), [
+    ("heartbeat 1 maybe", "error: heartbeat takes on or off, not 'maybe'"),
+    ("heartbeat 1", "error: heartbeat takes a node id and on or off"),
+    ("blah", "error: unknown command 'blah' (try 'help')"),
+    ("blah 1", "error: unknown command 'blah' (try 'help')"),
+    ("fault", "error: fault needs a node id (nodes: 1, 2)"),
+    ("reboot 3", "error: no simulated node 3 (nodes: 1, 2)"),
+])
+def test_the_sim_console_refuses_what_it_does_not_understand(line: str, reply: str) -> None:
+    from omnican.cli.sim import command
+
+    sim = _Sim()
+    assert command(sim, line) == reply  # type: ignore[arg-type]
+    assert all(d.calls == [] for d in sim.drives)  # nothing was done
+
+
+def test_the_sim_console_does_what_it_says() -> None:
+    from omnican.cli.sim import command
+
+    sim = _Sim()
+    assert command(sim, "heartbeat 2 off") == "node 2: heartbeat off"  # type: ignore[arg-type]
+    assert command(sim, "HEARTBEAT 2 ON") == "node 2: heartbeat on"  # type: ignore[arg-type]
+    assert sim.drives[1].calls == ["stop_heartbeat", "start_heartbeat"]
+
+
+def test_the_sim_banner_lists_the_commands() -> None:
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-m", "omnican", "sim", "--serve", "127.0.0.1:0",
+                           "--duration", "0.3"], capture_output=True, text=True, timeout=60,
+                          stdin=subprocess.DEVNULL, env={**__import__("os").environ,
+                                                         "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 0, proc.stderr
+    for verb in ("fault NODE [CODE]", "reboot NODE", "heartbeat NODE off|on", "freeze NODE",
+                 "thaw NODE", "pose", "help", "quit"):
+        assert verb in proc.stdout, proc.stdout

@@ -68,20 +68,53 @@ def parse_serve(text: str | None) -> tuple[str, int]:
     return host or "127.0.0.1", number
 
 
+# The console's commands: (syntax, what it does), for the banner and 'help'.
+COMMANDS = (
+    ("fault NODE [CODE]", "EMCY + FAULT (default 0x2310 continuous over-current)"),
+    ("reboot NODE", "boot-up, defaults restored, position counter reset"),
+    ("heartbeat NODE off|on", "stop or restart the node's heartbeat"),
+    ("freeze NODE", "answer nothing, send nothing (a hung node)"),
+    ("thaw NODE", "back to normal after freeze"),
+    ("pose", "print the ground-truth pose"),
+    ("help", "list the commands"),
+    ("quit", "stop the simulator"),
+)
+_NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw")
+
+
+def commands_help() -> str:
+    width = max(len(syntax) for syntax, _ in COMMANDS)
+    return "\n".join(f"{syntax:<{width}}  {what}" for syntax, what in COMMANDS)
+
+
+def _nodes(sim: SimulatedBase) -> str:
+    return ", ".join(str(d.node_id) for d in sim.drives)
+
+
 def drive_for(sim: SimulatedBase, word: str) -> SimulatedDrive:
     try:
         node = int(word, 0)
     except ValueError:
-        raise ValueError(f"not a node id: {word!r}") from None
+        raise ValueError(f"not a node id: {word!r} (nodes: {_nodes(sim)})") from None
     for d in sim.drives:
         if d.node_id == node:
             return d
-    raise ValueError(f"no simulated node {node} (nodes: "
-                     f"{', '.join(str(d.node_id) for d in sim.drives)})")
+    raise ValueError(f"no simulated node {node} (nodes: {_nodes(sim)})")
+
+
+def parse_emcy_code(word: str) -> int:
+    try:
+        code = int(word, 0)
+    except ValueError:
+        raise ValueError(f"not an emergency code: {word!r} (e.g. 0x2310)") from None
+    if not 0 < code <= 0xFFFF:
+        raise ValueError(f"an emergency code is 0x0001-0xFFFF, got {word!r}")
+    return code
 
 
 def command(sim: SimulatedBase, line: str) -> str | None:
-    """Apply one stdin command; returns a reply, or None to quit."""
+    """Apply one console command; returns the reply ('error: ...' for a command it does
+    not understand, which then does nothing), or None to quit."""
     words = line.split()
     if not words:
         return ""
@@ -89,33 +122,41 @@ def command(sim: SimulatedBase, line: str) -> str | None:
     try:
         if verb in ("quit", "exit"):
             return None
+        if verb == "help":
+            return commands_help()
         if verb == "pose":
             p = sim.true_pose
             return f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f}"
-        if verb == "help":
-            return (__doc__ or "").split("stdin inject faults while it runs:")[-1].strip()
+        if verb not in _NODE_VERBS:
+            raise ValueError(f"unknown command {words[0]!r} (try 'help')")
+        if verb == "heartbeat" and len(rest) != 2:
+            raise ValueError("heartbeat takes a node id and on or off")
         if not rest:
-            raise ValueError(f"{verb} needs a node id")
+            raise ValueError(f"{verb} needs a node id (nodes: {_nodes(sim)})")
         drive = drive_for(sim, rest[0])
         if verb == "fault":
-            code = int(rest[1], 0) if len(rest) > 1 else 0x2310
+            if len(rest) > 2:
+                raise ValueError("fault takes a node id and an optional code")
+            code = parse_emcy_code(rest[1]) if len(rest) > 1 else 0x2310
             drive.inject_fault(code)
             return f"node {drive.node_id}: fault 0x{code:04X}"
+        if verb == "heartbeat":
+            state = rest[1].lower()
+            if state not in ("on", "off"):
+                raise ValueError(f"heartbeat takes on or off, not {rest[1]!r}")
+            (drive.start_heartbeat if state == "on" else drive.stop_heartbeat)()
+            return f"node {drive.node_id}: heartbeat {state}"
+        if len(rest) > 1:
+            raise ValueError(f"{verb} takes only a node id")
         if verb == "reboot":
             drive.reboot()
             return f"node {drive.node_id}: rebooted"
-        if verb == "heartbeat":
-            on = len(rest) > 1 and rest[1].lower() == "on"
-            (drive.start_heartbeat if on else drive.stop_heartbeat)()
-            return f"node {drive.node_id}: heartbeat {'on' if on else 'off'}"
         if verb == "freeze":
             drive.freeze()
             return f"node {drive.node_id}: frozen"
-        if verb == "thaw":
-            drive.thaw()
-            return f"node {drive.node_id}: thawed"
-        raise ValueError(f"unknown command {verb!r} (try 'help')")
-    except (ValueError, IndexError) as exc:
+        drive.thaw()
+        return f"node {drive.node_id}: thawed"
+    except ValueError as exc:
         return f"error: {exc}"
 
 
@@ -146,6 +187,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"connect with: {connect}", flush=True)
             if args.config:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)
+            print("type a command here: " + ", ".join(syntax for syntax, _ in COMMANDS),
+                  flush=True)
             serve(sim, args.duration)
     finally:
         if hub is not None:
