@@ -80,9 +80,9 @@ def test_drive_records_the_bus(tmp_path: Path, capsys: pytest.CaptureFixture[str
         (["drive", "--duration", "-1"], "argument --duration: must be positive"),
         (["drive", "--vx", "0.1", "--speed", "0.2"], "give either --vx/--vy/--wz or --speed"),
         (["drive", "--square", "1", "--vx", "1"], "--square takes only --speed and --omega"),
-        (["drive", "--sim", "--config", "/nonexistent.toml"], "cannot read config"),
-        (["drive", "--sim", "--record", "out.weird"], "cannot record to out.weird"),
-        (["drive", "--sim", "-i", "virtual"], "--sim runs on its own virtual bus"),
+        (["drive", "--sim", "--vx", "0.1", "--config", "/nonexistent.toml"], "cannot read config"),
+        (["drive", "--sim", "--vx", "0.1", "--record", "out.weird"], "cannot record to out.weird"),
+        (["drive", "--sim", "--vx", "0.1", "-i", "virtual"], "--sim runs on its own virtual bus"),
         (["nosuchcommand"], "invalid choice: 'nosuchcommand'"),
     ],
 )

@@ -220,3 +220,40 @@ def test_the_sim_banner_lists_the_commands() -> None:
     for verb in ("fault NODE [CODE]", "reboot NODE", "heartbeat NODE off|on", "freeze NODE",
                  "thaw NODE", "pose", "help", "quit"):
         assert verb in proc.stdout, proc.stdout
+
+
+# ---------------------------------------------------------------- 4: arguments refused
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["drive", "--square", "1", "--duration", "2"], "--duration is not used with --square"),
+    (["drive", "--sim", "--heading-deg", "90"], "--heading-deg needs --speed"),
+    (["drive", "--sim"], "give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega or "
+                         "--square SIDE"),
+    (["drive", "--sim", "--duration", "2"], "give a motion"),
+    (["sim", "--frame-loss", "2", "--duration", "0.1"], "--frame-loss must be 0-1, got 2"),
+    (["sim", "--encoder-noise", "inf", "--duration", "0.1"], "--encoder-noise"),
+    (["check-config", str(EXAMPLE), "--bitrate", "-5"], "argument --bitrate: must be a "
+                                                        "positive whole number, got '-5'"),
+    (["check-config", str(EXAMPLE), "--bitrate", "0"], "must be a positive whole number"),
+    (["sim", "--serve", "0.0.0.0:5000", "--duration", "0.1"],
+     "--serve 0.0.0.0:5000: the hub serves loopback only, and 0.0.0.0 is every interface "
+     "(use 127.0.0.1)"),
+])
+def test_arguments_that_make_no_sense_are_refused(argv: list[str], message: str) -> None:
+    code, out, err = run_main(argv)
+    assert code == 2
+    assert message in one_error_line(err)
+    assert out == ""
+
+
+def test_a_port_in_use_is_a_runtime_failure() -> None:
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code, _, err = run_main(["sim", "--serve", f"127.0.0.1:{port}", "--duration", "0.1"])
+    assert code == 1
+    assert f"cannot listen on 127.0.0.1:{port}" in one_error_line(err)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail
+from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail, positive_int
 from omnican.config import ChassisConfig, load_config
 from omnican.errors import ConfigError
 from omnican.layout import NodeLayout, cycle_bits, heartbeat_bits_per_s
@@ -20,7 +20,7 @@ def add_subparser(sub: Any) -> None:
     p = sub.add_parser("check-config", help="validate a config and its EDS files offline",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("config", metavar="TOML", help="the robot config to check")
-    p.add_argument("--bitrate", type=int, metavar="BIT/S",
+    p.add_argument("--bitrate", type=positive_int, metavar="BIT/S",
                    help="bitrate for the bus load when the config's [bus] has none")
     p.set_defaults(func=run)
 

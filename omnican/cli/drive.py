@@ -29,6 +29,8 @@ from omnican.kinematics import Twist
 from omnican.motion import Leg
 from omnican.odometry import Pose2D
 
+DEFAULT_DURATION_S = 1.0
+
 
 def add_subparser(sub: Any) -> None:
     p = sub.add_parser("drive", help="drive a scripted motion and print the pose",
@@ -47,8 +49,9 @@ def add_subparser(sub: Any) -> None:
                         help="polar form: turn rate, rad/s (square: turn rate, default 1.0)")
     motion.add_argument("--square", type=positive_float, metavar="SIDE",
                         help="drive a square with sides of SIDE m, turning 90 deg left in place")
-    p.add_argument("--duration", type=positive_float, default=1.0, metavar="S",
-                   help="seconds to hold the velocity (default 1.0; not with --square)")
+    p.add_argument("--duration", type=positive_float, metavar="S",
+                   help=f"seconds to hold the velocity (default {DEFAULT_DURATION_S:g}; not with "
+                        "--square)")
     p.add_argument("--json", action="store_true",
                    help='print {"pose", "twist", "duration_s"} (+ "true_pose" under --sim)')
     p.add_argument("--record", metavar="FILE",
@@ -60,22 +63,31 @@ def add_subparser(sub: Any) -> None:
 def legs(args: argparse.Namespace) -> list[Leg]:
     """The motion as legs; bad combinations are usage errors."""
     cartesian = any(v is not None for v in (args.vx, args.vy, args.wz))
-    polar = args.heading_deg is not None
+    polar = any(v is not None for v in (args.speed, args.heading_deg, args.omega))
     if args.square is not None:
-        if cartesian or polar:
+        if cartesian or args.heading_deg is not None:
             raise UsageError("--square takes only --speed and --omega")
+        if args.duration is not None:
+            raise UsageError("--duration is not used with --square (it drives until the "
+                             "square is done)")
         speed = args.speed if args.speed is not None else 0.3
         omega = args.omega if args.omega is not None else 1.0
         if speed <= 0 or omega <= 0:
             raise UsageError("--square needs a positive --speed and --omega")
         return motion.square(args.square, speed, omega)
-    if cartesian and (polar or args.speed is not None or args.omega is not None):
+    if cartesian and polar:
         raise UsageError("give either --vx/--vy/--wz or --speed/--heading-deg/--omega")
-    if polar or args.speed is not None or args.omega is not None:
+    if not (cartesian or polar):
+        raise UsageError("give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega or "
+                         "--square SIDE")
+    duration = args.duration if args.duration is not None else DEFAULT_DURATION_S
+    if polar:
+        if args.heading_deg is not None and args.speed is None:
+            raise UsageError("--heading-deg needs --speed (the speed along that heading)")
         twist = motion.polar_twist(args.speed or 0.0, args.heading_deg or 0.0, args.omega or 0.0)
     else:
         twist = Twist(args.vx or 0.0, args.vy or 0.0, args.wz or 0.0)
-    return [motion.hold(twist, args.duration)]
+    return [motion.hold(twist, duration)]
 
 
 def pose_dict(p: Pose2D) -> dict[str, float]:

@@ -19,6 +19,7 @@ where any CAN tool sees them. Commands on stdin inject faults while it runs:
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import select
 import sys
 import time
@@ -30,6 +31,7 @@ from omnican.cli.common import (
     UsageError,
     add_config_argument,
     bus_overrides,
+    finite_float,
     load,
     positive_float,
 )
@@ -47,10 +49,10 @@ def add_subparser(sub: Any) -> None:
                    help=f"loopback hub address (default 127.0.0.1:{DEFAULT_PORT}; loopback only)")
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
-    p.add_argument("--encoder-noise", type=float, default=0.0, metavar="COUNTS",
-                   help="standard deviation added to reported positions")
-    p.add_argument("--frame-loss", type=float, default=0.0, metavar="P",
-                   help="probability of losing each PDO/heartbeat frame")
+    p.add_argument("--encoder-noise", type=finite_float, default=0.0, metavar="COUNTS",
+                   help="standard deviation added to reported positions (default 0)")
+    p.add_argument("--frame-loss", type=finite_float, default=0.0, metavar="P",
+                   help="probability 0-1 of losing each PDO/heartbeat frame (default 0)")
     can.cli.add_bus_arguments(p, group_title="bus arguments (serve on this bus instead of a hub)")
     p.set_defaults(func=run)
 
@@ -65,7 +67,18 @@ def parse_serve(text: str | None) -> tuple[str, int]:
         raise UsageError(f"--serve wants [HOST:]PORT, got {text!r}") from None
     if not 0 <= number <= 65535:
         raise UsageError(f"--serve port must be 0-65535, got {number}")
-    return host or "127.0.0.1", number
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        return host, number  # a name: the hub resolves it and checks every address
+    if address.is_unspecified:
+        raise UsageError(f"--serve {text}: the hub serves loopback only, and {host} is every "
+                         "interface (use 127.0.0.1)")
+    if not address.is_loopback:
+        raise UsageError(f"--serve {text}: the hub serves loopback only, and {host} is not a "
+                         "loopback address (use 127.0.0.1)")
+    return host, number
 
 
 # The console's commands: (syntax, what it does), for the banner and 'help'.
@@ -165,9 +178,10 @@ def run(args: argparse.Namespace) -> int:
     on_bus = bool(bus_overrides(args))
     if on_bus and args.serve:
         raise UsageError("give either --serve (a loopback hub) or bus arguments, not both")
-    for name, value in (("--encoder-noise", args.encoder_noise), ("--frame-loss", args.frame_loss)):
-        if not value >= 0:
-            raise UsageError(f"{name} must be 0 or more, got {value}")
+    if args.encoder_noise < 0:
+        raise UsageError(f"--encoder-noise must be 0 or more, got {args.encoder_noise:g}")
+    if not 0 <= args.frame_loss <= 1:
+        raise UsageError(f"--frame-loss must be 0-1, got {args.frame_loss:g}")
     options = {"encoder_noise": args.encoder_noise, "frame_loss": args.frame_loss}
     hub = None
     if on_bus:
