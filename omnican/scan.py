@@ -24,6 +24,7 @@ from omnican.cia301 import (
     HEARTBEAT_BASE,
     IDENTITY,
     MAX_NODE_ID,
+    PRODUCER_HEARTBEAT_TIME,
     nmt_state_name,
 )
 from omnican.cia402 import supported_modes
@@ -34,6 +35,8 @@ from omnican.odmap import Obj
 logger = logging.getLogger(__name__)
 
 CIA_402 = 402  # device profile number in the low 16 bits of 1000h
+MAX_HEARTBEAT_WAIT_S = 5.0  # listen at most this long for a slow heartbeat
+NODE_GUARDING_WAIT_S = 0.1  # answers to node guarding come within this
 
 
 @dataclass(frozen=True)
@@ -47,6 +50,7 @@ class FoundNode:
     identity: tuple[int | None, ...] = (None, None, None, None)
     modes: int | None = None  # 6502h bit field
     name: str | None = None
+    heartbeat_ms: int | None = None  # producer heartbeat time (1017h); 0: sends none
     flags: tuple[str, ...] = field(default=())  # where it disagrees with the config
 
     @property
@@ -76,6 +80,11 @@ def _u32(node: canopen.RemoteNode, index: int, sub: int = 0) -> int | None:
         return None
 
 
+def _u16(node: canopen.RemoteNode, index: int, sub: int = 0) -> int | None:
+    value = _u32(node, index, sub)
+    return None if value is None else value & 0xFFFF
+
+
 def probe(network: canopen.Network, node_id: int, sdo_timeout_s: float) -> FoundNode:
     """Read what a node says about itself over SDO (each read bounded, not retried)."""
     node = canopen.RemoteNode(node_id, od.ObjectDictionary())
@@ -93,6 +102,7 @@ def probe(network: canopen.Network, node_id: int, sdo_timeout_s: float) -> Found
             identity=tuple(_u32(node, IDENTITY, sub) for sub in (1, 2, 3, 4)),
             modes=_u32(node, int(Obj.SUPPORTED_MODES)),
             name=name,
+            heartbeat_ms=_u16(node, PRODUCER_HEARTBEAT_TIME),
         )
     finally:
         del network[node_id]
@@ -100,7 +110,13 @@ def probe(network: canopen.Network, node_id: int, sdo_timeout_s: float) -> Found
 
 def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout_s: float) -> list[FoundNode]:
     """The nodes on ``cfg``'s bus that send heartbeats or answer an SDO read of 1000h
-    within ``listen_s``, by node id (this host's own id, ``host_node_id``, excluded)."""
+    within ``listen_s``, by node id (this host's own id, ``host_node_id``, excluded).
+
+    A node's NMT state comes from its heartbeat. For a node not heard within
+    ``listen_s`` whose producer heartbeat time (1017h) is longer, the scan listens
+    until one period and a half has passed (at most ``MAX_HEARTBEAT_WAIT_S``); a node
+    that sends no heartbeat is asked by node guarding (a remote frame), which many
+    drives answer. ``nmt`` stays None when neither tells."""
     heartbeats: dict[int, int] = {}
 
     def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
@@ -111,17 +127,33 @@ def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout_s: float) -> list[Foun
         network = can_bus.network
         for node_id in range(1, MAX_NODE_ID + 1):
             network.subscribe(HEARTBEAT_BASE + node_id, on_frame)
+        started = time.monotonic()
         network.scanner.search()  # SDO upload of 1000h to every node id
         time.sleep(listen_s)
         ids = sorted((set(network.scanner.nodes) | set(heartbeats)) - {cfg.chassis.host_node_id})
-        results = []
-        for node_id in ids:
-            found = probe(network, node_id, sdo_timeout_s)
-            if node_id in heartbeats:
-                found = replace(found, nmt=nmt_state_name(heartbeats[node_id]))
-            results.append(found)
+        found = [probe(network, node_id, sdo_timeout_s) for node_id in ids]
+        _wait_for_heartbeats(found, heartbeats, started)
+        silent = [f.node_id for f in found if f.node_id not in heartbeats]
+        for node_id in silent:
+            network.send_message(HEARTBEAT_BASE + node_id, b"", remote=True)
+        if silent:
+            time.sleep(NODE_GUARDING_WAIT_S)
+        results = [replace(f, nmt=nmt_state_name(heartbeats[f.node_id]))
+                   if f.node_id in heartbeats else f for f in found]
     logger.info("scan: %d node(s) found", len(results))
     return results
+
+
+def _wait_for_heartbeats(found: list[FoundNode], heard: dict[int, int], started: float) -> None:
+    """Until every node with a heartbeat period was heard, or had time to be."""
+    due = {f.node_id: started + min(1.5 * f.heartbeat_ms / 1000.0 + 0.05, MAX_HEARTBEAT_WAIT_S)
+           for f in found if f.heartbeat_ms}
+    while True:
+        waiting = [t for node_id, t in due.items() if node_id not in heard]
+        now = time.monotonic()
+        if not waiting or max(waiting) <= now:
+            return
+        time.sleep(min(0.02, max(waiting) - now))
 
 
 def flags(found: FoundNode, layout: NodeLayout | None) -> tuple[str, ...]:

@@ -257,3 +257,38 @@ def test_a_port_in_use_is_a_runtime_failure() -> None:
         code, _, err = run_main(["sim", "--serve", f"127.0.0.1:{port}", "--duration", "0.1"])
     assert code == 1
     assert f"cannot listen on 127.0.0.1:{port}" in one_error_line(err)
+
+
+# ---------------------------------------------------------------- 6: scan's NMT column
+
+
+def _nmt_column(out: str) -> dict[int, str]:
+    rows = re.findall(r"^│ (\d+)\s+│ ([^│]+?)\s+│", out, re.MULTILINE)
+    return {int(node): nmt for node, nmt in rows}
+
+
+def test_scan_says_why_the_nmt_column_is_empty(capsys: pytest.CaptureFixture[str]) -> None:
+    # Fresh simulated drives produce no heartbeat (1017h = 0, as their EDS says).
+    assert main(["scan", "--sim", "--listen", "0.2"]) == 0
+    out = capsys.readouterr().out
+    assert _nmt_column(out) == {1: "no heartbeat", 2: "no heartbeat", 3: "no heartbeat"}
+    assert "NMT: nodes 1, 2, 3 send no heartbeat (producer heartbeat time 1017h = 0)" in out
+
+
+def test_scan_listens_long_enough_for_a_slow_heartbeat(
+        capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    from omnican.sim import SimulatedBase
+
+    real = SimulatedBase.from_config.__func__  # type: ignore[attr-defined]
+
+    def slow_heartbeats(cls, cfg, **kw):  # type: ignore[no-untyped-def]
+        sim = real(cls, cfg, **kw)
+        for drive in sim.drives:  # one heartbeat every 0.8 s: longer than --listen
+            drive.node.sdo[0x1017].raw = 800
+        return sim
+
+    monkeypatch.setattr(SimulatedBase, "from_config", classmethod(slow_heartbeats))
+    assert main(["scan", "--sim", "--listen", "0.2"]) == 0
+    out = capsys.readouterr().out
+    assert _nmt_column(out) == {1: "PRE-OPERATIONAL", 2: "PRE-OPERATIONAL",
+                                3: "PRE-OPERATIONAL"}, out

@@ -18,7 +18,7 @@ from rich.table import Table
 from omnican.cia402 import MODE_NAMES
 from omnican.cli.common import EXIT_FAILURE, EXIT_OK, add_bus_arguments, positive_float, session
 from omnican.layout import node_layouts
-from omnican.scan import check, scan
+from omnican.scan import FoundNode, check, scan
 
 
 def add_subparser(sub: Any) -> None:
@@ -30,6 +30,28 @@ def add_subparser(sub: Any) -> None:
                    help="timeout of each SDO read of a found node (default 0.2)")
     add_bus_arguments(p, sim_help="scan simulated drives in this process (the config's nodes)")
     p.set_defaults(func=run)
+
+
+def _nmt_notes(found: tuple[FoundNode, ...]) -> list[str]:
+    """Why the NMT column is empty where it is."""
+    notes = []
+    for label, nodes, why in (
+        ("no heartbeat", [f for f in found if f.nmt is None and f.heartbeat_ms == 0],
+         "producer heartbeat time 1017h = 0"),
+        ("not heard", [f for f in found if f.nmt is None and f.heartbeat_ms != 0],
+         "no heartbeat within the listening time"),
+    ):
+        if not nodes:
+            continue
+        ids = ", ".join(str(f.node_id) for f in nodes)
+        who = f"nodes {ids} send" if len(nodes) > 1 else f"node {ids} sends"
+        if label == "no heartbeat":
+            notes.append(f"NMT: {who} no heartbeat ({why}) and did not answer node guarding; "
+                         "'omnican drive' and 'omnican teleop' turn heartbeats on")
+        else:
+            notes.append(f"NMT: {'nodes' if len(nodes) > 1 else 'node'} {ids}: {why} and no "
+                         "answer to node guarding")
+    return notes
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,11 +69,14 @@ def run(args: argparse.Namespace) -> int:
         modes = "-" if f.modes is None else ", ".join(
             MODE_NAMES.get(m, str(m)) for m in sorted(f.supported_modes))
         check_text = "; ".join(f.flags) if f.flags else "ok"
-        table.add_row(str(f.node_id), f.nmt or "-", dt, *ident, modes, check_text,
+        nmt = f.nmt or ("no heartbeat" if f.heartbeat_ms == 0 else "not heard")
+        table.add_row(str(f.node_id), nmt, dt, *ident, modes, check_text,
                       style="red" if f.flags else None)
     for n in report.missing:
         table.add_row(str(n), "-", "-", "-", "-", "-", "-", "-",
                       "MISSING (configured, no answer)", style="bold red")
     Console(width=160).print(table)
+    for line in _nmt_notes(report.found):
+        print(line)
     print(f"{len(report.found)} node(s) found; {len(report.missing)} configured node(s) missing")
     return EXIT_OK if report.ok else EXIT_FAILURE
