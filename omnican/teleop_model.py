@@ -83,6 +83,44 @@ def speed_limits(cfg: ChassisConfig) -> tuple[float, float]:
             min(c.max_angular_speed, c.max_wheel_speed / max(kin.base_radius)))
 
 
+def key_direction(key: str) -> str:
+    """Where a key takes the base, seen from above: ``forward-left``, ``back``, ``turn
+    left``, ``stop``... (a turning key's path curves: ``m``, back while turning right,
+    ends behind and to the left, as a car reversing with the wheel turned right)."""
+    if key not in MOVE_BINDINGS:
+        return "stop" if key in STOP_KEYS else ""
+    x, y, th = MOVE_BINDINGS[key]
+    if x == 0 and y == 0:
+        return "turn left" if th > 0 else "turn right" if th < 0 else "stop"
+    # One radian of turn (or none) while moving: where the path ends.
+    end_y = y if th == 0 else x * (1 - math.cos(th)) / th + y * math.sin(th) / th
+    end_x = x if th == 0 else x * math.sin(th) / th - y * (1 - math.cos(th)) / th
+    along = "forward" if end_x > 0 else "back" if end_x < 0 else ""
+    side = "left" if end_y > 0 else "right" if end_y < 0 else ""
+    return "-".join(w for w in (along, side) if w)
+
+
+_GRIDS = ((("u", "i", "o"), ("j", "k", "l"), ("m", ",", ".")),
+          (("U", "I", "O"), ("J", "K", "L"), ("M", "<", ">")))
+
+
+def key_help() -> str:
+    """The key map as a block of text (for --help and README), made from the bindings."""
+    lines = []
+    for grid, note in zip(_GRIDS, ("turning", "Shift: strafing, no turn"), strict=True):
+        for k, row in enumerate(grid):
+            keys = "    ".join(row)
+            where = "".join(f"{key_direction(key):<15}" for key in row).rstrip()
+            tail = f"   ({note})" if k == 0 else ""
+            lines.append(f"   {keys}     {where}{tail}")
+    lines += [
+        "arrow keys: up i, down ',', left j, right l",
+        "q/z  all speeds +/-10 %     w/x  linear only     e/c  angular only",
+        "space or k  stop      r  recover after a fault      Esc or Ctrl-C  quit",
+    ]
+    return "\n".join(lines)
+
+
 @dataclass
 class TeleopModel:
     """Speeds, direction and input freshness of one manual front end.

@@ -292,3 +292,59 @@ def test_scan_listens_long_enough_for_a_slow_heartbeat(
     out = capsys.readouterr().out
     assert _nmt_column(out) == {1: "PRE-OPERATIONAL", 2: "PRE-OPERATIONAL",
                                 3: "PRE-OPERATIONAL"}, out
+
+
+# ---------------------------------------------------------------- 7: the teleop keys
+
+# teleop_twist_keyboard's moveBindings as (x, y, th): its z column (t/b) left out.
+ROS_MOVE_BINDINGS = {
+    "i": (1, 0, 0), "o": (1, 0, -1), "j": (0, 0, 1), "l": (0, 0, -1),
+    "u": (1, 0, 1), ",": (-1, 0, 0), ".": (-1, 0, 1), "m": (-1, 0, -1),
+    "O": (1, -1, 0), "I": (1, 0, 0), "J": (0, 1, 0), "L": (0, -1, 0),
+    "U": (1, 1, 0), "<": (-1, 0, 0), ">": (-1, -1, 0), "M": (-1, 1, 0),
+}
+ROS_SPEED_BINDINGS = {"q": (1.1, 1.1), "z": (0.9, 0.9), "w": (1.1, 1), "x": (0.9, 1),
+                      "e": (1, 1.1), "c": (1, 0.9)}
+
+
+def test_the_key_map_is_teleop_twist_keyboards() -> None:
+    from omnican.teleop_model import MOVE_BINDINGS, SPEED_BINDINGS
+
+    assert MOVE_BINDINGS == ROS_MOVE_BINDINGS
+    assert SPEED_BINDINGS == ROS_SPEED_BINDINGS
+
+
+@pytest.mark.parametrize(("key", "where"), [
+    ("u", "forward-left"), ("i", "forward"), ("o", "forward-right"),
+    ("j", "turn left"), ("k", "stop"), ("l", "turn right"),
+    ("m", "back-left"), (",", "back"), (".", "back-right"),
+    ("U", "forward-left"), ("I", "forward"), ("O", "forward-right"),
+    ("J", "left"), ("K", "stop"), ("L", "right"),
+    ("M", "back-left"), ("<", "back"), (">", "back-right"),
+])
+def test_each_key_goes_where_the_help_says(key: str, where: str) -> None:
+    from omnican import Pose2D
+    from omnican.teleop_model import TeleopModel, key_direction
+
+    assert key_direction(key) == where
+    # And the base really goes there: one second of the key's command from the origin.
+    m = TeleopModel(0.3, 1.0, 1.0, 5.0, 0.0)
+    m.press(key, 0.0)
+    end = Pose2D.exp(m.command(0.0))
+    along = "forward" if end.x > 1e-6 else "back" if end.x < -1e-6 else ""
+    side = "left" if end.y > 1e-6 else "right" if end.y < -1e-6 else ""
+    expected = "-".join(w for w in (along, side) if w) or (
+        "turn left" if end.theta > 0 else "turn right" if end.theta < 0 else "stop")
+    assert expected == where
+
+
+def test_readme_and_help_show_the_key_map() -> None:
+    from omnican.teleop_model import key_help
+
+    block = key_help()
+    assert "m    ,    .     back-left" in block
+    readme = (ROOT / "README.md").read_text()
+    assert f"```\n{block}\n```" in readme
+    code, out, _ = run_main(["teleop", "--help"])
+    assert code == 0
+    assert block in out

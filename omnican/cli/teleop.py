@@ -1,17 +1,9 @@
-"""``omnican teleop``: drive the base from the keyboard, with a live dashboard.
+"""omnican teleop: drive the base from the keyboard, with a live dashboard.
 
-Keys follow ROS ``teleop_twist_keyboard``::
-
-    u i o      forward-left   forward   forward-right (turning)
-    j k l      turn left      stop      turn right
-    m , .      back-right     back      back-left
-    Shift (U I O J K L M < >) strafes instead of turning (holonomic mode)
-    q/z  all speeds +/-10 %    w/x  linear only    e/c  angular only
-    space or k  stop     r  recover after a fault     Esc or Ctrl-C  quit
-
-Holding a key keeps the base moving; when keys stop arriving for ``--key-timeout``
+The keys are those of ROS's teleop_twist_keyboard (the key map is printed below).
+Holding a key keeps the base moving; when keys stop arriving for --key-timeout
 seconds it stops. On exit every drive is disabled and the final pose is printed as
-``pose x=<m> y=<m> theta=<rad>``.
+'pose x=<m> y=<m> theta=<rad>'.
 """
 
 from __future__ import annotations
@@ -47,7 +39,7 @@ from omnican.cli.common import (
 from omnican.cli.drive import pose_line
 from omnican.errors import OmnicanError
 from omnican.kinematics import Twist
-from omnican.teleop_model import ESC, TeleopModel
+from omnican.teleop_model import ESC, TeleopModel, key_help
 
 # The last byte of an arrow key's escape sequence -> the key it stands for.
 ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}  # up, down, right, left
@@ -56,7 +48,8 @@ LOOP_S = 0.05
 
 def add_subparser(sub: Any) -> None:
     p = sub.add_parser("teleop", help="drive the base from the keyboard (live dashboard)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=f"{__doc__}\nkeys:\n{key_help()}\n",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--speed", type=positive_float, default=0.3, metavar="M/S",
                    help="initial linear speed (default 0.3)")
     p.add_argument("--turn", type=positive_float, default=1.0, metavar="RAD/S",
