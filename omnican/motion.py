@@ -1,7 +1,10 @@
 """Scripted motion: legs, the square, and running them on a base.
 
 A :class:`Leg` holds a twist for a time, or until the odometry says the base went a
-distance or turned an angle (a goal leg, slowing down to land on it).
+distance or turned an angle (a goal leg, slowing down to land on it). Goal legs are
+measured against the plan, not against where the previous leg happened to stop: a
+square's fourth turn ends on the start heading plus 360 degrees as the odometry
+measures it, however much each earlier turn over- or undershot.
 
 The planning functions and :func:`goal_command` are pure; :func:`run` and
 :func:`settle` drive a :class:`omnican.chassis.Chassis` (anything with its
@@ -27,7 +30,7 @@ from omnican.odometry import Pose2D
 logger = logging.getLogger(__name__)
 
 COMMAND_PERIOD_S = 0.02  # how often run() commands the base (the watchdog wants fresh ones)
-DISTANCE_TOLERANCE_M = 0.0005
+DISTANCE_TOLERANCE_M = 0.001
 ANGLE_TOLERANCE_RAD = math.radians(0.1)
 # Slow down onto a goal at this fraction of the acceleration limit: the limiter and the
 # drives follow a little late, and the margin keeps the approach from being cut short.
@@ -37,6 +40,11 @@ APPROACH_MARGIN = 0.7
 CREEP_FRACTION = 0.02
 SETTLE_TIMEOUT_S = 3.0
 STANDSTILL_M_S = 0.002  # every wheel slower than this: the base stands still
+MAX_CORRECTIONS = 3  # per goal leg: creep back onto the goal after stopping off it
+# A command reaches the wheels at the next control cycle and SYNC; the drive follows with
+# its own lag; the encoders' answer reaches the odometry a cycle later.
+LAG_CYCLES = 2.0
+DRIVE_LAG_S = 0.01
 
 #: ``progress(done_s, total_s, label)``: seconds driven so far, the plan's nominal
 #: duration (goal legs may take longer), and the label of the current leg.
@@ -141,15 +149,19 @@ def planned_end(start: Pose2D, leg: Leg) -> Pose2D:
 
 
 def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,
-                 max_angular_accel: float, creep_only: bool = False) -> Twist | None:
+                 max_angular_accel: float, creep_only: bool = False,
+                 lead: float = 0.0) -> Twist | None:
     """This cycle's command for goal leg ``leg`` that should take the base from its
     planned ``start`` to :func:`planned_end`, now that it is at ``pose``; None when the
     goal is reached (or passed). The speed falls as the goal nears, so the base can
     stop on it within ``APPROACH_MARGIN`` of the acceleration limits. A distance leg
     keeps the planned direction of travel in the world even if the heading drifted.
 
-    ``creep_only``: a correction after stopping past the goal: at the creep speed, and
-    towards the goal whichever side of it the base is on."""
+    ``lead``: how much further (m or rad) the base will move before a new command takes
+    effect (the command in flight times the lag of loop, bus, drive and odometry); the
+    approach slows down that much earlier. ``creep_only``: a correction after stopping
+    off the goal: at the creep speed, towards the goal whichever side of it the base
+    is on."""
     goal = planned_end(start, leg)
     t = leg.twist
     if leg.distance is not None:
@@ -168,7 +180,7 @@ def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,
     if creep_only:
         k = math.copysign(creep / speed, remaining)
     else:
-        approach = math.sqrt(2 * APPROACH_MARGIN * accel * remaining)
+        approach = math.sqrt(2 * APPROACH_MARGIN * accel * max(remaining - lead, 0.0))
         k = min(1.0, max(approach, creep) / speed)
     if leg.distance is not None:
         # The body-frame direction that keeps the planned world direction.
@@ -226,6 +238,14 @@ class MotionResult:
     elapsed_s: float
 
 
+def _lead(leg: Leg, applied: Twist, lag_s: float) -> float:
+    """How far the base still goes (m or rad, towards the goal) on the twist it is
+    applying now, before a new command would show in the odometry."""
+    if leg.angle is not None:
+        return max(0.0, applied.wz * math.copysign(1.0, leg.twist.wz)) * lag_s
+    return applied.linear_speed * lag_s
+
+
 def _check(base: Base) -> None:
     reason = base.status.stopped_reason
     if reason:
@@ -249,6 +269,7 @@ def run(base: Base, plan: Sequence[Leg], progress: ProgressCallback | None = Non
             progress(time.monotonic() - start, total, label)
 
     limits = base.cfg.chassis
+    lag_s = LAG_CYCLES / limits.rate_hz + DRIVE_LAG_S
     for leg in plan:
         end = time.monotonic() + leg.timeout_s
         if not leg.is_goal:
@@ -260,20 +281,28 @@ def run(base: Base, plan: Sequence[Leg], progress: ProgressCallback | None = Non
             measured = base.twist
             reference = base.pose
             continue
-        reference = base.pose
-        while time.monotonic() < end:
-            _check(base)
-            command = goal_command(leg, reference, base.pose, limits.max_accel,
-                                   limits.max_angular_accel)
-            if command is None:
+        for attempt in range(MAX_CORRECTIONS + 1):
+            while time.monotonic() < end:
+                _check(base)
+                command = goal_command(leg, reference, base.pose, limits.max_accel,
+                                       limits.max_angular_accel, creep_only=attempt > 0,
+                                       lead=_lead(leg, base.command, lag_s))
+                if command is None:
+                    break
+                base.set_velocity(command.vx, command.vy, command.wz)
+                report(leg.label)
+                time.sleep(period_s)
+            else:
+                logger.warning("%s: goal not reached within %.1f s", leg.label, leg.timeout_s)
+            if attempt == 0:
+                measured = base.twist
+            settle(base)  # stop on the goal, so one leg does not run into the next
+            if time.monotonic() >= end or goal_command(
+                    leg, reference, base.pose, limits.max_accel, limits.max_angular_accel,
+                    creep_only=True) is None:
                 break
-            base.set_velocity(command.vx, command.vy, command.wz)
-            report(leg.label)
-            time.sleep(period_s)
-        else:
-            logger.warning("%s: goal not reached within %.1f s", leg.label, leg.timeout_s)
-        measured = base.twist
-        settle(base)  # stop on the goal, so one leg does not run into the next
+            logger.debug("%s: stopped off the goal at %s: correcting", leg.label, base.pose)
+        reference = planned_end(reference, leg)
     elapsed = time.monotonic() - start
     _check(base)
     settle(base)

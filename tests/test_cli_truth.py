@@ -348,3 +348,15 @@ def test_readme_and_help_show_the_key_map() -> None:
     code, out, _ = run_main(["teleop", "--help"])
     assert code == 0
     assert block in out
+
+
+# ---------------------------------------------------------------- 8: the square closes
+
+
+def test_the_square_ends_on_a_full_turn(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["drive", "--sim", "--square", "0.4", "--speed", "0.4", "--omega", "1.5",
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for pose in (out["pose"], out["true_pose"]):  # odometry, and where the base really is
+        assert math.degrees(pose["theta"]) == pytest.approx(360.0, abs=0.3), out
+        assert math.hypot(pose["x"], pose["y"]) < 0.01, out

@@ -156,9 +156,11 @@ def test_run_drives_the_legs_and_reports_progress(channel: str) -> None:
         result = motion.run(base, plan, lambda done, total, label: seen.append(
             (done, total, label)))
         pose, truth = base.pose, sim.true_pose
-    assert pose.x == pytest.approx(0.2, abs=0.02)
-    assert pose.theta == pytest.approx(math.pi / 2, abs=0.1)
-    assert truth.x == pytest.approx(pose.x, abs=0.005)
+    # Each goal leg ends on its goal as the odometry measures it, however much the
+    # approach overshot (it creeps back), and the odometry agrees with the truth.
+    assert pose.x == pytest.approx(0.2, abs=motion.DISTANCE_TOLERANCE_M * 1.5)
+    assert pose.theta == pytest.approx(math.pi / 2, abs=motion.ANGLE_TOLERANCE_RAD * 1.5)
+    assert truth.x == pytest.approx(pose.x, abs=0.002)
     labels = [label for _, _, label in seen]
     assert labels[0] == "out" and "turn" in labels and labels[-1] == "done"
     assert all(total == pytest.approx(0.2 / 0.4 + (math.pi / 2) / 2.0) for _, total, _ in seen)
