@@ -96,7 +96,7 @@ def test_a_command_whose_extra_is_missing_says_which_to_install(
         argv: list[str], monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib now fails
     monkeypatch.delitem(sys.modules, "omnican.cli.plot", raising=False)
-    code, out, err = run_main(argv)
+    code, _, err = run_main(argv)
     assert code == 2
     line = one_error_line(err)
     assert "'plot' needs matplotlib" in line and "pip install 'omnican[plot]'" in line
@@ -160,7 +160,8 @@ def test_the_sim_console_answers_a_bad_number_in_words() -> None:
             raise AssertionError("must not fault on a bad code")
 
     class Sim:
-        drives = [Drive()]
+        def __init__(self) -> None:
+            self.drives = [Drive()]
 
     reply = command(Sim(), "fault 1 0xZZ")  # type: ignore[arg-type]
     assert reply == "error: not an emergency code: '0xZZ' (e.g. 0x2310)"
@@ -210,12 +211,13 @@ def test_the_sim_console_does_what_it_says() -> None:
 
 
 def test_the_sim_banner_lists_the_commands() -> None:
+    import os
     import subprocess
 
     proc = subprocess.run([sys.executable, "-m", "omnican", "sim", "--serve", "127.0.0.1:0",
-                           "--duration", "0.3"], capture_output=True, text=True, timeout=60,
-                          stdin=subprocess.DEVNULL, env={**__import__("os").environ,
-                                                         "PYTHONPATH": str(ROOT)})
+                           "--duration", "0.3"], check=False, capture_output=True, text=True,
+                          timeout=60, stdin=subprocess.DEVNULL,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 0, proc.stderr
     for verb in ("fault NODE [CODE]", "reboot NODE", "heartbeat NODE off|on", "freeze NODE",
                  "thaw NODE", "pose", "help", "quit"):
