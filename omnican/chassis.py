@@ -303,6 +303,7 @@ class Chassis:
         time.sleep(2 * self._period)
         try:
             self._wait_enabled(timeout, "recover")
+            logger.info("recovered: every drive enabled")
         finally:
             def done() -> None:
                 for stage in self._stages:

@@ -283,11 +283,11 @@ def test_teleop_needs_a_terminal(capsys: pytest.CaptureFixture[str]) -> None:
 class Pty:
     """omnican teleop in a pseudo-terminal: send keys, read the screen."""
 
-    def __init__(self, *args: str) -> None:
+    def __init__(self, *args: str, columns: int = 120, lines: int = 40) -> None:
         self.master, slave = os.openpty()
-        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", lines, columns, 0, 0))
         env = {**os.environ, "PYTHONPATH": str(ROOT), "TERM": "xterm-256color",
-               "COLUMNS": "120", "LINES": "40"}
+               "COLUMNS": str(columns), "LINES": str(lines)}
         def controlling_terminal() -> None:  # so Ctrl-C on the pty sends SIGINT
             os.setsid()
             fcntl.ioctl(0, termios.TIOCSCTTY, 0)

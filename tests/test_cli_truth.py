@@ -362,3 +362,83 @@ def test_the_square_ends_on_a_full_turn(capsys: pytest.CaptureFixture[str]) -> N
     for pose in (out["pose"], out["true_pose"]):  # odometry, and where the base really is
         assert math.degrees(pose["theta"]) == pytest.approx(360.0, abs=0.3), out
         assert math.hypot(pose["x"], pose["y"]) < 0.01, out
+
+
+# ---------------------------------------------------------------- 9: the display
+
+
+def test_no_negative_zero_anywhere() -> None:
+    from omnican import Pose2D
+    from omnican.cli.drive import pose_dict, pose_line
+
+    assert pose_line(Pose2D(-1e-7, -0.0, -4e-6)) == "pose x=0.0000 y=0.0000 theta=0.0000"
+    assert pose_line(Pose2D(-0.00005, 0.00004, -1.25)) == "pose x=-0.0001 y=0.0000 theta=-1.2500"
+    assert json.dumps(pose_dict(Pose2D(-1e-9, -0.0, -0.0))) == \
+        '{"x": 0.0, "y": 0.0, "theta": 0.0}'
+    # A motion along +x only: its y, theta and side speeds are zero, and print as such.
+    code, out, _ = run_main(["drive", "--sim", "--vx", "0.2", "--duration", "0.3"])
+    assert code == 0
+    assert not re.search(r"-0\.0+(?![0-9])", out), out
+    code, out, _ = run_main(["drive", "--sim", "--vx", "0.2", "--duration", "0.3", "--json"])
+    assert code == 0 and "-0.0," not in out and "-0.0}" not in out, out
+
+
+def test_drive_prints_the_pose_after_ctrl_c() -> None:
+    import os
+    import signal
+    import subprocess
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "omnican", "drive", "--sim", "--vx", "0.2",
+                             "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        time.sleep(4.0)  # up and driving
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    pose = re.search(r"^pose x=(\S+) y=\S+ theta=\S+$", out, re.MULTILINE)
+    assert pose is not None, out
+    assert float(pose[1]) > 0.05  # it had driven, and says where it stopped
+    assert "interrupted" in err
+
+
+def _teleop(*args: str, columns: int = 120):  # type: ignore[no-untyped-def]
+    from .test_cli import Pty
+
+    return Pty("--sim", *args, columns=columns)
+
+
+def test_teleop_shows_recovered_and_an_unknown_bitrate() -> None:
+    term = _teleop()
+    try:
+        screen = term.wait_for("RUNNING")
+        assert "bitrate unknown" in screen
+        term.keys("r")
+        term.wait_for("recovered")
+        term.keys("\x1b")
+        assert term.exit_code() == 0
+    finally:
+        term.close()
+
+
+def test_teleop_key_help_wraps_between_phrases_at_80_columns() -> None:
+    from omnican.cli.teleop import HELP_PHRASES
+
+    term = _teleop(columns=80)
+    try:
+        term.wait_for("RUNNING")
+        term.screen = ""
+        term.keys("k")
+        screen = term.wait_for("last key 'k'")
+        term.keys("\x1b")
+        assert term.exit_code() == 0
+    finally:
+        term.close()
+    for phrase in HELP_PHRASES:
+        assert phrase in screen, (phrase, screen[-2500:])

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from omnican import __version__
 from omnican.cli.common import (
     EXIT_FAILURE,
+    EXIT_INTERRUPTED,
     EXIT_USAGE,
     Parser,
     UsageError,
@@ -92,7 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OmnicanError as exc:
         return fail(str(exc), EXIT_FAILURE)
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into head & co.
         return 0
 

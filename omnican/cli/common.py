@@ -18,8 +18,10 @@ import can.cli
 
 from omnican.config import ChassisConfig, default_config, load_config
 from omnican.errors import ConfigError
+from omnican.odometry import Pose2D
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
 
 _BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "timing")
 
@@ -122,6 +124,29 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
     cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}")
     with SimulatedBase.from_config(cfg, **sim_options) as sim:
         yield Session(cfg, sim)
+
+
+def fixed(value: float, places: int, sign: bool = False) -> str:
+    """``value`` with ``places`` decimals (and its sign with ``sign``); a value that
+    rounds to zero is 0, never -0."""
+    text = f"{value:+.{places}f}" if sign else f"{value:.{places}f}"
+    if float(text) == 0.0:
+        text = f"{0.0:+.{places}f}" if sign else f"{0.0:.{places}f}"
+    return text
+
+
+def rounded(value: float, places: int = 6) -> float:
+    """``value`` rounded for JSON, with -0.0 as 0.0."""
+    return round(value, places) + 0.0
+
+
+def pose_line(p: Pose2D) -> str:
+    """``pose x=<m> y=<m> theta=<rad>``: how every command prints a final pose."""
+    return f"pose x={fixed(p.x, 4)} y={fixed(p.y, 4)} theta={fixed(p.theta, 4)}"
+
+
+def pose_dict(p: Pose2D) -> dict[str, float]:
+    return {"x": rounded(p.x), "y": rounded(p.y), "theta": rounded(p.theta)}
 
 
 class ProgressBar:

@@ -17,17 +17,21 @@ from omnican import motion
 from omnican.chassis import Chassis
 from omnican.cli.common import (
     EXIT_FAILURE,
+    EXIT_INTERRUPTED,
     EXIT_OK,
     UsageError,
     add_bus_arguments,
     finite_float,
+    fixed,
+    pose_dict,
+    pose_line,
     positive_float,
     progress_bar,
+    rounded,
     session,
 )
 from omnican.kinematics import Twist
 from omnican.motion import Leg
-from omnican.odometry import Pose2D
 
 DEFAULT_DURATION_S = 1.0
 
@@ -90,14 +94,6 @@ def legs(args: argparse.Namespace) -> list[Leg]:
     return [motion.hold(twist, duration)]
 
 
-def pose_dict(p: Pose2D) -> dict[str, float]:
-    return {"x": round(p.x, 6), "y": round(p.y, 6), "theta": round(p.theta, 6)}
-
-
-def pose_line(p: Pose2D) -> str:
-    return f"pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f}"
-
-
 def execute(base: Chassis, plan: list[Leg]) -> motion.MotionResult:
     """Run the plan with a progress bar on a terminal."""
     with progress_bar(motion.nominal_duration(plan)) as bar:
@@ -114,10 +110,16 @@ def run(args: argparse.Namespace) -> int:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
                 print(pose_line(base.pose))
                 return EXIT_FAILURE
+            except KeyboardInterrupt:
+                base.stop()
+                motion.settle(base)
+                print("omnican: interrupted: the base stopped here", file=sys.stderr)
+                print(pose_line(base.pose))
+                return EXIT_INTERRUPTED
             pose = base.pose
         out: dict[str, Any] = {
             "pose": pose_dict(pose),
-            "twist": {k: round(v, 6) for k, v in asdict(result.twist).items()},
+            "twist": {k: rounded(v) for k, v in asdict(result.twist).items()},
             "duration_s": round(result.elapsed_s, 3),
         }
         if s.sim is not None:
@@ -126,10 +128,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(out))
     else:
         t = result.twist
-        print(f"drove {result.elapsed_s:.2f} s; measured twist vx={t.vx:.3f} vy={t.vy:.3f} "
-              f"wz={t.wz:.3f}")
+        print(f"drove {result.elapsed_s:.2f} s; measured twist vx={fixed(t.vx, 3)} "
+              f"vy={fixed(t.vy, 3)} wz={fixed(t.wz, 3)}")
         if "true_pose" in out:
-            tp = out["true_pose"]
-            print(f"true pose x={tp['x']:.4f} y={tp['y']:.4f} theta={tp['theta']:.4f} (simulated)")
+            print(pose_line(s.sim.true_pose).replace("pose", "true pose", 1) + " (simulated)")
         print(pose_line(pose))
     return EXIT_OK

@@ -32,10 +32,12 @@ from omnican.cli.common import (
     add_config_argument,
     finite_float,
     load,
+    pose_line,
     positive_float,
     progress_bar,
     session,
 )
+from omnican.odometry import Pose2D
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -229,7 +231,7 @@ def build_figure(rep: replay.Replay, title: str,
 def summary(rep: replay.Replay) -> str:
     if len(rep.poses):
         x, y, th = rep.poses[-1]
-        pose = f"end pose x={x:.4f} y={y:.4f} theta={th:.4f}"
+        pose = "end " + pose_line(Pose2D(float(x), float(y), float(th)))
     else:
         pose = "no complete position samples"
     states = ", ".join(f"node {s.node_id} {s.changes[-1].state if s.changes else State.UNKNOWN}"

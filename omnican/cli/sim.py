@@ -33,6 +33,7 @@ from omnican.cli.common import (
     bus_overrides,
     finite_float,
     load,
+    pose_line,
     positive_float,
 )
 from omnican.hub import DEFAULT_PORT, LoopbackHub
@@ -138,8 +139,7 @@ def command(sim: SimulatedBase, line: str) -> str | None:
         if verb == "help":
             return commands_help()
         if verb == "pose":
-            p = sim.true_pose
-            return f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f}"
+            return "true " + pose_line(sim.true_pose)
         if verb not in _NODE_VERBS:
             raise ValueError(f"unknown command {words[0]!r} (try 'help')")
         if verb == "heartbeat" and len(rest) != 2:

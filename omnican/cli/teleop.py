@@ -19,7 +19,7 @@ import sys
 import termios
 import time
 import tty
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 from rich.console import Console, Group, RenderableType
@@ -33,10 +33,11 @@ from omnican.cia402 import State
 from omnican.cli.common import (
     UsageError,
     add_bus_arguments,
+    fixed,
+    pose_line,
     positive_float,
     session,
 )
-from omnican.cli.drive import pose_line
 from omnican.errors import OmnicanError
 from omnican.kinematics import Twist
 from omnican.teleop_model import ESC, TeleopModel, key_help
@@ -111,14 +112,24 @@ class _Events(logging.Handler):
 
 @contextlib.contextmanager
 def logs_into(handler: logging.Handler) -> Iterator[None]:
+    """Log records into the dashboard, omnican's own from INFO on: what the base did
+    (recovered, re-configured a rebooted drive) belongs in the events panel."""
     root = logging.getLogger()
-    saved = root.handlers[:]
+    ours = logging.getLogger("omnican")
+    saved, saved_level = root.handlers[:], ours.level
     root.handlers = [handler]
+    if ours.getEffectiveLevel() > logging.INFO:
+        ours.setLevel(logging.INFO)
     try:
         yield
     finally:
         root.handlers = saved
+        ours.setLevel(saved_level)
 
+
+# The key help under the dashboard, in phrases that are never broken across lines.
+HELP_PHRASES = ("u i o / j k l / m , .  move", "Shift: strafe", "q/z w/x e/c: speeds",
+                "space/k: stop", "r: recover", "Esc/Ctrl-C: quit")
 
 STATE_STYLE = {
     State.OPERATION_ENABLED: "green",
@@ -129,20 +140,34 @@ STATE_STYLE = {
 }
 
 
+def wrap_phrases(phrases: Sequence[str], width: int, gap: int = 4) -> str:
+    """The phrases on lines of at most ``width`` columns, broken only between phrases."""
+    lines: list[str] = []
+    for phrase in phrases:
+        if lines and len(lines[-1]) + gap + len(phrase) <= width:
+            lines[-1] += " " * gap + phrase
+        else:
+            lines.append(phrase)
+    return "\n".join(lines)
+
+
 def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
-              events: _Events, note: str) -> Group:
+              events: _Events, note: str, width: int = 120) -> Group:
     st = base.status
     pose, twist, applied = base.pose, base.twist, base.command
-    header = Text(title, style="bold")
     bitrate = base.bus.bitrate
     load = (f"{st.bus_load:.0%} of {bitrate // 1000} kbit/s"
-            if st.bus_load is not None and bitrate else f"{st.bus_bits_per_s / 1000:.1f} kbit/s")
-    header.append(f"   loop {st.loop_hz:.0f} Hz   bus {load}", style="dim")
+            if st.bus_load is not None and bitrate else
+            f"{st.bus_bits_per_s / 1000:.1f} kbit/s (bitrate unknown)")
+    header = Text(wrap_phrases([title, f"loop {st.loop_hz:.0f} Hz", f"bus {load}"], width, 3),
+                  style="dim")
+    header.stylize("bold not dim", 0, len(title))
 
     pose_t = Table.grid(padding=(0, 1))
-    pose_t.add_row("x", f"{pose.x:+8.3f} m")
-    pose_t.add_row("y", f"{pose.y:+8.3f} m")
-    pose_t.add_row("θ", f"{pose.theta:+8.3f} rad ({math.degrees(pose.heading):+6.1f}°)")
+    pose_t.add_row("x", f"{fixed(pose.x, 3, sign=True):>8} m")
+    pose_t.add_row("y", f"{fixed(pose.y, 3, sign=True):>8} m")
+    pose_t.add_row("θ", f"{fixed(pose.theta, 3, sign=True):>8} rad "
+                        f"({fixed(math.degrees(pose.heading), 1, sign=True):>6}°)")
 
     tw = Table(box=None, padding=(0, 1))
     for col in ("", "keys", "applied", "measured"):
@@ -150,7 +175,7 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     for name, unit, a, b, c in (("vx", "m/s", command.vx, applied.vx, twist.vx),
                                 ("vy", "m/s", command.vy, applied.vy, twist.vy),
                                 ("wz", "rad/s", command.wz, applied.wz, twist.wz)):
-        tw.add_row(f"{name} {unit}", f"{a:+.3f}", f"{b:+.3f}", f"{c:+.3f}")
+        tw.add_row(f"{name} {unit}", *(fixed(v, 3, sign=True) for v in (a, b, c)))
 
     wheels = Table(box=None, padding=(0, 1))
     for col in ("wheel", "node", "state", "target m/s", "actual m/s", "travel m", "fault"):
@@ -160,8 +185,8 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
         state = Text(str(w.state), style=STATE_STYLE.get(w.state, ""))
         if not w.online:
             state = Text("OFFLINE", style="bold red")
-        wheels.add_row(str(w.index), node, state, f"{w.target_speed:+.3f}",
-                       f"{w.actual_speed:+.3f}", f"{w.travel:+.3f}",
+        wheels.add_row(str(w.index), node, state, fixed(w.target_speed, 3, sign=True),
+                       fixed(w.actual_speed, 3, sign=True), fixed(w.travel, 3, sign=True),
                        Text(w.fault or w.error or "", style="red"))
 
     if st.stopped_reason:
@@ -172,10 +197,10 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
         status = Text("starting...", style="yellow")
     if note:
         status.append(f"   {note}", style="yellow")
-    settings = Text(f"speed {keys.speed:.2f} m/s   turn {keys.turn:.2f} rad/s   "
-                    f"key timeout {keys.timeout_s:g} s   last key {keys.last_input!r}")
-    help_text = Text("u i o / j k l / m , .  move    Shift: strafe    q/z w/x e/c: speeds    "
-                     "space/k: stop    r: recover    Esc/Ctrl-C: quit", style="dim")
+    settings = Text(wrap_phrases([f"speed {keys.speed:.2f} m/s", f"turn {keys.turn:.2f} rad/s",
+                                  f"key timeout {keys.timeout_s:g} s",
+                                  f"last key {keys.last_input!r}"], width, 3))
+    help_text = Text(wrap_phrases(HELP_PHRASES, width), style="dim")
     grid = Table.grid(padding=(0, 2))
     grid.add_row(Panel(pose_t, title="pose", title_align="left"),
                  Panel(tw, title="twist", title_align="left"))
@@ -198,7 +223,8 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             keys.press(key, now)
         if keys.take_recover():
             note = "recovering..."
-            live.update(dashboard(base, keys, Twist(), title, events, note), refresh=True)
+            live.update(dashboard(base, keys, Twist(), title, events, note,
+                                  live.console.width), refresh=True)
             try:
                 base.recover()
                 note = ""
@@ -206,7 +232,8 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
                 note = f"recover failed: {exc}"
         command = keys.command(time.monotonic())
         base.set_velocity(command.vx, command.vy, command.wz)
-        live.update(dashboard(base, keys, command, title, events, note), refresh=True)
+        live.update(dashboard(base, keys, command, title, events, note, live.console.width),
+                    refresh=True)
 
 
 def run(args: argparse.Namespace) -> int:
