@@ -80,7 +80,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)"),
         "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
         "velocity_scale": Key(_NUM, None, "drive velocity units per m/s at the rim; sign = "
-                              "polarity (the seeds' k)"),
+                              "polarity"),
         "position_scale": Key(_NUM, None, "encoder position units per m of rim travel"),
         "gear_ratio": Key(_NUM, None, "motor turns per wheel turn (instead of the scales)"),
         "encoder_cpr": Key(_NUM, None, "encoder counts per motor turn (instead of the scales)"),

@@ -442,3 +442,27 @@ def test_teleop_key_help_wraps_between_phrases_at_80_columns() -> None:
         term.close()
     for phrase in HELP_PHRASES:
         assert phrase in screen, (phrase, screen[-2500:])
+
+
+# ---------------------------------------------------------------- 10: help for a new user
+
+
+def _all_help() -> dict[str, str]:
+    from omnican.cli import SUBCOMMANDS
+
+    pages = {}
+    for argv in (["--help"], *([name.replace("_", "-"), "--help"] for name in SUBCOMMANDS)):
+        code, out, _ = run_main(argv)
+        assert code == 0
+        pages[" ".join(argv)] = out
+    return pages
+
+
+def test_help_and_readme_speak_to_a_new_user() -> None:
+    texts = {**_all_help(), "README.md": (ROOT / "README.md").read_text()}
+    for name, text in texts.items():
+        rst = re.search(r"(?<!`)``(?!`)", text)  # reStructuredText literals (not ``` fences)
+        assert rst is None, (name, text[rst.start() - 80:rst.end() + 80])
+        assert not re.search(r"\bseeds?\b", text, re.IGNORECASE), (
+            name, re.findall(r".{0,60}\bseeds?\b.{0,60}", text, re.IGNORECASE))
+        assert ":class:" not in text and ":func:" not in text, name

@@ -1,4 +1,4 @@
-"""``omnican calibrate``: correct the wheel scales and the base radius of a config.
+"""omnican calibrate: correct the wheel scales and the base radius of a config.
 
 Guided (or scripted) run: the base drives --distance m straight ahead, then spins
 --turns turns counter-clockwise in place. Measure how far it really went and how far

@@ -1,4 +1,4 @@
-"""``omnican check-config``: validate a config and its EDS files offline.
+"""omnican check-config: validate a config and its EDS files offline.
 
 Prints the PDO plan of every node and the bus load at the configured rate and
 bitrate, or one line per problem (exit 2). Touches no bus.

@@ -1,8 +1,10 @@
-"""``omnican drive``: scripted motion, for scripts and tests.
+"""omnican drive: scripted motion, for scripts and tests.
 
-Straight (``--vx --vy --wz``), polar (``--speed --heading-deg --omega``, the seed's
-``compute(speed, angle, omega)`` with its 2/3 translation error fixed) or a square
-(``--square SIDE``); prints the final pose, or a JSON object with ``--json``.
+Give one form of motion: straight (--vx --vy --wz, held for --duration), polar
+(--speed along --heading-deg, degrees from forward and counter-clockwise, while
+turning at --omega) or a square (--square SIDE, turning 90 deg left in place at
+each corner). Prints the final pose, or one JSON object with --json. Speeds above
+the base's limits are scaled down to them, with a warning.
 """
 
 from __future__ import annotations

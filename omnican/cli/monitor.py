@@ -1,15 +1,15 @@
-"""``omnican monitor``: live decode of the bus through a DBC file (cantools).
+"""omnican monitor: live decode of the bus through a DBC file (cantools).
 
 One row per CAN id seen: frame count, rate (frames/s over the last second), and the
-last frame's signals, decoded with the DBC (default: the bundled ``omnican.dbc``,
+last frame's signals, decoded with the DBC (default: the bundled omnican.dbc,
 which describes the demo base, nodes 1-3) or shown as raw hex for ids it does not
 describe. Below the table, the bus load: worst-case bits per second (bit stuffing
-included) and, when the bitrate is known (``[bus] bitrate`` or ``-b``), its share of it.
+included) and, when the bitrate is known ([bus] bitrate or -b), its share of it.
 
-The monitor only listens. Under ``--sim`` nothing else would be on the virtual bus,
+The monitor only listens. Under --sim nothing else would be on the virtual bus,
 so it also opens the simulated base and drives it slowly in a circle, to have
 traffic to show. In a terminal the table updates in place; otherwise (pipe, file)
-a plain-text table is printed every ``--interval`` seconds and a summary at the end.
+a plain-text table is printed every --interval seconds and a summary at the end.
 Ctrl-C ends it (exit 0).
 """
 

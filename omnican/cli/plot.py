@@ -1,14 +1,14 @@
-"""``omnican plot``: one figure of a recording: the x-y trajectory, each wheel's
+"""omnican plot: one figure of a recording: the x-y trajectory, each wheel's
 target vs actual rim speed over time, and the drives' CiA 402 states over time.
 
     omnican plot RECORDING -o OUT.png [--config TOML]
     omnican plot --sim -o OUT.png     # drive a square on the simulator, then plot it
 
-RECORDING is any python-can log (``omnican drive ... --record FILE``; .log, .asc,
+RECORDING is any python-can log (omnican drive ... --record FILE; .log, .asc,
 .blf); --config must describe the base it was recorded on (default: the demo base).
 Under --sim the simulator's ground-truth path is drawn over the odometry.
 The output format follows OUT's extension (png, svg, pdf). Needs matplotlib
-(``pip install 'omnican[plot]'``).
+(pip install 'omnican[plot]').
 """
 
 from __future__ import annotations

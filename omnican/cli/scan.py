@@ -1,4 +1,4 @@
-"""``omnican scan``: find the nodes on the bus and compare them with the config.
+"""omnican scan: find the nodes on the bus and compare them with the config.
 
 Listens for heartbeats, asks every node id for its device type (SDO 1000h), then
 reads each answering node's identity (1018h) and supported modes (6502h). Prints a

@@ -1,19 +1,13 @@
-"""``omnican sim``: serve simulated drives for another program.
+"""omnican sim: serve simulated drives for another program.
 
 By default the drives sit behind a loopback-only hub, and a second terminal drives
-them with::
+them with:
 
     omnican teleop -i remote -c ws://127.0.0.1:54701/
 
-On Linux they can also sit on a SocketCAN interface (``-i socketcan -c vcan0``),
-where any CAN tool sees them. Commands on stdin inject faults while it runs:
-
-    fault NODE [CODE]   EMCY + FAULT (default 0x2310 over-current)
-    reboot NODE         boot-up, defaults restored, position counter reset
-    heartbeat NODE off|on
-    freeze NODE / thaw NODE
-    pose                print the ground-truth pose
-    quit
+On Linux they can also sit on a SocketCAN interface (-i socketcan -c vcan0),
+where any CAN tool sees them. Commands typed on stdin inject faults while it runs
+(listed below). A port already in use is a run-time failure (exit 1).
 """
 
 from __future__ import annotations
@@ -44,7 +38,8 @@ def add_subparser(sub: Any) -> None:
     import can.cli
 
     p = sub.add_parser("sim", help="serve simulated drives to another process",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=f"{__doc__}\ncommands:\n{commands_help()}\n",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_argument(p)
     p.add_argument("--serve", metavar="[HOST:]PORT", default=None,
                    help=f"loopback hub address (default 127.0.0.1:{DEFAULT_PORT}; loopback only)")
