@@ -18,13 +18,13 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 from omnican.config import ChassisConfig
 from omnican.errors import OmnicanError
 from omnican.kinematics import Twist
-from omnican.limits import VelocityLimiter
+from omnican.limits import VelocityLimiter, clamp_twist, desaturate_twist
 from omnican.odometry import Pose2D
 
 logger = logging.getLogger(__name__)
@@ -194,6 +194,54 @@ def feasible(twist: Twist, cfg: ChassisConfig) -> Twist:
     """The twist the base will really drive for ``twist``: scaled down by one factor
     to the speed limits and the wheels' maximum rim speed, direction kept."""
     return VelocityLimiter(cfg.limits(), cfg.kinematics()).target(twist)
+
+
+@dataclass(frozen=True)
+class Clamp:
+    """A twist beyond the base's limits: what was asked, what it will drive, and the
+    config key (with its value) that binds."""
+
+    requested: Twist
+    applied: Twist
+    limit: str
+
+
+def clamp(twist: Twist, cfg: ChassisConfig) -> Clamp | None:
+    """None when ``cfg``'s base can drive ``twist`` as it is."""
+    limits, c = cfg.limits(), cfg.chassis
+    scaled = clamp_twist(twist, limits)
+    reasons = []
+    if scaled != twist:
+        if twist.linear_speed > limits.max_linear:
+            reasons.append(f"chassis.max_speed {c.max_speed:g} m/s")
+        if abs(twist.wz) > limits.max_angular:
+            reasons.append(f"chassis.max_angular_speed {c.max_angular_speed:g} rad/s")
+    applied = desaturate_twist(scaled, cfg.kinematics(), limits.max_wheel_speed)
+    if applied != scaled:
+        reasons.append(f"chassis.max_wheel_speed {c.max_wheel_speed:g} m/s at the rim")
+    return Clamp(twist, applied, ", ".join(reasons)) if reasons else None
+
+
+def fit_to_limits(plan: Sequence[Leg], cfg: ChassisConfig) -> tuple[list[Leg], list[Clamp]]:
+    """The plan with every twist the base cannot drive scaled down to what it will
+    drive (goal legs keep their goal and take longer), and the clamps, one per
+    distinct twist."""
+    out: list[Leg] = []
+    clamps: list[Clamp] = []
+    for leg in plan:
+        c = clamp(leg.twist, cfg)
+        if c is None:
+            out.append(leg)
+            continue
+        if all(seen.requested != c.requested for seen in clamps):
+            clamps.append(c)
+        seconds = leg.seconds
+        if leg.distance is not None:
+            seconds = leg.distance / c.applied.linear_speed
+        elif leg.angle is not None:
+            seconds = leg.angle / abs(c.applied.wz)
+        out.append(replace(leg, twist=c.applied, seconds=seconds))
+    return out, clamps
 
 
 def nominal_duration(plan: Sequence[Leg]) -> float:

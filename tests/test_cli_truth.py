@@ -466,3 +466,29 @@ def test_help_and_readme_speak_to_a_new_user() -> None:
         assert not re.search(r"\bseeds?\b", text, re.IGNORECASE), (
             name, re.findall(r".{0,60}\bseeds?\b.{0,60}", text, re.IGNORECASE))
         assert ":class:" not in text and ":func:" not in text, name
+
+
+# ---------------------------------------------------------------- 11: speeds beyond the limits
+
+
+def test_a_speed_beyond_the_limits_is_driven_at_the_limit_with_one_warning() -> None:
+    from omnican import Twist, default_config
+
+    code, out, err = run_main(["drive", "--sim", "--vx", "100", "--duration", "1.6", "--json"])
+    assert code == 0
+    warnings = [line for line in err.splitlines() if line.strip()]
+    assert len(warnings) == 1, err
+    cfg = default_config()
+    # The fastest straight-ahead speed: the fastest wheel at its maximum rim speed.
+    limit = cfg.chassis.max_wheel_speed / max(abs(cfg.kinematics().to_wheel_speeds(
+        Twist(1.0, 0.0, 0.0))))
+    assert warnings[0] == (
+        "omnican: warning: vx=100 vy=0 wz=0 is beyond the base's limits "
+        f"(chassis.max_wheel_speed {cfg.chassis.max_wheel_speed:g} m/s at the rim): "
+        f"driving vx={limit:.3f} vy=0.000 wz=0.000")
+    assert json.loads(out)["twist"]["vx"] == pytest.approx(limit, abs=0.1)
+
+
+def test_a_speed_within_the_limits_warns_nothing() -> None:
+    code, _, err = run_main(["drive", "--sim", "--vx", "0.3", "--duration", "0.2"])
+    assert code == 0 and err == ""

@@ -177,3 +177,31 @@ def test_run_raises_when_the_base_stops_itself(channel: str) -> None:
 
         with pytest.raises(motion.BaseStoppedError, match="node 3 fault: 0x2310"):
             motion.run(base, [motion.hold(Twist(0.2, 0.0, 0.0), 2.0)], fault)
+
+
+@given(st.floats(-50, 50), st.floats(-50, 50), st.floats(-50, 50))
+def test_fit_to_limits_scales_only_what_the_base_cannot_drive(vx: float, vy: float,
+                                                              wz: float) -> None:
+    cfg = default_config()
+    twist = Twist(vx, vy, wz)
+    plan, clamps = motion.fit_to_limits([motion.hold(twist, 1.0)], cfg)
+    applied = plan[0].twist
+    assert applied == motion.feasible(twist, cfg)
+    assert (clamps == []) == (applied == twist)
+    if clamps:  # scaled down, direction kept, and the fastest wheel at its limit
+        [c] = clamps
+        assert "max_wheel_speed" in c.limit
+        k = applied.linear_speed / twist.linear_speed if twist.linear_speed else \
+            applied.wz / twist.wz
+        assert 0 < k < 1
+        assert applied.vx == pytest.approx(k * vx, abs=1e-9)
+        assert applied.wz == pytest.approx(k * wz, abs=1e-9)
+        wheels = cfg.kinematics().to_wheel_speeds(applied)
+        assert max(abs(wheels)) == pytest.approx(cfg.chassis.max_wheel_speed)
+
+
+def test_a_goal_leg_beyond_the_limits_keeps_its_goal_and_takes_longer() -> None:
+    cfg = default_config()
+    [leg], [c] = motion.fit_to_limits([motion.straight(1.0, 5.0)], cfg)
+    assert leg.distance == 1.0 and leg.twist == c.applied
+    assert leg.seconds == pytest.approx(1.0 / c.applied.linear_speed)

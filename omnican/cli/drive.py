@@ -102,9 +102,19 @@ def execute(base: Chassis, plan: list[Leg]) -> motion.MotionResult:
         return motion.run(base, plan, bar)
 
 
+def _number(value: float) -> str:
+    return f"{value:.6g}" if value else "0"
+
+
 def run(args: argparse.Namespace) -> int:
     plan = legs(args)
     with session(args) as s:
+        plan, clamps = motion.fit_to_limits(plan, s.cfg)
+        for c in clamps:
+            r, a = c.requested, c.applied
+            print(f"omnican: warning: vx={_number(r.vx)} vy={_number(r.vy)} wz={_number(r.wz)} "
+                  f"is beyond the base's limits ({c.limit}): driving vx={fixed(a.vx, 3)} "
+                  f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
         with Chassis.open(s.cfg, record=args.record) as base:
             try:
                 result = execute(base, plan)
