@@ -492,3 +492,38 @@ def test_a_speed_beyond_the_limits_is_driven_at_the_limit_with_one_warning() -> 
 def test_a_speed_within_the_limits_warns_nothing() -> None:
     code, _, err = run_main(["drive", "--sim", "--vx", "0.3", "--duration", "0.2"])
     assert code == 0 and err == ""
+
+
+# ---------------------------------------------------------------- 12: unknown config keys
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [
+    ("base_radius = 0.19", "base_radus = 0.19",
+     "chassis.base_radus: unknown key 'base_radus' (did you mean 'base_radius'?)"),
+    ("node_id = 1\n", "node_id = 1\nvelocity_scal = 3.0\n",
+     "wheel[0].velocity_scal: unknown key 'velocity_scal' (did you mean 'velocity_scale'?)"),
+    ("base_radius = 0.19", "base_radius = 0.19\ncolour = 'red'",
+     "chassis.colour: unknown key 'colour' (the keys: omnican check-config --help)"),
+    ("[chassis]", "[chasis]",
+     "chasis: unknown section 'chasis' (did you mean 'chassis'?)"),
+])
+def test_an_unknown_config_key_is_named_with_a_suggestion(tmp_path: Path, old: str, new: str,
+                                                          message: str) -> None:
+    text = EXAMPLE.read_text()
+    assert old in text
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(text.replace(old, new, 1))
+    code, _, err = run_main(["check-config", str(cfg)])
+    assert code == 2
+    line = one_error_line(err)
+    assert line == f"omnican: error: {cfg}: {message}"
+
+
+def test_check_config_help_lists_every_key() -> None:
+    from omnican.config import SCHEMA
+
+    code, out, _ = run_main(["check-config", "--help"])
+    assert code == 0
+    for section, keys in SCHEMA.items():
+        for key in keys:
+            assert f"{section}.{key}" in out, (section, key)
