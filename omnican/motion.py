@@ -36,8 +36,10 @@ ANGLE_TOLERANCE_RAD = math.radians(0.1)
 # drives follow a little late, and the margin keeps the approach from being cut short.
 APPROACH_MARGIN = 0.7
 # Never slower than this fraction of the leg's speed while a goal is still ahead: the
-# last millimetres would otherwise take forever. Corrections after a leg run at it.
+# last millimetres would otherwise take forever.
 CREEP_FRACTION = 0.02
+# A correction after stopping off the goal runs at most this fraction of the leg's speed.
+CORRECTION_FRACTION = 0.25
 SETTLE_TIMEOUT_S = 3.0
 STANDSTILL_M_S = 0.002  # every wheel slower than this: the base stands still
 MAX_CORRECTIONS = 3  # per goal leg: creep back onto the goal after stopping off it
@@ -149,7 +151,7 @@ def planned_end(start: Pose2D, leg: Leg) -> Pose2D:
 
 
 def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,
-                 max_angular_accel: float, creep_only: bool = False,
+                 max_angular_accel: float, correcting: bool = False,
                  lead: float = 0.0) -> Twist | None:
     """This cycle's command for goal leg ``leg`` that should take the base from its
     planned ``start`` to :func:`planned_end`, now that it is at ``pose``; None when the
@@ -159,9 +161,9 @@ def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,
 
     ``lead``: how much further (m or rad) the base will move before a new command takes
     effect (the command in flight times the lag of loop, bus, drive and odometry); the
-    approach slows down that much earlier. ``creep_only``: a correction after stopping
-    off the goal: at the creep speed, towards the goal whichever side of it the base
-    is on."""
+    approach slows down that much earlier. ``correcting``: a correction after stopping
+    off the goal: towards the goal whichever side of it the base is on, at most at
+    ``CORRECTION_FRACTION`` of the leg's speed."""
     goal = planned_end(start, leg)
     t = leg.twist
     if leg.distance is not None:
@@ -174,14 +176,11 @@ def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,
         tolerance, speed, accel = ANGLE_TOLERANCE_RAD, abs(t.wz), max_angular_accel
     else:
         raise ValueError(f"leg {leg.label!r} has no goal")
-    if remaining <= tolerance and not (creep_only and remaining < -tolerance):
+    if remaining <= tolerance and not (correcting and remaining < -tolerance):
         return None
-    creep = CREEP_FRACTION * speed
-    if creep_only:
-        k = math.copysign(creep / speed, remaining)
-    else:
-        approach = math.sqrt(2 * APPROACH_MARGIN * accel * max(remaining - lead, 0.0))
-        k = min(1.0, max(approach, creep) / speed)
+    approach = math.sqrt(2 * APPROACH_MARGIN * accel * max(abs(remaining) - lead, 0.0))
+    cap = CORRECTION_FRACTION * speed if correcting else speed
+    k = math.copysign(min(cap, max(approach, CREEP_FRACTION * speed)) / speed, remaining)
     if leg.distance is not None:
         # The body-frame direction that keeps the planned world direction.
         body = direction - pose.theta
@@ -290,7 +289,7 @@ def _lead(leg: Leg, applied: Twist, lag_s: float) -> float:
     """How far the base still goes (m or rad, towards the goal) on the twist it is
     applying now, before a new command would show in the odometry."""
     if leg.angle is not None:
-        return max(0.0, applied.wz * math.copysign(1.0, leg.twist.wz)) * lag_s
+        return abs(applied.wz) * lag_s
     return applied.linear_speed * lag_s
 
 
@@ -333,7 +332,7 @@ def run(base: Base, plan: Sequence[Leg], progress: ProgressCallback | None = Non
             while time.monotonic() < end:
                 _check(base)
                 command = goal_command(leg, reference, base.pose, limits.max_accel,
-                                       limits.max_angular_accel, creep_only=attempt > 0,
+                                       limits.max_angular_accel, correcting=attempt > 0,
                                        lead=_lead(leg, base.command, lag_s))
                 if command is None:
                     break
@@ -347,7 +346,7 @@ def run(base: Base, plan: Sequence[Leg], progress: ProgressCallback | None = Non
             settle(base)  # stop on the goal, so one leg does not run into the next
             if time.monotonic() >= end or goal_command(
                     leg, reference, base.pose, limits.max_accel, limits.max_angular_accel,
-                    creep_only=True) is None:
+                    correcting=True) is None:
                 break
             logger.debug("%s: stopped off the goal at %s: correcting", leg.label, base.pose)
         reference = planned_end(reference, leg)

@@ -191,8 +191,9 @@ def test_fit_to_limits_scales_only_what_the_base_cannot_drive(vx: float, vy: flo
     if clamps:  # scaled down, direction kept, and the fastest wheel at its limit
         [c] = clamps
         assert "max_wheel_speed" in c.limit
-        k = applied.linear_speed / twist.linear_speed if twist.linear_speed else \
-            applied.wz / twist.wz
+        asked, got = max(zip((vx, vy, wz), (applied.vx, applied.vy, applied.wz),
+                             strict=True), key=lambda pair: abs(pair[0]))
+        k = got / asked
         assert 0 < k < 1
         assert applied.vx == pytest.approx(k * vx, abs=1e-9)
         assert applied.wz == pytest.approx(k * wz, abs=1e-9)
