@@ -20,12 +20,12 @@ from typing import Any
 import can
 import canopen
 
+from omnican.cia301 import COB_ID_MASK, SYNC_COB_ID
 from omnican.errors import BusError, ConfigError
 from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
 
-SYNC_COB_ID = 0x80
 RECONNECT_EVERY_S = 1.0  # between attempts to reopen a bus that went down
 NOTIFIER_STOP_S = 0.5
 RX_ERROR_PAUSE_S = 0.05
@@ -237,7 +237,7 @@ class CanBus:
         self.traffic.count_sent(len(data))
         if self.recorder is not None:
             self.recorder.on_message_received(
-                can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
+                can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > COB_ID_MASK,
                             timestamp=time.time(), is_rx=False,
                             channel=self.bus_kwargs.get("channel")))
 

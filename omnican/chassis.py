@@ -6,7 +6,7 @@ drives' health, limits the newest command, writes the targets on the SYNC RPDOs,
 walks the CiA 402 state machines, sends SYNC and the host heartbeat, and publishes
 an immutable snapshot that any thread may read.
 
-Safety (DESIGN.md): no command for ``cmd_timeout_s`` -> controlled stop; a drive
+Safety: no command for ``cmd_timeout_s`` -> controlled stop; a drive
 fault, a lost heartbeat, a drive reboot or a bus that stays down -> every wheel
 stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
 host's heartbeat, so they stop by themselves if this process dies; leaving the
@@ -34,6 +34,7 @@ from typing import Any
 
 from omnican import bus as bus_module
 from omnican.bus import CanBus
+from omnican.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.cia402 import State, describe_emcy
 from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
@@ -325,7 +326,7 @@ class Chassis:
                 except Exception as exc:
                     errors.append(f"node {node.node_id}: {exc}")
         if errors:
-            raise DriveError("; ".join(errors))
+            raise DriveError(_combine_node_errors(errors, len(self.nodes)))
 
     def _seed_statuswords(self, node: DriveNode) -> None:
         """Read each statusword once by SDO: a drive need not send its event TPDO at start."""
@@ -395,6 +396,7 @@ class Chassis:
         time.sleep(2 * self._period)
         try:
             self._wait_enabled(timeout, "recover")
+            logger.info("recovered: every drive enabled")
         finally:
             def done() -> None:
                 for stage in self._stages:
@@ -508,7 +510,8 @@ class Chassis:
         hb_period = self.cfg.chassis.heartbeat_ms / 1000.0
         if now - self._last_hb >= hb_period:
             self._last_hb = now
-            self._bus.send(0x700 + self.cfg.chassis.host_node_id, b"\x05")
+            self._bus.send(HEARTBEAT_BASE + self.cfg.chassis.host_node_id,
+                           bytes([NmtState.OPERATIONAL]))
         self._check_bus(now)
         self._cycles += 1
         self._snapshot = self._make_snapshot(now, limited)
@@ -759,4 +762,26 @@ class Chassis:
 
     def __repr__(self) -> str:
         return f"<Chassis {len(self._axes)} wheels on nodes {[n.node_id for n in self.nodes]}>"
+
+
+def _combine_node_errors(errors: list[str], nodes: int) -> str:
+    """``node 1: X; node 2: X`` as ``nodes 1, 2: X``: one reason said once; when no node
+    at all sent its boot-up, say there is no drive on the bus."""
+    groups: dict[str, list[str]] = {}
+    for error in errors:
+        head, sep, reason = error.partition(": ")
+        if sep and head.startswith("node ") and head[5:].isdigit():
+            groups.setdefault(reason, []).append(head[5:])
+        else:
+            groups.setdefault(error, [])
+    parts = []
+    for reason, ids in groups.items():
+        if len(ids) > 1:
+            parts.append(f"nodes {', '.join(ids)}: {reason}")
+        else:
+            parts.append(f"node {ids[0]}: {reason}" if ids else reason)
+    text = "; ".join(parts)
+    if len(groups) == 1 and len(errors) == nodes and "no boot-up" in text:
+        text = f"no drive answered on the bus: {text}"
+    return text
 
