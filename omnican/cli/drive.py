@@ -32,6 +32,7 @@ from omnican.cli.common import (
     rounded,
     session,
 )
+from omnican.errors import ConfigError, OmnicanError
 from omnican.kinematics import Twist
 from omnican.motion import Leg
 
@@ -59,7 +60,8 @@ def add_subparser(sub: Any) -> None:
                    help=f"seconds to hold the velocity (default {DEFAULT_DURATION_S:g}; not with "
                         "--square)")
     p.add_argument("--json", action="store_true",
-                   help='print {"pose", "twist", "duration_s"} (+ "true_pose" under --sim)')
+                   help='print {"pose", "twist", "duration_s"} (+ "true_pose" under --sim); '
+                        'a run-time failure prints {"error", "pose", ...} and exits 1')
     p.add_argument("--record", metavar="FILE",
                    help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
     add_bus_arguments(p)
@@ -108,6 +110,24 @@ def _number(value: float) -> str:
 
 def run(args: argparse.Namespace) -> int:
     plan = legs(args)
+    seen: dict[str, Any] = {}  # what is known when a run-time failure ends the run
+    try:
+        return _run(args, plan, seen)
+    except OmnicanError as exc:
+        if isinstance(exc, ConfigError) or not args.json:
+            raise
+        _fail_json(str(exc), seen)
+        raise
+
+
+def _fail_json(error: str, seen: dict[str, Any]) -> None:
+    """With --json, a run-time failure is a JSON object too (scripts parse stdout)."""
+    print(json.dumps({"error": error, "pose": seen.get("pose"), "twist": None,
+                      "duration_s": seen.get("duration_s"),
+                      **({"true_pose": seen["true_pose"]} if "true_pose" in seen else {})}))
+
+
+def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int:
     with session(args) as s:
         plan, clamps = motion.fit_to_limits(plan, s.cfg)
         for c in clamps:
@@ -120,15 +140,27 @@ def run(args: argparse.Namespace) -> int:
                 result = execute(base, plan)
             except motion.BaseStoppedError as exc:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
-                print(pose_line(base.pose))
+                if args.json:
+                    seen["pose"] = pose_dict(base.pose)
+                    if s.sim is not None:
+                        seen["true_pose"] = pose_dict(s.sim.true_pose)
+                    _fail_json(f"base stopped: {exc}", seen)
+                else:
+                    print(pose_line(base.pose))
                 return EXIT_FAILURE
             except KeyboardInterrupt:
                 base.stop()
                 motion.settle(base)
                 print("omnican: interrupted: the base stopped here", file=sys.stderr)
-                print(pose_line(base.pose))
+                if args.json:
+                    seen["pose"] = pose_dict(base.pose)
+                    _fail_json("interrupted", seen)
+                else:
+                    print(pose_line(base.pose))
                 return EXIT_INTERRUPTED
             pose = base.pose
+            seen["pose"] = pose_dict(pose)
+            seen["duration_s"] = round(result.elapsed_s, 3)
         out: dict[str, Any] = {
             "pose": pose_dict(pose),
             "twist": {k: rounded(v) for k, v in asdict(result.twist).items()},
