@@ -20,6 +20,7 @@ from typing import Any
 import can
 import canopen
 
+from omnican.cia301 import COB_ID_MASK, SYNC_COB_ID
 from omnican.clock import REAL_TIME, Clock
 from omnican.errors import BusError, ConfigError
 from omnican.lockstep import LockstepBus, listeners_receiver
@@ -27,7 +28,6 @@ from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
 
-SYNC_COB_ID = 0x80
 RECONNECT_EVERY_S = 1.0  # between attempts to reopen a bus that went down
 NOTIFIER_STOP_S = 0.5
 RX_ERROR_PAUSE_S = 0.05
@@ -362,7 +362,7 @@ class CanBus:
         if self.recorder is not None:
             self.recorder.on_message_received(
                 can.Message(arbitration_id=can_id, data=bytes(data),
-                            is_extended_id=can_id > 0x7FF, timestamp=self.clock.wall(),
+                            is_extended_id=can_id > COB_ID_MASK, timestamp=self.clock.wall(),
                             is_rx=False, channel=self.bus_kwargs.get("channel")))
 
     def send(self, can_id: int, data: bytes) -> bool:

@@ -6,7 +6,7 @@ drives' health, limits the newest command, writes the targets on the SYNC RPDOs,
 walks the CiA 402 state machines, sends SYNC and the host heartbeat, and publishes
 an immutable snapshot that any thread may read.
 
-Safety (DESIGN.md): no command for ``cmd_timeout_s`` -> controlled stop; a drive
+Safety: no command for ``cmd_timeout_s`` -> controlled stop; a drive
 fault, a lost heartbeat, a drive reboot or a bus that stays down -> every wheel
 stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
 host's heartbeat, so they stop by themselves if this process dies; leaving the
@@ -34,6 +34,7 @@ from typing import Any
 
 from omnican import bus as bus_module
 from omnican.bus import CanBus
+from omnican.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.cia402 import State, describe_emcy
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig
@@ -50,6 +51,7 @@ logger = logging.getLogger(__name__)
 BUS_DOWN_AFTER_S = 0.05  # sends or receives failing for this long: the bus is down
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
 STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
+RECONFIGURE_ATTEMPTS = 2  # a node configured again (reboot, bus back) that fails once
 STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being configured
 SIGNAL_GRACE_S = 3.0  # repeated signals this soon after the first do not cut the stop short
 
@@ -236,6 +238,8 @@ class Chassis:
         self._axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
                                           key=lambda a: a.wheel_index)
         self._node_of = {id(a): n for n in nodes for a in n.axes}
+        self._axis_nodes = [(a, self._node_of[id(a)]) for a in self._axes]
+        self._all_enabled = False  # every stage OPERATION ENABLED, as of the last cycle
         self._stages = [s for n in nodes for s in n.stages]
         self._cmd: tuple[Twist, float] = (Twist(), -math.inf)
         self._latched: str | None = None
@@ -355,6 +359,7 @@ class Chassis:
         if self._lockstep:
             self._task = self.clock.every(self._period, self.step, first_s=self.clock.now())
         else:
+            self._bus.start_polling()  # the loop reads the bus itself: one wake-up a cycle
             self._thread.start()
         self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
         for stage in self._stages:
@@ -382,7 +387,7 @@ class Chassis:
                     except Exception as exc:
                         note(node, exc)
         if errors:
-            raise DriveError("; ".join(errors))
+            raise DriveError(_combine_node_errors(errors, len(self.nodes)))
 
     def _seed_statuswords(self, node: DriveNode) -> None:
         """Read each statusword once by SDO: a drive need not send its event TPDO at start."""
@@ -456,6 +461,7 @@ class Chassis:
         self.clock.sleep(2 * self._period)
         try:
             self._wait_enabled(timeout, "recover")
+            logger.info("recovered: every drive enabled")
         finally:
             def done() -> None:
                 self._recovering = False
@@ -540,7 +546,7 @@ class Chassis:
                 next_t = time.monotonic()  # fell far behind: do not burst to catch up
                 delay = 0.0
             if delay > 0:
-                self._stop.wait(delay)
+                time.sleep(delay)  # finer than Event.wait's timed lock: fewer late cycles
 
     def _latch(self, reason: str) -> None:
         if self._latched is None:
@@ -548,6 +554,8 @@ class Chassis:
             logger.warning("base stopped: %s", reason)
 
     def _cycle(self, now: float) -> None:
+        # Read what arrived, decide, then the RPDOs and SYNC, then the bookkeeping.
+        self._bus.poll()
         requests = self._requests
         while not requests.empty():
             requests.get_nowait()()
@@ -560,6 +568,7 @@ class Chassis:
             if stage.state is not State.OPERATION_ENABLED:
                 all_enabled = False
                 break
+        self._all_enabled = all_enabled
         if self._latched or not all_enabled or now - t_cmd > self._cmd_timeout:
             vx = vy = wz = 0.0
         else:
@@ -592,7 +601,8 @@ class Chassis:
         hb_period = self.cfg.chassis.heartbeat_ms / 1000.0
         if now - self._last_hb >= hb_period:
             self._last_hb = now
-            self._bus.send(0x700 + self.cfg.chassis.host_node_id, b"\x05")
+            self._bus.send(HEARTBEAT_BASE + self.cfg.chassis.host_node_id,
+                           bytes([NmtState.OPERATIONAL]))
         self._check_bus(now)
         self._cycles += 1
         self._snapshot = self._make_snapshot(now, limited)
@@ -636,7 +646,15 @@ class Chassis:
 
         def work() -> None:
             try:
-                node.configure()
+                for attempt in range(RECONFIGURE_ATTEMPTS):
+                    try:
+                        node.configure()
+                        break
+                    except DriveError as exc:  # a drive still booting, an SDO lost
+                        if attempt + 1 == RECONFIGURE_ATTEMPTS or self._closed:
+                            raise
+                        logger.info("re-configuring node %d: %s; trying again", node.node_id,
+                                    exc)
                 self._seed_statuswords(node)
                 logger.info("node %d re-configured after %s", node.node_id, why)
             except Exception as exc:
@@ -744,9 +762,8 @@ class Chassis:
         offline, configuring, bus_down = self._offline, self._configuring, self._bus_down
         stale_set, targets, speeds = self._stale, self._targets, self._speeds
         rows = []
-        for i, ax in enumerate(self._axes):
+        for i, (ax, node) in enumerate(self._axis_nodes):
             stage = ax.stage
-            node = self._node_of[id(ax)]
             state = stage.state
             fault = None
             if state is State.FAULT or state is State.FAULT_REACTION_ACTIVE:
@@ -759,12 +776,8 @@ class Chassis:
                          stage.mode_value, targets[i], 0.0 if stale else speeds[i],
                          ax.counts / ax.wheel.position_scale, online, fault, stage.error,
                          stale))
-        enabled = self._latched is None and not offline and not configuring
-        if enabled:
-            for stage in self._stages:
-                if stage.state is not State.OPERATION_ENABLED:
-                    enabled = False
-                    break
+        enabled = (self._latched is None and not offline and not configuring and
+                   self._all_enabled)
         bus = self._bus
         bitrate = bus.bitrate
         failing = bus.failing
@@ -812,6 +825,7 @@ class Chassis:
                     self._stop.set()
                     if self._thread.is_alive():
                         self._thread.join(timeout=2.0)
+                self._bus.stop_polling()  # a Notifier again, for the SDOs of the stop
                 for t in self._workers:
                     t.join(timeout=self.cfg.chassis.boot_timeout_s + 1.0)
                 for node in self.nodes:
@@ -860,4 +874,26 @@ class Chassis:
 
     def __repr__(self) -> str:
         return f"<Chassis {len(self._axes)} wheels on nodes {[n.node_id for n in self.nodes]}>"
+
+
+def _combine_node_errors(errors: list[str], nodes: int) -> str:
+    """``node 1: X; node 2: X`` as ``nodes 1, 2: X``: one reason said once; when no node
+    at all sent its boot-up, say there is no drive on the bus."""
+    groups: dict[str, list[str]] = {}
+    for error in errors:
+        head, sep, reason = error.partition(": ")
+        if sep and head.startswith("node ") and head[5:].isdigit():
+            groups.setdefault(reason, []).append(head[5:])
+        else:
+            groups.setdefault(error, [])
+    parts = []
+    for reason, ids in groups.items():
+        if len(ids) > 1:
+            parts.append(f"nodes {', '.join(ids)}: {reason}")
+        else:
+            parts.append(f"node {ids[0]}: {reason}" if ids else reason)
+    text = "; ".join(parts)
+    if len(groups) == 1 and len(errors) == nodes and "no boot-up" in text:
+        text = f"no drive answered on the bus: {text}"
+    return text
 

@@ -10,9 +10,10 @@ No I/O beyond reading the TOML file and parsing the EDS files it names.
 
 from __future__ import annotations
 
+import difflib
 import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -88,7 +89,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)"),
         "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
         "velocity_scale": Key(_NUM, None, "drive velocity units per m/s at the rim; sign = "
-                              "polarity (the seeds' k)"),
+                              "polarity"),
         "position_scale": Key(_NUM, None, "encoder position units per m of rim travel"),
         "gear_ratio": Key(_NUM, None, "motor turns per wheel turn (instead of the scales)"),
         "encoder_cpr": Key(_NUM, None, "encoder counts per motor turn (instead of the scales)"),
@@ -255,6 +256,14 @@ def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
     return ChassisConfig(chassis=ChassisSettings(), wheels=wheels, bus=bus)
 
 
+def _suggest(word: str, known: Iterable[str]) -> str:
+    """" (did you mean 'x'?)" for the closest known key; else where the keys are listed
+    (a list of every key makes a line no one reads)."""
+    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.75)
+    return f" (did you mean {close[0]!r}?)" if close else \
+        " (the keys: omnican check-config --help)"
+
+
 class _Reader:
     """Checks one TOML table against its schema, collecting nothing: first error raises."""
 
@@ -270,9 +279,7 @@ class _Reader:
         schema = SCHEMA[section]
         for key in data:
             if key not in schema:
-                raise self.fail(
-                    f"{where}.{key}", f"unknown key (known: {', '.join(schema)})"
-                )
+                raise self.fail(f"{where}.{key}", f"unknown key {key!r}{_suggest(key, schema)}")
         out: dict[str, Any] = {}
         for key, spec in schema.items():
             if key not in data:
@@ -313,7 +320,8 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     r = _Reader(origin)
     for key in data:
         if key not in ("bus", "chassis", "wheel"):
-            raise r.fail(key, "unknown section (known: bus, chassis, wheel)")
+            raise r.fail(key, f"unknown section {key!r}"
+                              f"{_suggest(key, ('bus', 'chassis', 'wheel'))}")
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")

@@ -31,6 +31,20 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from omnican import cia402
 from omnican.bus import prepared_message
+from omnican.cia301 import (
+    COB_ID_INVALID,
+    COB_ID_MASK,
+    CONSUMER_HEARTBEAT_TIME,
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    NMT_STATE_MASK,
+    PRODUCER_HEARTBEAT_TIME,
+    TPDO_COMM,
+    TRANS_EVENT,
+    TRANS_SYNC,
+    NmtCommand,
+    abort_text,
+)
 from omnican.cia402 import Command, Mode, State
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import WheelConfig
@@ -38,15 +52,7 @@ from omnican.encoder import fold_counter
 from omnican.errors import DriveError
 from omnican.layout import NodeLayout
 from omnican.odmap import AxisObjects, Entry, Obj, entry_at, obj_name
-from omnican.pdoplan import (
-    TPDO_COMM,
-    TRANS_EVENT,
-    TRANS_SYNC,
-    NodePlan,
-    PlannedPdo,
-    SdoTransfer,
-    frame_bits,
-)
+from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer, frame_bits
 from omnican.sdocycle import (
     SDO_REQUEST_BASE,
     AnswerKind,
@@ -58,38 +64,7 @@ from omnican.wire import PdoCodec
 
 logger = logging.getLogger(__name__)
 
-SDO_ABORT_TEXT = {
-    0x05030000: "toggle bit not alternated",
-    0x05040000: "SDO protocol timed out",
-    0x05040001: "command specifier not valid",
-    0x06010000: "unsupported access to an object",
-    0x06010001: "attempt to read a write-only object",
-    0x06010002: "attempt to write a read-only object",
-    0x06020000: "object does not exist in the object dictionary",
-    0x06040041: "object cannot be mapped to the PDO",
-    0x06040042: "the number and length of the objects to be mapped would exceed PDO length",
-    0x06040043: "general parameter incompatibility",
-    0x06040047: "general internal incompatibility in the device",
-    0x06060000: "access failed due to a hardware error",
-    0x06070010: "data type does not match, length of service parameter does not match",
-    0x06090011: "sub-index does not exist",
-    0x06090030: "invalid value for parameter",
-    0x06090031: "value of parameter written too high",
-    0x06090032: "value of parameter written too low",
-    0x08000000: "general error",
-    0x08000020: "data cannot be transferred or stored to the application",
-    0x08000021: "data cannot be transferred because of local control",
-    0x08000022: "data cannot be transferred because of the present device state",
-}
-
 _MAX_PENDING = 8  # unanswered per-cycle SDO requests kept (a silent drive must not grow them)
-_NMT_RESET_COMM = 0x82
-_NMT_START = 0x01
-_NMT_PREOP = 0x80
-
-
-def abort_text(code: int) -> str:
-    return f"0x{code:08X} {SDO_ABORT_TEXT.get(code, 'unknown abort code')}"
 
 
 class EpochSource(Protocol):
@@ -316,7 +291,7 @@ class DriveNode:
         self.emcy: EmcyError | None = None
         self.fault_text: str | None = None
         self._hb_period = settings.heartbeat_ms / 1000.0
-        network.subscribe(0x700 + node_id, self._on_heartbeat)
+        network.subscribe(HEARTBEAT_BASE + node_id, self._on_heartbeat)
         self.remote.emcy.add_callback(self._on_emcy)
 
     def _build_io(self, plan: NodePlan) -> None:
@@ -458,7 +433,7 @@ class DriveNode:
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if not data:
             return
-        state = data[0] & 0x7F
+        state = data[0] & NMT_STATE_MASK
         self.last_heartbeat = self.clock.now()
         self.nmt_state = state
         if state == 0:
@@ -519,11 +494,13 @@ class DriveNode:
             if stage.mode is not None:
                 self._write_value(stage.mode, int(self.mode), f"mode {self.mode.short}")
         self._configure_ramps()
-        self._sdo_write(0x1017, 0, s.heartbeat_ms.to_bytes(2, "little"), "heartbeat producer")
+        self._sdo_write(PRODUCER_HEARTBEAT_TIME, 0, s.heartbeat_ms.to_bytes(2, "little"),
+                        "heartbeat producer")
         if self.has_consumer:
             ms = round(s.heartbeat_ms * s.heartbeat_timeout_factor)
             value = (s.host_node_id << 16) | min(ms, 0xFFFF)
-            self._sdo_write(0x1016, 1, value.to_bytes(4, "little"), "heartbeat consumer")
+            self._sdo_write(CONSUMER_HEARTBEAT_TIME, 1, value.to_bytes(4, "little"),
+                            "heartbeat consumer")
             abort = self.axes[0].objs.get(Obj.ABORT_OPTION)
             if abort is not None:
                 self._write_value(abort, cia402.ABORT_QUICK_STOP, "abort connection option")
@@ -533,7 +510,17 @@ class DriveNode:
         for ax in self.axes:
             ax.reseed()
             ax.raw, ax.epoch = None, -1
-        self.network.send_message(0, bytes([_NMT_START, self.node_id]))
+        self._drop_canopen_pdo_handlers()
+        self.network.send_message(NMT_COB_ID, bytes([NmtCommand.START, self.node_id]))
+
+    def _drop_canopen_pdo_handlers(self) -> None:
+        """canopen's PdoMap subscribes its own decoder to each PDO it saves or reads;
+        omnican decodes the frames itself, so that work (every frame, every cycle) goes."""
+        for maps in (self.remote.rpdo, self.remote.tpdo):
+            for m in (maps.map or {}).values():
+                cob = m.cob_id
+                if cob is not None and m.on_message in self.network.subscribers.get(cob, []):
+                    self.network.unsubscribe(cob, m.on_message)
 
     def _reset_communication(self) -> None:
         """NMT reset communication and wait for the boot-up: the drive's 1000h-1FFFh
@@ -541,7 +528,7 @@ class DriveNode:
         s = self.settings
         with self._boot_seen:
             before = self.boot_count
-        self.network.send_message(0, bytes([_NMT_RESET_COMM, self.node_id]))
+        self.network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_COMMUNICATION, self.node_id]))
         with self._boot_seen:
             if not self._boot_seen.wait_for(lambda: self.boot_count != before,
                                             s.boot_timeout_s):
@@ -618,8 +605,8 @@ class DriveNode:
                 self._save_map(m)
 
     def _disable_pdo(self, m: canopen.pdo.PdoMap) -> None:
-        cob = (m.predefined_cob_id or (m.com_record.od[1].default or 0)) & 0x7FF
-        self._sdo_write(m.com_record.od.index, 1, (cob | 0x80000000).to_bytes(4, "little"),
+        cob = (m.predefined_cob_id or (m.com_record.od[1].default or 0)) & COB_ID_MASK
+        self._sdo_write(m.com_record.od.index, 1, (cob | COB_ID_INVALID).to_bytes(4, "little"),
                         "PDO COB-ID (disable)")
 
     def _save_map(self, m: canopen.pdo.PdoMap) -> None:
@@ -668,7 +655,7 @@ class DriveNode:
                 cyclic = cyclic or (not tx and any(e in [a.target for a in self.axes]
                                                    for e in entries))
                 trans = TRANS_SYNC if cyclic else TRANS_EVENT
-                cob = (m.cob_id or m.predefined_cob_id or 0) & 0x7FF
+                cob = (m.cob_id or m.predefined_cob_id or 0) & COB_ID_MASK
                 self._save_comm_only(m, cob, trans)
                 out.append(PlannedPdo(number, cob, trans, tuple(entries)))
         logger.debug("node %d: own mapping adopted (%s)", self.node_id, reason)
@@ -688,7 +675,7 @@ class DriveNode:
     def _save_comm_only(self, m: canopen.pdo.PdoMap, cob: int, trans: int) -> None:
         """Enable a PDO with its fixed mapping: COB-ID and transmission type only."""
         index = m.com_record.od.index
-        self._sdo_write(index, 1, (cob | 0x80000000).to_bytes(4, "little"), "PDO COB-ID")
+        self._sdo_write(index, 1, (cob | COB_ID_INVALID).to_bytes(4, "little"), "PDO COB-ID")
         if m.com_record.od[2].writable:
             self._sdo_write(index, 2, bytes([trans]), "PDO transmission type")
         if index >= TPDO_COMM and trans == TRANS_EVENT and 3 in m.com_record.od.subindices:
@@ -747,13 +734,14 @@ class DriveNode:
 
     def stop(self) -> None:
         """Stop watching the host (consumer off) and leave OPERATIONAL; best effort."""
-        if self.has_consumer:
+        if self.has_consumer and self.boot_count:  # a node never heard has no consumer on
             try:
-                self.remote.sdo.download(0x1016, 1, b"\x00\x00\x00\x00")
+                self.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
             except (SdoAbortedError, SdoCommunicationError) as exc:
                 logger.debug("node %d: clearing the heartbeat consumer failed: %s", self.node_id,
                              exc)
-        self.network.send_message(0, bytes([_NMT_PREOP, self.node_id]))
+        self.network.send_message(NMT_COB_ID,
+                                  bytes([NmtCommand.ENTER_PRE_OPERATIONAL, self.node_id]))
 
     def detach(self) -> None:
         for cob, handler in self._subscribed:
@@ -761,8 +749,8 @@ class DriveNode:
                 self.network.unsubscribe(cob, handler)
         self._subscribed = []
         self._route_sdo_answers(False)  # canopen's SDO client back, for remove_network()
-        if self._on_heartbeat in self.network.subscribers.get(0x700 + self.node_id, []):
-            self.network.unsubscribe(0x700 + self.node_id, self._on_heartbeat)
+        if self._on_heartbeat in self.network.subscribers.get(HEARTBEAT_BASE + self.node_id, []):
+            self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self._on_heartbeat)
         if self.node_id in self.network.nodes:
             del self.network[self.node_id]
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from canopen import objectdictionary as od
 
 from omnican import cia402
+from omnican.cia301 import CONSUMER_HEARTBEAT_TIME
 from omnican.cia402 import Mode
 from omnican.config import ChassisConfig, ChassisSettings, WheelConfig
 from omnican.errors import ConfigError
@@ -71,7 +72,8 @@ class NodeLayout:
             target = objs[Obj.VL_TARGET if self.mode is Mode.VELOCITY else Obj.TARGET_VELOCITY]
             self.axes.append(AxisLayout(wheel_index, wheel, objs, target,
                                         objs[Obj.POSITION_ACTUAL], by_cw[key]))
-        self.has_consumer = isinstance(self.dictionary.get(0x1016), (od.ODArray, od.ODRecord))
+        self.has_consumer = isinstance(self.dictionary.get(CONSUMER_HEARTBEAT_TIME),
+                                       (od.ODArray, od.ODRecord))
         self.plan = self._plan()
 
     def _choose_mode(self, wheels: list[tuple[int, WheelConfig]]) -> Mode:

@@ -1,6 +1,6 @@
 """PDO plan for one node: which objects go into which PDO, within what its EDS offers.
 
-The plan follows DESIGN.md: wheel targets on SYNC-applied RPDOs, controlwords on
+The plan: wheel targets on SYNC-applied RPDOs, controlwords on
 an RPDO sent on change, positions on SYNC-triggered TPDOs, statuswords on an
 event-driven TPDO. It respects each drive's limits: the number of PDOs, the
 number of mapping entries each accepts (some accept one), the sub-indices its
@@ -24,13 +24,23 @@ from dataclasses import dataclass, field
 
 from canopen import objectdictionary as od
 
+from omnican.cia301 import (
+    COB_ID_MASK,
+    PDO_NUMBER_STEP,
+    RPDO1_BASE,
+    RPDO_COMM,
+    RPDO_MAP,
+    TPDO1_BASE,
+    TPDO_COMM,
+    TPDO_MAP,
+    TRANS_EVENT,
+    TRANS_SYNC,
+    TRANS_SYNC_MAX,
+)
 from omnican.config import PDO_MAPPINGS
 from omnican.errors import ConfigError
 from omnican.odmap import Entry
 
-RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
-TRANS_SYNC = 1
-TRANS_EVENT = 255
 MAX_PDO_BITS = 64
 MAPPING_POLICIES = PDO_MAPPINGS  # "try", "eds", "sdo": chassis.pdo_mapping
 
@@ -72,7 +82,7 @@ class PlannedPdo:
 
     @property
     def cyclic(self) -> bool:
-        return self.trans_type <= 240
+        return self.trans_type <= TRANS_SYNC_MAX
 
     def describe(self, kind: str) -> str:
         objs = ", ".join(f"{e.name} ({e.address})" for e in self.entries)
@@ -152,9 +162,9 @@ def pdo_slots(dictionary: od.ObjectDictionary, node_id: int, tx: bool) -> list[P
         if 1 in comm.subindices:
             raw = comm[1].default
             if isinstance(raw, int):
-                default_cob = raw & 0x7FF
+                default_cob = raw & COB_ID_MASK
         if n < 4:
-            default_cob = (0x180 if tx else 0x200) + 0x100 * n + node_id
+            default_cob = (TPDO1_BASE if tx else RPDO1_BASE) + PDO_NUMBER_STEP * n + node_id
         slots.append(PdoSlot(n + 1, entries, 3 in comm.subindices, 5 in comm.subindices,
                              default_cob))
     return slots

@@ -3,6 +3,7 @@ process (the other end of the bus) killed and restarted under a connected host."
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -111,6 +112,19 @@ class SimProcess:
         if "serving simulated nodes" not in line:
             self.kill()
             pytest.fail(f"omnican sim did not start: {line!r}")
+        while line and not line.startswith("type a command"):  # the rest of the banner
+            line = self.proc.stdout.readline()
+
+    def command(self, line: str) -> str:
+        """A console command; returns its reply line."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        return self.proc.stdout.readline()
+
+    def true_x(self) -> float:
+        match = re.search(r"x=(\S+)", self.command("pose"))
+        return float(match[1]) if match else 0.0
 
     def kill(self) -> None:
         if self.proc.poll() is None:
@@ -177,3 +191,38 @@ def test_teleop_survives_the_simulator_being_killed_and_restarted(port: int) -> 
     finally:
         term.close()
         sim.kill()
+
+
+# ---------------------------------------------------------------- drive --json on failure
+
+
+def test_drive_json_reports_a_failure_as_json(port: int) -> None:
+    """A script reading ``omnican drive --json`` gets JSON when the run fails too: here
+    a fault injected in the simulator process while the base drives."""
+    sim = SimProcess(port)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    try:
+        drive = subprocess.Popen(
+            [sys.executable, "-m", "omnican", "drive", "-i", "remote", "-c",
+             f"ws://127.0.0.1:{port}/", "--vx", "0.2", "--duration", "5", "--json"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        assert wait_for(lambda: sim.true_x() > 0.02, 15.0, step=0.1)  # up and driving
+        sim.command("fault 2")
+        out, err = drive.communicate(timeout=20)
+    finally:
+        sim.kill()
+    assert drive.returncode == 1, err
+    result = json.loads(out)
+    assert result["error"].startswith("base stopped: node 2 fault")
+    assert result["pose"]["x"] > 0.0
+    assert "Traceback" not in err
+
+
+def test_drive_json_reports_no_drive_on_the_bus_as_json(channel: str) -> None:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run(
+        [sys.executable, "-m", "omnican", "drive", "-i", "virtual", "-c", channel, "--vx", "0.1",
+         "--json"], check=False, capture_output=True, text=True, env=env, timeout=30)
+    assert proc.returncode == 1
+    result = json.loads(proc.stdout)
+    assert "no drive answered" in result["error"] and result["pose"] is None

@@ -1,4 +1,4 @@
-"""``omnican check-config``: validate a config and its EDS files offline.
+"""omnican check-config: validate a config and its EDS files offline.
 
 Prints the PDO plan of every node and the bus load at the configured rate and
 bitrate, or one line per problem (exit 2). Objects moved by SDO every cycle (and,
@@ -12,8 +12,8 @@ import argparse
 import math
 from typing import Any
 
-from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail
-from omnican.config import ChassisConfig, load_config
+from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail, positive_int
+from omnican.config import ChassisConfig, load_config, reference_rows
 from omnican.errors import ConfigError
 from omnican.layout import NodeLayout, cycle_bits, heartbeat_bits_per_s, max_rate_hz
 from omnican.pdoplan import frame_bits
@@ -21,11 +21,21 @@ from omnican.pdoplan import frame_bits
 
 def add_subparser(sub: Any) -> None:
     p = sub.add_parser("check-config", help="validate a config and its EDS files offline",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__, epilog=key_reference(),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("config", metavar="TOML", help="the robot config to check")
-    p.add_argument("--bitrate", type=int, metavar="BIT/S",
+    p.add_argument("--bitrate", type=positive_int, metavar="BIT/S",
                    help="bitrate for the bus load when the config's [bus] has none")
     p.set_defaults(func=run)
+
+
+def key_reference() -> str:
+    """Every config key with its default and meaning (README has the same table)."""
+    rows = reference_rows()
+    width = max(len(key) for key, _, _ in rows)
+    lines = ["config keys (default, meaning); [bus] is passed to can.Bus as it is:"]
+    lines += [f"  {key:<{width}}  {default}: {meaning}" for key, default, meaning in rows]
+    return "\n".join(lines)
 
 
 def layouts_or_problems(cfg: ChassisConfig) -> tuple[list[NodeLayout], list[str]]:
