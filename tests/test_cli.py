@@ -54,13 +54,40 @@ def test_drive_polar_form(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_drive_square_closes(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["drive", "--sim", "--square", "0.2", "--speed", "0.4", "--omega", "2.0"]) == 0
+    assert main(["drive", "--sim", "--fast", "--square", "0.2", "--speed", "0.4", "--omega",
+                 "2.0"]) == 0
     out = capsys.readouterr().out.splitlines()
     pose = re.fullmatch(r"pose x=(\S+) y=(\S+) theta=(\S+)", out[-1])
     assert pose is not None
     x, y, theta = (float(v) for v in pose.groups())
     assert abs(x) < 0.02 and abs(y) < 0.02
     assert theta == pytest.approx(2 * 3.14159, abs=0.1)
+
+
+def test_drive_fast_is_simulated_time_identical_run_to_run(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """--fast runs the simulation in lock-step: a 24 s square in a fraction of that, with
+    the odometry as good as in real time, and the same numbers every run."""
+    argv = ["drive", "--sim", "--fast", "--square", "1", "--json"]
+    assert main(argv) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert main(argv) == 0
+    second = json.loads(capsys.readouterr().out)
+    assert first == second
+    assert first["duration_s"] > 15  # simulated seconds
+    pose, truth = first["pose"], first["true_pose"]
+    assert abs(pose["x"] - truth["x"]) < 0.001 and abs(pose["y"] - truth["y"]) < 0.001
+    assert abs(truth["x"]) < 0.01 and abs(truth["y"]) < 0.01  # the square closed
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["drive", "--fast", "--vx", "0.1", "-i", "virtual", "-c", "x"], "add --sim"),
+    (["drive", "--sim", "--fast", "--sim-speed", "2", "--vx", "0.1"], "not both"),
+])
+def test_simulated_time_needs_sim(argv: list[str], message: str,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(argv) == 2
+    assert message in one_error_line(capsys.readouterr().err)
 
 
 def test_drive_records_the_bus(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

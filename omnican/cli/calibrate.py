@@ -42,6 +42,7 @@ from omnican.cli.common import (
     EXIT_OK,
     UsageError,
     add_bus_arguments,
+    add_sim_time_arguments,
     bus_overrides,
     finite_float,
     load,
@@ -101,6 +102,7 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     add_bus_arguments(p, sim_help="calibrate simulated drives in this process (a virtual bus), "
                                   "built slightly wrong so there is something to find")
+    add_sim_time_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -242,7 +244,8 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
               "aborts).", file=sys.stderr)
         if not sys.stdin.readline():
             raise UsageError("no answer (end of input)")
-    with session(args, **options) as s, Chassis.open(s.cfg, record=args.record) as base:
+    with session(args, **options) as s, \
+            Chassis.open(s.cfg, record=args.record, clock=s.clock) as base:
         sim = s.sim
         truth: list[Pose2D] = [sim.true_pose] if sim is not None else []
         poses = [base.pose]

@@ -16,6 +16,7 @@ from typing import Any, NoReturn
 
 import can.cli
 
+from omnican.clock import REAL_TIME, Clock, SimClock
 from omnican.config import ChassisConfig, default_config, load_config
 from omnican.errors import ConfigError
 from omnican.odometry import Pose2D
@@ -81,6 +82,16 @@ def add_bus_arguments(parser: argparse.ArgumentParser, sim_help: str | None = No
     can.cli.add_bus_arguments(parser, group_title="bus arguments (override [bus] of the config)")
 
 
+def add_sim_time_arguments(parser: argparse.ArgumentParser) -> None:
+    """--fast and --sim-speed: run --sim in simulated time (lock-step)."""
+    group = parser.add_argument_group("simulated time (with --sim)")
+    group.add_argument("--fast", action="store_true",
+                       help="run the simulation as fast as the CPU allows (lock-step, "
+                            "deterministic); the results are those of real time")
+    group.add_argument("--sim-speed", type=positive_float, metavar="FACTOR",
+                       help="run the simulation at FACTOR times real time (lock-step)")
+
+
 def bus_overrides(args: argparse.Namespace) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key in _BUS_KEYS:
@@ -103,17 +114,25 @@ def load(args: argparse.Namespace) -> ChassisConfig:
 
 @dataclass
 class Session:
-    """The config a subcommand runs with, and the simulated base under --sim."""
+    """The config a subcommand runs with, the simulated base under --sim, and the clock
+    to open the base with (simulated time under --fast / --sim-speed)."""
 
     cfg: ChassisConfig
     sim: Any = None  # omnican.sim.SimulatedBase under --sim
+    clock: Clock = REAL_TIME
 
 
 @contextlib.contextmanager
 def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
     """Resolve config and bus; under --sim, start simulated drives on a fresh virtual channel."""
     cfg = load(args)
+    fast, speed = getattr(args, "fast", False), getattr(args, "sim_speed", None)
+    if fast and speed is not None:
+        raise UsageError("give --fast or --sim-speed, not both")
     if not getattr(args, "sim", False):
+        if fast or speed is not None:
+            raise UsageError("--fast and --sim-speed run simulated drives in simulated time: "
+                             "add --sim")
         yield Session(cfg)
         return
     if bus_overrides(args):
@@ -121,9 +140,10 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
                          "'omnican sim' to serve simulated drives on a real interface")
     from omnican.sim import SimulatedBase
 
+    clock = SimClock(speed=speed) if fast or speed is not None else REAL_TIME
     cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}")
-    with SimulatedBase.from_config(cfg, **sim_options) as sim:
-        yield Session(cfg, sim)
+    with SimulatedBase.from_config(cfg, clock=clock, **sim_options) as sim:
+        yield Session(cfg, sim, clock)
 
 
 def fixed(value: float, places: int, sign: bool = False) -> str:

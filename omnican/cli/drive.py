@@ -23,6 +23,7 @@ from omnican.cli.common import (
     EXIT_OK,
     UsageError,
     add_bus_arguments,
+    add_sim_time_arguments,
     finite_float,
     fixed,
     pose_dict,
@@ -65,6 +66,7 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--record", metavar="FILE",
                    help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
     add_bus_arguments(p)
+    add_sim_time_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -135,7 +137,7 @@ def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int
             print(f"omnican: warning: vx={_number(r.vx)} vy={_number(r.vy)} wz={_number(r.wz)} "
                   f"is beyond the base's limits ({c.limit}): driving vx={fixed(a.vx, 3)} "
                   f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
-        with Chassis.open(s.cfg, record=args.record) as base:
+        with Chassis.open(s.cfg, record=args.record, clock=s.clock) as base:
             try:
                 result = execute(base, plan)
             except motion.BaseStoppedError as exc:

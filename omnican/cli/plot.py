@@ -83,6 +83,8 @@ def add_subparser(sub: Any) -> None:
                       help="speed along the sides (default 0.3)")
     demo.add_argument("--omega", type=positive_float, default=1.0, metavar="RAD/S",
                       help="turn rate at the corners (default 1.0)")
+    demo.add_argument("--fast", action="store_true",
+                      help="run the demo in simulated time, as fast as the CPU allows")
     demo.add_argument("--record", metavar="FILE",
                       help="keep the demo's recording in FILE (.log, .asc, .blf)")
     demo.add_argument("--sim-scale-error", type=finite_float, default=0.0, metavar="F",
@@ -262,6 +264,19 @@ def _sample_truth(sim: Any,
                   period_s: float = TRUTH_PERIOD_S) -> Iterator[list[tuple[float, float]]]:
     """Collect the simulator's true (x, y) every ``period_s`` while the block runs."""
     path: list[tuple[float, float]] = []
+    clock = sim.clock
+    if clock.lockstep:  # simulated time: sample as a task of the clock
+        def sample(now: float) -> None:
+            p = sim.true_pose
+            path.append((p.x, p.y))
+
+        handle = clock.every(period_s, sample)
+        try:
+            yield path
+        finally:
+            clock.cancel(handle)
+        sample(clock.now())
+        return
     stop = threading.Event()
 
     def work() -> None:
@@ -290,7 +305,8 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
     cfg = load(args)
     options = truth_options(cfg, args.sim_scale_error, args.sim_radius_error)
     plan = motion.square(args.square, args.speed, args.omega, args.sides)
-    with (session(args, **options) as s, Chassis.open(s.cfg, record=record) as base,
+    with (session(args, **options) as s,
+          Chassis.open(s.cfg, record=record, clock=s.clock) as base,
           _sample_truth(s.sim) as truth):
         try:
             with progress_bar(motion.nominal_duration(plan)) as bar:
