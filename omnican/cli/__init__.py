@@ -20,7 +20,8 @@ from omnican.cli.common import (
 )
 from omnican.errors import ConfigError, OmnicanError
 
-SUBCOMMANDS = ("teleop", "drive", "sim", "scan", "monitor", "calibrate", "plot", "check_config")
+SUBCOMMANDS = ("teleop", "drive", "sim", "scan", "monitor", "calibrate", "plot", "check_config",
+               "ros2")
 
 
 def build_parser() -> argparse.ArgumentParser:
