@@ -107,11 +107,19 @@ class DdsTransport:
 
     def subscribe(self, topic: str, msg_type: type[M], qos: TopicQos,
                   callback: Callable[[M], None]) -> None:
-        from cyclonedds.core import Listener
+        from cyclonedds.core import DDSException, Listener
         from cyclonedds.sub import DataReader
 
-        def on_data_available(reader: Any) -> None:
-            for sample in reader.take(16):
+        readers: list[Any] = []  # the reader itself: DDS may call back while it is deleted
+
+        def on_data_available(_: Any) -> None:
+            if self._closed or not readers:
+                return
+            try:
+                samples = readers[0].take(16)
+            except DDSException:  # deleted meanwhile
+                return
+            for sample in samples:
                 if isinstance(sample, msg_type):  # invalid samples (disposals) carry no data
                     try:
                         callback(sample)
@@ -121,6 +129,7 @@ class DdsTransport:
         reader = DataReader(self._participant, self._topic(topic, msg_type),
                             qos=self._qos(qos),
                             listener=Listener(on_data_available=on_data_available))
+        readers.append(reader)
         self._entities.append(reader)
 
     def close(self) -> None:
