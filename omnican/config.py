@@ -118,7 +118,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
         "diagnostics_rate_hz": Key(_NUM, 1.0, "diagnostics rate (and at once on a change)"),
         "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
-        "odom_slip": Key(_NUM, 0.02, "1-sigma wheel travel error per m travelled (covariance)"),
+        "odom_slip": Key(_NUM, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
+                         "(covariances)"),
         "interface": Key((str,), None, "DDS network interface name or address; default all"),
         "peers": Key((list,), None, "unicast discovery peers (addresses or host names)"),
         "multicast": Key((bool,), True, "DDS multicast discovery"),

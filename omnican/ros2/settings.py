@@ -31,6 +31,9 @@ MAX_DOMAIN_ID = 232
 TOPIC_KEYS = ("cmd_vel", "odom", "tf", "joint_states", "diagnostics", "recover")
 
 _NAME_TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+# Interface names, addresses, host names: printable ASCII; no spaces, no commas (Cyclone's
+# configuration list separator).
+_NET_WORD = re.compile(r"^[!-+\--~]+$")
 
 
 @dataclass(frozen=True)
@@ -196,10 +199,10 @@ def validate(s: Ros2Settings, origin: str = "config") -> Ros2Settings:
     if names and (len(set(names)) != len(names) or not all(isinstance(n, str) and n
                                                           for n in names)):
         raise bad("joint_names", "must be distinct non-empty strings")
-    if s.interface is not None and not s.interface.strip():
-        raise bad("interface", "must name a network interface or address")
+    if s.interface is not None and not _NET_WORD.match(s.interface):
+        raise bad("interface", f"must name a network interface or address, got {s.interface!r}")
     for p in s.peers:
-        if not isinstance(p, str) or not p.strip() or any(c.isspace() for c in p):
+        if not isinstance(p, str) or not _NET_WORD.match(p):
             raise bad("peers", f"must be host names or addresses, got {p!r}")
     return replace(s, namespace=normalize_namespace(s.namespace))
 
@@ -273,8 +276,8 @@ __all__ = [
     "TOPIC_KEYS",
     "Ros2Settings",
     "cyclone_config",
-    "describe_network",
     "dds_topic",
+    "describe_network",
     "from_table",
     "normalize_namespace",
     "parse_remap",

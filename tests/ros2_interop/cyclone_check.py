@@ -24,7 +24,7 @@ from omnican.ros2 import msgs
 from omnican.ros2.settings import Ros2Settings, cyclone_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import scenario  # noqa: E402
+import scenario
 
 QOS = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(10),
           Policy.DataRepresentation(use_cdrv0_representation=True))

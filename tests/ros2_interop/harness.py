@@ -208,7 +208,8 @@ def ros_venv() -> tuple[Path | None, str]:
                        capture_output=True, timeout=120)
         done = subprocess.run([str(tmp / "bin" / "python"), "-m", "pip", "install",
                                "--disable-pip-version-check", "-q", *ROS_PACKAGES],
-                              capture_output=True, text=True, timeout=INSTALL_TIMEOUT_S,
+                              check=False, capture_output=True, text=True,
+                              timeout=INSTALL_TIMEOUT_S,
                               env=clean_env())
     except (subprocess.SubprocessError, OSError) as exc:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Empty
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import scenario  # noqa: E402
+import scenario
 
 
 class RclpyPeer(scenario.Peer):
