@@ -443,6 +443,13 @@ def test_bad_invocations_are_one_line_exit_2(argv: list[str], message: str,
     assert message in one_error_line(err)
 
 
+def test_without_the_ros2_extra_it_says_what_to_install(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setitem(__import__("sys").modules, "cyclonedds", None)
+    assert main(["ros2", "--sim"]) == 2
+    assert "pip install 'omnican[ros2]'" in one_error_line(capsys.readouterr().err)
+
+
 def test_bad_ros_domain_id_env(monkeypatch: pytest.MonkeyPatch,
                                capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setenv("ROS_DOMAIN_ID", "seven")

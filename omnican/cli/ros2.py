@@ -125,15 +125,16 @@ def settings_from(args: argparse.Namespace, table: dict[str, Any] | None, origin
 
 def run(args: argparse.Namespace) -> int:
     try:
+        import cyclonedds.domain  # noqa: F401  (the ros2 extra)
+
         from omnican.ros2.bridge import Bridge, DdsTransport
-    except ImportError as exc:
-        raise UsageError(f"'ros2' needs {exc.name or exc}: pip install 'omnican[ros2]'") \
-            from None
+    except ImportError:
+        raise UsageError("'ros2' needs cyclonedds: pip install 'omnican[ros2]'") from None
     from omnican.chassis import Chassis
     from omnican.ros2.settings import describe_network
 
     cfg = load(args)
-    origin = str(cfg.source) if cfg.source else "config"
+    origin = str(cfg.source) if cfg.source else "command line"
     settings = settings_from(args, dict(cfg.ros2) if cfg.ros2 else None, origin)
     with session(args) as sess:
         run_cfg = sess.cfg

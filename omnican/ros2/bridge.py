@@ -11,11 +11,15 @@ in-memory one in the unit tests.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
+import sys
+import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
@@ -69,12 +73,19 @@ class DdsTransport:
         from cyclonedds.domain import Domain, DomainParticipant
 
         self.config = cyclone_config(settings, env_uri)
+        said: list[str] = []
         try:
-            self._domain = Domain(settings.domain_id, self.config)
-            self._participant = DomainParticipant(settings.domain_id)
+            with _c_stderr_to(said):
+                self._domain = Domain(settings.domain_id, self.config)
+                self._participant = DomainParticipant(settings.domain_id)
         except DDSException as exc:
+            # Cyclone explains on stderr (e.g. 'failed to find interfaces for "udp"'); the
+            # exception only says "Non specific error".
+            why = "; ".join(_cyclone_words(line) for line in said) or str(exc)
             raise ConfigError(f"cannot start DDS on domain {settings.domain_id} "
-                              f"({_network_words(settings)}): {exc}") from None
+                              f"({_network_words(settings)}): {why}") from None
+        for line in said:  # nothing failed: pass on whatever was said
+            sys.stderr.write(line + "\n")
         self._topics: dict[str, Any] = {}
         self._entities: list[Any] = []
         self._closed = False
@@ -142,6 +153,28 @@ class DdsTransport:
             entity.__del__()  # dds_delete now, not whenever the garbage collector runs
         self._entities.clear()
         self._topics.clear()
+
+
+@contextlib.contextmanager
+def _c_stderr_to(lines: list[str]) -> Iterator[None]:
+    """Collect what C code writes to file descriptor 2 meanwhile into ``lines``."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines += [ln for ln in tmp.read().decode(errors="replace").splitlines() if ln]
+
+
+def _cyclone_words(line: str) -> str:
+    """A Cyclone log line without its timestamp, domain and thread: '... [0] main: x' -> 'x'."""
+    head, sep, rest = line.partition("]")
+    return rest.split(":", 1)[-1].strip() if sep and head.split(" ")[0][:1].isdigit() else line
 
 
 def _network_words(s: Ros2Settings) -> str:
