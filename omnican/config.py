@@ -162,7 +162,9 @@ class WheelConfig:
     drive_angle_deg: float | None = None
     base_radius: float | None = None
     mode: Mode | None = None
-    wheel_radius: float | None = None  # m, when the config gave it (joint angles need it)
+    # m, when the config gave it (omnican ros2's joint angles need it). Not part of equality:
+    # the scales define the wheel; a config rewritten with scales only is the same wheel.
+    wheel_radius: float | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:

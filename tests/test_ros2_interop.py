@@ -1,5 +1,5 @@
-"""``omnican ros2 --sim`` against real ROS 2 (rclpy on Fast DDS, from PyPI's ROS 2
-wheels, installed once into a cached venv) and against omnican's own Cyclone DDS peer.
+"""``omnican ros2 --sim`` against real ROS 2 (Jazzy and Kilted: rclpy on Fast DDS, from PyPI
+wheels, installed once into cached venvs) and against omnican's own Cyclone DDS peer.
 
 The peer publishes cmd_vel at 20 Hz, checks odom against the simulator's ground truth,
 joint_states and diagnostics, sees an injected drive fault there and clears it over ROS
@@ -22,7 +22,7 @@ import pytest
 from .ros2_interop.harness import (
     FASTDDS_PROFILE,
     HERE,
-    ROS_DISTRO,
+    ROS_PACKAGES,
     NetNs,
     clean_env,
     netns_unavailable,
@@ -51,13 +51,19 @@ def test_omnican_peer_over_cyclone_loopback(netns: NetNs) -> None:
 
 
 @pytest.mark.ros2_interop
-def test_rclpy_over_fast_dds(netns: NetNs, tmp_path: Path) -> None:
-    python, note = ros_venv()
+@pytest.mark.parametrize("distro", sorted(ROS_PACKAGES))
+def test_rclpy_over_fast_dds(distro: str, netns: NetNs, tmp_path: Path) -> None:
+    python, note = ros_venv(distro)
     if python is None:
         pytest.skip(note)
-    print(f"ROS 2 {ROS_DISTRO}: {note}")
+    print(f"ROS 2 {distro}: {note}")
+    # The profile's variable is FASTRTPS_... for Fast DDS 2 (Jazzy), FASTDDS_... for Fast
+    # DDS 3 (Kilted). LOCALHOST also stops rmw_fastrtps from adding a multicast
+    # announcement to the profile's unicast initial peer.
     env = clean_env(ROS_DOMAIN_ID="42", RMW_IMPLEMENTATION="rmw_fastrtps_cpp",
+                    FASTRTPS_DEFAULT_PROFILES_FILE=str(FASTDDS_PROFILE),
                     FASTDDS_DEFAULT_PROFILES_FILE=str(FASTDDS_PROFILE),
+                    ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                     ROS_LOG_DIR=str(tmp_path / "ros-log"))
     with (tmp_path / "rclpy.stderr").open("w") as err:
         run = run_scenario(netns, 42, [str(python), str(HERE / "rclpy_check.py")], env,

@@ -243,8 +243,8 @@ def cyclone_config(s: Ros2Settings, env_uri: str | None = None) -> str:
     network = f"<General>{general}</General>" if general else ""
     if s.peers:
         peers = "".join(f"<Peer address={quoteattr(p)}/>" for p in s.peers)
-        # A fixed participant index puts this participant on the well-known ports that
-        # unicast peers probe; "auto" picks the first free one.
+        # Unicast discovery probes the ports of the first participant indices on each
+        # peer: "auto" gives this participant such an index, so peers find it as well.
         network += (f"<Discovery><ParticipantIndex>auto</ParticipantIndex>"
                     f"<Peers>{peers}</Peers></Discovery>")
     if network:

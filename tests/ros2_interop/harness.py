@@ -26,17 +26,15 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 FASTDDS_PROFILE = HERE / "fastdds_loopback.xml"
 
-#: ROS 2 Kilted: its Fast DDS 3 announces XTypes type information, the case omnican's
-#: Cyclone settings are for (ROS 2 Jazzy's Fast DDS 2 does not send it).
-ROS_DISTRO = "kilted"
-ROS_PACKAGES = (
-    "ros-kilted-rclpy[fastrtps]==9.1.2",
-    "ros-kilted-std-msgs==5.5.1",
-    "ros-kilted-geometry-msgs==5.5.1",
-    "ros-kilted-nav-msgs==5.5.1",
-    "ros-kilted-sensor-msgs==5.5.1",
-    "ros-kilted-diagnostic-msgs==5.5.1",
-)
+#: The ROS 2 wheels per distribution: rclpy with Fast DDS and the message packages.
+#: Kilted's Fast DDS 3 announces XTypes type information (the case omnican's Cyclone
+#: settings are for); Jazzy, the LTS most nav stacks run, has Fast DDS 2, which does not.
+ROS_PACKAGES: dict[str, tuple[str, ...]] = {
+    distro: (f"ros-{distro}-rclpy[fastrtps]=={rclpy}",
+             *(f"ros-{distro}-{pkg}-msgs=={msgs}"
+               for pkg in ("std", "geometry", "nav", "sensor", "diagnostic")))
+    for distro, rclpy, msgs in (("kilted", "9.1.2", "5.5.1"), ("jazzy", "7.1.6", "5.3.6"))
+}
 INSTALL_TIMEOUT_S = 900
 
 
@@ -189,13 +187,14 @@ def cache_dir() -> Path:
     return Path(base) / "omnican" / "ros2-interop"
 
 
-def ros_venv() -> tuple[Path | None, str]:
-    """The python of a venv holding :data:`ROS_PACKAGES`, made once and cached under
-    ~/.cache/omnican (keyed by the pins and this Python); (None, why) if it cannot be
-    installed. Returns (python, a note on what it did)."""
-    key = hashlib.sha256(json.dumps([sys.version_info[:2], ROS_PACKAGES]).encode()
+def ros_venv(distro: str) -> tuple[Path | None, str]:
+    """The python of a venv holding the distribution's :data:`ROS_PACKAGES`, made once and
+    cached under ~/.cache/omnican (keyed by the pins and this Python); (None, why) if it
+    cannot be installed. Returns (python, a note on what it did)."""
+    packages = ROS_PACKAGES[distro]
+    key = hashlib.sha256(json.dumps([sys.version_info[:2], packages]).encode()
                          ).hexdigest()[:16]
-    venv = cache_dir() / f"{ROS_DISTRO}-py{sys.version_info[0]}{sys.version_info[1]}-{key}"
+    venv = cache_dir() / f"{distro}-py{sys.version_info[0]}{sys.version_info[1]}-{key}"
     python = venv / "bin" / "python"
     if (venv / "omnican-ok").is_file() and python.is_file():
         return python, f"cached venv {venv}"
@@ -207,7 +206,7 @@ def ros_venv() -> tuple[Path | None, str]:
         subprocess.run([sys.executable, "-m", "venv", str(tmp)], check=True,
                        capture_output=True, timeout=120)
         done = subprocess.run([str(tmp / "bin" / "python"), "-m", "pip", "install",
-                               "--disable-pip-version-check", "-q", *ROS_PACKAGES],
+                               "--disable-pip-version-check", "-q", *packages],
                               check=False, capture_output=True, text=True,
                               timeout=INSTALL_TIMEOUT_S,
                               env=clean_env())
@@ -217,8 +216,8 @@ def ros_venv() -> tuple[Path | None, str]:
     if done.returncode != 0:
         shutil.rmtree(tmp, ignore_errors=True)
         tail = " | ".join((done.stderr or done.stdout).strip().splitlines()[-3:])
-        return None, f"cannot install the ROS 2 {ROS_DISTRO} wheels from PyPI: {tail}"
-    (tmp / "omnican-ok").write_text(json.dumps({"packages": ROS_PACKAGES,
+        return None, f"cannot install the ROS 2 {distro} wheels from PyPI: {tail}"
+    (tmp / "omnican-ok").write_text(json.dumps({"packages": packages,
                                                 "install_s": time.monotonic() - t0}))
     try:
         tmp.rename(venv)
@@ -226,4 +225,4 @@ def ros_venv() -> tuple[Path | None, str]:
         shutil.rmtree(tmp, ignore_errors=True)
     if not python.is_file():
         return None, f"the ROS 2 venv at {venv} has no python"
-    return python, f"installed the ROS 2 {ROS_DISTRO} wheels in {time.monotonic() - t0:.0f} s"
+    return python, f"installed the ROS 2 {distro} wheels in {time.monotonic() - t0:.0f} s"

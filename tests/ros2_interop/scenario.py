@@ -75,12 +75,21 @@ def run(peer):
     def statuses():
         return seen["diag"][-1][1].status if seen["diag"] else []
 
+    def note(phase):
+        """What the bridge says it received, for explaining a failure."""
+        bridge = [s for s in statuses() if s.name.endswith(": ros2 bridge")]
+        values = {kv.key: kv.value for kv in bridge[0].values} if bridge else {}
+        results.setdefault("phases", []).append(
+            [phase, results.get("cmd_sent", 0), values.get("cmd_vel_received"),
+             len(seen["odom"]), len(seen["diag"])])
+
     try:
         ok = spin_until(lambda: bool(seen["odom"] and seen["truth"] and seen["diag"]
                                      and peer.matched()), 30.0)
         results["discovered"] = ok
         results["graph"] = peer.graph()
-        emit({"event": "ready", "ok": ok})
+        emit({"event": "ready", "ok": ok, "seen": {k: len(v) for k, v in seen.items()},
+              "matched": peer.matched()})
         if not ok:
             return results
         # Drive at 20 Hz; sample the steady state near the end.
@@ -97,6 +106,7 @@ def run(peer):
         j = seen["joints"][-1][1]
         results["moving_joints"] = {"name": list(j.name), "position": list(j.position),
                                     "velocity": list(j.velocity)}
+        note("driven")
         # Commands stop: the watchdog stops the base.
         spin_for(2.0)
         odom, truth = seen["odom"][-1][1], seen["truth"][-1][1]
@@ -114,6 +124,7 @@ def run(peer):
         results["stopped_joints"] = {"position": list(j.position), "velocity": list(j.velocity)}
         results["diag_ok"] = [[s.name, level(s), s.message, s.hardware_id] for s in statuses()]
 
+        note("stopped")
         # A drive fault shows in diagnostics with its EMCY text; the base stays stopped.
         emit({"event": "inject"})
 
@@ -126,6 +137,7 @@ def run(peer):
         spin_for(1.0, drive)
         results["latched_twist"] = twist3(seen["odom"][-1][1])
 
+        note("latched")
         # Recover over ROS, then drive again and stop.
         peer.send_recover()
 
@@ -134,9 +146,11 @@ def run(peer):
 
         results["recovered"] = spin_until(chassis_ok, 10.0)
         results["diag_recovered"] = [[s.name, level(s), s.message] for s in statuses()]
+        note("recovered")
         spin_for(1.5, drive)
         results["after_recover_twist"] = twist3(seen["odom"][-1][1])
         spin_for(1.5)
+        note("end")
         p = seen["odom"][-1][1].pose.pose
         results["final_pose"] = [p.position.x, p.position.y, yaw(p.orientation)]
         return results
