@@ -128,7 +128,9 @@ class DdsTransport:
                 return
             try:
                 samples = readers[0].take(16)
-            except DDSException:  # deleted meanwhile
+            except DDSException as exc:
+                if not self._closed:  # else: deleted meanwhile
+                    logger.warning("reading %s failed: %s", topic, exc)
                 return
             for sample in samples:
                 if isinstance(sample, msg_type):  # invalid samples (disposals) carry no data

@@ -117,7 +117,9 @@ def _judge(run: Run) -> None:
     expected = cfg.kinematics().to_wheel_speeds(Twist(*CMD)) / radius
     joints = r["moving_joints"]
     assert joints["name"] == ["wheel_0_joint", "wheel_1_joint", "wheel_2_joint"]
-    assert joints["velocity"] == pytest.approx([float(v) for v in expected], abs=0.3)
+    # Each wheel's speed jitters more than the twist (which averages three): 0.06 m/s at
+    # the rim, 1.2 rad/s here (seen: 0.036 m/s off on a loaded machine).
+    assert joints["velocity"] == pytest.approx([float(v) for v in expected], abs=1.2)
     assert r["stopped_joints"]["velocity"] == pytest.approx([0.0] * 3, abs=0.02)
     assert any(abs(p) > 1.0 for p in r["stopped_joints"]["position"])
 
