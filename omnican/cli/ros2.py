@@ -19,9 +19,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import select
-import sys
-import time
 from dataclasses import replace
 from typing import Any
 
@@ -31,6 +28,7 @@ from omnican.cli.common import (
     add_bus_arguments,
     load,
     positive_float,
+    serve_lines,
     session,
 )
 from omnican.errors import ConfigError
@@ -147,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
                     Bridge(base, settings, transport, sim=sess.sim) as bridge:
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
-                    _serve(bridge, args.duration)
+                    serve_lines(lambda line: command(bridge, line), args.duration)
                 finally:
                     bridge.close()
                     transport.close()
@@ -231,29 +229,3 @@ def command(bridge: Any, line: str) -> str | None:
     on = len(rest) > 1 and rest[1].lower() == "on"
     (drive.start_heartbeat if on else drive.stop_heartbeat)()
     return f"node {node}: heartbeat {'on' if on else 'off'}"
-
-
-def _serve(bridge: Any, duration: float | None) -> None:
-    """Until the duration ends, stdin says quit, or Ctrl-C; stdin closing keeps it running."""
-    end = time.monotonic() + duration if duration else None
-    stdin_open = not sys.stdin.closed
-    try:
-        while end is None or time.monotonic() < end:
-            timeout = 0.2 if end is None else max(0.0, min(0.2, end - time.monotonic()))
-            if not stdin_open:
-                time.sleep(timeout)
-                continue
-            ready, _, _ = select.select([sys.stdin], [], [], timeout)
-            if not ready:
-                continue
-            line = sys.stdin.readline()
-            if line == "":
-                stdin_open = False
-                continue
-            reply = command(bridge, line)
-            if reply is None:
-                break
-            if reply:
-                print(reply, flush=True)
-    except KeyboardInterrupt:
-        pass
