@@ -103,6 +103,36 @@ SCHEMA: dict[str, dict[str, Key]] = {
                            "[chassis] base_radius"),
         "mode": Key((str,), None, "this wheel's mode; default [chassis] mode"),
     },
+    # Read by `omnican ros2` (omnican/ros2/settings.py checks the values).
+    "ros2": {
+        "namespace": Key((str,), "", "ROS 2 namespace of the node and its relative topics"),
+        "node_name": Key((str,), "omnican", "ROS 2 node name (~/ topics live under it)"),
+        "domain_id": Key((int,), None, "DDS domain 0-232; default: ROS_DOMAIN_ID, else 0"),
+        "cmd_vel_topic": Key((str,), "cmd_vel", "velocity commands in (Twist)"),
+        "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of Twist"),
+        "cmd_vel_timeout_s": Key(_NUM, None, "no cmd_vel for this long -> stop; default "
+                                 "[chassis] cmd_timeout_s"),
+        "odom_topic": Key((str,), "odom", "nav_msgs/Odometry out"),
+        "odom_frame": Key((str,), "odom", "frame of the odometry pose"),
+        "base_frame": Key((str,), "base_link", "frame of the base (odometry child frame)"),
+        "odom_rate_hz": Key(_NUM, 50.0, "odom and tf publish rate"),
+        "publish_tf": Key((bool,), True, "publish the odom -> base_link transform"),
+        "tf_topic": Key((str,), "/tf", "tf2_msgs/TFMessage out"),
+        "joint_states_topic": Key((str,), "joint_states", "sensor_msgs/JointState out"),
+        "joint_states_rate_hz": Key(_NUM, 50.0, "joint_states publish rate"),
+        "joint_names": Key((list,), None, "one joint name per wheel; default wheel_0_joint, "
+                           "wheel_1_joint, ..."),
+        "wheel_radius": Key(_NUM, None, "m, for joint angles; default the wheels' "
+                            "wheel_radius (no joint_states without one)"),
+        "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
+        "diagnostics_rate_hz": Key(_NUM, 1.0, "diagnostics rate (and at once on a change)"),
+        "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
+        "odom_slip": Key(_NUM, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
+                         "(covariances)"),
+        "interface": Key((str,), None, "DDS network interface name or address; default all"),
+        "peers": Key((list,), None, "unicast discovery peers (addresses or host names)"),
+        "multicast": Key((bool,), True, "DDS multicast discovery"),
+    },
 }
 
 
@@ -141,6 +171,9 @@ class WheelConfig:
     drive_angle_deg: float | None = None
     base_radius: float | None = None
     mode: Mode | None = None
+    # m, when the config gave it (omnican ros2's joint angles need it). Not part of equality:
+    # the scales define the wheel; a config rewritten with scales only is the same wheel.
+    wheel_radius: float | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:
@@ -178,6 +211,7 @@ class ChassisConfig:
     wheels: tuple[WheelConfig, ...]
     bus: Mapping[str, Any] | None = None
     source: Path | None = field(default=None, compare=False)
+    ros2: Mapping[str, Any] | None = None  # the [ros2] table, schema-checked (omnican ros2)
 
     def kinematics(self) -> OmniKinematics:
         c = self.chassis
@@ -242,7 +276,8 @@ def derive_scales(
 
 
 # A simulated demo base: the bundled drive, 16:1 gear, 4096-count encoder, 50 mm wheels.
-_DEMO_SCALES = derive_scales(16.0, 4096.0, 0.05)
+_DEMO_WHEEL_RADIUS = 0.05
+_DEMO_SCALES = derive_scales(16.0, 4096.0, _DEMO_WHEEL_RADIUS)
 
 
 def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
@@ -250,7 +285,8 @@ def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
     node ids 1-3, layout b21, base radius 0.19 m."""
     vs, ps = _DEMO_SCALES
     wheels = tuple(
-        WheelConfig(node_id=n, axis=0, eds=WHEEL_EDS, velocity_scale=vs, position_scale=ps)
+        WheelConfig(node_id=n, axis=0, eds=WHEEL_EDS, velocity_scale=vs, position_scale=ps,
+                    wheel_radius=_DEMO_WHEEL_RADIUS)
         for n in (1, 2, 3)
     )
     return ChassisConfig(chassis=ChassisSettings(), wheels=wheels, bus=bus)
@@ -319,9 +355,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        if key not in ("bus", "chassis", "wheel"):
-            raise r.fail(key, f"unknown section {key!r}"
-                              f"{_suggest(key, ('bus', 'chassis', 'wheel'))}")
+        sections = ("bus", "chassis", "wheel", "ros2")
+        if key not in sections:
+            raise r.fail(key, f"unknown section {key!r}{_suggest(key, sections)}")
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")
@@ -385,7 +421,12 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         _parse_wheel(r, i, w, settings, base_dir) for i, w in enumerate(raw_wheels)
     )
     _check_wheels(r, settings, wheels)
-    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus)
+    ros2 = r.table("ros2", data["ros2"], "ros2") if "ros2" in data else None
+    if ros2 is not None:
+        for key in ("joint_names", "peers"):
+            if ros2[key] is not None and not all(isinstance(v, str) for v in ros2[key]):
+                raise r.fail(f"ros2.{key}", "must be an array of strings")
+    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -447,6 +488,7 @@ def _parse_wheel(r: _Reader, i: int, data: Any, settings: ChassisSettings,
         drive_angle_deg=None if w["drive_angle_deg"] is None else float(w["drive_angle_deg"]),
         base_radius=None if w["base_radius"] is None else float(w["base_radius"]),
         mode=_parse_mode(r, f"{where}.mode", w["mode"]) or settings.mode,
+        wheel_radius=float(w["wheel_radius"]) if physical else None,
     )
 
 
