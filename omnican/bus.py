@@ -70,6 +70,16 @@ class _Recorder(can.Listener):
                 self._writer = None
 
 
+def _recorder_for(path: Path) -> _Recorder | Any:
+    """The recorder for ``path``'s format: MCAP (raw frames plus the robot's state, see
+    :mod:`omnican.mcap_record`) or any python-can log format."""
+    if path.suffix.lower() == ".mcap":
+        from omnican.mcap_record import McapRecorder
+
+        return McapRecorder(path)
+    return _Recorder(path)
+
+
 class _Traffic(can.Listener):
     """Counts frames and worst-case bits seen on the bus (both directions)."""
 
@@ -106,7 +116,8 @@ class CanBus:
                  notifier_cycle_s: float = 0.1) -> None:
         self.bus_kwargs: dict[str, Any] = dict(bus or {})
         self.traffic = _Traffic()
-        self.recorder = _Recorder(Path(record)) if record is not None else None
+        self.recorder = _recorder_for(Path(record)) if record is not None else None
+        self._taps: list[can.Listener] = []  # add_listener(..., sent=True): see our own frames
         self.network = _Network(self)
         self.network.NOTIFIER_CYCLE = notifier_cycle_s
         # canopen types this list as MessageListener only; any can.Listener works.
@@ -145,11 +156,36 @@ class CanBus:
     def _sent(self, can_id: int, data: bytes) -> None:
         self.traffic.bits += frame_bits(len(data))
         self.traffic.frames += 1
-        if self.recorder is not None:
-            self.recorder.on_message_received(
-                can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                            timestamp=time.time(), is_rx=False,
-                            channel=self.bus_kwargs.get("channel")))
+        if self.recorder is not None or self._taps:
+            msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
+                              timestamp=time.time(), is_rx=False,
+                              channel=self.bus_kwargs.get("channel"))
+            if self.recorder is not None:
+                self.recorder.on_message_received(msg)
+            for tap in self._taps:
+                tap.on_message_received(msg)
+
+    def add_listener(self, listener: can.Listener, sent: bool = False) -> None:
+        """Hand every received frame to ``listener`` from now on (on the Notifier thread, so
+        it must not block), across reconnects; ``sent``: the frames this host sends too (on
+        the sending thread, the control loop's: append to a queue and return)."""
+        with self._lock:
+            listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
+            listeners.append(listener)
+            if self.network.notifier is not None:  # it copied the list when it started
+                self.network.notifier.add_listener(listener)
+            if sent:
+                self._taps = [*self._taps, listener]  # a new list: _sent iterates unlocked
+
+    def remove_listener(self, listener: can.Listener) -> None:
+        with self._lock:
+            listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
+            if listener in listeners:
+                listeners.remove(listener)
+            notifier = self.network.notifier
+            if notifier is not None and listener in notifier.listeners:
+                notifier.remove_listener(listener)
+            self._taps = [t for t in self._taps if t is not listener]
 
     def send(self, can_id: int, data: bytes) -> bool:
         """Send one frame; a failure is counted and reported, not raised.

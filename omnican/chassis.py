@@ -202,6 +202,9 @@ class Chassis:
         except BaseException:
             base.close(controlled=False)
             raise
+        attach = getattr(can_bus.recorder, "attach", None)
+        if attach is not None:  # an MCAP recording samples the base's state too
+            attach(base)
         return base
 
     def _start(self, handle_signals: bool) -> None:

@@ -132,6 +132,8 @@ class WheelConfig:
     drive_angle_deg: float | None = None
     base_radius: float | None = None
     mode: Mode | None = None
+    # m; known when the scales were derived from it (joint angles for ROS joint_states)
+    wheel_radius: float | None = None
 
     @property
     def name(self) -> str:
@@ -232,7 +234,8 @@ def derive_scales(
 
 
 # A simulated demo base: the bundled drive, 16:1 gear, 4096-count encoder, 50 mm wheels.
-_DEMO_SCALES = derive_scales(16.0, 4096.0, 0.05)
+_DEMO_WHEEL_RADIUS = 0.05
+_DEMO_SCALES = derive_scales(16.0, 4096.0, _DEMO_WHEEL_RADIUS)
 
 
 def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
@@ -240,7 +243,8 @@ def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
     node ids 1-3, layout b21, base radius 0.19 m."""
     vs, ps = _DEMO_SCALES
     wheels = tuple(
-        WheelConfig(node_id=n, axis=0, eds=WHEEL_EDS, velocity_scale=vs, position_scale=ps)
+        WheelConfig(node_id=n, axis=0, eds=WHEEL_EDS, velocity_scale=vs, position_scale=ps,
+                    wheel_radius=_DEMO_WHEEL_RADIUS)
         for n in (1, 2, 3)
     )
     return ChassisConfig(chassis=ChassisSettings(), wheels=wheels, bus=bus)
@@ -426,6 +430,7 @@ def _parse_wheel(r: _Reader, i: int, data: Any, settings: ChassisSettings,
         drive_angle_deg=None if w["drive_angle_deg"] is None else float(w["drive_angle_deg"]),
         base_radius=None if w["base_radius"] is None else float(w["base_radius"]),
         mode=_parse_mode(r, f"{where}.mode", w["mode"]) or settings.mode,
+        wheel_radius=float(w["wheel_radius"]) if physical else None,
     )
 
 
