@@ -38,7 +38,7 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
 def parse_address(text: str | None) -> tuple[str, int]:
-    """``[HOST:]PORT`` (or empty: 127.0.0.1:8765) -> (host, port); ConfigError if bad."""
+    """``[HOST:]PORT`` (or empty: 127.0.0.1:8765) -> (host, port); ValueError if bad."""
     if not text:
         return DEFAULT_HOST, DEFAULT_PORT
     host, sep, port = text.rpartition(":")
@@ -47,9 +47,9 @@ def parse_address(text: str | None) -> tuple[str, int]:
     try:
         number = int(port)
     except ValueError:
-        raise ConfigError(f"--foxglove wants [HOST:]PORT, got {text!r}") from None
+        raise ValueError(f"want [HOST:]PORT, got {text!r}") from None
     if not 0 <= number <= 65535:
-        raise ConfigError(f"--foxglove port must be 0-65535, got {number}")
+        raise ValueError(f"port must be 0-65535, got {number}")
     host = host.strip("[]") or DEFAULT_HOST
     return host, number
 
@@ -254,9 +254,33 @@ def watch(base: Any, sim: Any = None, foxglove: str | None = None,
     if foxglove is None:
         yield None
         return
-    host, port = parse_address(foxglove)
+    try:
+        host, port = parse_address(foxglove)
+    except ValueError as exc:
+        raise ConfigError(f"--foxglove: {exc}") from None
     with LiveView(base, sim, host=host, port=port) as view:
         if announce is not None:
             announce(f"Foxglove: open a connection to {view.url} "
                      "(layout: foxglove/omnican-layout.json)")
         yield view
+
+
+def foxglove_address(text: str) -> str:
+    """argparse type for ``--foxglove [HOST:]PORT``: checked here, so a bad address or a
+    missing SDK is a usage error before any drive is touched."""
+    import argparse
+    import importlib.util
+
+    try:
+        parse_address(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if importlib.util.find_spec("foxglove") is None:
+        raise argparse.ArgumentTypeError("needs the Foxglove SDK: pip install "
+                                         "'omnican[foxglove]'")
+    return text
+
+
+FOXGLOVE_HELP = ("serve a live view to Foxglove on [HOST:]PORT (default 127.0.0.1:8765; "
+                 "loopback unless a host is given, e.g. 0.0.0.0:8765 to watch from another "
+                 "machine)")

@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterable, Iterator
 from typing import Any
 
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -25,8 +26,9 @@ class FoxgloveClient:
         deadline = time.monotonic() + timeout
         while True:
             try:
-                self.ws: ClientConnection = connect(url, subprotocols=SUBPROTOCOLS,  # type: ignore[arg-type]
-                                                    open_timeout=2.0, max_size=None)
+                self.ws: ClientConnection = connect(
+                    url, subprotocols=SUBPROTOCOLS,  # type: ignore[arg-type]
+                    open_timeout=2.0, max_size=None).__enter__()
                 break
             except OSError:
                 if time.monotonic() > deadline:
@@ -68,7 +70,7 @@ class FoxgloveClient:
         while (remaining := deadline - time.monotonic()) > 0:
             try:
                 data = self.ws.recv(timeout=remaining)
-            except TimeoutError:
+            except (TimeoutError, ConnectionClosed):  # quiet, or the server stopped
                 return
             if isinstance(data, str):
                 self._handle_text(data)

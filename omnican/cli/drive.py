@@ -26,6 +26,7 @@ from omnican.cli.common import (
     session,
 )
 from omnican.kinematics import Twist
+from omnican.live import FOXGLOVE_HELP, foxglove_address, watch
 from omnican.odometry import Pose2D
 
 COMMAND_PERIOD_S = 0.02
@@ -53,7 +54,10 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--json", action="store_true",
                    help='print {"pose", "twist", "duration_s"} (+ "true_pose" under --sim)')
     p.add_argument("--record", metavar="FILE",
-                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
+                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf; "
+                        ".mcap: frames plus the robot's state as ROS 2 messages)")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -190,10 +194,15 @@ class BaseStoppedError(Exception):
     """The base stopped itself (fault, lost drive) during the motion."""
 
 
+def _note(text: str) -> None:
+    print(f"omnican: {text}", file=sys.stderr, flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     plan = legs(args)
     with session(args) as s:
-        with Chassis.open(s.cfg, record=args.record) as base:
+        with Chassis.open(s.cfg, record=args.record) as base, \
+                watch(base, s.sim, args.foxglove, announce=_note):
             try:
                 twist, elapsed = execute(base, plan)
             except BaseStoppedError as exc:

@@ -34,6 +34,7 @@ from omnican.cli.common import (
     positive_float,
 )
 from omnican.hub import DEFAULT_PORT, LoopbackHub
+from omnican.live import foxglove_address, watch
 from omnican.sim import SimulatedBase, SimulatedDrive
 
 
@@ -51,6 +52,9 @@ def add_subparser(sub: Any) -> None:
                    help="standard deviation added to reported positions")
     p.add_argument("--frame-loss", type=float, default=0.0, metavar="P",
                    help="probability of losing each PDO/heartbeat frame")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help="serve the ground truth and the bus to Foxglove on "
+                   "[HOST:]PORT (default 127.0.0.1:8765; loopback unless a host is given)")
     can.cli.add_bus_arguments(p, group_title="bus arguments (serve on this bus instead of a hub)")
     p.set_defaults(func=run)
 
@@ -146,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"connect with: {connect}", flush=True)
             if args.config:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)
-            serve(sim, args.duration)
+            with watch(None, sim, args.foxglove, announce=lambda t: print(t, flush=True)):
+                serve(sim, args.duration)
     finally:
         if hub is not None:
             hub.close()

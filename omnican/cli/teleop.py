@@ -48,6 +48,7 @@ from omnican.cli.common import (
 from omnican.cli.drive import pose_line
 from omnican.errors import OmnicanError
 from omnican.kinematics import Twist
+from omnican.live import FOXGLOVE_HELP, foxglove_address, watch
 
 # (x, y, th) multipliers, as in teleop_twist_keyboard's moveBindings.
 MOVE_KEYS: dict[str, tuple[int, int, int]] = {
@@ -77,7 +78,10 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--key-timeout", type=float, default=0.6, metavar="S",
                    help="stop when no key arrives for this long (default 0.6; 0: never)")
     p.add_argument("--record", metavar="FILE",
-                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
+                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf; "
+                        ".mcap: frames plus the robot's state as ROS 2 messages)")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
     add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
     p.set_defaults(func=run)
 
@@ -287,9 +291,12 @@ def run(args: argparse.Namespace) -> int:
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"
         console.print(f"{title}: bringing the drives up...", style="dim")
-        with Chassis.open(s.cfg, record=args.record) as base, cbreak(fd), \
+        with Chassis.open(s.cfg, record=args.record) as base, \
+                watch(base, s.sim, args.foxglove) as view, cbreak(fd), \
                 logs_into(events), Live(console=console, screen=True, auto_refresh=False,
                                         transient=True) as live:
+            if view is not None:
+                title += f" - Foxglove {view.url}"
             try:
                 drive_loop(base, keys, fd, live, title, events)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
