@@ -52,6 +52,10 @@ class Key:
 
 _NUM = (int, float)
 
+# Tables a front end reads and checks itself (the base ignores them): [gamepad] is
+# omnican.gamepad_model's.
+FRONT_END_SECTIONS = ("gamepad",)
+
 # Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
 SCHEMA: dict[str, dict[str, Key]] = {
     "chassis": {
@@ -307,8 +311,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        if key not in ("bus", "chassis", "wheel"):
-            raise r.fail(key, "unknown section (known: bus, chassis, wheel)")
+        if key not in ("bus", "chassis", "wheel", *FRONT_END_SECTIONS):
+            known = ", ".join(("bus", "chassis", "wheel", *FRONT_END_SECTIONS))
+            raise r.fail(key, f"unknown section (known: {known})")
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")

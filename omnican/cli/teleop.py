@@ -47,6 +47,7 @@ from omnican.cli.common import (
 )
 from omnican.cli.drive import pose_line
 from omnican.errors import OmnicanError
+from omnican.gamepad import Gamepad, config_table, drive_step
 from omnican.kinematics import Twist
 from omnican.live import FOXGLOVE_HELP, foxglove_address, watch
 
@@ -82,6 +83,10 @@ def add_subparser(sub: Any) -> None:
                         ".mcap: frames plus the robot's state as ROS 2 messages)")
     p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
                    metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    p.add_argument("--gamepad", nargs="?", const="", metavar="DEVICE",
+                   help="drive with a gamepad (evdev; default: the first one found, or e.g. "
+                        "/dev/input/event5): hold LB/L1 to move, RB/R1 for turbo, left stick "
+                        "moves, right stick turns; the [gamepad] table of --config maps it")
     add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
     p.set_defaults(func=run)
 
@@ -250,12 +255,12 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
 
 
 def drive_loop(base: Chassis, keys: Keyboard, fd: int, live: Live, title: str,
-               events: _Events) -> None:
-    """Keys in, commands out, dashboard refreshed, until Esc."""
+               events: _Events, pad: Gamepad | None = None) -> None:
+    """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc."""
     note = ""
     while not keys.quit:
         now = time.monotonic()
-        for key in read_keys(fd, LOOP_S):
+        for key in read_keys(fd, LOOP_S if pad is None else LOOP_S / 2):
             keys.press(key, now)
         if keys.recover:
             keys.recover, note = False, "recovering..."
@@ -265,9 +270,14 @@ def drive_loop(base: Chassis, keys: Keyboard, fd: int, live: Live, title: str,
                 note = ""
             except OmnicanError as exc:
                 note = f"recover failed: {exc}"
-        command = keys.command(time.monotonic())
-        base.set_velocity(command.vx, command.vy, command.wz)
-        live.update(dashboard(base, keys, command, title, events, note), refresh=True)
+        if pad is not None:  # the pad commands; keys still quit and recover
+            command = drive_step(base, pad, LOOP_S / 2)
+            shown = note or pad.status_text()
+        else:
+            command = keys.command(time.monotonic())
+            base.set_velocity(command.vx, command.vy, command.wz)
+            shown = note
+        live.update(dashboard(base, keys, command, title, events, shown), refresh=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -280,7 +290,11 @@ def run(args: argparse.Namespace) -> int:
     console = Console()
     events = _Events()
     final = None
-    with session(args) as s:
+    pad = None
+    if args.gamepad is not None:  # before the drives come up: no pad, nothing moves
+        table = config_table(args.config)
+        pad = Gamepad.open(args.gamepad or None, table)
+    with session(args) as s, (pad or contextlib.nullcontext()):
         c = s.cfg.chassis
         kin = s.cfg.kinematics()
         max_speed = min(c.max_speed, c.max_wheel_speed)
@@ -290,6 +304,8 @@ def run(args: argparse.Namespace) -> int:
         where = "simulated base" if s.sim else "base"
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"
+        if pad is not None:
+            title += f" - gamepad {pad.name}"
         console.print(f"{title}: bringing the drives up...", style="dim")
         with Chassis.open(s.cfg, record=args.record) as base, \
                 watch(base, s.sim, args.foxglove) as view, cbreak(fd), \
@@ -298,7 +314,7 @@ def run(args: argparse.Namespace) -> int:
             if view is not None:
                 title += f" - Foxglove {view.url}"
             try:
-                drive_loop(base, keys, fd, live, title, events)
+                drive_loop(base, keys, fd, live, title, events, pad)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
                 pass
             base.stop()
