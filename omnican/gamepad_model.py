@@ -241,5 +241,6 @@ def mapping_from_table(table: Mapping[str, Any], device_name: str = "",
         if f"turbo_scale_{a}" in table:
             axis = replace(axis, turbo_scale=_number(f"{origin}.turbo_scale_{a}",
                                                      table[f"turbo_scale_{a}"]))
-        m = replace(m, **{a: axis})
+        m = replace(m, vx=axis) if a == "vx" else replace(m, vy=axis) if a == "vy" \
+            else replace(m, wz=axis)
     return m

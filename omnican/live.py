@@ -162,6 +162,7 @@ class LiveView:
     def _publish_state(self) -> None:
         if self.base is not None:
             sample = telemetry.sample(self.base, self.sim)
+            ns = sample.stamp_ns
             items = telemetry.messages(sample, self._frames_cfg, self._radius)
         else:
             ns = time.time_ns()
@@ -173,12 +174,10 @@ class LiveView:
             if channel is None or not channel.has_sinks():
                 continue
             schema, kind = telemetry.TOPICS[topic]
-            ns = message["timestamp"] if kind == telemetry.JSON else None
-            log_time = (ns["sec"] * 1_000_000_000 + ns["nsec"]) if ns else None
             if kind == telemetry.JSON:
-                channel.log(message, log_time=log_time)
+                channel.log(message, log_time=ns)
             else:
-                channel.log(rosmsg.encode(schema, message))
+                channel.log(rosmsg.encode(schema, message), log_time=ns)
 
     def _publish_frames(self) -> None:
         queue = self._tap.queue

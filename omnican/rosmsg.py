@@ -10,7 +10,7 @@ rosbags' store) is registered from its message definition.
 from __future__ import annotations
 
 import struct
-from functools import lru_cache
+from functools import cache, lru_cache
 from typing import Any
 
 import numpy as np
@@ -34,14 +34,14 @@ _DTYPES = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8
 @lru_cache(maxsize=1)
 def typestore() -> Any:
     """ROS 2 Jazzy's message types, plus can_msgs/msg/Frame."""
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     store.register(get_types_from_msg(CAN_FRAME_MSG, "can_msgs/msg/Frame"))
     return store
 
 
-@lru_cache(maxsize=None)
+@cache
 def msgdef(typename: str) -> str:
     """The ``ros2msg`` schema text of a type: its definition, then every type it uses."""
     text: str = typestore().generate_msgdef(typename, ros_version=2)[0]

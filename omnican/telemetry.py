@@ -167,10 +167,8 @@ def diagnostics(s: Sample, prefix: str = "omnican") -> dict[str, Any]:
     for w in s.wheels:
         node = f"node {w.node_id}" + (f" axis {w.axis}" if w.axis else "")
         level = wheel_level(w)
-        if not w.online:
-            message = "offline (no heartbeat)"
-        else:
-            message = w.fault or w.error or str(w.state)
+        message = ("offline (no heartbeat)" if not w.online
+                   else w.fault or w.error or str(w.state))
         statuses.append({
             "level": level,
             "name": f"{prefix}: wheel {w.index} ({node})",

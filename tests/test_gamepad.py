@@ -122,7 +122,7 @@ def test_deadman_held_drives_released_stops(rig: Any) -> None:
 
 
 def test_strafe_turn_and_turbo(rig: Any) -> None:
-    sim, base, device, pad = rig
+    _, base, device, pad = rig
     device.send((e.EV_KEY, e.BTN_TL, 1), (e.EV_ABS, e.ABS_X, -32768))  # stick left
     drive(base, pad, 1.0)
     assert base.twist.vy == pytest.approx(0.3, abs=0.03)  # holonomic: straight left

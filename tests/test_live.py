@@ -160,9 +160,9 @@ def test_fault_shows_in_diagnostics_and_wheels(channel: str) -> None:
 def test_sim_command_serves_the_ground_truth() -> None:
     port = free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "omnican", "sim", "--serve", "127.0.0.1:0", "--duration", "4",
+        [sys.executable, "-m", "omnican", "sim", "--serve", "127.0.0.1:0", "--duration", "60",
          "--foxglove", f"127.0.0.1:{port}"],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=20.0)
         client.wait_for_topics(["/sim/pose2d", "/sim/true_pose"])
@@ -170,7 +170,7 @@ def test_sim_command_serves_the_ground_truth() -> None:
         client.subscribe(["/sim/pose2d"])
         poses = [json.loads(p) for _, _, p in client.messages(timeout=1.0)]
         client.close()
-        out, err = proc.communicate(timeout=30)
+        out, err = proc.communicate("quit\n", timeout=30)
     finally:
         proc.kill()
         proc.wait()
@@ -203,3 +203,31 @@ def test_busy_port_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 _ = uuid, time
+
+
+def test_shipped_layout_is_current_and_names_our_topics() -> None:
+    """foxglove/omnican-layout.json is what tools/gen_foxglove_layout.py builds, and every
+    topic it shows is one the live view and MCAP recordings publish."""
+    import importlib.util
+    import re
+
+    from omnican import telemetry
+
+    pytest.importorskip("foxglove.layouts", reason="this foxglove-sdk has no layout types "
+                        "(the layout's generator needs a newer one)")
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("gen_layout",
+                                                  root / "tools" / "gen_foxglove_layout.py")
+    assert spec is not None and spec.loader is not None
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    text = (root / "foxglove" / "omnican-layout.json").read_text()
+    assert text == gen.build(), "run python tools/gen_foxglove_layout.py"
+    published = {*telemetry.TOPICS, telemetry.CAN_RX, telemetry.CAN_TX, "/can/TPDO2_node1"}
+    used = set()
+    for value in re.findall(r'"(/[A-Za-z0-9_/]+)', text):
+        used.add(next(t for t in sorted(published, key=len, reverse=True)
+                      if value == t or value.startswith(t + ".")) if any(
+            value == t or value.startswith(t + ".") for t in published) else value)
+    assert used <= published, used - published
+    assert {"/odom", "/wheels", "/twist", "/diagnostics", "/status"} <= used

@@ -40,7 +40,10 @@ def status(**kw: object) -> ChassisStatus:
     return ChassisStatus(**fields)  # type: ignore[arg-type]
 
 
-def sample(pose: Pose2D = Pose2D(), wheels: tuple[WheelState, ...] | None = None,
+ORIGIN = Pose2D()
+
+
+def sample(pose: Pose2D = ORIGIN, wheels: tuple[WheelState, ...] | None = None,
            **kw: object) -> telemetry.Sample:
     return telemetry.Sample(
         stamp_ns=1_700_000_000_123_456_789, pose=pose, twist=Twist(0.1, 0.2, 0.3),
