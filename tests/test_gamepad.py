@@ -146,3 +146,24 @@ def test_unplugged_mid_drive_stops_at_once(rig: Any) -> None:
     assert "UNPLUGGED" in pad.status_text()
     assert wait_for(lambda: abs(sim.true_twist.vx) < 0.005, timeout=1.0)
     assert base.status.stopped_reason is None  # a stop, not a fault: a pad can come back
+
+
+def test_a_replugged_pad_needs_the_deadman_again(channel: str) -> None:
+    cfg = default_config(bus={"interface": "virtual", "channel": channel})
+    first, second = FakePad(), FakePad()
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
+            Gamepad(first, opener=lambda: second) as pad:
+        first.send((e.EV_KEY, e.BTN_TL, 1), (e.EV_ABS, e.ABS_Y, -32768))
+        drive(base, pad, 0.5)
+        first.unplug()
+        drive(base, pad, 1.5)  # stopped; reopened after REOPEN_EVERY_S
+        assert pad.connected and pad.device is second
+        assert abs(sim.true_twist.vx) < 0.005
+        second.send((e.EV_ABS, e.ABS_Y, -32768))  # stick forward, deadman not yet held
+        drive(base, pad, 0.3)
+        assert abs(sim.true_twist.vx) < 0.005
+        second.send((e.EV_KEY, e.BTN_TL, 1))
+        drive(base, pad, 0.8)
+        assert base.twist.vx == pytest.approx(0.3, abs=0.03)
+    first.close()
+    second.close()
