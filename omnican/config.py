@@ -136,8 +136,10 @@ class WheelConfig:
     drive_angle_deg: float | None = None
     base_radius: float | None = None
     mode: Mode | None = None
-    # m; known when the scales were derived from it (joint angles for ROS joint_states)
-    wheel_radius: float | None = None
+    # m; known when the scales were derived from it (joint angles for ROS joint_states).
+    # Not part of equality: the scales say all the base needs, and a config written back
+    # with scales only is the same base.
+    wheel_radius: float | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:
