@@ -80,6 +80,35 @@ def _recorder_for(path: Path) -> _Recorder | Any:
     return _Recorder(path)
 
 
+class _Taps(can.Listener):
+    """Listeners added while the bus runs (live views). It sits in every Notifier from the
+    start, so adding one never touches a running Notifier (or races a reconnect). Tuples
+    are replaced whole: the threads iterate them unlocked."""
+
+    def __init__(self) -> None:
+        self.received: tuple[can.Listener, ...] = ()
+        self.sent: tuple[can.Listener, ...] = ()
+        self._lock = threading.Lock()
+
+    def add(self, listener: can.Listener, sent: bool) -> None:
+        with self._lock:
+            self.received += (listener,)
+            if sent:
+                self.sent += (listener,)
+
+    def remove(self, listener: can.Listener) -> None:
+        with self._lock:
+            self.received = tuple(t for t in self.received if t is not listener)
+            self.sent = tuple(t for t in self.sent if t is not listener)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        for tap in self.received:
+            tap.on_message_received(msg)
+
+    def stop(self) -> None:
+        """Called by the Notifier when it stops: the taps stay for the next one."""
+
+
 class _Traffic(can.Listener):
     """Counts frames and worst-case bits seen on the bus (both directions)."""
 
@@ -117,12 +146,13 @@ class CanBus:
         self.bus_kwargs: dict[str, Any] = dict(bus or {})
         self.traffic = _Traffic()
         self.recorder = _recorder_for(Path(record)) if record is not None else None
-        self._taps: list[can.Listener] = []  # add_listener(..., sent=True): see our own frames
+        self._taps = _Taps()
         self.network = _Network(self)
         self.network.NOTIFIER_CYCLE = notifier_cycle_s
         # canopen types this list as MessageListener only; any can.Listener works.
         listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
         listeners.append(self.traffic)
+        listeners.append(self._taps)
         if self.recorder is not None:
             listeners.append(self.recorder)
         self.sync_epoch = 0
@@ -156,36 +186,23 @@ class CanBus:
     def _sent(self, can_id: int, data: bytes) -> None:
         self.traffic.bits += frame_bits(len(data))
         self.traffic.frames += 1
-        if self.recorder is not None or self._taps:
+        if self.recorder is not None or self._taps.sent:
             msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
                               timestamp=time.time(), is_rx=False,
                               channel=self.bus_kwargs.get("channel"))
             if self.recorder is not None:
                 self.recorder.on_message_received(msg)
-            for tap in self._taps:
+            for tap in self._taps.sent:
                 tap.on_message_received(msg)
 
     def add_listener(self, listener: can.Listener, sent: bool = False) -> None:
-        """Hand every received frame to ``listener`` from now on (on the Notifier thread, so
-        it must not block), across reconnects; ``sent``: the frames this host sends too (on
-        the sending thread, the control loop's: append to a queue and return)."""
-        with self._lock:
-            listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
-            listeners.append(listener)
-            if self.network.notifier is not None:  # it copied the list when it started
-                self.network.notifier.add_listener(listener)
-            if sent:
-                self._taps = [*self._taps, listener]  # a new list: _sent iterates unlocked
+        """Hand every received frame to ``listener`` from now on, across reconnects (on the
+        Notifier thread, so it must not block); ``sent``: also the frames this host sends
+        (on the sending thread, the control loop's: append to a queue and return)."""
+        self._taps.add(listener, sent)
 
     def remove_listener(self, listener: can.Listener) -> None:
-        with self._lock:
-            listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
-            if listener in listeners:
-                listeners.remove(listener)
-            notifier = self.network.notifier
-            if notifier is not None and listener in notifier.listeners:
-                notifier.remove_listener(listener)
-            self._taps = [t for t in self._taps if t is not listener]
+        self._taps.remove(listener)
 
     def send(self, can_id: int, data: bytes) -> bool:
         """Send one frame; a failure is counted and reported, not raised.

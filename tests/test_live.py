@@ -231,3 +231,37 @@ def test_shipped_layout_is_current_and_names_our_topics() -> None:
             value == t or value.startswith(t + ".") for t in published) else value)
     assert used <= published, used - published
     assert {"/odom", "/wheels", "/twist", "/diagnostics", "/status"} <= used
+
+
+def test_bus_listeners_added_late_see_both_directions_across_a_reconnect(channel: str) -> None:
+    import can
+
+    from omnican.bus import CanBus
+
+    class Seen(can.Listener):
+        def __init__(self) -> None:
+            self.frames: list[tuple[int, bool]] = []
+
+        def on_message_received(self, msg: can.Message) -> None:
+            self.frames.append((msg.arbitration_id, bool(msg.is_rx)))
+
+    seen = Seen()
+    with CanBus({"interface": "virtual", "channel": channel}) as bus, \
+            can.Bus(interface="virtual", channel=channel) as other:
+        bus.add_listener(seen, sent=True)  # after connect: the Notifier runs already
+        other.send(can.Message(arbitration_id=0x181, data=b"\x01"))
+        bus.send(0x201, b"\x02")
+        assert wait_for(lambda: len(seen.frames) == 2)
+        if hasattr(bus, "request_reconnect"):  # the bus reopens on a thread of its own
+            generation = bus.generation
+            bus.request_reconnect()
+            assert wait_for(lambda: bus.generation > generation, timeout=5.0)
+        else:
+            bus.reconnect()
+        other.send(can.Message(arbitration_id=0x182, data=b"\x03"))
+        assert wait_for(lambda: (0x182, True) in seen.frames)
+        bus.remove_listener(seen)
+        other.send(can.Message(arbitration_id=0x183, data=b"\x04"))
+        bus.send(0x202, b"\x05")
+        time.sleep(0.2)
+    assert sorted(seen.frames) == [(0x181, True), (0x182, True), (0x201, False)]

@@ -12,8 +12,8 @@ Keys follow ROS ``teleop_twist_keyboard``::
 Holding a key keeps the base moving; when keys stop arriving for ``--key-timeout``
 seconds it stops. With ``--gamepad`` a pad drives instead (teleop_twist_joy's rules: hold
 LB/L1, left stick moves, right stick turns, RB/R1 turbo; releasing LB or unplugging the
-pad stops the base); the keys still quit and recover. On exit every drive is disabled and the final pose is printed as
-``pose x=<m> y=<m> theta=<rad>``.
+pad stops the base); the keys still quit and recover. On exit every drive is disabled
+and the final pose is printed as ``pose x=<m> y=<m> theta=<rad>``.
 """
 
 from __future__ import annotations
