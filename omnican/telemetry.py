@@ -209,6 +209,7 @@ def diagnostics(s: Sample, prefix: str = "omnican") -> dict[str, Any]:
                    _kv("bus_load", st.bus_load),
                    _kv("bus_bits_per_s", st.bus_bits_per_s),
                    _kv("bus_error", st.bus_error),
+                   _kv("bus_up", getattr(st, "bus_up", st.bus_error is None)),
                    _kv("command_age_s", st.command_age_s)],
     })
     return {"header": _header(s.stamp_ns, ""), "status": statuses}
@@ -259,6 +260,7 @@ def status(s: Sample) -> dict[str, Any]:
             "late_fraction": st.late_fraction, "cycles": st.cycles,
             "bus_load": st.bus_load if st.bus_load is not None else -1.0,
             "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
+            "bus_up": bool(getattr(st, "bus_up", st.bus_error is None)),
             "command_age_s": min(st.command_age_s, 1e9)}
 
 
@@ -282,10 +284,11 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object", "properties": {
             "index": _INT, "node_id": _INT, "axis": _INT, "state": _STR, "statusword": _INT,
             "target_speed": _NUM, "actual_speed": _NUM, "travel": _NUM, "online": _BOOL,
-            "fault": _STR, "error": _STR}}}),
+            "stale": _BOOL, "fault": _STR, "error": _STR}}}),
     "omnican.Status": _object("omnican.Status", enabled=_BOOL, state=_STR, stopped_reason=_STR,
                               loop_hz=_NUM, late_fraction=_NUM, cycles=_INT, bus_load=_NUM,
-                              bus_bits_per_s=_NUM, bus_error=_STR, command_age_s=_NUM),
+                              bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL,
+                              command_age_s=_NUM),
 }
 
 

@@ -167,3 +167,56 @@ def test_a_replugged_pad_needs_the_deadman_again(channel: str) -> None:
         assert base.twist.vx == pytest.approx(0.3, abs=0.03)
     first.close()
     second.close()
+
+
+def test_teleop_command_drives_with_the_gamepad(monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """``omnican teleop --sim --gamepad``, in this process: the pad's events reach the base
+    through the command's own loop; Esc on the terminal quits with the pose."""
+    import re
+    import sys
+    import threading
+
+    from omnican.cli import main
+    from omnican.cli import teleop as teleop_cli
+
+    device = FakePad()
+    driving = threading.Event()  # the command's loop runs (the drives are up)
+
+    def step(base: Chassis, pad: Gamepad, timeout: float) -> Any:
+        driving.set()
+        return drive_step(base, pad, timeout)
+
+    monkeypatch.setattr(teleop_cli, "drive_step", step)
+    monkeypatch.setattr(Gamepad, "open", classmethod(
+        lambda cls, path=None, table=None: Gamepad(device, table)))
+    master, slave = os.openpty()
+    terminal = os.fdopen(slave, "r")
+    monkeypatch.setattr(sys, "stdin", terminal)
+    done = threading.Event()
+
+    def operator() -> None:
+        if not driving.wait(60.0):
+            return
+        device.send((e.EV_KEY, e.BTN_TL, 1), (e.EV_ABS, e.ABS_Y, -32768))  # hold LB, forward
+        done.wait(1.5)
+        device.send((e.EV_KEY, e.BTN_TL, 0))  # let go
+        done.wait(1.0)
+        os.write(master, b"\x1b")  # Esc
+
+    thread = threading.Thread(target=operator, name="test-operator")
+    thread.start()
+    try:
+        assert main(["teleop", "--sim", "--gamepad"]) == 0
+    finally:
+        done.set()
+        thread.join()
+        terminal.close()
+        os.close(master)
+        device.close()
+    out = capsys.readouterr().out
+    assert "gamepad Microsoft X-Box 360 pad" in " ".join(out.split())
+    match = re.search(r"pose x=(\S+) y=(\S+) theta=(\S+)\s*$", out)
+    assert match is not None, out[-500:]
+    assert float(match[1]) > 0.2  # ~1.5 s at 0.3 m/s, less the ramps
+    assert abs(float(match[2])) < 0.01 and abs(float(match[3])) < 0.01
