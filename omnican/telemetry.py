@@ -248,7 +248,8 @@ def wheels(s: Sample) -> dict[str, Any]:
         "state": "OFFLINE" if not w.online else str(w.state),
         "statusword": w.statusword if w.statusword is not None else -1,
         "target_speed": w.target_speed, "actual_speed": w.actual_speed, "travel": w.travel,
-        "online": w.online, "fault": w.fault or "", "error": w.error or "",
+        "online": w.online, "stale": bool(getattr(w, "stale", False)),
+        "fault": w.fault or "", "error": w.error or "",
     } for w in s.wheels]}
 
 
