@@ -3,7 +3,8 @@
 For each rate (100 Hz, 1 kHz) and each recording (none, ``.log`` candump text, ``.mcap``
 frames plus state), the simulated base drives for a while and this reports the control
 loop's own CPU per cycle (its thread's CPU clock), its achieved rate and late cycles,
-and, for the recorders, their writer thread's CPU per second, frames written and dropped.
+and, for the recorders, their writer thread's CPU per second, frames written and dropped;
+last, the same with a Foxglove live view whose client subscribed to every topic.
 The MCAP writer runs on its own thread; the loop's share is one queue append per frame it
 sends (the Notifier thread appends the frames it receives).
 
@@ -65,6 +66,70 @@ def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None
     emit(**fields)
 
 
+class _Watcher(threading.Thread):
+    """A Foxglove client subscribed to every topic, reading and dropping what comes."""
+
+    def __init__(self, url: str) -> None:
+        super().__init__(name="bench-foxglove-client", daemon=True)
+        self.url, self.messages = url, 0
+        self.stop_event = threading.Event()
+
+    def run(self) -> None:
+        import json
+
+        from websockets.sync.client import connect
+
+        with connect(self.url, subprotocols=["foxglove.sdk.v1",  # type: ignore[list-item]
+                                             "foxglove.websocket.v1"], max_size=None) as ws:
+            subscribed = False
+            while not self.stop_event.is_set():
+                try:
+                    data = ws.recv(timeout=0.2)
+                except TimeoutError:
+                    continue
+                if isinstance(data, str):
+                    msg = json.loads(data)
+                    if msg.get("op") == "advertise" and not subscribed:
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                            {"id": i, "channelId": ch["id"]}
+                            for i, ch in enumerate(msg["channels"])]}))
+                        subscribed = True
+                else:
+                    self.messages += 1
+
+
+def bench_live(rate_hz: float, seconds: float) -> None:
+    """The loop with a Foxglove live view that a client watches on every topic."""
+    from omnican.live import LiveView
+
+    cfg = config(rate_hz)
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
+            LiveView(base, sim, port=0) as view:
+        watcher = _Watcher(view.url)
+        watcher.start()
+        publisher = next(t for t in threading.enumerate() if t.name == "omnican-foxglove")
+        time.sleep(1.0)
+        cycles0, late0 = base.status.cycles, base._late
+        loop0, pub0, msgs0 = thread_cpu(base._thread), thread_cpu(publisher), watcher.messages
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            base.set_velocity(0.3 * math.sin(time.monotonic()), 0.1, 0.2)
+            time.sleep(0.01)
+        elapsed = time.monotonic() - t0
+        cycles = base.status.cycles - cycles0
+        fields = dict(bench="record.loop", rate_hz=rate_hz, recording="foxglove live view",
+                      seconds=round(elapsed, 2), achieved_hz=round(cycles / elapsed, 1),
+                      late_cycle_fraction=round((base._late - late0) / max(cycles, 1), 4),
+                      loop_cpu_us_per_cycle=round((thread_cpu(base._thread) - loop0)
+                                                  / max(cycles, 1) * 1e6, 1),
+                      publisher_cpu_ms_per_s=round((thread_cpu(publisher) - pub0)
+                                                   / elapsed * 1e3, 1),
+                      messages_per_s=round((watcher.messages - msgs0) / elapsed))
+        watcher.stop_event.set()
+        watcher.join()
+    emit(**fields)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--quick", action="store_true", help="shorter runs")
@@ -76,6 +141,7 @@ def main() -> None:
             for _ in range(args.repeat):
                 for suffix in (None, ".log", ".mcap"):
                     bench(rate, seconds, suffix, Path(tmp))
+                bench_live(rate, seconds)
 
 
 if __name__ == "__main__":
