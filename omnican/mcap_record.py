@@ -7,7 +7,7 @@ What a recording holds (profile ``ros2``; ROS 2 types are CDR with ``ros2msg`` s
   ``can_msgs/msg/Frame`` (the message and topic names of ROS 2's socketcan bridge);
 * the state topics of :data:`omnican.telemetry.TOPICS` (``/odom``, ``/tf``,
   ``/joint_states``, ``/diagnostics`` as ROS 2 types; ``/pose2d``, ``/twist``, ``/wheels``,
-  ``/status`` as JSON), sampled from the running base at ``state_rate_hz``;
+  ``/status`` as schemaless JSON), sampled from the running base at ``state_rate_hz``;
 * attachment ``omnican.dbc`` (the base's frames, for any DBC tool) and metadata
   ``omnican`` (version, bus channel, dropped frames).
 
@@ -117,13 +117,13 @@ class McapRecorder(can.Listener):
     # ------------------------------------------------------------ the writer thread
 
     def _schema(self, name: str) -> int:
+        if name in telemetry.JSON_SCHEMAS:
+            # Schemaless JSON (schema id 0): Foxglove reads it all the same, and ROS 2 bag
+            # readers pass it through, where a "jsonschema" schema makes some (rosbags) fail.
+            return 0
         sid = self._schemas.get(name)
         if sid is None:
-            if name in telemetry.JSON_SCHEMAS:
-                sid = self._writer.register_schema(
-                    name, "jsonschema", json.dumps(telemetry.JSON_SCHEMAS[name]).encode())
-            else:
-                sid = self._writer.register_schema(name, "ros2msg", rosmsg.msgdef(name).encode())
+            sid = self._writer.register_schema(name, "ros2msg", rosmsg.msgdef(name).encode())
             self._schemas[name] = sid
         return sid
 

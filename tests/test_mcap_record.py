@@ -29,7 +29,8 @@ def read_all(path: Path) -> tuple[dict[str, list[Any]], dict[str, Any], Any]:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         header = reader.get_header()
         for schema, channel, message in reader.iter_messages():
-            info[channel.topic] = (schema.name, schema.encoding, channel.message_encoding)
+            info[channel.topic] = ((schema.name, schema.encoding) if schema else (None, None)) \
+                + (channel.message_encoding,)
             if channel.message_encoding == "json":
                 value = json.loads(message.data)
             else:
@@ -84,6 +85,26 @@ def test_drive_records_frames_and_ros2_state(tmp_path: Path,
     assert "PositionActual" in db.decode_message(0x281, bytes(tpdo2.data)[:tpdo2.dlc])
     assert metadata["omnican"]["dropped_frames"] == "0"
     assert int(metadata["omnican"]["frames"]) == len(topics["/to_can_bus"]) + len(rx)
+    assert info["/wheels"] == (None, None, "json")  # schemaless JSON: see the next test
+
+
+def test_a_ros2_bag_reader_reads_the_recording(tmp_path: Path) -> None:
+    """rosbags (a ROS 2 bag library) opens the file and decodes the robot's state."""
+    from rosbags.highlevel import AnyReader
+
+    path = tmp_path / "run.mcap"
+    assert main(["drive", "--sim", "--vx", "0.2", "--duration", "0.5",
+                 "--record", str(path)]) == 0
+    with AnyReader([path]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types["/odom"] == "nav_msgs/msg/Odometry"
+        assert types["/to_can_bus"] == "can_msgs/msg/Frame"
+        odometry = [reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == "/odom"])]
+        frames = [reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == "/to_can_bus"])]
+    assert odometry[-1].pose.pose.position.x > 0.05
+    assert {f.id for f in frames} >= {0x80, 0x301}
 
 
 def test_mcap_replays_like_a_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
