@@ -119,7 +119,7 @@ def test_mcap_replays_like_a_log(tmp_path: Path, capsys: pytest.CaptureFixture[s
     frames = read_frames(mcap_path)
     assert all(f.timestamp > 1e9 for f in frames)  # wall-clock times, as a .log has
     rep = replay.load(mcap_path, cfg)
-    assert rep.complete_syncs > 50
+    assert rep.complete_syncs > 10  # ~100 at 100 Hz; fewer when the machine is busy
     x, y, theta = rep.poses[-1]
     assert math.hypot(x - pose.x, y - pose.y) < 0.002
     assert theta == pytest.approx(pose.theta, abs=0.002)
