@@ -110,6 +110,13 @@ class LiveView:
         except Exception as exc:  # the SDK raises its own error kinds (address in use, ...)
             raise ConfigError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         self.host, self.port = host, int(self._server.port)
+        try:
+            self._setup(foxglove, cfg, base, sim)
+        except BaseException:
+            self._server.stop()
+            raise
+
+    def _setup(self, foxglove: Any, cfg: Any, base: Any, sim: Any) -> None:
         self._channels: dict[str, Any] = {}
         topics = telemetry.TOPICS if base is not None else {
             k: v for k, v in telemetry.TOPICS.items() if k.startswith("/sim/")}
