@@ -7,6 +7,8 @@ frame, received and sent, to a python-can log file when asked (format by extensi
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import logging
 import struct
 import threading
@@ -18,12 +20,15 @@ from typing import Any
 import can
 import canopen
 
+from omnican.cia301 import COB_ID_MASK, SYNC_COB_ID
 from omnican.errors import BusError, ConfigError
 from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
 
-SYNC_COB_ID = 0x80
+RECONNECT_EVERY_S = 1.0  # between attempts to reopen a bus that went down
+NOTIFIER_STOP_S = 0.5
+RX_ERROR_PAUSE_S = 0.05
 
 
 class _Recorder(can.Listener):
@@ -110,24 +115,52 @@ class _Taps(can.Listener):
 
 
 class _Traffic(can.Listener):
-    """Counts frames and worst-case bits seen on the bus (both directions)."""
+    """Counts frames and worst-case bits seen on the bus, both directions.
 
-    def __init__(self) -> None:
+    Received frames are counted on the Notifier thread, sent ones on whichever thread
+    sent them (the control loop, a configuration worker): one lock keeps the sums exact.
+    Also notices receive errors, which python-can hands to ``on_error``."""
+
+    def __init__(self, owner: CanBus) -> None:
+        self._owner = owner
+        self._lock = threading.Lock()
         self.frames = 0
         self.bits = 0
 
     def on_message_received(self, msg: can.Message) -> None:
-        self.frames += 1
-        self.bits += frame_bits(len(msg.data))
+        with self._lock:
+            self.frames += 1
+            self.bits += frame_bits(len(msg.data))
+        if self._owner.rx_error is not None:
+            self._owner.rx_error = None  # frames arrive again
+
+    def count_sent(self, data_len: int) -> None:
+        with self._lock:
+            self.frames += 1
+            self.bits += frame_bits(data_len)
+
+    def on_error(self, exc: Exception) -> None:
+        """python-can's Notifier calls this when a receive fails (an interface that went
+        down, a hub that died). Handling it keeps the Notifier thread alive, without a
+        traceback; the pause keeps a permanently failing receive from spinning."""
+        self._owner.rx_error = f"receive failed: {exc}"
+        time.sleep(RX_ERROR_PAUSE_S)
 
     def stop(self) -> None:
         pass
 
 
 class _Network(canopen.Network):
-    """canopen's network with every sent frame counted and recorded."""
+    """canopen's network with every sent frame counted and recorded, and subscriptions
+    that never change a list the Notifier thread may be iterating.
+
+    canopen's ``notify`` iterates ``subscribers[cob]`` on the Notifier thread, while a
+    configuration worker subscribes and unsubscribes PDO handlers: an in-place
+    ``list.remove`` under a running iteration skips the next callback. Each change here
+    builds a new list and swaps it in (one atomic dict store)."""
 
     def __init__(self, owner: CanBus) -> None:
+        self._subscribe_lock = threading.Lock()  # before canopen's __init__ subscribes
         super().__init__()
         self._owner = owner
 
@@ -135,16 +168,57 @@ class _Network(canopen.Network):
         super().send_message(can_id, data, remote)
         self._owner._sent(can_id, data)
 
+    def subscribe(self, can_id: int, callback: Any) -> None:
+        with self._subscribe_lock:
+            current = self.subscribers.get(can_id, [])
+            if callback not in current:
+                self.subscribers[can_id] = [*current, callback]
+
+    def unsubscribe(self, can_id: int, callback: Any = None) -> None:
+        with self._subscribe_lock:
+            current = self.subscribers.get(can_id)
+            if current is None:
+                return
+            kept = [] if callback is None else [c for c in current if c != callback]
+            if kept:
+                self.subscribers[can_id] = kept
+            else:
+                del self.subscribers[can_id]
+
+
+def shutdown_quietly(bus: can.BusABC) -> None:
+    """Shut a bus down whatever state its transport is in.
+
+    A bus whose peer vanished can fail in ``shutdown`` (python-can-remote: ENOTCONN
+    from the dead socket); python-can then retries from ``BusABC.__del__`` and prints an
+    "Exception ignored" traceback at exit. Mark it shut down either way."""
+    try:
+        bus.shutdown()
+    except Exception as exc:  # a dead transport fails in many ways
+        logger.debug("shutting down %s: %s", type(bus).__name__, exc)
+        sock = getattr(bus, "socket", None)
+        close = getattr(sock, "close", None)
+        if callable(close):
+            with contextlib.suppress(OSError):
+                close()
+    finally:
+        bus._is_shutdown = True  # python-can's own flag: no retry from __del__
+
 
 class CanBus:
     """Opens the bus from a ``[bus]`` config table (None: python-can's own config).
+
+    Sends never raise: a failed send is counted (:attr:`send_errors`, :attr:`last_error`)
+    and the caller decides when the bus counts as down. :meth:`request_reconnect` reopens
+    the bus on a thread of its own (the control loop never waits for it); each reopening
+    that succeeds increments :attr:`generation`.
 
     A context manager; :meth:`close` is idempotent."""
 
     def __init__(self, bus: Mapping[str, Any] | None = None, record: str | Path | None = None,
                  notifier_cycle_s: float = 0.1) -> None:
         self.bus_kwargs: dict[str, Any] = dict(bus or {})
-        self.traffic = _Traffic()
+        self.traffic = _Traffic(self)
         self.recorder = _recorder_for(Path(record)) if record is not None else None
         self._taps = _Taps()
         self.network = _Network(self)
@@ -159,14 +233,31 @@ class CanBus:
         self.sync_time = 0.0
         self.last_error: str | None = None
         self.send_errors = 0
+        self.dropped_frames = 0  # frames the bus refused (never queued for later)
+        self.rx_error: str | None = None
+        self.generation = 0
+        self.reconnect_error: str | None = None
         self._closed = False
         self._lock = threading.Lock()
+        self._reconnect_wanted = threading.Event()
+        self._reconnect_thread: threading.Thread | None = None
         self._connect()
 
     @property
     def bitrate(self) -> int | None:
         rate = self.bus_kwargs.get("bitrate")
         return int(rate) if rate else None
+
+    @property
+    def failing(self) -> str | None:
+        """Why the bus does not work right now (a send or a receive failed), or None."""
+        if self.send_errors:
+            return self.last_error or "sends fail"
+        return self.rx_error
+
+    @property
+    def reconnecting(self) -> bool:
+        return self._reconnect_wanted.is_set()
 
     def _connect(self) -> None:
         try:
@@ -184,12 +275,11 @@ class CanBus:
         logger.info("bus open: %s", self.network.bus.channel_info if self.network.bus else "?")
 
     def _sent(self, can_id: int, data: bytes) -> None:
-        self.traffic.bits += frame_bits(len(data))
-        self.traffic.frames += 1
+        self.traffic.count_sent(len(data))
         if self.recorder is not None or self._taps.sent:
-            msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                              timestamp=time.time(), is_rx=False,
-                              channel=self.bus_kwargs.get("channel"))
+            msg = can.Message(arbitration_id=can_id, data=data,
+                              is_extended_id=can_id > COB_ID_MASK, timestamp=time.time(),
+                              is_rx=False, channel=self.bus_kwargs.get("channel"))
             if self.recorder is not None:
                 self.recorder.on_message_received(msg)
             for tap in self._taps.sent:
@@ -207,19 +297,23 @@ class CanBus:
     def send(self, can_id: int, data: bytes) -> bool:
         """Send one frame; a failure is counted and reported, not raised.
 
+        A frame the bus refuses (interface down, transmit queue full) is dropped, never
+        queued: what the drives need is this cycle's targets, not a backlog.
+
         The control loop's path: straight to the bus (canopen's ``send_message`` adds a
         second message object and a Notifier check per frame)."""
         msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
         network = self.network
         try:
-            bus = network.bus
-            if bus is None:
-                raise can.CanOperationError("bus is closed")
             with network.send_lock:
+                bus = network.bus
+                if bus is None:
+                    raise can.CanOperationError("bus is closed (reopening)")
                 bus.send(msg)
-        except (can.CanError, OSError, RuntimeError) as exc:
+        except (can.CanError, OSError, RuntimeError, ValueError) as exc:
             self.send_errors += 1
-            self.last_error = f"send 0x{can_id:03X} failed: {exc}"
+            self.dropped_frames += 1
+            self.last_error = describe_send_error(can_id, exc)
             return False
         self._sent(can_id, data)
         if self.send_errors:
@@ -235,36 +329,89 @@ class CanBus:
             self.sync_time = time.monotonic()
         return self.send(SYNC_COB_ID, b"")
 
-    def reconnect(self) -> bool:
-        """Close and reopen the bus (after bus-off or an interface going down)."""
+    # ------------------------------------------------------------ reconnecting
+
+    def request_reconnect(self) -> None:
+        """Reopen the bus in the background, retrying every ``RECONNECT_EVERY_S`` until
+        it opens (or the bus is closed). Returns at once."""
         with self._lock:
+            if self._closed or self._reconnect_wanted.is_set():
+                return
+            self._reconnect_wanted.set()
+            if self._reconnect_thread is None or not self._reconnect_thread.is_alive():
+                self._reconnect_thread = threading.Thread(
+                    target=self._reconnect_loop, name="omnican-bus-reconnect", daemon=True)
+                self._reconnect_thread.start()
+
+    def _reconnect_loop(self) -> None:
+        while not self._closed:
+            if self._reopen():
+                self._reconnect_wanted.clear()
+                return
+            deadline = time.monotonic() + RECONNECT_EVERY_S
+            while not self._closed and time.monotonic() < deadline:
+                time.sleep(0.05)
+        self._reconnect_wanted.clear()
+
+    def _release(self) -> None:
+        """Stop the Notifier and shut the bus down; sends fail fast meanwhile."""
+        network = self.network
+        with network.send_lock:
+            bus, network.bus = network.bus, None
+        notifier, network.notifier = network.notifier, None
+        if notifier is not None:
+            try:
+                notifier.stop(NOTIFIER_STOP_S)
+            except Exception as exc:  # a listener's stop() failing must not block reopening
+                logger.debug("stopping the Notifier: %s", exc)
+        if bus is not None:
+            shutdown_quietly(bus)
+
+    def _reopen(self) -> bool:
+        self._release()
+        if self._closed:
+            return False
+        try:
+            new_bus = can.Bus(**self.bus_kwargs)
+        except Exception as exc:  # the interface is still gone, the hub not back yet
+            self.reconnect_error = f"reopening the bus failed: {exc}"
+            logger.debug("%s", self.reconnect_error)
+            return False
+        listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
+        try:
+            notifier = can.Notifier(new_bus, listeners, self.network.NOTIFIER_CYCLE)
+        except Exception as exc:
+            shutdown_quietly(new_bus)
+            self.reconnect_error = f"reopening the bus failed: {exc}"
+            return False
+        with self.network.send_lock:
             if self._closed:
+                notifier.stop(NOTIFIER_STOP_S)
+                shutdown_quietly(new_bus)
                 return False
-            try:
-                if self.network.notifier is not None:
-                    self.network.notifier.stop(1.0)
-                if self.network.bus is not None:
-                    self.network.bus.shutdown()
-            except Exception as exc:  # a dead interface may fail to shut down cleanly
-                logger.debug("closing the broken bus: %s", exc)
-            self.network.bus = None
-            try:
-                self.network.connect(**self.bus_kwargs)
-            except Exception as exc:
-                self.last_error = f"reconnect failed: {exc}"
-                return False
+            self.network.bus, self.network.notifier = new_bus, notifier
+        self.rx_error = None
+        self.reconnect_error = None
+        self.generation += 1
         logger.warning("CAN bus reopened")
         return True
+
+    # ------------------------------------------------------------ closing
 
     def close(self) -> None:
         with self._lock:
             if self._closed:
                 return
             self._closed = True
-        try:
-            self.network.disconnect()
-        except Exception as exc:  # best effort on the way out
-            logger.debug("disconnect: %s", exc)
+        thread = self._reconnect_thread
+        if thread is not None:
+            thread.join(timeout=RECONNECT_EVERY_S + 2 * NOTIFIER_STOP_S + 1.0)
+        for node in self.network.nodes.values():
+            pdo = getattr(node, "pdo", None)
+            if pdo is not None:
+                with contextlib.suppress(Exception):
+                    pdo.stop()
+        self._release()
         if self.recorder is not None:
             self.recorder.close()
 
@@ -273,3 +420,14 @@ class CanBus:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def describe_send_error(can_id: int, exc: BaseException) -> str:
+    """One line for a failed send, naming the usual causes."""
+    code = getattr(exc, "error_code", None) or getattr(exc, "errno", None)
+    if code == errno.ENOBUFS:
+        return (f"send 0x{can_id:03X} failed: transmit queue full (no buffer space; nothing "
+                "acknowledges the frames?)")
+    if code == errno.ENETDOWN:
+        return f"send 0x{can_id:03X} failed: the CAN interface is down"
+    return f"send 0x{can_id:03X} failed: {exc}"

@@ -319,11 +319,30 @@ def format_number(value: float) -> str:
     return repr(float(f"{value:.7g}"))
 
 
+@dataclass(frozen=True)
+class ConfigEdit:
+    """One number :func:`edit_config` changed: ``key`` in ``[chassis]`` (``wheel`` None)
+    or in the ``wheel``-th ``[[wheel]]`` table (0-based), from ``old`` to ``new`` as
+    written."""
+
+    wheel: int | None
+    key: str
+    old: float
+    new: float
+
+
 def edit_config_text(text: str, correction: Correction) -> str:
+    """:func:`edit_config`'s new text."""
+    return edit_config(text, correction)[0]
+
+
+def edit_config(text: str, correction: Correction) -> tuple[str, list[ConfigEdit]]:
     """The config file ``text`` with the correction applied, comments and layout kept:
     ``velocity_scale`` and ``position_scale`` (or ``wheel_radius``) of each ``[[wheel]]``
-    and every ``base_radius``. Only lines of the form ``key = number`` are edited; use
-    :func:`check_edited` to confirm the result loads with the intended values."""
+    and every ``base_radius``; and the numbers it changed, in the file's own terms.
+    Only lines of the form ``key = number`` are edited; use :func:`check_edited` to
+    confirm the result loads with the intended values."""
+    edits: list[ConfigEdit] = []
     lines = text.splitlines(keepends=True)
     section: str | None = None
     wheel = -1
@@ -350,8 +369,11 @@ def edit_config_text(text: str, correction: Correction) -> str:
             out.append(line)
             continue
         old = float(m.group("value").replace("_", ""))
-        out.append(f"{m.group('pre')}{format_number(old * factor)}{m.group('post')}{ending}")
-    return "".join(out)
+        new = format_number(old * factor)
+        edits.append(ConfigEdit(wheel if section == "wheel" else None, m.group("key"), old,
+                                float(new)))
+        out.append(f"{m.group('pre')}{new}{m.group('post')}{ending}")
+    return "".join(out), edits
 
 
 def check_edited(text: str, expected: ChassisConfig, origin: str = "config",

@@ -6,7 +6,7 @@ drives' health, limits the newest command, writes the targets on the SYNC RPDOs,
 walks the CiA 402 state machines, sends SYNC and the host heartbeat, and publishes
 an immutable snapshot that any thread may read.
 
-Safety (DESIGN.md): no command for ``cmd_timeout_s`` -> controlled stop; a drive
+Safety: no command for ``cmd_timeout_s`` -> controlled stop; a drive
 fault, a lost heartbeat, a drive reboot or a bus that stays down -> every wheel
 stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
 host's heartbeat, so they stop by themselves if this process dies; leaving the
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import atexit
 import collections
+import contextlib
 import logging
 import math
 import queue
@@ -24,14 +25,16 @@ import signal
 import threading
 import time
 import weakref
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from omnican import bus as bus_module
 from omnican.bus import CanBus
+from omnican.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.cia402 import State, describe_emcy
 from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
@@ -44,9 +47,11 @@ from omnican.odometry import Odometry, Pose2D
 
 logger = logging.getLogger(__name__)
 
-BUS_DOWN_AFTER_S = 0.05  # sends failing for this long: the bus is down
-RECONNECT_EVERY_S = 1.0
+BUS_DOWN_AFTER_S = 0.05  # sends or receives failing for this long: the bus is down
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
+STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
+STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being configured
+SIGNAL_GRACE_S = 3.0  # repeated signals this soon after the first do not cut the stop short
 
 
 @dataclass(frozen=True)
@@ -65,6 +70,7 @@ class WheelState:
     online: bool
     fault: str | None
     error: str | None
+    stale: bool = False  # no fresh position sample: actual_speed reads 0.0, not a stale value
 
 
 @dataclass(frozen=True)
@@ -81,6 +87,7 @@ class ChassisStatus:
     bus_bits_per_s: float
     bus_error: str | None
     warnings: tuple[str, ...]
+    bus_up: bool = True  # False while sends or receives fail, and until the bus is reopened
 
 
 class _Snapshot:
@@ -103,6 +110,74 @@ class _Snapshot:
 
 
 _open_chassis: weakref.WeakSet[Chassis] = weakref.WeakSet()
+
+
+class _SignalGuard:
+    """SIGINT and SIGTERM while a base is open, in the main thread.
+
+    The first signal ends the program as usual (KeyboardInterrupt, or SystemExit for
+    SIGTERM), and the ``with`` block's exit stops and disables the drives. A second
+    signal right behind it (an impatient double Ctrl-C, or ``timeout``, which signals the
+    child and then its whole process group) would otherwise raise inside that stop and
+    cut it short, leaving drives enabled with a target. So signals that come while a
+    base is closing, or within ``SIGNAL_GRACE_S`` of the first, are logged and ignored;
+    the stop-and-disable sequence is bounded, so the program still ends."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self._users = 0
+        self._closing = 0
+        self._saved: dict[int, Any] = {}
+        self._first_at = -math.inf
+
+    def acquire(self) -> bool:
+        """Install the handlers (main thread only); False where that is impossible."""
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        if self._users == 0:
+            self._saved = {int(sig): signal.signal(sig, self._handle) for sig in self.SIGNALS}
+            self._first_at = -math.inf
+        self._users += 1
+        return True
+
+    def release(self) -> None:
+        if self._users == 0:
+            return
+        self._users -= 1
+        if self._users == 0:
+            for sig, old in self._saved.items():
+                with contextlib.suppress(ValueError, TypeError):  # not the main thread now
+                    signal.signal(sig, old if old is not None else signal.SIG_DFL)
+            self._saved = {}
+
+    @contextlib.contextmanager
+    def closing(self) -> Iterator[None]:
+        self._closing += 1
+        try:
+            yield
+        finally:
+            self._closing -= 1
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        name = signal.Signals(signum).name
+        now = time.monotonic()
+        if self._closing or now - self._first_at < SIGNAL_GRACE_S:
+            logger.warning("%s ignored: stopping the wheels and disabling the drives", name)
+            return
+        self._first_at = now
+        old = self._saved.get(signum)
+        if old is signal.SIG_IGN:
+            return
+        if callable(old) and old is not signal.default_int_handler:
+            old(signum, frame)  # the program's own handler decides
+            return
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise SystemExit(128 + signum)
+
+
+_signals = _SignalGuard()
 
 
 @atexit.register
@@ -140,6 +215,8 @@ class Chassis:
         self._forward_rows = tuple(tuple(float(v) for v in row) for row in self._kin.forward_matrix)
         self._history: collections.deque[tuple[float, list[float]]] = collections.deque()
         self._measured = Twist()
+        self._stale: tuple[int, ...] = ()  # wheels (by index) without a fresh sample
+        self._stale_cycles = max(3, math.ceil(STALE_AFTER_S * cfg.chassis.rate_hz))
         self._last_sync_time = 0.0
         self._sample_time = 0.0
         self._stop = threading.Event()
@@ -147,7 +224,6 @@ class Chassis:
         self._late = 0
         self._last_hb = -math.inf
         self._bus_fail_since: float | None = None
-        self._last_reconnect = -math.inf
         self._load_mark = (time.monotonic(), 0)
         self._bus_bits_per_s = 0.0
         self._rate_mark = (time.monotonic(), 0)
@@ -156,7 +232,11 @@ class Chassis:
         self._workers: list[threading.Thread] = []
         self._closed = False
         self._close_lock = threading.Lock()
-        self._old_sigterm: Any = None
+        self._guards_signals = False
+        self._bus_down = False
+        self._bus_generation = bus.generation
+        self._down_since_generation = bus.generation
+        self._reconnect_asked_at = -math.inf
         self.loop_cpu_s = 0.0  # CPU time of the loop thread (for benchmarks)
         self._snapshot = self._make_snapshot(time.monotonic())
         self._thread = threading.Thread(target=self._run, name="omnican-loop", daemon=True)
@@ -179,7 +259,8 @@ class Chassis:
             bus: ``can.Bus`` arguments overriding ``cfg.bus``.
             record: write all bus traffic to this python-can log file (.log/.asc/.blf).
             handle_signals: in the main thread, turn SIGTERM into SystemExit so the
-                ``with`` block unwinds and the drives are disabled.
+                ``with`` block unwinds and the drives are disabled, and keep a second
+                SIGINT/SIGTERM from cutting that stop short.
 
         Raises:
             BusError: the bus cannot be opened.
@@ -209,9 +290,37 @@ class Chassis:
 
     def _start(self, handle_signals: bool) -> None:
         warnings: list[str] = []
+        pending = list(self.nodes)
+        for _attempt in range(STARTUP_ATTEMPTS):
+            self._configure_all(pending, warnings)
+            # A drive that booted again while it was being configured lost part of it.
+            pending = [n for n in self.nodes if n.rebooted]
+            if not pending:
+                break
+            logger.info("nodes %s rebooted during their configuration; configuring again",
+                        [n.node_id for n in pending])
+        else:
+            raise DriveError(f"nodes {[n.node_id for n in pending]} keep rebooting while "
+                             "being configured (power supply? a watchdog of their own?)")
+        for node in self.nodes:
+            self._seed_statuswords(node)
+        for w in warnings:
+            logger.warning("%s", w)
+        self.warnings = warnings
+        for stage in self._stages:
+            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+        _open_chassis.add(self)
+        if handle_signals:
+            self._guards_signals = _signals.acquire()
+        self._thread.start()
+        self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
+        for stage in self._stages:
+            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=False)
+
+    def _configure_all(self, nodes: list[DriveNode], warnings: list[str]) -> None:
         errors: list[str] = []
-        with ThreadPoolExecutor(len(self.nodes), thread_name_prefix="omnican-cfg") as ex:
-            futures = {ex.submit(n.configure, warnings): n for n in self.nodes}
+        with ThreadPoolExecutor(len(nodes), thread_name_prefix="omnican-cfg") as ex:
+            futures = {ex.submit(n.configure, warnings): n for n in nodes}
             for fut, node in futures.items():
                 try:
                     fut.result()
@@ -220,22 +329,7 @@ class Chassis:
                 except Exception as exc:
                     errors.append(f"node {node.node_id}: {exc}")
         if errors:
-            raise DriveError("; ".join(errors))
-        for node in self.nodes:
-            node.rebooted = False
-            self._seed_statuswords(node)
-        for w in warnings:
-            logger.warning("%s", w)
-        self.warnings = warnings
-        for stage in self._stages:
-            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
-        _open_chassis.add(self)
-        if handle_signals and threading.current_thread() is threading.main_thread():
-            self._old_sigterm = signal.signal(signal.SIGTERM, _sigterm_to_exit)
-        self._thread.start()
-        self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
-        for stage in self._stages:
-            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=False)
+            raise DriveError(_combine_node_errors(errors, len(self.nodes)))
 
     def _seed_statuswords(self, node: DriveNode) -> None:
         """Read each statusword once by SDO: a drive need not send its event TPDO at start."""
@@ -305,6 +399,7 @@ class Chassis:
         time.sleep(2 * self._period)
         try:
             self._wait_enabled(timeout, "recover")
+            logger.info("recovered: every drive enabled")
         finally:
             def done() -> None:
                 for stage in self._stages:
@@ -418,7 +513,8 @@ class Chassis:
         hb_period = self.cfg.chassis.heartbeat_ms / 1000.0
         if now - self._last_hb >= hb_period:
             self._last_hb = now
-            self._bus.send(0x700 + self.cfg.chassis.host_node_id, b"\x05")
+            self._bus.send(HEARTBEAT_BASE + self.cfg.chassis.host_node_id,
+                           bytes([NmtState.OPERATIONAL]))
         self._check_bus(now)
         self._cycles += 1
         self._snapshot = self._make_snapshot(now, limited)
@@ -426,17 +522,11 @@ class Chassis:
     def _check_health(self, now: float) -> None:
         for node in self.nodes:
             nid = node.node_id
-            if node.rebooted and nid not in self._configuring:
-                node.rebooted = False
-                self._latch(f"node {nid} rebooted")
-                for stage in node.stages:
-                    stage.forget()
-                    stage.set_goal(State.SWITCH_ON_DISABLED)
-                for ax in node.axes:
-                    ax.reseed()
-                self._reconfigure(node)
-                continue
             if nid in self._configuring:
+                continue
+            if node.rebooted:
+                self._latch(f"node {nid} rebooted")
+                self._reconfigure(node, "its reboot")
                 continue
             if node.heartbeat_lost(now):
                 self._offline.add(nid)
@@ -455,22 +545,32 @@ class Chassis:
                       State.OPERATION_ENABLED and state is not State.UNKNOWN):
                     self._latch(f"node {nid} left OPERATION ENABLED (now {state})")
 
-    def _reconfigure(self, node: DriveNode) -> None:
+    def _reconfigure(self, node: DriveNode, why: str) -> None:
+        """Configure ``node`` again on a worker thread (the loop goes on meanwhile, and
+        leaves that node's state machine alone until it is done)."""
         self._configuring.add(node.node_id)
+        for stage in node.stages:
+            stage.forget()
+            stage.set_goal(State.SWITCH_ON_DISABLED)
+        for ax in node.axes:
+            ax.reseed()
 
         def work() -> None:
             try:
                 node.configure()
                 self._seed_statuswords(node)
-                logger.info("node %d re-configured after its reboot", node.node_id)
-            except OmnicanError as exc:
+                logger.info("node %d re-configured after %s", node.node_id, why)
+            except Exception as exc:
                 logger.error("re-configuring node %d failed: %s", node.node_id, exc)
+                # Not again until the drive boots once more (it announces that itself).
+                node.configured_boot = node.boot_count
                 reason = f"re-configuring node {node.node_id} failed: {exc}"
                 self._requests.put(lambda: self._latch(reason))
             finally:
                 self._requests.put(lambda: self._configuring.discard(node.node_id))
 
         t = threading.Thread(target=work, name=f"omnican-reconfigure-{node.node_id}", daemon=True)
+        self._workers = [w for w in self._workers if w.is_alive()]
         self._workers.append(t)
         t.start()
 
@@ -478,7 +578,13 @@ class Chassis:
         epoch = self._bus.sync_epoch
         axes = self._axes
         if not axes or any(a.epoch != epoch or a.raw is None for a in axes):
-            return  # not every wheel has answered the last SYNC: wait for a complete set
+            # Not every wheel has answered the last SYNC: wait for a complete set. A wheel
+            # silent for STALE_AFTER_S has no known speed: report none rather than the
+            # last one (a drive gone offline must not look as if it were still turning).
+            self._mark_stale(epoch)
+            return
+        if self._stale:
+            self._stale = ()
         travel = [a.travel_from_sample(a.raw) for a in axes]  # type: ignore[arg-type]
         t = self._last_sync_time
         history = self._history
@@ -500,17 +606,51 @@ class Chassis:
                                    sum(k * v for k, v in zip(ry, sp, strict=True)),
                                    sum(k * v for k, v in zip(rw, sp, strict=True)))
 
-    def _check_bus(self, now: float) -> None:
-        if self._bus.send_errors == 0:
-            self._bus_fail_since = None
+    def _mark_stale(self, epoch: int) -> None:
+        stale = tuple(i for i, a in enumerate(self._axes)
+                      if a.raw is None or epoch - a.epoch > self._stale_cycles)
+        if stale == self._stale:
             return
-        if self._bus_fail_since is None:
-            self._bus_fail_since = now
-        if now - self._bus_fail_since >= BUS_DOWN_AFTER_S:
-            self._latch(f"CAN bus down ({self._bus.last_error})")
-            if now - self._last_reconnect >= RECONNECT_EVERY_S:
-                self._last_reconnect = now
-                self._bus.reconnect()
+        self._stale = stale
+        if stale:
+            self._speeds = [0.0 if i in stale else v for i, v in enumerate(self._speeds)]
+            self._measured = Twist()
+            self._history.clear()  # the speed window restarts with the next complete set
+
+    def _check_bus(self, now: float) -> None:
+        """Bus down: sends or receives failing for ``BUS_DOWN_AFTER_S``. Then the bus is
+        reopened on a thread of its own (this loop never waits for it) and the base stays
+        stopped. Back up: reopened and working again; every drive is configured anew,
+        since the drives stopped (or rebooted) meanwhile, and recover() starts them."""
+        bus = self._bus
+        failing = bus.failing
+        if not self._bus_down:
+            if failing is None:
+                self._bus_fail_since = None
+                return
+            if self._bus_fail_since is None:
+                self._bus_fail_since = now
+            if now - self._bus_fail_since < BUS_DOWN_AFTER_S:
+                return
+            self._bus_down = True
+            self._down_since_generation = bus.generation
+            reason = f"CAN bus down ({failing})"
+            if self._latched is not None and not self._latched.startswith("CAN bus down"):
+                logger.warning("base stopped: %s", reason)
+                self._latched = reason  # the cause of the lost heartbeats & co.
+            self._latch(reason)
+        if bus.generation == self._down_since_generation or failing is not None:
+            if (not bus.reconnecting and
+                    now - self._reconnect_asked_at >= bus_module.RECONNECT_EVERY_S):
+                self._reconnect_asked_at = now
+                bus.request_reconnect()
+            return
+        self._bus_down = False
+        self._bus_fail_since = None
+        logger.warning("CAN bus back up; configuring every drive again")
+        for node in self.nodes:
+            if node.node_id not in self._configuring:
+                self._reconfigure(node, "the bus came back")
 
     def _make_snapshot(self, now: float, command: Twist | None = None) -> _Snapshot:
         mark_t, mark_bits = self._load_mark
@@ -531,11 +671,12 @@ class Chassis:
                 fault = node.fault_text or (describe_emcy(stage.error_value)
                                             if stage.error_value else "fault")
             nid = node.node_id
+            online = nid not in self._offline and nid not in self._configuring
+            stale = i in self._stale or not online or self._bus_down
             rows.append((ax.wheel_index, nid, ax.wheel.axis, state, stage.statusword_value,
-                         stage.mode_value, self._targets[i], self._speeds[i],
-                         ax.counts / ax.wheel.position_scale,
-                         nid not in self._offline and nid not in self._configuring,
-                         fault, stage.error))
+                         stage.mode_value, self._targets[i], 0.0 if stale else self._speeds[i],
+                         ax.counts / ax.wheel.position_scale, online, fault, stage.error,
+                         stale))
         enabled = (self._latched is None and not self._offline and not self._configuring and
                    all(s.state is State.OPERATION_ENABLED for s in self._stages))
         bitrate = self._bus.bitrate
@@ -548,10 +689,14 @@ class Chassis:
             cycles=self._cycles,
             bus_load=self._bus_bits_per_s / bitrate if bitrate else None,
             bus_bits_per_s=self._bus_bits_per_s,
-            bus_error=self._bus.last_error,
+            bus_error=self._bus.failing or (self._bus.reconnect_error if self._bus_down
+                                            else None),
             warnings=tuple(self.warnings),
+            bus_up=not self._bus_down,
         )
-        return _Snapshot(self._odo.pose, self._measured, command or Twist(), tuple(rows), status)
+        unknown = self._offline or self._configuring or self._bus_down
+        measured = Twist() if unknown else self._measured
+        return _Snapshot(self._odo.pose, measured, command or Twist(), tuple(rows), status)
 
     def cycle_bits(self) -> int:
         """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
@@ -566,26 +711,26 @@ class Chassis:
                 return
             self._closed = True
         _open_chassis.discard(self)
-        try:
-            if self._thread.is_alive():
-                if controlled:
-                    self._controlled_shutdown()
-                self._stop.set()
-                self._thread.join(timeout=2.0)
-            for t in self._workers:
-                t.join(timeout=self.cfg.chassis.boot_timeout_s + 1.0)
-            for node in self.nodes:
-                if node.node_id not in self._offline and self._bus.send_errors == 0:
-                    node.stop()
-        finally:
-            for node in self.nodes:
-                node.detach()
-            self._bus.close()
-            if self._old_sigterm is not None:
-                try:
-                    signal.signal(signal.SIGTERM, self._old_sigterm)
-                except ValueError:  # not in the main thread any more
-                    pass
+        with _signals.closing():
+            try:
+                if self._thread.is_alive():
+                    if controlled:
+                        self._controlled_shutdown()
+                    self._stop.set()
+                    self._thread.join(timeout=2.0)
+                for t in self._workers:
+                    t.join(timeout=self.cfg.chassis.boot_timeout_s + 1.0)
+                for node in self.nodes:
+                    if (node.node_id not in self._offline and not self._bus_down
+                            and self._bus.failing is None):
+                        node.stop()
+            finally:
+                for node in self.nodes:
+                    node.detach()
+                self._bus.close()
+                if self._guards_signals:
+                    self._guards_signals = False
+                    _signals.release()
         logger.info("base closed; drives disabled")
 
     def _controlled_shutdown(self) -> None:
@@ -622,5 +767,24 @@ class Chassis:
         return f"<Chassis {len(self._axes)} wheels on nodes {[n.node_id for n in self.nodes]}>"
 
 
-def _sigterm_to_exit(signum: int, frame: FrameType | None) -> None:
-    raise SystemExit(128 + signum)
+def _combine_node_errors(errors: list[str], nodes: int) -> str:
+    """``node 1: X; node 2: X`` as ``nodes 1, 2: X``: one reason said once; when no node
+    at all sent its boot-up, say there is no drive on the bus."""
+    groups: dict[str, list[str]] = {}
+    for error in errors:
+        head, sep, reason = error.partition(": ")
+        if sep and head.startswith("node ") and head[5:].isdigit():
+            groups.setdefault(reason, []).append(head[5:])
+        else:
+            groups.setdefault(error, [])
+    parts = []
+    for reason, ids in groups.items():
+        if len(ids) > 1:
+            parts.append(f"nodes {', '.join(ids)}: {reason}")
+        else:
+            parts.append(f"node {ids[0]}: {reason}" if ids else reason)
+    text = "; ".join(parts)
+    if len(groups) == 1 and len(errors) == nodes and "no boot-up" in text:
+        text = f"no drive answered on the bus: {text}"
+    return text
+

@@ -10,9 +10,10 @@ No I/O beyond reading the TOML file and parsing the EDS files it names.
 
 from __future__ import annotations
 
+import difflib
 import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,9 @@ class Key:
 
 _NUM = (int, float)
 
+#: Values of chassis.pdo_mapping (what omnican.pdoplan does with each).
+PDO_MAPPINGS = ("try", "eds", "sdo")
+
 # Tables a front end reads and checks itself (the base ignores them): [gamepad] is
 # omnican.gamepad_model's.
 FRONT_END_SECTIONS = ("gamepad",)
@@ -78,13 +82,18 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "sdo_timeout_s": Key(_NUM, 0.3, "one SDO request's timeout (retried once)"),
         "boot_timeout_s": Key(_NUM, 2.0, "wait for a drive's boot-up after NMT reset"),
         "enable_timeout_s": Key(_NUM, 1.0, "bring a drive to OPERATION ENABLED within this"),
+        "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
+                           "them anyway (warning; a drive that refuses runs on its own mapping, "
+                           "and what that lacks goes by SDO every cycle), \"eds\" sends them by "
+                           "SDO every cycle, \"sdo\" sends targets and positions by SDO every "
+                           "cycle"),
     },
     "wheel": {
         "node_id": Key((int,), None, "CANopen node id 1-127", required=True),
         "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)"),
         "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
         "velocity_scale": Key(_NUM, None, "drive velocity units per m/s at the rim; sign = "
-                              "polarity (the seeds' k)"),
+                              "polarity"),
         "position_scale": Key(_NUM, None, "encoder position units per m of rim travel"),
         "gear_ratio": Key(_NUM, None, "motor turns per wheel turn (instead of the scales)"),
         "encoder_cpr": Key(_NUM, None, "encoder counts per motor turn (instead of the scales)"),
@@ -166,6 +175,7 @@ class ChassisSettings:
     sdo_timeout_s: float = 0.3
     boot_timeout_s: float = 2.0
     enable_timeout_s: float = 1.0
+    pdo_mapping: str = "try"  # see pdoplan.MAPPING_POLICIES
 
 
 @dataclass(frozen=True)
@@ -256,6 +266,14 @@ def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
     return ChassisConfig(chassis=ChassisSettings(), wheels=wheels, bus=bus)
 
 
+def _suggest(word: str, known: Iterable[str]) -> str:
+    """" (did you mean 'x'?)" for the closest known key; else where the keys are listed
+    (a list of every key makes a line no one reads)."""
+    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.75)
+    return f" (did you mean {close[0]!r}?)" if close else \
+        " (the keys: omnican check-config --help)"
+
+
 class _Reader:
     """Checks one TOML table against its schema, collecting nothing: first error raises."""
 
@@ -271,9 +289,7 @@ class _Reader:
         schema = SCHEMA[section]
         for key in data:
             if key not in schema:
-                raise self.fail(
-                    f"{where}.{key}", f"unknown key (known: {', '.join(schema)})"
-                )
+                raise self.fail(f"{where}.{key}", f"unknown key {key!r}{_suggest(key, schema)}")
         out: dict[str, Any] = {}
         for key, spec in schema.items():
             if key not in data:
@@ -313,9 +329,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        if key not in ("bus", "chassis", "wheel", *FRONT_END_SECTIONS):
-            known = ", ".join(("bus", "chassis", "wheel", *FRONT_END_SECTIONS))
-            raise r.fail(key, f"unknown section (known: {known})")
+        sections = ("bus", "chassis", "wheel", *FRONT_END_SECTIONS)
+        if key not in sections:
+            raise r.fail(key, f"unknown section {key!r}{_suggest(key, sections)}")
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")
@@ -342,6 +358,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         raise r.fail("chassis.host_node_id", f"must be 1-127, got {c['host_node_id']}")
     if not 1 <= c["heartbeat_ms"] <= 65535:
         raise r.fail("chassis.heartbeat_ms", f"must be 1-65535, got {c['heartbeat_ms']}")
+    if c["pdo_mapping"] not in PDO_MAPPINGS:
+        raise r.fail("chassis.pdo_mapping", f"must be one of {', '.join(PDO_MAPPINGS)}, got "
+                     f"{c['pdo_mapping']!r}")
     layout = c["layout"]
     if layout is not None and layout not in LAYOUTS:
         raise r.fail("chassis.layout", f"unknown layout {layout!r} (known: {', '.join(LAYOUTS)})")
@@ -364,6 +383,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         sdo_timeout_s=float(c["sdo_timeout_s"]),
         boot_timeout_s=float(c["boot_timeout_s"]),
         enable_timeout_s=float(c["enable_timeout_s"]),
+        pdo_mapping=c["pdo_mapping"],
     )
 
     raw_wheels = data.get("wheel")

@@ -17,6 +17,16 @@ from cantools.database.can import Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 from cantools.database.namedsignalvalue import NamedSignalValue
 
+from omnican.cia301 import (
+    COB_ID_MASK,
+    EMCY_BASE,
+    EMCY_COB_ID_OBJECT,
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    NMT_COMMAND_NAMES,
+    NMT_STATE_NAMES,
+    SYNC_COB_ID,
+)
 from omnican.cia402 import EMCY_CODES, MODE_NAMES
 from omnican.config import ChassisConfig, default_config
 from omnican.layout import NodeLayout, node_layouts
@@ -57,9 +67,7 @@ CHOICES: dict[Obj, dict[int, str]] = {
     Obj.ERROR_CODE: {**EMCY_CODES, 0: "no error"},  # 603Fh: the last error, 0 = none
 }
 
-NMT_COMMANDS = {1: "start", 2: "stop", 128: "enter pre-operational", 129: "reset node",
-                130: "reset communication"}
-NMT_STATES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operational"}
+NMT_STATES = {state: name.lower() for state, name in NMT_STATE_NAMES.items()}
 
 
 def node_name(node_id: int) -> str:
@@ -124,11 +132,11 @@ def pdo_message(layout: NodeLayout, pdo: PlannedPdo, tx: bool, rate_hz: float) -
 
 def _emcy_cob_id(layout: NodeLayout) -> int:
     """COB-ID EMCY (1014h) of the node from its EDS, else the default 0x80 + id."""
-    item: Any = layout.dictionary.get(0x1014)
+    item: Any = layout.dictionary.get(EMCY_COB_ID_OBJECT)
     default = getattr(item, "default", None)
-    if isinstance(default, int) and default & 0x7FF:
-        return default & 0x7FF
-    return 0x80 + layout.node_id
+    if isinstance(default, int) and default & COB_ID_MASK:
+        return default & COB_ID_MASK
+    return EMCY_BASE + layout.node_id
 
 
 def build_database(cfg: ChassisConfig | None = None) -> Any:
@@ -140,15 +148,15 @@ def build_database(cfg: ChassisConfig | None = None) -> Any:
     nodes = [HOST] + [node_name(n.node_id) for n in layouts]
     all_nodes = nodes[1:]
     messages: list[Message] = [
-        Message(frame_id=0x000, name="NMT", length=2, senders=[HOST],
+        Message(frame_id=NMT_COB_ID, name="NMT", length=2, senders=[HOST],
                 comment="NMT node control: command to one node, or to all with NodeId 0",
                 signals=[
-                    _signal("Command", 0, 8, False, all_nodes, choices=NMT_COMMANDS,
+                    _signal("Command", 0, 8, False, all_nodes, choices=NMT_COMMAND_NAMES,
                             comment="NMT command specifier"),
                     _signal("NodeId", 8, 8, False, all_nodes,
                             comment="addressed node, 0 = all nodes"),
                 ]),
-        Message(frame_id=0x080, name="SYNC", length=0, signals=[], senders=[HOST],
+        Message(frame_id=SYNC_COB_ID, name="SYNC", length=0, signals=[], senders=[HOST],
                 cycle_time=round(1000.0 / rate_hz),
                 comment="SYNC: drives apply their cyclic RPDOs and send their cyclic TPDOs"),
     ]
@@ -176,7 +184,8 @@ def build_database(cfg: ChassisConfig | None = None) -> Any:
     for node_id, sender, suffix, who in heartbeats:
         receivers = all_nodes if sender == HOST else [HOST]
         messages.append(Message(
-            frame_id=0x700 + node_id, name=f"Heartbeat_{suffix}", length=1, senders=[sender],
+            frame_id=HEARTBEAT_BASE + node_id, name=f"Heartbeat_{suffix}", length=1,
+            senders=[sender],
             cycle_time=heartbeat_ms, comment=f"heartbeat of {who}",
             signals=[_signal("NmtState", 0, 7, False, receivers, choices=NMT_STATES,
                              comment="NMT state; bit 7 is node guarding's toggle bit")]))

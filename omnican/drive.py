@@ -1,12 +1,14 @@
 """One CANopen node driving one or more wheels (axes): configuration, units, PDO I/O.
 
 * :meth:`DriveNode.configure` (SDO, blocking, bounded): NMT reset communication and
-  boot-up, mode, ramps, heartbeat producer and consumer, 6007h, the PDO plan of
-  :mod:`omnican.pdoplan` (or, for a drive that refuses remapping, its own mapping
-  read back), then NMT OPERATIONAL.
+  boot-up, the PDO plan of :mod:`omnican.pdoplan` (or, for a drive that refuses it,
+  its own mapping, restored by another reset communication; objects that mapping
+  lacks go by expedited SDO every cycle), mode, ramps, heartbeat producer and
+  consumer, 6007h, then NMT OPERATIONAL.
 * Frame handlers run on the Notifier thread and only copy values.
-* The control loop calls :meth:`DriveNode.cyclic_frames` (targets), and
-  :class:`StageDriver` walks each CiA 402 state machine with controlword bit masks.
+* The control loop calls :meth:`DriveNode.cyclic_frames` (targets, and the requests
+  of objects moved by SDO), and :class:`StageDriver` walks each CiA 402 state
+  machine with controlword bit masks.
 
 Units: m/s at the rim <-> drive velocity units (``velocity_scale``); encoder counts
 -> continuous metres of travel across counter wrap-around and drive reboots.
@@ -14,6 +16,7 @@ Units: m/s at the rim <-> drive velocity units (``velocity_scale``); encoder cou
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import threading
@@ -27,47 +30,38 @@ from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from omnican import cia402
+from omnican.cia301 import (
+    COB_ID_INVALID,
+    COB_ID_MASK,
+    CONSUMER_HEARTBEAT_TIME,
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    NMT_STATE_MASK,
+    PRODUCER_HEARTBEAT_TIME,
+    TPDO_COMM,
+    TRANS_EVENT,
+    TRANS_SYNC,
+    NmtCommand,
+    abort_text,
+)
 from omnican.cia402 import Command, Mode, State
 from omnican.config import WheelConfig
 from omnican.encoder import fold_counter
 from omnican.errors import DriveError
 from omnican.layout import NodeLayout
 from omnican.odmap import AxisObjects, Entry, Obj, entry_at, obj_name
-from omnican.pdoplan import TPDO_COMM, TRANS_EVENT, TRANS_SYNC, NodePlan, PlannedPdo
+from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer
+from omnican.sdocycle import (
+    SDO_REQUEST_BASE,
+    AnswerKind,
+    download_request,
+    parse_answer,
+    upload_request,
+)
 
 logger = logging.getLogger(__name__)
 
-SDO_ABORT_TEXT = {
-    0x05030000: "toggle bit not alternated",
-    0x05040000: "SDO protocol timed out",
-    0x05040001: "command specifier not valid",
-    0x06010000: "unsupported access to an object",
-    0x06010001: "attempt to read a write-only object",
-    0x06010002: "attempt to write a read-only object",
-    0x06020000: "object does not exist in the object dictionary",
-    0x06040041: "object cannot be mapped to the PDO",
-    0x06040042: "the number and length of the objects to be mapped would exceed PDO length",
-    0x06040043: "general parameter incompatibility",
-    0x06040047: "general internal incompatibility in the device",
-    0x06060000: "access failed due to a hardware error",
-    0x06070010: "data type does not match, length of service parameter does not match",
-    0x06090011: "sub-index does not exist",
-    0x06090030: "invalid value for parameter",
-    0x06090031: "value of parameter written too high",
-    0x06090032: "value of parameter written too low",
-    0x08000000: "general error",
-    0x08000020: "data cannot be transferred or stored to the application",
-    0x08000021: "data cannot be transferred because of local control",
-    0x08000022: "data cannot be transferred because of the present device state",
-}
-
-_NMT_RESET_COMM = 0x82
-_NMT_START = 0x01
-_NMT_PREOP = 0x80
-
-
-def abort_text(code: int) -> str:
-    return f"0x{code:08X} {SDO_ABORT_TEXT.get(code, 'unknown abort code')}"
+_MAX_PENDING = 8  # unanswered per-cycle SDO requests kept (a silent drive must not grow them)
 
 
 class EpochSource(Protocol):
@@ -206,6 +200,31 @@ class _RpdoIO:
     slots: list[tuple[int, Entry, object]] = field(default_factory=list)  # offset, entry, owner
 
 
+@dataclass
+class _SdoIO:
+    """One object moved by expedited SDO.
+
+    ``pending`` holds (sent at, SYNC epoch) of each unanswered request, oldest first:
+    the loop appends, the Notifier thread pops (deque operations are atomic). A server
+    answers in order, so an answer belongs to the oldest request not yet given up."""
+
+    transfer: SdoTransfer
+    role: str  # "target", "controlword", "position" or "statusword"
+    owner: AxisIO | StageDriver
+    pending: collections.deque[tuple[float, int]] = field(
+        default_factory=lambda: collections.deque(maxlen=_MAX_PENDING))
+
+
+@dataclass
+class SdoCounts:
+    """Per-cycle SDO transfers of one node since it was configured."""
+
+    requests: int = 0  # loop thread
+    answers: int = 0  # Notifier thread
+    aborts: int = 0  # Notifier thread
+    last_abort: str | None = None  # e.g. "Target velocity (0x60FF:00): 0x06090030 ..."
+
+
 class DriveNode:
     """One node of the base, with the wheels (axes) it drives, on a live network."""
 
@@ -233,16 +252,26 @@ class DriveNode:
         self._rpdo_io: list[_RpdoIO] = []
         self._cw_io: dict[int, tuple[_RpdoIO, int]] = {}  # id(stage) -> (pdo, offset)
         self._subscribed: list[tuple[int, TpdoHandler]] = []
+        self._sdo_io: dict[tuple[int, int], _SdoIO] = {}  # (index, subindex) -> transfer
+        self._sdo_cyclic: list[_SdoIO] = []
+        self._sdo_cw: dict[int, _SdoIO] = {}  # id(stage) -> controlword by SDO
+        self.sdo_counts = SdoCounts()
+        self._aborts_logged = 0
+        self._refusal: str | None = None  # why the drive refused the plan (then: its own)
         self._build_io(self.plan)
         # Liveness and events (Notifier thread writes; loop reads).
         self.last_heartbeat: float | None = None
         self.nmt_state: int | None = None
-        self.booted = threading.Event()
-        self.rebooted = False
+        # Boot-ups seen (only the Notifier thread writes it) and the one the present
+        # configuration followed (only the configuring thread writes it): a drive that
+        # booted since it was configured has lost its configuration.
+        self.boot_count = 0
+        self.configured_boot = 0
+        self._boot_seen = threading.Condition()
         self.emcy: EmcyError | None = None
         self.fault_text: str | None = None
         self._hb_period = settings.heartbeat_ms / 1000.0
-        network.subscribe(0x700 + node_id, self._on_heartbeat)
+        network.subscribe(HEARTBEAT_BASE + node_id, self._on_heartbeat)
         self.remote.emcy.add_callback(self._on_emcy)
 
     def _build_io(self, plan: NodePlan) -> None:
@@ -283,6 +312,74 @@ class DriveNode:
             handler = self._make_tpdo_handler(pdo.data_bytes, decoders)
             self.network.subscribe(pdo.cob_id, handler)
             self._subscribed.append((pdo.cob_id, handler))
+        sdo_io = {}
+        for transfer in plan.sdo:
+            role, owner = self._owner_of(transfer.entry)
+            sdo_io[(transfer.entry.index, transfer.entry.subindex)] = _SdoIO(transfer, role, owner)
+        self._sdo_cyclic = [io for io in sdo_io.values() if io.transfer.cyclic]
+        self._sdo_cw = {id(io.owner): io for io in sdo_io.values() if io.role == "controlword"}
+        self._sdo_io = sdo_io
+        self.sdo_counts, self._aborts_logged = SdoCounts(), 0
+        self._route_sdo_answers(bool(sdo_io))
+
+    def _owner_of(self, entry: Entry) -> tuple[str, AxisIO | StageDriver]:
+        key = (entry.index, entry.subindex)
+        for ax in self.axes:
+            for role, e in (("target", ax.target), ("position", ax.position)):
+                if key == (e.index, e.subindex):
+                    return role, ax
+        for stage in self.stages:
+            for role, e in (("controlword", stage.controlword), ("statusword", stage.statusword)):
+                if key == (e.index, e.subindex):
+                    return role, stage
+        raise ValueError(f"node {self.node_id}: {entry.name} ({entry.address}) is no object "
+                         "omnican moves by SDO")
+
+    def _route_sdo_answers(self, on: bool) -> None:
+        """While objects go by SDO every cycle, their answers must not reach canopen's SDO
+        client of this node: its queue would grow without end, and a configuration SDO
+        could take a cycle's answer for its own (canopen does not check the index of a
+        download answer). One handler then takes the node's 0x580 frames and hands the
+        client only the rest."""
+        cob, client = self.remote.sdo.tx_cobid, self.remote.sdo.on_response
+        subscribed = self.network.subscribers.get(cob, [])
+        if on and self._on_sdo_answer not in subscribed:
+            self.network.subscribe(cob, self._on_sdo_answer)
+            if client in subscribed:
+                self.network.unsubscribe(cob, client)
+        elif not on and self._on_sdo_answer in subscribed:
+            self.network.subscribe(cob, client)
+            self.network.unsubscribe(cob, self._on_sdo_answer)
+
+    def _on_sdo_answer(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        answer = parse_answer(data)
+        io = None if answer is None else self._sdo_io.get((answer.index, answer.subindex))
+        if answer is None or io is None or not io.pending or answer.kind not in (
+                AnswerKind.ABORTED,
+                AnswerKind.DOWNLOADED if io.transfer.write else AnswerKind.UPLOADED):
+            self.remote.sdo.on_response(can_id, data, timestamp)  # a configuration SDO's
+            return
+        given_up = time.monotonic() - self.settings.sdo_timeout_s
+        while len(io.pending) > 1 and io.pending[0][0] < given_up:
+            io.pending.popleft()  # its answer was lost: do not take this one for it
+        try:
+            _sent_at, epoch = io.pending.popleft()
+        except IndexError:  # pragma: no cover - only the loop's maxlen drop races with this
+            return
+        counts = self.sdo_counts
+        if answer.kind is AnswerKind.ABORTED:
+            counts.aborts += 1
+            entry = io.transfer.entry
+            counts.last_abort = f"{entry.name} ({entry.address}): {abort_text(answer.abort_code)}"
+            return
+        counts.answers += 1
+        if answer.kind is AnswerKind.UPLOADED:
+            entry = io.transfer.entry
+            value = entry.decode(answer.data.ljust(entry.bits // 8, b"\x00"))
+            if io.role == "position":
+                io.owner.raw, io.owner.epoch = value, epoch  # type: ignore[union-attr]
+            elif io.role == "statusword":
+                io.owner.statusword_value = value & 0xFFFF  # type: ignore[union-attr]
 
     def _make_tpdo_handler(self, length: int,
                            decoders: list[tuple[int, Entry, str, object]]) -> TpdoHandler:
@@ -310,12 +407,18 @@ class DriveNode:
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if not data:
             return
-        state = data[0] & 0x7F
+        state = data[0] & NMT_STATE_MASK
         self.last_heartbeat = time.monotonic()
         self.nmt_state = state
         if state == 0:
-            self.booted.set()
-            self.rebooted = True
+            with self._boot_seen:
+                self.boot_count += 1
+                self._boot_seen.notify_all()
+
+    @property
+    def rebooted(self) -> bool:
+        """The drive booted since its configuration (so it lost that configuration)."""
+        return self.boot_count != self.configured_boot
 
     def _on_emcy(self, error: EmcyError) -> None:
         if error.code == 0:
@@ -356,33 +459,47 @@ class DriveNode:
     def configure(self, warn: list[str] | None = None) -> None:
         """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded."""
         s = self.settings
-        self.booted.clear()
-        self.network.send_message(0, bytes([_NMT_RESET_COMM, self.node_id]))
-        if not self.booted.wait(s.boot_timeout_s):
-            raise DriveError(f"node {self.node_id}: no boot-up within {s.boot_timeout_s:g} s "
-                             "after NMT reset communication (powered? node id? bitrate?)")
-        self.rebooted = False
+        self._reset_communication()
+        # PDOs first: a drive that refuses the plan is reset once more to get its own
+        # mapping back, which also resets what is set below in 1000h-1FFFh (1016h, 1017h).
+        self._configure_pdos(warn)
         for stage in self.stages:
             stage.forget()
             if stage.mode is not None:
                 self._write_value(stage.mode, int(self.mode), f"mode {self.mode.short}")
         self._configure_ramps()
-        self._sdo_write(0x1017, 0, s.heartbeat_ms.to_bytes(2, "little"), "heartbeat producer")
+        self._sdo_write(PRODUCER_HEARTBEAT_TIME, 0, s.heartbeat_ms.to_bytes(2, "little"),
+                        "heartbeat producer")
         if self.has_consumer:
             ms = round(s.heartbeat_ms * s.heartbeat_timeout_factor)
             value = (s.host_node_id << 16) | min(ms, 0xFFFF)
-            self._sdo_write(0x1016, 1, value.to_bytes(4, "little"), "heartbeat consumer")
+            self._sdo_write(CONSUMER_HEARTBEAT_TIME, 1, value.to_bytes(4, "little"),
+                            "heartbeat consumer")
             abort = self.axes[0].objs.get(Obj.ABORT_OPTION)
             if abort is not None:
                 self._write_value(abort, cia402.ABORT_QUICK_STOP, "abort connection option")
         elif warn is not None:
             warn.append(f"node {self.node_id} ({self.eds_name}) has no heartbeat consumer (1016h):"
                         " it will not stop by itself if this host dies")
-        self._configure_pdos(warn)
         for ax in self.axes:
             ax.reseed()
             ax.raw, ax.epoch = None, -1
-        self.network.send_message(0, bytes([_NMT_START, self.node_id]))
+        self.network.send_message(NMT_COB_ID, bytes([NmtCommand.START, self.node_id]))
+
+    def _reset_communication(self) -> None:
+        """NMT reset communication and wait for the boot-up: the drive's 1000h-1FFFh
+        (PDOs, heartbeat) are back at their power-on values."""
+        s = self.settings
+        with self._boot_seen:
+            before = self.boot_count
+        self.network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_COMMUNICATION, self.node_id]))
+        with self._boot_seen:
+            if not self._boot_seen.wait_for(lambda: self.boot_count != before,
+                                            s.boot_timeout_s):
+                raise DriveError(f"node {self.node_id}: no boot-up within "
+                                 f"{s.boot_timeout_s:g} s after NMT reset communication "
+                                 "(powered? node id? bitrate?)")
+            self.configured_boot = self.boot_count
 
     def _configure_ramps(self) -> None:
         """Drive ramps a little steeper than omnican's own limits, so they never lag them."""
@@ -407,17 +524,34 @@ class DriveNode:
                     self._write_value(entry, round(rate * scale), obj_name(obj))
 
     def _configure_pdos(self, warn: list[str] | None) -> None:
-        try:
-            self._save_plan(self.plan)
-        except DriveError as exc:
-            if "refused" not in str(exc):
-                raise
-            logger.info("node %d refuses the PDO plan (%s); using its own mapping", self.node_id,
-                        exc)
-            self.plan = self._adopt_existing_mapping(str(exc))
-            self._build_io(self.plan)
-            if warn is not None:
-                warn.append(f"node {self.node_id} refuses remapping; using its own PDO mapping")
+        """The plan; else (the drive refuses it) the drive's own mapping; what neither
+        carries goes by expedited SDO every cycle."""
+        planned = self.layout.plan
+        if planned.tried and self._refusal is None:
+            names = ", ".join(f"{e.name} ({e.address})" for e in planned.tried)
+            _tell(warn, f"node {self.node_id} ({self.eds_name}): its EDS marks {names} not "
+                  "PDO-mappable; mapping anyway (chassis.pdo_mapping = \"try\")")
+        plan = planned
+        if self._refusal is None:
+            try:
+                self._save_plan(planned)
+            except DriveError as exc:
+                if "refused" not in str(exc):
+                    raise
+                self._refusal = str(exc)
+                logger.info("node %d refuses the PDO plan (%s); using its own mapping",
+                            self.node_id, exc)
+                self._reset_communication()  # undoes what was written: its own mapping again
+        if self._refusal is not None:  # also after a reboot: not worth another refusal
+            plan = self._adopt_existing_mapping(self._refusal)
+            why = self._refusal.rpartition("refused: ")[2]
+            _tell(warn, f"node {self.node_id} refuses remapping ({why}); using its own PDO mapping")
+        if plan.sdo:
+            names = ", ".join(f"{t.entry.name} ({t.entry.address})" for t in plan.sdo)
+            _tell(warn, f"node {self.node_id}: {names} by expedited SDO every cycle "
+                  f"(+{plan.sdo_bits()} bits per cycle)")
+        self.plan = plan
+        self._build_io(plan)
 
     def _save_plan(self, plan: NodePlan) -> None:
         for number in plan.unused_rpdos:
@@ -435,8 +569,8 @@ class DriveNode:
                 self._save_map(m)
 
     def _disable_pdo(self, m: canopen.pdo.PdoMap) -> None:
-        cob = (m.predefined_cob_id or (m.com_record.od[1].default or 0)) & 0x7FF
-        self._sdo_write(m.com_record.od.index, 1, (cob | 0x80000000).to_bytes(4, "little"),
+        cob = (m.predefined_cob_id or (m.com_record.od[1].default or 0)) & COB_ID_MASK
+        self._sdo_write(m.com_record.od.index, 1, (cob | COB_ID_INVALID).to_bytes(4, "little"),
                         "PDO COB-ID (disable)")
 
     def _save_map(self, m: canopen.pdo.PdoMap) -> None:
@@ -452,7 +586,8 @@ class DriveNode:
         def keys(m: canopen.pdo.PdoMap) -> list[tuple[int, int]]:
             return [(v.index, v.subindex) for v in m]
 
-        def pick(maps: canopen.pdo.PdoBase, wanted: list[Entry]) -> list[tuple[int, list[Entry]]]:
+        def pick(maps: canopen.pdo.PdoBase,
+                 wanted: list[Entry]) -> tuple[list[tuple[int, list[Entry]]], list[Entry]]:
             chosen: list[tuple[int, list[Entry]]] = []
             missing = list(wanted)
             for number, m in sorted((maps.map or {}).items()):
@@ -460,19 +595,21 @@ class DriveNode:
                 if present:
                     chosen.append((number, present))
                     missing = [e for e in missing if e not in present]
-            if missing:
-                names = ", ".join(f"{e.name} ({e.address})" for e in missing)
-                raise DriveError(f"node {self.node_id}: refuses remapping ({reason}) and its own "
-                                 f"mapping lacks {names}")
-            return chosen
+            return chosen, missing
 
-        rx_wanted = [a.target for a in self.axes] + [s.controlword for s in self.stages]
+        targets = [a.target for a in self.axes]
+        rx_wanted = targets + [s.controlword for s in self.stages]
         tx_wanted = [a.position for a in self.axes] + [s.statusword for s in self.stages]
         rpdos: list[PlannedPdo] = []
         tpdos: list[PlannedPdo] = []
+        sdo: list[SdoTransfer] = []
         for maps, wanted, out, tx in ((self.remote.rpdo, rx_wanted, rpdos, False),
                                       (self.remote.tpdo, tx_wanted, tpdos, True)):
-            for number, _present in pick(maps, wanted):
+            chosen, missing = pick(maps, wanted)
+            # Last resort: targets and controlwords written, positions and statuswords
+            # read, by SDO (every cycle; controlwords when they change).
+            sdo += [SdoTransfer(e, write=not tx, cyclic=tx or e in targets) for e in missing]
+            for number, _present in chosen:
                 m = maps[number]
                 entries = []
                 for v in m:
@@ -482,11 +619,12 @@ class DriveNode:
                 cyclic = cyclic or (not tx and any(e in [a.target for a in self.axes]
                                                    for e in entries))
                 trans = TRANS_SYNC if cyclic else TRANS_EVENT
-                cob = (m.cob_id or m.predefined_cob_id or 0) & 0x7FF
+                cob = (m.cob_id or m.predefined_cob_id or 0) & COB_ID_MASK
                 self._save_comm_only(m, cob, trans)
                 out.append(PlannedPdo(number, cob, trans, tuple(entries)))
+        logger.debug("node %d: own mapping adopted (%s)", self.node_id, reason)
         return NodePlan(self.node_id, tuple(rpdos), tuple(tpdos),
-                        notes=("fixed mapping (drive refuses remapping)",))
+                        notes=("fixed mapping (drive refuses remapping)",), sdo=tuple(sdo))
 
     def _entry_for(self, index: int, subindex: int) -> Entry:
         for ax in self.axes:
@@ -501,7 +639,7 @@ class DriveNode:
     def _save_comm_only(self, m: canopen.pdo.PdoMap, cob: int, trans: int) -> None:
         """Enable a PDO with its fixed mapping: COB-ID and transmission type only."""
         index = m.com_record.od.index
-        self._sdo_write(index, 1, (cob | 0x80000000).to_bytes(4, "little"), "PDO COB-ID")
+        self._sdo_write(index, 1, (cob | COB_ID_INVALID).to_bytes(4, "little"), "PDO COB-ID")
         if m.com_record.od[2].writable:
             self._sdo_write(index, 2, bytes([trans]), "PDO transmission type")
         if index >= TPDO_COMM and trans == TRANS_EVENT and 3 in m.com_record.od.subindices:
@@ -511,7 +649,9 @@ class DriveNode:
     # ------------------------------------------------------------ cyclic I/O
 
     def cyclic_frames(self, speeds: Sequence[float]) -> list[tuple[int, bytes]]:
-        """SYNC-applied RPDO frames with the targets of ``speeds`` (m/s by wheel index)."""
+        """SYNC-applied RPDO frames with the targets of ``speeds`` (m/s by wheel index),
+        then the requests of the objects moved by SDO every cycle. Called once per cycle,
+        before the cycle's SYNC: a read requested now belongs to that SYNC."""
         frames = []
         for io in self._rpdo_io:
             if not io.pdo.cyclic:
@@ -523,10 +663,34 @@ class DriveNode:
                 elif isinstance(owner, StageDriver):
                     io.frame[offset : offset + entry.bits // 8] = entry.encode(owner.cw)
             frames.append((io.pdo.cob_id, bytes(io.frame)))
+        if self._sdo_cyclic:
+            epoch = self._epoch_source.sync_epoch + 1  # the SYNC this cycle sends next
+            frames += [self._sdo_request(sdo, speeds, epoch) for sdo in self._sdo_cyclic]
+            counts = self.sdo_counts
+            if counts.aborts != self._aborts_logged:
+                self._aborts_logged = counts.aborts
+                logger.warning("node %d: per-cycle SDO aborted (%d so far), last: %s",
+                               self.node_id, counts.aborts, counts.last_abort)
         return frames
+
+    def _sdo_request(self, io: _SdoIO, speeds: Sequence[float], epoch: int) -> tuple[int, bytes]:
+        entry = io.transfer.entry
+        if not io.transfer.write:
+            data = upload_request(entry.index, entry.subindex)
+        elif isinstance(io.owner, AxisIO):
+            units = speeds[io.owner.wheel_index] * io.owner.wheel.velocity_scale
+            data = download_request(entry.index, entry.subindex, entry.encode(round(units)))
+        else:
+            data = download_request(entry.index, entry.subindex, entry.encode(io.owner.cw))
+        io.pending.append((time.monotonic(), epoch))  # before the request can be answered
+        self.sdo_counts.requests += 1
+        return SDO_REQUEST_BASE + self.node_id, data
 
     def controlword_frame(self, stage: StageDriver) -> tuple[int, bytes] | None:
         """The frame that carries ``stage``'s controlword now (None if it rides on SYNC)."""
+        by_sdo = self._sdo_cw.get(id(stage))
+        if by_sdo is not None:
+            return self._sdo_request(by_sdo, (), -1)
         io, _ = self._cw_io[id(stage)]
         if io.pdo.cyclic:
             return None
@@ -537,20 +701,30 @@ class DriveNode:
 
     def stop(self) -> None:
         """Stop watching the host (consumer off) and leave OPERATIONAL; best effort."""
-        if self.has_consumer:
+        if self.has_consumer and self.boot_count:  # a node never heard has no consumer on
             try:
-                self.remote.sdo.download(0x1016, 1, b"\x00\x00\x00\x00")
+                self.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
             except (SdoAbortedError, SdoCommunicationError) as exc:
                 logger.debug("node %d: clearing the heartbeat consumer failed: %s", self.node_id,
                              exc)
-        self.network.send_message(0, bytes([_NMT_PREOP, self.node_id]))
+        self.network.send_message(NMT_COB_ID,
+                                  bytes([NmtCommand.ENTER_PRE_OPERATIONAL, self.node_id]))
 
     def detach(self) -> None:
         for cob, handler in self._subscribed:
             if handler in self.network.subscribers.get(cob, []):
                 self.network.unsubscribe(cob, handler)
         self._subscribed = []
-        if self._on_heartbeat in self.network.subscribers.get(0x700 + self.node_id, []):
-            self.network.unsubscribe(0x700 + self.node_id, self._on_heartbeat)
+        self._route_sdo_answers(False)  # canopen's SDO client back, for remove_network()
+        if self._on_heartbeat in self.network.subscribers.get(HEARTBEAT_BASE + self.node_id, []):
+            self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self._on_heartbeat)
         if self.node_id in self.network.nodes:
             del self.network[self.node_id]
+
+
+def _tell(warn: list[str] | None, text: str) -> None:
+    """A warning for the user: into ``warn`` at startup (the chassis shows them), else the log."""
+    if warn is not None:
+        warn.append(text)
+    else:
+        logger.warning("%s", text)

@@ -6,6 +6,9 @@ kernel answers ``ENODEV``), which zeroes the command at once.
 Any object with evdev's ``InputDevice`` reading interface works as the device (``name``,
 ``path``, ``fd``, ``read()``, ``capabilities(absinfo=True)``, ``close()``): tests feed
 ``evdev.InputEvent`` objects through one, down the same path as a real pad.
+
+The pad drives through :class:`omnican.teleop_model.TeleopModel`, the model the keyboard
+teleop uses (:func:`drive_step`): the same speed limits and speed keys, the same stop.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from omnican.gamepad_model import (
     mapping_from_table,
 )
 from omnican.kinematics import Twist
+from omnican.teleop_model import TeleopModel
 
 logger = logging.getLogger(__name__)
 
@@ -180,11 +184,38 @@ class Gamepad:
         self.close()
 
 
-def drive_step(base: Any, pad: Gamepad, timeout: float) -> Twist:
-    """One step of gamepad teleop: read the pad for up to ``timeout`` s, then command the
-    base (zero when the deadman is released or the pad is gone). Returns the command."""
+def teleop_model_for(cfg: Any, mapping: PadMapping) -> TeleopModel:
+    """The shared teleop model for a pad: its speeds are the pad's fastest (turbo) scales,
+    within what ``cfg``'s base can reach; no input timeout (a pad held still sends no
+    events, and its own deadman and unplug rules stop the base)."""
+    linear = max(abs(a.scale) for a in (mapping.vx, mapping.vy)) or 1.0
+    turbo = max(abs(a.turbo_scale) for a in (mapping.vx, mapping.vy))
+    turn = max(abs(mapping.wz.scale), abs(mapping.wz.turbo_scale)) or 1.0
+    return TeleopModel.for_config(cfg, max(linear, turbo), turn, 0.0)
+
+
+def apply(pad: Gamepad, model: TeleopModel, now: float) -> None:
+    """Hand the pad's state to the shared teleop model: move while the deadman is held
+    (the pad's twist as fractions of the model's speeds, so the keyboard's speed keys
+    scale it too), release it otherwise (let go, or unplugged)."""
+    if not pad.state.deadman:
+        model.release()
+        return
+    t = pad.command()
+    d = (t.vx / model.speed, t.vy / model.speed, t.wz / model.turn)
+    biggest = max(1.0, *(abs(v) for v in d))  # at the base's limits: keep the direction
+    label = "pad turbo" if pad.state.turbo else "pad"
+    model.move((d[0] / biggest, d[1] / biggest, d[2] / biggest), now, label)
+
+
+def drive_step(base: Any, pad: Gamepad, model: TeleopModel, timeout: float) -> Twist:
+    """One step of gamepad teleop: read the pad for up to ``timeout`` s, pass it through
+    the teleop model, command the base (zero when the deadman is released or the pad is
+    gone). Returns the command."""
     pad.poll(timeout)
-    command = pad.command()
+    now = time.monotonic()
+    apply(pad, model, now)
+    command = model.command(now)
     base.set_velocity(command.vx, command.vy, command.wz)
     return command
 

@@ -15,7 +15,7 @@ import threading
 import time
 from typing import Any
 
-from omnican.errors import ConfigError
+from omnican.errors import BusError, ConfigError
 
 logger = logging.getLogger(__name__)
 
@@ -89,8 +89,8 @@ class LoopbackHub:
         logging.getLogger("can_remote").setLevel(logging.WARNING)
         try:
             self._server = RemoteServer(host, port, **config)
-        except OSError as exc:
-            raise ConfigError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+        except OSError as exc:  # the port is taken: a run-time failure, not bad usage
+            raise BusError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         self._server.RequestHandlerClass = _handler_class()
         self.host = host
         self.port = int(self._server.server_address[1])

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from canopen import objectdictionary as od
 
 from omnican import cia402
+from omnican.cia301 import CONSUMER_HEARTBEAT_TIME
 from omnican.cia402 import Mode
 from omnican.config import ChassisConfig, ChassisSettings, WheelConfig
 from omnican.errors import ConfigError
@@ -71,7 +72,8 @@ class NodeLayout:
             target = objs[Obj.VL_TARGET if self.mode is Mode.VELOCITY else Obj.TARGET_VELOCITY]
             self.axes.append(AxisLayout(wheel_index, wheel, objs, target,
                                         objs[Obj.POSITION_ACTUAL], by_cw[key]))
-        self.has_consumer = isinstance(self.dictionary.get(0x1016), (od.ODArray, od.ODRecord))
+        self.has_consumer = isinstance(self.dictionary.get(CONSUMER_HEARTBEAT_TIME),
+                                       (od.ODArray, od.ODRecord))
         self.plan = self._plan()
 
     def _choose_mode(self, wheels: list[tuple[int, WheelConfig]]) -> Mode:
@@ -89,7 +91,7 @@ class NodeLayout:
                     return mode
         return Mode.PROFILE_VELOCITY
 
-    def _plan(self) -> NodePlan:
+    def _plan(self, mapping: str | None = None) -> NodePlan:
         optional = [e for s in self.stages for e in (s.mode_display, s.error_code) if e]
         return plan_node(
             self.node_id,
@@ -101,7 +103,15 @@ class NodeLayout:
             optional_tx=optional,
             inhibit_ms=2.0,
             event_timer_ms=max(50, self.settings.heartbeat_ms),
+            mapping=mapping or self.settings.pdo_mapping,
         )
+
+    @property
+    def refused_plan(self) -> NodePlan | None:
+        """If the plan maps objects the EDS marks not PDO-mappable: the bus the drive needs
+        in the worst case, when it refuses them and its own mapping lacks them too (they go
+        by SDO every cycle). None when nothing is tried."""
+        return self._plan("eds") if self.plan.tried else None
 
 
 def node_layouts(cfg: ChassisConfig) -> list[NodeLayout]:
@@ -113,6 +123,14 @@ def node_layouts(cfg: ChassisConfig) -> list[NodeLayout]:
 def cycle_bits(plans: Iterable[NodePlan]) -> int:
     """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
     return sum(plan.cyclic_bits() for plan in plans) + frame_bits(0)
+
+
+def max_rate_hz(bits_per_cycle: int, other_bits_per_s: float, bitrate: float,
+                max_load: float) -> float:
+    """Highest control rate at which ``bits_per_cycle`` plus ``other_bits_per_s``
+    (heartbeats) stay within ``max_load`` (a fraction) of ``bitrate``."""
+    room = max_load * bitrate - other_bits_per_s
+    return max(0.0, room / bits_per_cycle)
 
 
 def heartbeat_bits_per_s(cfg: ChassisConfig) -> float:

@@ -230,5 +230,9 @@ def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:
         raise ConfigError(f"EDS file not found: {p}")
     try:
         return od.import_od(str(p), node_id)
-    except Exception as exc:  # canopen raises a variety of parser errors
-        raise ConfigError(f"cannot parse EDS {p}: {exc}") from None
+    except Exception as exc:  # canopen raises a variety of parser errors, some multi-line
+        text = str(exc).strip().splitlines()[0].rstrip(".") if str(exc).strip() else \
+            type(exc).__name__
+        line = getattr(exc, "lineno", None)  # configparser's errors know where
+        where = f" at line {line}" if isinstance(line, int) else ""
+        raise ConfigError(f"cannot parse EDS {p}: {text}{where}") from None

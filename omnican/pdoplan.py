@@ -1,12 +1,18 @@
 """PDO plan for one node: which objects go into which PDO, within what its EDS offers.
 
-The plan follows DESIGN.md: wheel targets on SYNC-applied RPDOs, controlwords on
+The plan: wheel targets on SYNC-applied RPDOs, controlwords on
 an RPDO sent on change, positions on SYNC-triggered TPDOs, statuswords on an
 event-driven TPDO. It respects each drive's limits: the number of PDOs, the
 number of mapping entries each accepts (some accept one), the sub-indices its
 communication parameters have (no inhibit time or event timer on some), and the
 object sizes it declares (a 32-bit statusword). When a drive has too few PDOs, the
 controlword rides on the cyclic RPDO and the statusword on the cyclic TPDO.
+
+Vendor EDS files often mark objects a drive does map (60FFh, 6064h) as not
+PDO-mappable. The ``mapping`` policy says what to do with them: ``"try"`` maps
+them anyway (the drive has the last word; see drive.py for what happens when it
+refuses), ``"eds"`` believes the EDS and moves them to expedited SDO every cycle,
+``"sdo"`` moves the targets and positions to SDO whatever the EDS says.
 
 I/O-free: it reads a parsed object dictionary only.
 """
@@ -18,19 +24,36 @@ from dataclasses import dataclass, field
 
 from canopen import objectdictionary as od
 
+from omnican.cia301 import (
+    COB_ID_MASK,
+    PDO_NUMBER_STEP,
+    RPDO1_BASE,
+    RPDO_COMM,
+    RPDO_MAP,
+    TPDO1_BASE,
+    TPDO_COMM,
+    TPDO_MAP,
+    TRANS_EVENT,
+    TRANS_SYNC,
+    TRANS_SYNC_MAX,
+)
+from omnican.config import PDO_MAPPINGS
 from omnican.errors import ConfigError
 from omnican.odmap import Entry
 
-RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
-TRANS_SYNC = 1
-TRANS_EVENT = 255
 MAX_PDO_BITS = 64
+MAPPING_POLICIES = PDO_MAPPINGS  # "try", "eds", "sdo": chassis.pdo_mapping
 
 
 def frame_bits(data_bytes: int) -> int:
     """Worst-case bits on the wire of a standard CAN frame with ``data_bytes`` bytes,
     bit stuffing included (135 for 8 bytes, 55 for an empty SYNC)."""
     return 8 * data_bytes + 47 + (34 + 8 * data_bytes - 1) // 4
+
+
+#: Bits of one expedited SDO transfer: an 8-byte request and an 8-byte answer
+#: (SDO frames always carry 8 data bytes).
+SDO_TRANSFER_BITS = 2 * frame_bits(8)
 
 
 @dataclass(frozen=True)
@@ -59,7 +82,7 @@ class PlannedPdo:
 
     @property
     def cyclic(self) -> bool:
-        return self.trans_type <= 240
+        return self.trans_type <= TRANS_SYNC_MAX
 
     def describe(self, kind: str) -> str:
         objs = ", ".join(f"{e.name} ({e.address})" for e in self.entries)
@@ -75,6 +98,23 @@ class PlannedPdo:
 
 
 @dataclass(frozen=True)
+class SdoTransfer:
+    """An object no PDO carries, moved by expedited SDO instead: written (targets,
+    controlwords) or read (positions, statuswords), every cycle or on change."""
+
+    entry: Entry
+    write: bool
+    cyclic: bool
+
+    def describe(self) -> str:
+        what = "written" if self.write else "read"
+        when = "every cycle" if self.cyclic else "on change"
+        bits = f", {SDO_TRANSFER_BITS} bits" if self.cyclic else ""
+        return (f"SDO {when}: {self.entry.name} ({self.entry.address}) {what} by expedited SDO "
+                f"(request + answer{bits})")
+
+
+@dataclass(frozen=True)
 class NodePlan:
     node_id: int
     rpdos: tuple[PlannedPdo, ...]
@@ -82,10 +122,17 @@ class NodePlan:
     unused_rpdos: tuple[int, ...] = ()
     unused_tpdos: tuple[int, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    sdo: tuple[SdoTransfer, ...] = ()
+    tried: tuple[Entry, ...] = ()  # mapped although the EDS says they are not PDO-mappable
 
     def cyclic_bits(self) -> int:
         """Worst-case bits this node puts on the bus each control cycle (SYNC excluded)."""
-        return sum(frame_bits(p.data_bytes) for p in self.rpdos + self.tpdos if p.cyclic)
+        pdos = sum(frame_bits(p.data_bytes) for p in self.rpdos + self.tpdos if p.cyclic)
+        return pdos + self.sdo_bits()
+
+    def sdo_bits(self) -> int:
+        """Worst-case bits per control cycle of the objects moved by SDO every cycle."""
+        return SDO_TRANSFER_BITS * sum(1 for t in self.sdo if t.cyclic)
 
     def find(self, entry: Entry, tx: bool) -> tuple[PlannedPdo, int] | None:
         """(PDO, byte offset) where ``entry`` is mapped, or None."""
@@ -99,7 +146,7 @@ class NodePlan:
 
     def describe(self) -> list[str]:
         lines = [p.describe("RPDO") for p in self.rpdos] + [p.describe("TPDO") for p in self.tpdos]
-        return lines + list(self.notes)
+        return lines + [t.describe() for t in self.sdo] + list(self.notes)
 
 
 def pdo_slots(dictionary: od.ObjectDictionary, node_id: int, tx: bool) -> list[PdoSlot]:
@@ -115,9 +162,9 @@ def pdo_slots(dictionary: od.ObjectDictionary, node_id: int, tx: bool) -> list[P
         if 1 in comm.subindices:
             raw = comm[1].default
             if isinstance(raw, int):
-                default_cob = raw & 0x7FF
+                default_cob = raw & COB_ID_MASK
         if n < 4:
-            default_cob = (0x180 if tx else 0x200) + 0x100 * n + node_id
+            default_cob = (TPDO1_BASE if tx else RPDO1_BASE) + PDO_NUMBER_STEP * n + node_id
         slots.append(PdoSlot(n + 1, entries, 3 in comm.subindices, 5 in comm.subindices,
                              default_cob))
     return slots
@@ -168,20 +215,41 @@ def plan_node(
     optional_tx: Sequence[Entry] = (),
     inhibit_ms: float = 5.0,
     event_timer_ms: int = 100,
+    mapping: str = "try",
 ) -> NodePlan:
     """Plan the PDOs of one node.
 
     ``optional_tx`` objects (mode display, error code) are added to the event TPDO
-    only where they fit without using another PDO."""
+    only where they fit without using another PDO. ``mapping`` (one of
+    :data:`MAPPING_POLICIES`) decides what becomes of objects the EDS marks not
+    PDO-mappable, and whether targets and positions go by SDO."""
+    if mapping not in MAPPING_POLICIES:
+        raise ValueError(f"mapping must be one of {', '.join(MAPPING_POLICIES)}, got {mapping!r}")
     rx_slots = pdo_slots(dictionary, node_id, tx=False)
     tx_slots = pdo_slots(dictionary, node_id, tx=True)
     cyclic_rx, event_rx = _unique(cyclic_rx), _unique(event_rx)
     cyclic_tx, event_tx = _unique(cyclic_tx), _unique(event_tx)
     notes: list[str] = []
-    for entry in (*cyclic_rx, *event_rx, *cyclic_tx, *event_tx):
-        if not entry.pdo_mappable:
-            raise ConfigError(f"node {node_id}: {entry.name} ({entry.address}) is not "
-                              "PDO-mappable in its EDS")
+    sdo: list[SdoTransfer] = []
+    tried: list[Entry] = []
+
+    def keep_mapped(entries: list[Entry], write: bool, cyclic: bool) -> list[Entry]:
+        kept = []
+        for entry in entries:
+            if (cyclic and mapping == "sdo") or (not entry.pdo_mappable and mapping != "try"):
+                sdo.append(SdoTransfer(entry, write, cyclic or not write))
+                continue
+            if not entry.pdo_mappable:
+                tried.append(entry)
+                notes.append(f"{entry.name} ({entry.address}) is not PDO-mappable in its EDS: "
+                              "mapped anyway (pdo_mapping = \"try\")")
+            kept.append(entry)
+        return kept
+
+    cyclic_rx = keep_mapped(cyclic_rx, write=True, cyclic=True)
+    event_rx = keep_mapped(event_rx, write=True, cyclic=False)
+    cyclic_tx = keep_mapped(cyclic_tx, write=False, cyclic=True)
+    event_tx = keep_mapped(event_tx, write=False, cyclic=False)
 
     def pack_direction(cyclic: list[Entry], event: list[Entry], slots: list[PdoSlot],
                        kind: str) -> tuple[list[tuple[PdoSlot, list[Entry]]],
@@ -243,4 +311,6 @@ def plan_node(
         unused_rpdos=tuple(s.number for s in rx_slots if s.number not in used_rx),
         unused_tpdos=tuple(s.number for s in tx_slots if s.number not in used_tx),
         notes=tuple(notes),
+        sdo=tuple(sdo),
+        tried=tuple(tried),
     )

@@ -15,6 +15,7 @@ frames in time order and applies the chassis' rules:
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,15 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from omnican.cia301 import (
+    EMCY_BASE,
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    NMT_RESETS,
+    NMT_STATE_MASK,
+    SYNC_COB_ID,
+    NmtState,
+)
 from omnican.cia402 import State, decode_state, describe_emcy
 from omnican.config import ChassisConfig
 from omnican.encoder import SPEED_WINDOW_S, fold_counter
@@ -31,13 +41,9 @@ from omnican.layout import NodeLayout, node_layouts
 from omnican.odmap import Entry
 from omnican.odometry import Odometry
 
-FloatArray = npt.NDArray[np.float64]
+logger = logging.getLogger(__name__)
 
-SYNC_COB_ID = 0x80
-EMCY_BASE = 0x80
-HEARTBEAT_BASE = 0x700
-NMT_COB_ID = 0x000
-NMT_RESETS = (0x81, 0x82)  # reset node, reset communication
+FloatArray = npt.NDArray[np.float64]
 
 
 class RecordingError(ConfigError):
@@ -281,7 +287,8 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         node = cob - HEARTBEAT_BASE
         if node in node_ids and data:
             node_frames += 1
-            if data[0] & 0x7F == 0:  # boot-up: the counter restarts, the travel continues
+            # boot-up: the counter restarts, the travel continues
+            if data[0] & NMT_STATE_MASK == NmtState.BOOT_UP:
                 if node in booted and node not in reset:
                     reboots.append((t, node))
                 booted.add(node)
@@ -325,6 +332,16 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
     )
 
 
+# What each python-can log format looks like, for the error of an unreadable file.
+_FORMATS = {
+    ".log": "candump -L lines such as '(1700000000.000000) can0 181#0637'",
+    ".asc": "a Vector ASC text log",
+    ".blf": "a Vector BLF binary log",
+    ".csv": "python-can CSV rows: timestamp,arbitration_id,extended,remote,error,dlc,data",
+    ".trc": "a PEAK PCAN-View trace",
+}
+
+
 def read_frames(path: str | Path) -> list[Any]:
     """Every frame of a python-can log file (format by extension: .log, .asc, .blf, ...).
 
@@ -353,7 +370,11 @@ def read_frames(path: str | Path) -> list[Any]:
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if "unknown log format" in text:
             raise RecordingError(f"{p}: {text}") from None
-        raise RecordingError(f"{p}: not a readable {p.suffix or 'CAN'} recording: {text}") \
+        # The reader's own words ("not enough values to unpack") say nothing to a user.
+        logger.debug("reading %s: %s: %s", p, type(exc).__name__, text)
+        expected = _FORMATS.get(p.suffix.lower())
+        hint = f" (expected {expected})" if expected else ""
+        raise RecordingError(f"{p}: not a readable {p.suffix or 'CAN'} recording{hint}") \
             from None
     if not frames:
         raise RecordingError(f"{p}: no CAN frames in the recording")

@@ -1,5 +1,6 @@
-"""A host program for the process-level safety tests: opens the base from a config,
-says "ready", and keeps commanding forward motion until it is signalled."""
+"""A host program for the process-level safety tests: opens the base from a config
+(recording the bus to argv[2] if given), says "ready", and keeps commanding forward
+motion until it is signalled."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from omnican import Chassis, load_config
 
 def main() -> int:
     cfg = load_config(sys.argv[1])
+    record = sys.argv[2] if len(sys.argv) > 2 else None
     try:
-        with Chassis.open(cfg) as base:
+        with Chassis.open(cfg, record=record) as base:
             print("ready", flush=True)
             while True:
                 base.set_velocity(0.3, 0.0, 0.0)

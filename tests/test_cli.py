@@ -80,9 +80,9 @@ def test_drive_records_the_bus(tmp_path: Path, capsys: pytest.CaptureFixture[str
         (["drive", "--duration", "-1"], "argument --duration: must be positive"),
         (["drive", "--vx", "0.1", "--speed", "0.2"], "give either --vx/--vy/--wz or --speed"),
         (["drive", "--square", "1", "--vx", "1"], "--square takes only --speed and --omega"),
-        (["drive", "--sim", "--config", "/nonexistent.toml"], "cannot read config"),
-        (["drive", "--sim", "--record", "out.weird"], "cannot record to out.weird"),
-        (["drive", "--sim", "-i", "virtual"], "--sim runs on its own virtual bus"),
+        (["drive", "--sim", "--vx", "0.1", "--config", "/nonexistent.toml"], "cannot read config"),
+        (["drive", "--sim", "--vx", "0.1", "--record", "out.weird"], "cannot record to out.weird"),
+        (["drive", "--sim", "--vx", "0.1", "-i", "virtual"], "--sim runs on its own virtual bus"),
         (["nosuchcommand"], "invalid choice: 'nosuchcommand'"),
     ],
 )
@@ -246,6 +246,7 @@ def test_sim_serves_another_process(capsys: pytest.CaptureFixture[str]) -> None:
         url = re.search(r"on (ws://127\.0\.0\.1:\d+/)", first)
         assert url is not None
         assert lines.next() == f"connect with: omnican teleop -i remote -c {url[1]}"
+        assert lines.next().startswith("type a command here: fault NODE [CODE], reboot NODE")
         assert main(["drive", "-i", "remote", "-c", url[1], "--vx", "0.3", "--duration", "0.5",
                      "--json"]) == 0
         pose = json.loads(capsys.readouterr().out)["pose"]
@@ -282,11 +283,11 @@ def test_teleop_needs_a_terminal(capsys: pytest.CaptureFixture[str]) -> None:
 class Pty:
     """omnican teleop in a pseudo-terminal: send keys, read the screen."""
 
-    def __init__(self, *args: str) -> None:
+    def __init__(self, *args: str, columns: int = 120, lines: int = 40) -> None:
         self.master, slave = os.openpty()
-        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", lines, columns, 0, 0))
         env = {**os.environ, "PYTHONPATH": str(ROOT), "TERM": "xterm-256color",
-               "COLUMNS": "120", "LINES": "40"}
+               "COLUMNS": str(columns), "LINES": str(lines)}
         def controlling_terminal() -> None:  # so Ctrl-C on the pty sends SIGINT
             os.setsid()
             fcntl.ioctl(0, termios.TIOCSCTTY, 0)

@@ -14,11 +14,11 @@ from typing import Any
 
 import pytest
 
-from omnican import Chassis, load_config
+from omnican import Chassis, load_config, motion
 from omnican.calibration import truth_options
 from omnican.cli import main
-from omnican.cli.drive import Leg, execute
 from omnican.kinematics import Twist
+from omnican.motion import Leg
 from omnican.sim import SimulatedBase
 
 from .helpers import one_error_line
@@ -245,8 +245,6 @@ def test_bad_usage_is_one_line_and_exit_2(argv: list[str], message: str,
 
 def test_a_fault_during_the_run_is_exit_1(monkeypatch: pytest.MonkeyPatch,
                                           capsys: pytest.CaptureFixture[str]) -> None:
-    from omnican.cli import drive as drive_cli
-
     started: list[SimulatedBase] = []
     real_from_config = SimulatedBase.from_config.__func__  # type: ignore[attr-defined]
 
@@ -254,14 +252,14 @@ def test_a_fault_during_the_run_is_exit_1(monkeypatch: pytest.MonkeyPatch,
         started.append(real_from_config(cls, cfg, **kw))
         return started[-1]
 
-    real_execute = drive_cli.execute
+    real_run = motion.run
 
-    def faulting(base, plan):  # type: ignore[no-untyped-def]
+    def faulting(base, plan, *args, **kwargs):  # type: ignore[no-untyped-def]
         started[0].drives[0].inject_fault(0x4310)
-        return real_execute(base, plan)
+        return real_run(base, plan, *args, **kwargs)
 
     monkeypatch.setattr(SimulatedBase, "from_config", classmethod(keep))
-    monkeypatch.setattr(drive_cli, "execute", faulting)
+    monkeypatch.setattr(motion, "run", faulting)
     assert main(["calibrate", "--sim", *RUN]) == 1
     captured = capsys.readouterr()
     errors = [line for line in captured.err.splitlines() if "error:" in line]
@@ -297,7 +295,7 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> Recordings:
         path = d / f"{name}.log"
         with SimulatedBase.from_config(cfg, **truth) as sim, \
                 Chassis.open(cfg, record=path) as base:
-            execute(base, [Leg(line, 0.4, "line", distance=0.2),
+            motion.run(base, [Leg(line, 0.4, "line", distance=0.2),
                            Leg(Twist(0, 0, 3.0), 0.5, "spin", angle=math.pi / 2)])
             end = sim.true_pose
         runs.append((path, f"{end.x!r},{end.y!r},{end.theta!r}"))

@@ -8,7 +8,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import can
-import cantools
 import pytest
 
 from omnican.cli import main, monitor
@@ -246,32 +245,3 @@ def test_sim_with_bus_arguments(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 # ------------------------------------------------------------------ pieces
-
-
-def test_decode_names_choices_and_words() -> None:
-    db = monitor.load_dbc(monitor.DEFAULT_DBC)
-    assert monitor.decode(db, 0x182, False, bytes([0x37, 0x06, 0x03, 0x00, 0x00])) == (
-        "TPDO1_node2",
-        "Statusword=0x0637 OPERATION ENABLED  ModeDisplay=profile velocity  "
-        "ErrorCode=no error")
-    assert monitor.decode(db, 0x201, False, bytes([0x0F, 0x00])) == (
-        "RPDO1_node1", "Controlword=0x000F enable operation")
-    assert monitor.decode(db, 0x303, False, (-1234).to_bytes(4, "little", signed=True)) == (
-        "RPDO2_node3", "TargetVelocity=-1234 inc/s")
-    assert monitor.decode(db, 0x080, False, b"") == ("SYNC", "")
-    assert monitor.decode(db, 0x601, False, b"\x40\x41\x60\x00") == ("", "40 41 60 00")
-    assert monitor.decode(db, 0x080, True, b"") == ("", "(no data)")  # extended: not the SYNC
-
-
-def test_canopen_names() -> None:
-    assert [monitor.canopen_name(i) for i in (0x000, 0x080, 0x081, 0x100, 0x185, 0x37F, 0x580,
-                                              0x5FF, 0x67F, 0x70A, 0x7E5)] == [
-        "NMT", "SYNC", "EMCY node 1", "TIME", "TPDO1 node 5", "RPDO2 node 127", "",
-        "SDO response node 127", "SDO request node 127", "heartbeat node 10", ""]
-    assert monitor.canopen_name(0x181, extended=True) == ""
-
-
-def test_the_bundled_dbc_loads() -> None:
-    db = monitor.load_dbc(monitor.DEFAULT_DBC)
-    assert isinstance(db, cantools.database.can.Database)
-    assert db.get_message_by_name("RPDO2_node2").frame_id == 0x302

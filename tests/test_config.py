@@ -111,6 +111,8 @@ def test_derived_velocity_units() -> None:
         ("[chassis]", "[chasis]\n[chassis]", r"chasis: unknown section"),
         ("node_id = 3", "node_id = 3\nmode = \"torque\"", r"wheel\[2\]\.mode: unknown mode"),
         ("node_id = 1", "node_id = 127", r"wheel\[0\]\.node_id: 127 is the host's node id"),
+        ("rate_hz = 100", 'rate_hz = 100\npdo_mapping = "always"',
+         r"chassis\.pdo_mapping: must be one of try, eds, sdo, got 'always'"),
     ],
 )
 def test_bad_config_names_key_and_problem(tmp_path: Path, old: str, new: str, message: str) -> None:

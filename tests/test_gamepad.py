@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import os
 import time
+import weakref
 from collections import deque
 from collections.abc import Iterator
 from typing import Any, NamedTuple
@@ -14,8 +15,9 @@ from typing import Any, NamedTuple
 import pytest
 
 from omnican import Chassis, default_config
-from omnican.gamepad import Gamepad, drive_step
+from omnican.gamepad import Gamepad, drive_step, teleop_model_for
 from omnican.sim import SimulatedBase
+from omnican.teleop_model import TeleopModel
 
 from .helpers import wait_for
 
@@ -85,9 +87,24 @@ class FakePad:
 
 
 def drive(base: Chassis, pad: Gamepad, seconds: float) -> None:
+    model = model_of(base, pad)
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        drive_step(base, pad, 0.02)
+        drive_step(base, pad, model, 0.02)
+
+
+models: weakref.WeakKeyDictionary[Gamepad, TeleopModel] = weakref.WeakKeyDictionary()
+
+
+def model_of(base: Chassis, pad: Gamepad) -> TeleopModel:
+    """The teleop model of a pad: one per pad, kept across steps, as the command keeps one."""
+    if pad not in models:
+        models[pad] = teleop_model_for(base.cfg, pad.mapping)
+    return models[pad]
+
+
+def step(base: Chassis, pad: Gamepad) -> Any:
+    return drive_step(base, pad, model_of(base, pad), 0.02)
 
 
 @pytest.fixture
@@ -113,7 +130,7 @@ def test_deadman_held_drives_released_stops(rig: Any) -> None:
     assert base.twist.vx == pytest.approx(0.3, abs=0.03)
     assert abs(base.twist.vy) < 0.02
     device.send((e.EV_KEY, e.BTN_TL, 0))  # let go, stick still forward
-    assert drive_step(base, pad, 0.02).is_zero()
+    assert step(base, pad).is_zero()
     assert wait_for(lambda: abs(sim.true_twist.vx) < 0.005, timeout=1.0)
     x = sim.true_pose.x
     drive(base, pad, 0.3)
@@ -141,7 +158,7 @@ def test_unplugged_mid_drive_stops_at_once(rig: Any) -> None:
     drive(base, pad, 1.0)
     assert sim.true_twist.vx > 0.25
     device.unplug()
-    assert drive_step(base, pad, 0.02).is_zero()  # the first read after the unplug
+    assert step(base, pad).is_zero()  # the first read after the unplug
     assert not pad.connected
     assert "UNPLUGGED" in pad.status_text()
     assert wait_for(lambda: abs(sim.true_twist.vx) < 0.005, timeout=1.0)
@@ -183,11 +200,11 @@ def test_teleop_command_drives_with_the_gamepad(monkeypatch: pytest.MonkeyPatch,
     device = FakePad()
     driving = threading.Event()  # the command's loop runs (the drives are up)
 
-    def step(base: Chassis, pad: Gamepad, timeout: float) -> Any:
+    def first_step(base: Chassis, pad: Gamepad, model: TeleopModel, timeout: float) -> Any:
         driving.set()
-        return drive_step(base, pad, timeout)
+        return drive_step(base, pad, model, timeout)
 
-    monkeypatch.setattr(teleop_cli, "drive_step", step)
+    monkeypatch.setattr(teleop_cli, "drive_step", first_step)
     monkeypatch.setattr(Gamepad, "open", classmethod(
         lambda cls, path=None, table=None: Gamepad(device, table)))
     master, slave = os.openpty()

@@ -155,3 +155,31 @@ def test_codes_are_the_kernels() -> None:
         assert getattr(ecodes, name) == code, name
     assert (EV_SYN, EV_KEY, EV_ABS, SYN_DROPPED) == (ecodes.EV_SYN, ecodes.EV_KEY,
                                                      ecodes.EV_ABS, ecodes.SYN_DROPPED)
+
+
+def test_the_pad_drives_through_the_shared_teleop_model() -> None:
+    """The pad's twist goes through TeleopModel: the same twist, the keyboard's speed keys
+    scale it, and a released deadman zeroes it."""
+    from types import SimpleNamespace
+
+    from omnican import default_config
+    from omnican.gamepad import apply, teleop_model_for
+
+    s = pad()
+    front = SimpleNamespace(state=s, command=s.command)
+    model = teleop_model_for(default_config(), s.mapping)
+    s.feed(EV_KEY, LB, 1)
+    s.feed(EV_ABS, Y, -32768)  # full forward
+    s.feed(EV_ABS, RX, 16384)  # half right
+    apply(front, model, 1.0)  # type: ignore[arg-type]
+    assert model.command(1.0).vx == pytest.approx(s.command().vx)
+    assert model.command(1.0).wz == pytest.approx(s.command().wz, abs=1e-3)
+    s.feed(EV_KEY, RB, 1)  # turbo
+    apply(front, model, 1.1)  # type: ignore[arg-type]
+    assert model.command(1.1).vx == pytest.approx(0.8)
+    model.press("z", 1.2)  # the keyboard's "all speeds -10 %"
+    apply(front, model, 1.3)  # type: ignore[arg-type]
+    assert model.command(1.3).vx == pytest.approx(0.72)
+    s.feed(EV_KEY, LB, 0)
+    apply(front, model, 1.4)  # type: ignore[arg-type]
+    assert model.command(1.4).is_zero()

@@ -350,6 +350,24 @@ def test_unmappable_object_is_refused(rig: Rig) -> None:
     assert info.value.code == 0x06040042
 
 
+@pytest.mark.parametrize("accept", [True, False])
+def test_understated_eds_mapping_accepted_or_refused(rig: Rig, accept: bool) -> None:
+    """accept_unmappable: a drive that maps what its EDS marks PDOMapping=0 (6007h here),
+    as drives behind understating vendor EDS files do; or one that holds to its EDS."""
+    rig.drive(accept_unmappable=accept)
+    node = rig.node()
+    if accept:
+        node.sdo[0x1A02][1].raw = 0x60070010
+        assert node.sdo[0x1A02][1].raw == 0x60070010
+    else:
+        with pytest.raises(SdoAbortedError) as info:
+            node.sdo[0x1A02][1].raw = 0x60070010
+        assert info.value.code == 0x06040041
+    with pytest.raises(SdoAbortedError) as info:  # a read-only object is never an RPDO's
+        node.sdo[0x1602][1].raw = 0x60410010
+    assert info.value.code == 0x06040041
+
+
 def test_drive_that_refuses_remapping(rig: Rig) -> None:
     rig.drive(remappable=False)
     node = rig.node()

@@ -1,4 +1,4 @@
-"""``omnican calibrate``: correct the wheel scales and the base radius of a config.
+"""omnican calibrate: correct the wheel scales and the base radius of a config.
 
 Guided (or scripted) run: the base drives --distance m straight ahead, then spins
 --turns turns counter-clockwise in place. Measure how far it really went and how far
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from omnican import calibration, replay
+from omnican import calibration, motion, replay
 from omnican.calibration import Correction, FitResult, FitRun
 from omnican.cli.common import (
     EXIT_FAILURE,
@@ -46,6 +46,7 @@ from omnican.cli.common import (
     finite_float,
     load,
     positive_float,
+    progress_bar,
     session,
 )
 from omnican.config import WHEEL_EDS, ChassisConfig
@@ -219,8 +220,6 @@ def _parse_turns(text: str) -> float:
 def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
     """Drive the straight line and the spin; return the config and the measurements."""
     from omnican.chassis import Chassis
-    from omnican.cli.drive import BaseStoppedError, Leg, execute
-    from omnican.kinematics import Twist
 
     cfg = load(args)
     options: dict[str, Any] = {}
@@ -235,9 +234,8 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
         measured_turns = args.measured_angle_deg / 360.0
     interactive = not args.sim and (args.measured_distance is None or measured_turns is None)
     angle = 2 * math.pi * args.turns
-    straight = Leg(Twist(args.speed, 0.0, 0.0), args.distance / args.speed, "straight",
-                   distance=args.distance)
-    spin = Leg(Twist(0.0, 0.0, args.omega), angle / args.omega, "spin", angle=angle)
+    straight = motion.straight(args.distance, args.speed)
+    spin = motion.spin(angle, args.omega)
     if interactive:
         print(f"The base will drive {args.distance:g} m straight ahead, stop for you to "
               f"measure, then spin {args.turns:g} turns counter-clockwise in place. Mark its "
@@ -250,7 +248,8 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
         truth: list[Pose2D] = [sim.true_pose] if sim is not None else []
         poses = [base.pose]
         try:
-            execute(base, [straight])
+            with progress_bar(straight.seconds) as bar:
+                motion.run(base, [straight], bar)
             poses.append(base.pose)
             if sim is not None:
                 truth.append(sim.true_pose)
@@ -258,8 +257,9 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
             if distance is None and interactive:
                 distance = _ask(f"Measured straight distance, m (odometry: "
                                 f"{poses[1].distance_to(poses[0]):.4f}): ", _parse_distance)
-            execute(base, [spin])
-        except BaseStoppedError as exc:
+            with progress_bar(spin.seconds) as bar:
+                motion.run(base, [spin], bar)
+        except motion.BaseStoppedError as exc:
             raise _RunError(f"base stopped: {exc}") from None
         poses.append(base.pose)
         if sim is not None:
@@ -308,21 +308,41 @@ def _changes(cfg: ChassisConfig, corrected: ChassisConfig) -> list[dict[str, Any
     return out
 
 
-def _print_correction(cfg: ChassisConfig, c: Correction) -> None:
+def _edits(cfg: ChassisConfig, c: Correction) -> list[calibration.ConfigEdit]:
+    """The numbers ``--write`` changes, in the config file's own terms (``wheel_radius``
+    where the file gives physical parameters); for the demo base, which has no file,
+    the scales and the radius a new file gets."""
+    if cfg.source is not None:
+        try:
+            text = Path(cfg.source).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"cannot read {cfg.source}: {exc.strerror or exc}") from None
+        return calibration.edit_config(text, c)[1]
     corrected = c.apply(cfg)
+    edits = []
+    for i, (a, b) in enumerate(zip(cfg.wheels, corrected.wheels, strict=True)):
+        for key in ("velocity_scale", "position_scale"):
+            edits.append(calibration.ConfigEdit(
+                i, key, getattr(a, key), float(calibration.format_number(getattr(b, key)))))
+    edits.append(calibration.ConfigEdit(None, "base_radius", cfg.chassis.base_radius, float(
+        calibration.format_number(corrected.chassis.base_radius))))
+    return edits
+
+
+def _print_correction(cfg: ChassisConfig, c: Correction) -> None:
     common = len(set(c.wheel_factors)) == 1
     if common:
         print(f"wheel scale factor {c.wheel_factors[0]:.5f} ({_pct(c.wheel_factors[0])}): "
               "true counts per metre / configured")
-    for row in _changes(cfg, corrected):
-        name = f"wheel {row['wheel']} (node {row['node_id']}" + (
-            f" axis {row['axis']})" if row["axis"] else ")")
-        vs, ps = row["velocity_scale"], row["position_scale"]
-        factor = "" if common else f" factor {row['factor']:.5f} ({_pct(row['factor'])}):"
-        print(f"  {name}:{factor} velocity_scale {vs[0]:.7g} -> {vs[1]:.7g}, "
-              f"position_scale {ps[0]:.7g} -> {ps[1]:.7g}")
-    r0, r1 = cfg.chassis.base_radius, corrected.chassis.base_radius
-    print(f"base_radius {r0:.6g} -> {r1:.6g} m ({_pct(c.radius_factor)})")
+    edits = _edits(cfg, c)
+    for i, (w, s) in enumerate(zip(cfg.wheels, c.wheel_factors, strict=True)):
+        name = f"wheel {i} (node {w.node_id}" + (f" axis {w.axis})" if w.axis else ")")
+        factor = "" if common else f" factor {s:.5f} ({_pct(s)}):"
+        changes = ", ".join(f"{e.key} {e.old:.7g} -> {e.new:.7g}" for e in edits if e.wheel == i)
+        print(f"  {name}:{factor} {changes or 'nothing to change'}")
+    for e in edits:
+        if e.wheel is None:
+            print(f"{e.key} {e.old:.7g} -> {e.new:.7g} m ({_pct(c.radius_factor)})")
     if any(abs(f - 1.0) > 0.2 for f in (*c.wheel_factors, c.radius_factor)):
         print("omnican: warning: a correction above 20 %: check the measurements and the "
               "config's units", file=sys.stderr)

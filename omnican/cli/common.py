@@ -18,8 +18,10 @@ import can.cli
 
 from omnican.config import ChassisConfig, default_config, load_config
 from omnican.errors import ConfigError
+from omnican.odometry import Pose2D
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
 
 _BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "timing")
 
@@ -50,6 +52,17 @@ def positive_float(text: str) -> float:
     value = finite_float(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: a whole number above zero."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text!r}")
     return value
 
 
@@ -111,6 +124,60 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
     cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}")
     with SimulatedBase.from_config(cfg, **sim_options) as sim:
         yield Session(cfg, sim)
+
+
+def fixed(value: float, places: int, sign: bool = False) -> str:
+    """``value`` with ``places`` decimals (and its sign with ``sign``); a value that
+    rounds to zero is 0, never -0."""
+    text = f"{value:+.{places}f}" if sign else f"{value:.{places}f}"
+    if float(text) == 0.0:
+        text = f"{0.0:+.{places}f}" if sign else f"{0.0:.{places}f}"
+    return text
+
+
+def rounded(value: float, places: int = 6) -> float:
+    """``value`` rounded for JSON, with -0.0 as 0.0."""
+    return round(value, places) + 0.0
+
+
+def pose_line(p: Pose2D) -> str:
+    """``pose x=<m> y=<m> theta=<rad>``: how every command prints a final pose."""
+    return f"pose x={fixed(p.x, 4)} y={fixed(p.y, 4)} theta={fixed(p.theta, 4)}"
+
+
+def pose_dict(p: Pose2D) -> dict[str, float]:
+    return {"x": rounded(p.x), "y": rounded(p.y), "theta": rounded(p.theta)}
+
+
+class ProgressBar:
+    """A one-line progress display on stderr when it is a terminal and the work is long
+    enough to want one; a ``progress(done_s, total_s, label)`` callback."""
+
+    def __init__(self, total_s: float, stream: Any = None) -> None:
+        self.stream = stream or sys.stderr
+        self.enabled = self.stream.isatty() and total_s > 2.0
+
+    def __call__(self, done_s: float, total_s: float, label: str) -> None:
+        if self.enabled:
+            frac = min(1.0, done_s / total_s) if total_s > 0 else 1.0
+            bar = "=" * int(frac * 30)
+            self.stream.write(f"\r[{bar:<30}] {frac:4.0%} {label:<10}")
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\r" + " " * 50 + "\r")
+            self.stream.flush()
+
+
+@contextlib.contextmanager
+def progress_bar(total_s: float) -> Iterator[ProgressBar]:
+    """A :class:`ProgressBar` that is cleared from the line when the block ends."""
+    bar = ProgressBar(total_s)
+    try:
+        yield bar
+    finally:
+        bar.close()
 
 
 def setup_logging(verbosity: int, stream: Any = None) -> None:

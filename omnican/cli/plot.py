@@ -1,14 +1,14 @@
-"""``omnican plot``: one figure of a recording: the x-y trajectory, each wheel's
+"""omnican plot: one figure of a recording: the x-y trajectory, each wheel's
 target vs actual rim speed over time, and the drives' CiA 402 states over time.
 
     omnican plot RECORDING -o OUT.png [--config TOML]
     omnican plot --sim -o OUT.png     # drive a square on the simulator, then plot it
 
-RECORDING is any python-can log (``omnican drive ... --record FILE``; .log, .asc,
+RECORDING is any python-can log (omnican drive ... --record FILE; .log, .asc,
 .blf); --config must describe the base it was recorded on (default: the demo base).
 Under --sim the simulator's ground-truth path is drawn over the odometry.
 The output format follows OUT's extension (png, svg, pdf). Needs matplotlib
-(``pip install 'omnican[plot]'``).
+(pip install 'omnican[plot]').
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from omnican import replay
+from omnican import motion, replay
 from omnican.cia402 import State
 from omnican.cli.common import (
     EXIT_OK,
@@ -32,9 +32,12 @@ from omnican.cli.common import (
     add_config_argument,
     finite_float,
     load,
+    pose_line,
     positive_float,
+    progress_bar,
     session,
 )
+from omnican.odometry import Pose2D
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -229,7 +232,7 @@ def build_figure(rep: replay.Replay, title: str,
 def summary(rep: replay.Replay) -> str:
     if len(rep.poses):
         x, y, th = rep.poses[-1]
-        pose = f"end pose x={x:.4f} y={y:.4f} theta={th:.4f}"
+        pose = "end " + pose_line(Pose2D(float(x), float(y), float(th)))
     else:
         pose = "no complete position samples"
     states = ", ".join(f"node {s.node_id} {s.changes[-1].state if s.changes else State.UNKNOWN}"
@@ -284,23 +287,16 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
                                                                 list[tuple[float, float]]]:
     from omnican.calibration import truth_options
     from omnican.chassis import Chassis
-    from omnican.cli.drive import BaseStoppedError, Leg, execute
-    from omnican.kinematics import Twist
 
     cfg = load(args)
     options = truth_options(cfg, args.sim_scale_error, args.sim_radius_error)
-    side, speed, omega = args.square, args.speed, args.omega
-    plan = []
-    for k in range(1, args.sides + 1):
-        plan.append(Leg(Twist(speed, 0.0, 0.0), side / speed, f"side {k}/{args.sides}",
-                        distance=side))
-        plan.append(Leg(Twist(0.0, 0.0, omega), (math.pi / 2) / omega, f"turn {k}/{args.sides}",
-                        angle=math.pi / 2))
+    plan = motion.square(args.square, args.speed, args.omega, args.sides)
     with (session(args, **options) as s, Chassis.open(s.cfg, record=record) as base,
           _sample_truth(s.sim) as truth):
         try:
-            execute(base, plan)
-        except BaseStoppedError as exc:
+            with progress_bar(motion.nominal_duration(plan)) as bar:
+                motion.run(base, plan, bar)
+        except motion.BaseStoppedError as exc:
             print(f"omnican: warning: base stopped: {exc}", file=sys.stderr)
     return replay.load(record, s.cfg), truth
 

@@ -1,24 +1,19 @@
-"""``omnican sim``: serve simulated drives for another program.
+"""omnican sim: serve simulated drives for another program.
 
 By default the drives sit behind a loopback-only hub, and a second terminal drives
-them with::
+them with:
 
     omnican teleop -i remote -c ws://127.0.0.1:54701/
 
-On Linux they can also sit on a SocketCAN interface (``-i socketcan -c vcan0``),
-where any CAN tool sees them. Commands on stdin inject faults while it runs:
-
-    fault NODE [CODE]   EMCY + FAULT (default 0x2310 over-current)
-    reboot NODE         boot-up, defaults restored, position counter reset
-    heartbeat NODE off|on
-    freeze NODE / thaw NODE
-    pose                print the ground-truth pose
-    quit
+On Linux they can also sit on a SocketCAN interface (-i socketcan -c vcan0),
+where any CAN tool sees them. Commands typed on stdin inject faults while it runs
+(listed below). A port already in use is a run-time failure (exit 1).
 """
 
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import select
 import sys
 import time
@@ -30,7 +25,9 @@ from omnican.cli.common import (
     UsageError,
     add_config_argument,
     bus_overrides,
+    finite_float,
     load,
+    pose_line,
     positive_float,
 )
 from omnican.hub import DEFAULT_PORT, LoopbackHub
@@ -42,16 +39,17 @@ def add_subparser(sub: Any) -> None:
     import can.cli
 
     p = sub.add_parser("sim", help="serve simulated drives to another process",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=f"{__doc__}\ncommands:\n{commands_help()}\n",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_argument(p)
     p.add_argument("--serve", metavar="[HOST:]PORT", default=None,
                    help=f"loopback hub address (default 127.0.0.1:{DEFAULT_PORT}; loopback only)")
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
-    p.add_argument("--encoder-noise", type=float, default=0.0, metavar="COUNTS",
-                   help="standard deviation added to reported positions")
-    p.add_argument("--frame-loss", type=float, default=0.0, metavar="P",
-                   help="probability of losing each PDO/heartbeat frame")
+    p.add_argument("--encoder-noise", type=finite_float, default=0.0, metavar="COUNTS",
+                   help="standard deviation added to reported positions (default 0)")
+    p.add_argument("--frame-loss", type=finite_float, default=0.0, metavar="P",
+                   help="probability 0-1 of losing each PDO/heartbeat frame (default 0)")
     p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
                    metavar="[HOST:]PORT", help="serve the ground truth and the bus to Foxglove on "
                    "[HOST:]PORT (default 127.0.0.1:8765; loopback unless a host is given)")
@@ -69,23 +67,67 @@ def parse_serve(text: str | None) -> tuple[str, int]:
         raise UsageError(f"--serve wants [HOST:]PORT, got {text!r}") from None
     if not 0 <= number <= 65535:
         raise UsageError(f"--serve port must be 0-65535, got {number}")
-    return host or "127.0.0.1", number
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        return host, number  # a name: the hub resolves it and checks every address
+    if address.is_unspecified:
+        raise UsageError(f"--serve {text}: the hub serves loopback only, and {host} is every "
+                         "interface (use 127.0.0.1)")
+    if not address.is_loopback:
+        raise UsageError(f"--serve {text}: the hub serves loopback only, and {host} is not a "
+                         "loopback address (use 127.0.0.1)")
+    return host, number
+
+
+# The console's commands: (syntax, what it does), for the banner and 'help'.
+COMMANDS = (
+    ("fault NODE [CODE]", "EMCY + FAULT (default 0x2310 continuous over-current)"),
+    ("reboot NODE", "boot-up, defaults restored, position counter reset"),
+    ("heartbeat NODE off|on", "stop or restart the node's heartbeat"),
+    ("freeze NODE", "answer nothing, send nothing (a hung node)"),
+    ("thaw NODE", "back to normal after freeze"),
+    ("pose", "print the ground-truth pose"),
+    ("help", "list the commands"),
+    ("quit", "stop the simulator"),
+)
+_NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw")
+
+
+def commands_help() -> str:
+    width = max(len(syntax) for syntax, _ in COMMANDS)
+    return "\n".join(f"{syntax:<{width}}  {what}" for syntax, what in COMMANDS)
+
+
+def _nodes(sim: SimulatedBase) -> str:
+    return ", ".join(str(d.node_id) for d in sim.drives)
 
 
 def drive_for(sim: SimulatedBase, word: str) -> SimulatedDrive:
     try:
         node = int(word, 0)
     except ValueError:
-        raise ValueError(f"not a node id: {word!r}") from None
+        raise ValueError(f"not a node id: {word!r} (nodes: {_nodes(sim)})") from None
     for d in sim.drives:
         if d.node_id == node:
             return d
-    raise ValueError(f"no simulated node {node} (nodes: "
-                     f"{', '.join(str(d.node_id) for d in sim.drives)})")
+    raise ValueError(f"no simulated node {node} (nodes: {_nodes(sim)})")
+
+
+def parse_emcy_code(word: str) -> int:
+    try:
+        code = int(word, 0)
+    except ValueError:
+        raise ValueError(f"not an emergency code: {word!r} (e.g. 0x2310)") from None
+    if not 0 < code <= 0xFFFF:
+        raise ValueError(f"an emergency code is 0x0001-0xFFFF, got {word!r}")
+    return code
 
 
 def command(sim: SimulatedBase, line: str) -> str | None:
-    """Apply one stdin command; returns a reply, or None to quit."""
+    """Apply one console command; returns the reply ('error: ...' for a command it does
+    not understand, which then does nothing), or None to quit."""
     words = line.split()
     if not words:
         return ""
@@ -93,33 +135,40 @@ def command(sim: SimulatedBase, line: str) -> str | None:
     try:
         if verb in ("quit", "exit"):
             return None
-        if verb == "pose":
-            p = sim.true_pose
-            return f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f}"
         if verb == "help":
-            return (__doc__ or "").split("stdin inject faults while it runs:")[-1].strip()
+            return commands_help()
+        if verb == "pose":
+            return "true " + pose_line(sim.true_pose)
+        if verb not in _NODE_VERBS:
+            raise ValueError(f"unknown command {words[0]!r} (try 'help')")
+        if verb == "heartbeat" and len(rest) != 2:
+            raise ValueError("heartbeat takes a node id and on or off")
         if not rest:
-            raise ValueError(f"{verb} needs a node id")
+            raise ValueError(f"{verb} needs a node id (nodes: {_nodes(sim)})")
         drive = drive_for(sim, rest[0])
         if verb == "fault":
-            code = int(rest[1], 0) if len(rest) > 1 else 0x2310
+            if len(rest) > 2:
+                raise ValueError("fault takes a node id and an optional code")
+            code = parse_emcy_code(rest[1]) if len(rest) > 1 else 0x2310
             drive.inject_fault(code)
             return f"node {drive.node_id}: fault 0x{code:04X}"
+        if verb == "heartbeat":
+            state = rest[1].lower()
+            if state not in ("on", "off"):
+                raise ValueError(f"heartbeat takes on or off, not {rest[1]!r}")
+            (drive.start_heartbeat if state == "on" else drive.stop_heartbeat)()
+            return f"node {drive.node_id}: heartbeat {state}"
+        if len(rest) > 1:
+            raise ValueError(f"{verb} takes only a node id")
         if verb == "reboot":
             drive.reboot()
             return f"node {drive.node_id}: rebooted"
-        if verb == "heartbeat":
-            on = len(rest) > 1 and rest[1].lower() == "on"
-            (drive.start_heartbeat if on else drive.stop_heartbeat)()
-            return f"node {drive.node_id}: heartbeat {'on' if on else 'off'}"
         if verb == "freeze":
             drive.freeze()
             return f"node {drive.node_id}: frozen"
-        if verb == "thaw":
-            drive.thaw()
-            return f"node {drive.node_id}: thawed"
-        raise ValueError(f"unknown command {verb!r} (try 'help')")
-    except (ValueError, IndexError) as exc:
+        drive.thaw()
+        return f"node {drive.node_id}: thawed"
+    except ValueError as exc:
         return f"error: {exc}"
 
 
@@ -128,9 +177,10 @@ def run(args: argparse.Namespace) -> int:
     on_bus = bool(bus_overrides(args))
     if on_bus and args.serve:
         raise UsageError("give either --serve (a loopback hub) or bus arguments, not both")
-    for name, value in (("--encoder-noise", args.encoder_noise), ("--frame-loss", args.frame_loss)):
-        if not value >= 0:
-            raise UsageError(f"{name} must be 0 or more, got {value}")
+    if args.encoder_noise < 0:
+        raise UsageError(f"--encoder-noise must be 0 or more, got {args.encoder_noise:g}")
+    if not 0 <= args.frame_loss <= 1:
+        raise UsageError(f"--frame-loss must be 0-1, got {args.frame_loss:g}")
     options = {"encoder_noise": args.encoder_noise, "frame_loss": args.frame_loss}
     hub = None
     if on_bus:
@@ -150,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"connect with: {connect}", flush=True)
             if args.config:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)
+            print("type a command here: " + ", ".join(syntax for syntax, _ in COMMANDS),
+                  flush=True)
             with watch(None, sim, args.foxglove, announce=lambda t: print(t, flush=True)):
                 serve(sim, args.duration)
     finally:

@@ -1,19 +1,11 @@
-"""``omnican teleop``: drive the base from the keyboard, with a live dashboard.
+"""omnican teleop: drive the base from the keyboard, with a live dashboard.
 
-Keys follow ROS ``teleop_twist_keyboard``::
-
-    u i o      forward-left   forward   forward-right (turning)
-    j k l      turn left      stop      turn right
-    m , .      back-right     back      back-left
-    Shift (U I O J K L M < >) strafes instead of turning (holonomic mode)
-    q/z  all speeds +/-10 %    w/x  linear only    e/c  angular only
-    space or k  stop     r  recover after a fault     Esc or Ctrl-C  quit
-
-Holding a key keeps the base moving; when keys stop arriving for ``--key-timeout``
-seconds it stops. With ``--gamepad`` a pad drives instead (teleop_twist_joy's rules: hold
-LB/L1, left stick moves, right stick turns, RB/R1 turbo; releasing LB or unplugging the
-pad stops the base); the keys still quit and recover. On exit every drive is disabled
-and the final pose is printed as ``pose x=<m> y=<m> theta=<rad>``.
+The keys are those of ROS's teleop_twist_keyboard (the key map is printed below).
+Holding a key keeps the base moving; when keys stop arriving for --key-timeout
+seconds it stops. With --gamepad a pad drives instead (ROS teleop_twist_joy's rules: hold
+LB/L1, left stick moves, right stick turns, RB/R1 for turbo; releasing LB or unplugging
+the pad stops the base); the keys still quit, recover and scale the speeds. On exit every
+drive is disabled and the final pose is printed as 'pose x=<m> y=<m> theta=<rad>'.
 """
 
 from __future__ import annotations
@@ -29,8 +21,7 @@ import sys
 import termios
 import time
 import tty
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 from rich.console import Console, Group, RenderableType
@@ -44,36 +35,26 @@ from omnican.cia402 import State
 from omnican.cli.common import (
     UsageError,
     add_bus_arguments,
+    fixed,
+    pose_line,
     positive_float,
     session,
 )
-from omnican.cli.drive import pose_line
 from omnican.errors import OmnicanError
-from omnican.gamepad import Gamepad, config_table, drive_step
+from omnican.gamepad import Gamepad, config_table, drive_step, teleop_model_for
 from omnican.kinematics import Twist
 from omnican.live import FOXGLOVE_HELP, foxglove_address, watch
+from omnican.teleop_model import ESC, TeleopModel, key_help
 
-# (x, y, th) multipliers, as in teleop_twist_keyboard's moveBindings.
-MOVE_KEYS: dict[str, tuple[int, int, int]] = {
-    "i": (1, 0, 0), "o": (1, 0, -1), "j": (0, 0, 1), "l": (0, 0, -1),
-    "u": (1, 0, 1), ",": (-1, 0, 0), ".": (-1, 0, 1), "m": (-1, 0, -1),
-    "O": (1, -1, 0), "I": (1, 0, 0), "J": (0, 1, 0), "L": (0, -1, 0),
-    "U": (1, 1, 0), "<": (-1, 0, 0), ">": (-1, -1, 0), "M": (-1, 1, 0),
-    "k": (0, 0, 0), "K": (0, 0, 0), " ": (0, 0, 0),
-}
-# (linear factor, angular factor), as in speedBindings.
-SPEED_KEYS: dict[str, tuple[float, float]] = {
-    "q": (1.1, 1.1), "z": (0.9, 0.9), "w": (1.1, 1.0), "x": (0.9, 1.0),
-    "e": (1.0, 1.1), "c": (1.0, 0.9),
-}
+# The last byte of an arrow key's escape sequence -> the key it stands for.
 ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}  # up, down, right, left
-ESC, CTRL_C = "\x1b", "\x03"
 LOOP_S = 0.05
 
 
 def add_subparser(sub: Any) -> None:
     p = sub.add_parser("teleop", help="drive the base from the keyboard (live dashboard)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=f"{__doc__}\nkeys:\n{key_help()}\n",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--speed", type=positive_float, default=0.3, metavar="M/S",
                    help="initial linear speed (default 0.3)")
     p.add_argument("--turn", type=positive_float, default=1.0, metavar="RAD/S",
@@ -91,43 +72,6 @@ def add_subparser(sub: Any) -> None:
                         "moves, right stick turns; the [gamepad] table of --config maps it")
     add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
     p.set_defaults(func=run)
-
-
-@dataclass
-class Keyboard:
-    """What the keys asked for so far."""
-
-    speed: float
-    turn: float
-    max_speed: float
-    max_turn: float
-    key_timeout: float
-    direction: tuple[int, int, int] = (0, 0, 0)
-    last_key_at: float = -math.inf
-    last_key: str = ""
-    quit: bool = False
-    recover: bool = False
-
-    def press(self, key: str, now: float) -> None:
-        self.last_key, self.last_key_at = key, now
-        if key in MOVE_KEYS:
-            self.direction = MOVE_KEYS[key]
-        elif key in SPEED_KEYS:
-            lin, ang = SPEED_KEYS[key]
-            self.speed = min(self.speed * lin, self.max_speed)
-            self.turn = min(self.turn * ang, self.max_turn)
-        elif key in ("r", "R"):
-            self.recover = True
-        elif key in (ESC, CTRL_C):
-            self.quit = True
-        else:
-            self.direction = (0, 0, 0)  # anything else: stop, as in teleop_twist_keyboard
-
-    def command(self, now: float) -> Twist:
-        if self.key_timeout > 0 and now - self.last_key_at > self.key_timeout:
-            self.direction = (0, 0, 0)
-        x, y, th = self.direction
-        return Twist(x * self.speed, y * self.speed, th * self.turn)
 
 
 def read_keys(fd: int, timeout: float) -> list[str]:
@@ -179,14 +123,24 @@ class _Events(logging.Handler):
 
 @contextlib.contextmanager
 def logs_into(handler: logging.Handler) -> Iterator[None]:
+    """Log records into the dashboard, omnican's own from INFO on: what the base did
+    (recovered, re-configured a rebooted drive) belongs in the events panel."""
     root = logging.getLogger()
-    saved = root.handlers[:]
+    ours = logging.getLogger("omnican")
+    saved, saved_level = root.handlers[:], ours.level
     root.handlers = [handler]
+    if ours.getEffectiveLevel() > logging.INFO:
+        ours.setLevel(logging.INFO)
     try:
         yield
     finally:
         root.handlers = saved
+        ours.setLevel(saved_level)
 
+
+# The key help under the dashboard, in phrases that are never broken across lines.
+HELP_PHRASES = ("u i o / j k l / m , .  move", "Shift: strafe", "q/z w/x e/c: speeds",
+                "space/k: stop", "r: recover", "Esc/Ctrl-C: quit")
 
 STATE_STYLE = {
     State.OPERATION_ENABLED: "green",
@@ -197,28 +151,46 @@ STATE_STYLE = {
 }
 
 
-def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
-              events: _Events, note: str) -> Group:
+def wrap_phrases(phrases: Sequence[str], width: int, gap: int = 4) -> str:
+    """The phrases on lines of at most ``width`` columns, broken only between phrases."""
+    lines: list[str] = []
+    for phrase in phrases:
+        if lines and len(lines[-1]) + gap + len(phrase) <= width:
+            lines[-1] += " " * gap + phrase
+        else:
+            lines.append(phrase)
+    return "\n".join(lines)
+
+
+def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
+              events: _Events, note: str, width: int = 120) -> Group:
     st = base.status
     pose, twist, applied = base.pose, base.twist, base.command
-    header = Text(title, style="bold")
     bitrate = base.bus.bitrate
     load = (f"{st.bus_load:.0%} of {bitrate // 1000} kbit/s"
-            if st.bus_load is not None and bitrate else f"{st.bus_bits_per_s / 1000:.1f} kbit/s")
-    header.append(f"   loop {st.loop_hz:.0f} Hz   bus {load}", style="dim")
+            if st.bus_load is not None and bitrate else
+            f"{st.bus_bits_per_s / 1000:.1f} kbit/s (bitrate unknown)")
+    header = Text(wrap_phrases([title, f"loop {st.loop_hz:.0f} Hz", f"bus {load}"], width, 3),
+                  style="dim")
+    header.stylize("bold not dim", 0, len(title))
+    if not st.bus_up:
+        header.append("   BUS DOWN", style="bold red")
 
     pose_t = Table.grid(padding=(0, 1))
-    pose_t.add_row("x", f"{pose.x:+8.3f} m")
-    pose_t.add_row("y", f"{pose.y:+8.3f} m")
-    pose_t.add_row("θ", f"{pose.theta:+8.3f} rad ({math.degrees(pose.heading):+6.1f}°)")
+    pose_t.add_row("x", f"{fixed(pose.x, 3, sign=True):>8} m")
+    pose_t.add_row("y", f"{fixed(pose.y, 3, sign=True):>8} m")
+    pose_t.add_row("θ", f"{fixed(pose.theta, 3, sign=True):>8} rad "
+                        f"({fixed(math.degrees(pose.heading), 1, sign=True):>6}°)")
 
     tw = Table(box=None, padding=(0, 1))
     for col in ("", "keys", "applied", "measured"):
         tw.add_column(col, justify="right")
+    unknown = any(w.stale for w in base.wheels)  # no fresh samples: no measured twist
     for name, unit, a, b, c in (("vx", "m/s", command.vx, applied.vx, twist.vx),
                                 ("vy", "m/s", command.vy, applied.vy, twist.vy),
                                 ("wz", "rad/s", command.wz, applied.wz, twist.wz)):
-        tw.add_row(f"{name} {unit}", f"{a:+.3f}", f"{b:+.3f}", f"{c:+.3f}")
+        tw.add_row(f"{name} {unit}", fixed(a, 3, sign=True), fixed(b, 3, sign=True),
+                   "-" if unknown else fixed(c, 3, sign=True))
 
     wheels = Table(box=None, padding=(0, 1))
     for col in ("wheel", "node", "state", "target m/s", "actual m/s", "travel m", "fault"):
@@ -228,8 +200,9 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
         state = Text(str(w.state), style=STATE_STYLE.get(w.state, ""))
         if not w.online:
             state = Text("OFFLINE", style="bold red")
-        wheels.add_row(str(w.index), node, state, f"{w.target_speed:+.3f}",
-                       f"{w.actual_speed:+.3f}", f"{w.travel:+.3f}",
+        wheels.add_row(str(w.index), node, state, fixed(w.target_speed, 3, sign=True),
+                       "-" if w.stale else fixed(w.actual_speed, 3, sign=True),
+                       fixed(w.travel, 3, sign=True),
                        Text(w.fault or w.error or "", style="red"))
 
     if st.stopped_reason:
@@ -240,10 +213,10 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
         status = Text("starting...", style="yellow")
     if note:
         status.append(f"   {note}", style="yellow")
-    settings = Text(f"speed {keys.speed:.2f} m/s   turn {keys.turn:.2f} rad/s   "
-                    f"key timeout {keys.key_timeout:g} s   last key {keys.last_key!r}")
-    help_text = Text("u i o / j k l / m , .  move    Shift: strafe    q/z w/x e/c: speeds    "
-                     "space/k: stop    r: recover    Esc/Ctrl-C: quit", style="dim")
+    settings = Text(wrap_phrases([f"speed {keys.speed:.2f} m/s", f"turn {keys.turn:.2f} rad/s",
+                                  f"key timeout {keys.timeout_s:g} s",
+                                  f"last key {keys.last_input!r}"], width, 3))
+    help_text = Text(wrap_phrases(HELP_PHRASES, width), style="dim")
     grid = Table.grid(padding=(0, 2))
     grid.add_row(Panel(pose_t, title="pose", title_align="left"),
                  Panel(tw, title="twist", title_align="left"))
@@ -256,30 +229,32 @@ def dashboard(base: Chassis, keys: Keyboard, command: Twist, title: str,
     return Group(*body)
 
 
-def drive_loop(base: Chassis, keys: Keyboard, fd: int, live: Live, title: str,
+def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
                events: _Events, pad: Gamepad | None = None) -> None:
     """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc."""
     note = ""
-    while not keys.quit:
+    while not keys.quit_requested:
         now = time.monotonic()
         for key in read_keys(fd, LOOP_S if pad is None else LOOP_S / 2):
             keys.press(key, now)
-        if keys.recover:
-            keys.recover, note = False, "recovering..."
-            live.update(dashboard(base, keys, Twist(), title, events, note), refresh=True)
+        if keys.take_recover():
+            note = "recovering..."
+            live.update(dashboard(base, keys, Twist(), title, events, note,
+                                  live.console.width), refresh=True)
             try:
                 base.recover()
                 note = ""
             except OmnicanError as exc:
                 note = f"recover failed: {exc}"
-        if pad is not None:  # the pad commands; keys still quit and recover
-            command = drive_step(base, pad, LOOP_S / 2)
+        if pad is not None:  # the pad moves; the keys still quit, recover and scale
+            command = drive_step(base, pad, keys, LOOP_S / 2)
             shown = note or pad.status_text()
         else:
             command = keys.command(time.monotonic())
             base.set_velocity(command.vx, command.vy, command.wz)
             shown = note
-        live.update(dashboard(base, keys, command, title, events, shown), refresh=True)
+        live.update(dashboard(base, keys, command, title, events, shown, live.console.width),
+                    refresh=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -294,15 +269,12 @@ def run(args: argparse.Namespace) -> int:
     final = None
     pad = None
     if args.gamepad is not None:  # before the drives come up: no pad, nothing moves
-        table = config_table(args.config)
-        pad = Gamepad.open(args.gamepad or None, table)
+        pad = Gamepad.open(args.gamepad or None, config_table(args.config))
     with session(args) as s, (pad or contextlib.nullcontext()):
-        c = s.cfg.chassis
-        kin = s.cfg.kinematics()
-        max_speed = min(c.max_speed, c.max_wheel_speed)
-        max_turn = min(c.max_angular_speed, c.max_wheel_speed / max(kin.base_radius))
-        keys = Keyboard(min(args.speed, max_speed), min(args.turn, max_turn), max_speed,
-                        max_turn, args.key_timeout)
+        if pad is not None:
+            keys = teleop_model_for(s.cfg, pad.mapping)
+        else:
+            keys = TeleopModel.for_config(s.cfg, args.speed, args.turn, args.key_timeout)
         where = "simulated base" if s.sim else "base"
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"

@@ -1,7 +1,7 @@
 """A simulated CiA 402 wheel drive on a canopen network.
 
 Built on :class:`canopen.LocalNode` (object dictionary from an EDS, SDO server,
-EMCY producer) and adding what it lacks (canopen #555, #558): NMT with boot-up
+EMCY producer) and adding what it lacks for a drive: NMT with boot-up
 frames and resets, PDOs as the master configured them, the CiA 402 state machine,
 a motor model per axis, heartbeat producer and consumer, and fault injection.
 
@@ -33,17 +33,44 @@ from canopen.objectdictionary import SIGNED_TYPES
 from canopen.sdo.exceptions import SdoAbortedError
 
 from omnican import cia402
+from omnican.cia301 import (
+    COB_ID_MASK,
+    COMMUNICATION_PROFILE,
+    CONSUMER_HEARTBEAT_TIME,
+    DEVICE_TYPE,
+    EMCY_BASE,
+    EMCY_HEARTBEAT,
+    EMCY_NO_ERROR,
+    EMCY_PDO_LENGTH,
+    ERROR_REGISTER,
+    ERROR_REGISTER_COMMUNICATION,
+    ERROR_REGISTER_CURRENT,
+    ERROR_REGISTER_GENERIC,
+    ERROR_REGISTER_TEMPERATURE,
+    ERROR_REGISTER_VOLTAGE,
+    HEARTBEAT_BASE,
+    IDENTITY,
+    MAX_NODE_ID,
+    MAX_PDOS,
+    NMT_COB_ID,
+    NMT_STATE_NAMES,
+    PRODUCER_HEARTBEAT_TIME,
+    RPDO_COMM,
+    RPDO_MAP,
+    SDO_ABORT_READ_ONLY,
+    SDO_ABORT_VALUE_RANGE,
+    SYNC_COB_ID,
+    SYNC_COB_ID_OBJECT,
+    TPDO_COMM,
+    TPDO_MAP,
+    NmtCommand,
+    NmtState,
+)
 from omnican.cia402 import Mode, State
 from omnican.config import WHEEL_EDS
 from omnican.odmap import AxisObjects, Entry, Obj
 from omnican.sim import motor
 from omnican.sim.pdo import (
-    ABORT_READ_ONLY,
-    ABORT_VALUE_RANGE,
-    RPDO_COMM,
-    RPDO_MAP,
-    TPDO_COMM,
-    TPDO_MAP,
     MappedObject,
     PdoConfig,
     check_mapping_write,
@@ -53,16 +80,9 @@ from omnican.sim.scheduler import SimScheduler
 
 logger = logging.getLogger(__name__)
 
-# NMT states as sent in heartbeats.
-NMT_BOOTUP, NMT_STOPPED, NMT_OPERATIONAL, NMT_PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
-NMT_NAMES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
-_NMT_START, _NMT_STOP, _NMT_PREOP, _NMT_RESET_NODE, _NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
-
-EMCY_HEARTBEAT = 0x8130
-EMCY_PDO_LENGTH = 0x8210
-
 # Error register (1001h) bits by EMCY class.
-_ERROR_REGISTER_BITS = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}
+_ERROR_REGISTER_BITS = {0x2: ERROR_REGISTER_CURRENT, 0x3: ERROR_REGISTER_VOLTAGE,
+                        0x4: ERROR_REGISTER_TEMPERATURE, 0x8: ERROR_REGISTER_COMMUNICATION}
 
 _STATE_BITS: dict[State, int] = {s: cia402.state_bits(s) for s in State if s is not State.UNKNOWN}
 
@@ -129,6 +149,9 @@ class SimulatedDrive:
         frame_loss: probability that a PDO or heartbeat frame is lost (either way).
         max_mapping_entries: mapping entries a PDO accepts (None: the EDS decides).
         remappable: False for a drive that refuses any PDO remapping.
+        accept_unmappable: True for a drive that maps objects its EDS marks not
+            PDO-mappable (PDOMapping=0), as real drives behind understating EDS files
+            do; False (default) refuses them with the SDO abort "object cannot be mapped".
         initial_position: encoder counts at power-up, per axis (to test wrap-around).
         scheduler: share a housekeeping thread; default one of its own.
         boot: send the boot-up frame and enter PRE-OPERATIONAL now.
@@ -148,6 +171,7 @@ class SimulatedDrive:
         frame_loss: float = 0.0,
         max_mapping_entries: int | None = None,
         remappable: bool = True,
+        accept_unmappable: bool = False,
         initial_position: float | Sequence[float] = 0.0,
         scheduler: SimScheduler | None = None,
         boot: bool = True,
@@ -166,6 +190,7 @@ class SimulatedDrive:
         self.frame_loss = frame_loss
         self.max_mapping_entries = max_mapping_entries
         self.remappable = remappable
+        self.accept_unmappable = accept_unmappable
         self._rng = random.Random(seed)
         self.lock = threading.RLock()
 
@@ -202,7 +227,7 @@ class SimulatedDrive:
         self._motion_objects: set[tuple[int, int]] = set()
         self._build_object_hooks()
 
-        self._nmt = NMT_BOOTUP
+        self._nmt = NmtState.BOOT_UP
         self._frozen = False
         self._heartbeat_enabled = True
         self._heartbeat_period = 0.0
@@ -224,11 +249,11 @@ class SimulatedDrive:
         self.node.add_write_callback(self._on_write)
         network.add_node(self.node)
         # Replace LocalNode's NMT and SDO handlers with ones that honour freeze/NMT state.
-        network.unsubscribe(0, self.node.nmt.on_command)
+        network.unsubscribe(NMT_COB_ID, self.node.nmt.on_command)
         network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
-        network.subscribe(0, self._on_nmt)
+        network.subscribe(NMT_COB_ID, self._on_nmt)
         network.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
-        self._sync_cob = self._u32(0x1005, 0, 0x80) & 0x7FF
+        self._sync_cob = self._u32(SYNC_COB_ID_OBJECT, 0, SYNC_COB_ID) & COB_ID_MASK
         network.subscribe(self._sync_cob, self._on_sync)
 
         self._own_scheduler = scheduler is None
@@ -255,10 +280,10 @@ class SimulatedDrive:
         store = self.node.data_store
         info = self.dictionary.device_information
         known = {
-            (0x1000, 0): 0x00020192,  # CiA 402, servo drive
-            (0x1018, 1): info.vendor_number or 0,
-            (0x1018, 2): info.product_number or 0,
-            (0x1018, 3): info.revision_number or 0,
+            (DEVICE_TYPE, 0): 0x00020192,  # CiA 402, servo drive
+            (IDENTITY, 1): info.vendor_number or 0,
+            (IDENTITY, 2): info.product_number or 0,
+            (IDENTITY, 3): info.revision_number or 0,
             (int(Obj.SUPPORTED_MODES), 0): cia402.modes_to_bits(set(self._supported_modes)),
         }
         for obj in self.dictionary.values():
@@ -304,8 +329,8 @@ class SimulatedDrive:
         err = self.axes[0].objs.get(Obj.ERROR_CODE)
         if err is not None:
             self._readers[(err.index, err.subindex)] = lambda: self.stages[0].fault_code
-        if 0x1001 in self.dictionary:
-            self._readers[(0x1001, 0)] = self._error_register
+        if ERROR_REGISTER in self.dictionary:
+            self._readers[(ERROR_REGISTER, 0)] = self._error_register
 
     @staticmethod
     def _wrap_for(entry: Entry, reader: Callable[[], int]) -> Callable[[], int]:
@@ -323,7 +348,7 @@ class SimulatedDrive:
 
     @property
     def nmt_state(self) -> str:
-        return NMT_NAMES.get(self._nmt, hex(self._nmt))
+        return NMT_STATE_NAMES.get(self._nmt, hex(self._nmt))
 
     def state(self, axis: int = 0) -> State:
         return self.axes[axis].stage.state
@@ -387,7 +412,7 @@ class SimulatedDrive:
 
     def _boot(self, reset_node: bool) -> None:
         self._invalidate()
-        self._nmt = NMT_BOOTUP
+        self._nmt = NmtState.BOOT_UP
         self._tpdos, self._rpdos, self._pending = [], {}, {}
         if reset_node:
             self.node.data_store.clear()
@@ -404,31 +429,31 @@ class SimulatedDrive:
             self._reset_comm_objects()
         self._window = self._velocity_window()
         self._heartbeat_enabled = True
-        self._send(0x700 + self.node_id, b"\x00", droppable=False)
-        self._nmt = NMT_PRE_OPERATIONAL
+        self._send(HEARTBEAT_BASE + self.node_id, bytes([NmtState.BOOT_UP]), droppable=False)
+        self._nmt = NmtState.PRE_OPERATIONAL
         self._load_heartbeat_config()
         self._last_heartbeat = time.monotonic()
 
     def _reset_comm_objects(self) -> None:
-        for index in [i for i in self.node.data_store if 0x1000 <= i < 0x2000]:
+        for index in [i for i in self.node.data_store if i in COMMUNICATION_PROFILE]:
             del self.node.data_store[index]
         self._prefill_defaults()
 
     def _load_heartbeat_config(self) -> None:
-        self._heartbeat_period = self._u16(0x1017, 0) / 1000.0
+        self._heartbeat_period = self._u16(PRODUCER_HEARTBEAT_TIME, 0) / 1000.0
         self._consumers = {}
-        obj = self.dictionary.get(0x1016)
+        obj = self.dictionary.get(CONSUMER_HEARTBEAT_TIME)
         if isinstance(obj, (od.ODArray, od.ODRecord)):
             for sub in obj.subindices:
                 if sub == 0:
                     continue
-                raw = self._u32(0x1016, sub)
-                producer, ms = (raw >> 16) & 0x7F, raw & 0xFFFF
+                raw = self._u32(CONSUMER_HEARTBEAT_TIME, sub)
+                producer, ms = (raw >> 16) & MAX_NODE_ID, raw & 0xFFFF
                 if producer and ms:
                     self._consumers[producer] = ms / 1000.0
         for producer in self._consumers:
             if producer not in self._subscribed_hb:
-                self.network.subscribe(0x700 + producer, self._on_heartbeat)
+                self.network.subscribe(HEARTBEAT_BASE + producer, self._on_heartbeat)
                 self._subscribed_hb.add(producer)
         self._consumer_seen = {p: t for p, t in self._consumer_seen.items() if p in self._consumers}
         self._consumer_lost &= set(self._consumers)
@@ -442,16 +467,16 @@ class SimulatedDrive:
             cmd = data[0]
             now = time.monotonic()
             self._advance(now)
-            if cmd == _NMT_START:
+            if cmd == NmtCommand.START:
                 self._enter_operational()
-            elif cmd == _NMT_STOP:
+            elif cmd == NmtCommand.STOP:
                 self._abort_connection()
-                self._nmt, self._tpdos, self._rpdos = NMT_STOPPED, [], {}
-            elif cmd == _NMT_PREOP:
-                self._nmt, self._tpdos, self._rpdos = NMT_PRE_OPERATIONAL, [], {}
-            elif cmd == _NMT_RESET_NODE:
+                self._nmt, self._tpdos, self._rpdos = NmtState.STOPPED, [], {}
+            elif cmd == NmtCommand.ENTER_PRE_OPERATIONAL:
+                self._nmt, self._tpdos, self._rpdos = NmtState.PRE_OPERATIONAL, [], {}
+            elif cmd == NmtCommand.RESET_NODE:
                 self._boot(reset_node=True)
-            elif cmd == _NMT_RESET_COMM:
+            elif cmd == NmtCommand.RESET_COMMUNICATION:
                 self._abort_connection()
                 self._boot(reset_node=False)
             self._send_heartbeat(now)  # heartbeats show a new state at once
@@ -463,7 +488,7 @@ class SimulatedDrive:
         self._pending = {}
         for cob in self._rpdos:
             self.network.subscribe(cob, self._on_rpdo)
-        self._nmt = NMT_OPERATIONAL
+        self._nmt = NmtState.OPERATIONAL
         for tpdo in self._tpdos:
             tpdo.last_data = None
             tpdo.pending_change = tpdo.event_driven  # first event TPDO goes out at once
@@ -472,14 +497,14 @@ class SimulatedDrive:
 
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
-            if self._frozen or self._nmt in (NMT_STOPPED, NMT_BOOTUP):
+            if self._frozen or self._nmt in (NmtState.STOPPED, NmtState.BOOT_UP):
                 return
             self._advance(time.monotonic())
             self.node.sdo.on_request(can_id, data, timestamp)
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
-            if self._frozen or self._nmt != NMT_OPERATIONAL or self._lost():
+            if self._frozen or self._nmt != NmtState.OPERATIONAL or self._lost():
                 return
             now = self._frame_time(timestamp)
             self._advance(now)
@@ -507,10 +532,10 @@ class SimulatedDrive:
     def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
             rpdo = self._rpdos.get(can_id)
-            if rpdo is None or self._frozen or self._nmt != NMT_OPERATIONAL or self._lost():
+            if rpdo is None or self._frozen or self._nmt != NmtState.OPERATIONAL or self._lost():
                 return
             if len(data) < rpdo.length:
-                self._emcy(EMCY_PDO_LENGTH, 0x10)
+                self._emcy(EMCY_PDO_LENGTH, ERROR_REGISTER_COMMUNICATION)
                 return
             if rpdo.synchronous:
                 self._pending[can_id] = bytes(data)
@@ -537,7 +562,7 @@ class SimulatedDrive:
         return chunk[:size].ljust(size, b"\x00")
 
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        producer = can_id - 0x700
+        producer = can_id - HEARTBEAT_BASE
         with self.lock:
             if self._frozen or producer not in self._consumers:
                 return
@@ -555,11 +580,11 @@ class SimulatedDrive:
 
     def _on_write(self, index: int, subindex: int, od: od.ODVariable, data: bytes) -> None:
         key = (index, subindex)
-        if RPDO_MAP <= index < RPDO_MAP + 512 or TPDO_MAP <= index < TPDO_MAP + 512:
+        if RPDO_MAP <= index < RPDO_MAP + MAX_PDOS or TPDO_MAP <= index < TPDO_MAP + MAX_PDOS:
             if not self.remappable:
-                raise SdoAbortedError(ABORT_READ_ONLY)
+                raise SdoAbortedError(SDO_ABORT_READ_ONLY)
             check_mapping_write(self.dictionary, self.node.get_data, index, subindex, data,
-                                self.max_mapping_entries)
+                                self.max_mapping_entries, self.accept_unmappable)
             return
         if key in self._motion_objects:
             self._advance(time.monotonic())  # the old value applied until now
@@ -570,7 +595,7 @@ class SimulatedDrive:
         # Store now (LocalNode stores again after us) so what follows reads the new value.
         self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
         self._invalidate()
-        if index in (0x1016, 0x1017):
+        if index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME):
             self._load_heartbeat_config()
         elif index == 0x606D:
             self._window = self._velocity_window()
@@ -589,7 +614,7 @@ class SimulatedDrive:
 
     def _on_mode(self, stage: _PowerStage, value: int) -> None:
         if value not in self._supported_modes and value != 0:
-            raise SdoAbortedError(ABORT_VALUE_RANGE)
+            raise SdoAbortedError(SDO_ABORT_VALUE_RANGE)
         stage.mode_cache = value
 
     def _mode(self, stage: _PowerStage) -> int:
@@ -608,7 +633,7 @@ class SimulatedDrive:
             if rising_reset:
                 stage.fault_code = 0
                 self._set_state(stage, State.SWITCH_ON_DISABLED)
-                self._emcy(0x0000, 0)  # error reset
+                self._emcy(EMCY_NO_ERROR, 0)  # error reset
             return
         if stage.state is State.FAULT_REACTION_ACTIVE:
             return
@@ -645,7 +670,7 @@ class SimulatedDrive:
         reg = 0
         for stage in self.stages:
             if stage.fault_code:
-                reg |= 0x01 | _ERROR_REGISTER_BITS.get(stage.fault_code >> 12, 0)
+                reg |= ERROR_REGISTER_GENERIC | _ERROR_REGISTER_BITS.get(stage.fault_code >> 12, 0)
         return reg
 
     def _abort_connection(self) -> None:
@@ -820,7 +845,7 @@ class SimulatedDrive:
                            exc)
 
     def _emcy(self, code: int, register: int) -> None:
-        self._send(0x80 + self.node_id, struct.pack("<HB5s", code, register, b""),
+        self._send(EMCY_BASE + self.node_id, struct.pack("<HB5s", code, register, b""),
                    droppable=False)
 
     def _frame(self, tpdo: PdoConfig) -> bytes:
@@ -841,7 +866,7 @@ class SimulatedDrive:
         self._send(tpdo.cob_id, data)
 
     def _event_tpdos(self, now: float) -> None:
-        if self._nmt != NMT_OPERATIONAL:
+        if self._nmt != NmtState.OPERATIONAL:
             return
         for tpdo in self._tpdos:
             if not tpdo.event_driven:
@@ -856,7 +881,7 @@ class SimulatedDrive:
     def _send_heartbeat(self, now: float) -> None:
         if self._heartbeat_enabled and self._heartbeat_period > 0:
             self._last_heartbeat = now
-            self._send(0x700 + self.node_id, bytes([self._nmt]))
+            self._send(HEARTBEAT_BASE + self.node_id, bytes([self._nmt]))
 
     def tick(self, now: float) -> None:
         """Housekeeping (called by the scheduler)."""
@@ -876,7 +901,8 @@ class SimulatedDrive:
                     self._consumer_lost.add(producer)
                     logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
                                 producer)
-                    self._emcy(EMCY_HEARTBEAT, 0x11)
+                    self._emcy(EMCY_HEARTBEAT,
+                               ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
                     self._abort_connection()
             self._event_tpdos(now)
 
@@ -906,13 +932,13 @@ class SimulatedDrive:
         if self._own_scheduler:
             self.scheduler.close()
         net = self.network
-        for cob, handler in [(0, self._on_nmt), (self.node.sdo.rx_cobid, self._on_sdo),
+        for cob, handler in [(NMT_COB_ID, self._on_nmt), (self.node.sdo.rx_cobid, self._on_sdo),
                              (self._sync_cob, self._on_sync)]:
             _unsubscribe(net, cob, handler)
         for cob in list(self._rpdos):
             _unsubscribe(net, cob, self._on_rpdo)
         for producer in self._subscribed_hb:
-            _unsubscribe(net, 0x700 + producer, self._on_heartbeat)
+            _unsubscribe(net, HEARTBEAT_BASE + producer, self._on_heartbeat)
         if self.node_id in net.nodes and net.nodes[self.node_id] is self.node:
             # LocalNode.remove_network would unsubscribe handlers we already replaced.
             del net.nodes[self.node_id]

@@ -15,18 +15,20 @@ from dataclasses import dataclass, field
 from canopen import objectdictionary as od
 from canopen.sdo.exceptions import SdoAbortedError
 
-RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
-MAX_PDOS = 512
-
-ABORT_NOT_IN_OD = 0x06020000
-ABORT_NOT_MAPPABLE = 0x06040041
-ABORT_PDO_LENGTH = 0x06040042
-ABORT_GENERAL_INCOMPATIBLE = 0x06040043
-ABORT_READ_ONLY = 0x06010002
-ABORT_VALUE_RANGE = 0x06090030
-ABORT_SUBINDEX = 0x06090011
-
-COB_INVALID = 1 << 31
+from omnican.cia301 import (
+    COB_ID_INVALID,
+    COB_ID_MASK,
+    MAX_PDOS,
+    RPDO_MAP,
+    SDO_ABORT_GENERAL_INCOMPATIBLE,
+    SDO_ABORT_NOT_IN_OD,
+    SDO_ABORT_NOT_MAPPABLE,
+    SDO_ABORT_PDO_LENGTH,
+    SDO_ABORT_SUBINDEX,
+    TRANS_EVENT,
+    TRANS_EVENT_MANUFACTURER,
+    TRANS_SYNC_MAX,
+)
 
 
 @dataclass(frozen=True)
@@ -62,11 +64,11 @@ class PdoConfig:
 
     @property
     def synchronous(self) -> bool:
-        return self.trans_type <= 240
+        return self.trans_type <= TRANS_SYNC_MAX
 
     @property
     def event_driven(self) -> bool:
-        return self.trans_type >= 254
+        return self.trans_type >= TRANS_EVENT_MANUFACTURER
 
 
 Getter = Callable[[int, int], bytes]
@@ -90,7 +92,7 @@ def read_pdos(dictionary: od.ObjectDictionary, getter: Getter, comm_base: int,
         if comm not in dictionary or map_base + n not in dictionary:
             continue
         cob = _u(getter, comm, 1, "<I")
-        if cob & COB_INVALID:
+        if cob & COB_ID_INVALID:
             continue
         count = _u(getter, map_base + n, 0, "<B")
         entries = []
@@ -104,8 +106,8 @@ def read_pdos(dictionary: od.ObjectDictionary, getter: Getter, comm_base: int,
         out.append(
             PdoConfig(
                 number=n + 1,
-                cob_id=cob & 0x7FF,
-                trans_type=_u(getter, comm, 2, "<B", 255),
+                cob_id=cob & COB_ID_MASK,
+                trans_type=_u(getter, comm, 2, "<B", TRANS_EVENT),
                 inhibit_s=(_u(getter, comm, 3, "<H") if 3 in has else 0) * 100e-6,
                 event_s=(_u(getter, comm, 5, "<H") if 5 in has else 0) * 1e-3,
                 entries=tuple(entries),
@@ -116,14 +118,14 @@ def read_pdos(dictionary: od.ObjectDictionary, getter: Getter, comm_base: int,
 
 def _find(dictionary: od.ObjectDictionary, index: int, sub: int) -> od.ODVariable:
     if index not in dictionary:
-        raise SdoAbortedError(ABORT_NOT_IN_OD)
+        raise SdoAbortedError(SDO_ABORT_NOT_IN_OD)
     item = dictionary[index]
     if isinstance(item, od.ODVariable):
         if sub != 0:
-            raise SdoAbortedError(ABORT_SUBINDEX)
+            raise SdoAbortedError(SDO_ABORT_SUBINDEX)
         return item
     if sub not in item.subindices:
-        raise SdoAbortedError(ABORT_NOT_IN_OD)
+        raise SdoAbortedError(SDO_ABORT_NOT_IN_OD)
     var = item[sub]
     assert isinstance(var, od.ODVariable)
     return var
@@ -136,33 +138,36 @@ def check_mapping_write(
     subindex: int,
     data: bytes,
     max_entries: int | None = None,
+    accept_unmappable: bool = False,
 ) -> None:
     """Raise the SDO abort a drive would send for this write to a mapping parameter.
 
     Entries must name an existing, PDO-mappable object with its own size;
-    the number of entries must fit in 8 bytes (and the drive's entry limit)."""
+    the number of entries must fit in 8 bytes (and the drive's entry limit).
+    ``accept_unmappable``: the drive maps objects its EDS marks not PDO-mappable
+    (an EDS that understates the drive, as many vendor files do)."""
     if subindex == 0:
         count = data[0]
         limit = max_entries if max_entries is not None else 0x40
         if count > limit:
-            raise SdoAbortedError(ABORT_PDO_LENGTH)
+            raise SdoAbortedError(SDO_ABORT_PDO_LENGTH)
         bits = 0
         for sub in range(1, count + 1):
             bits += _u(getter, index, sub, "<I") & 0xFF
         if bits > 64:
-            raise SdoAbortedError(ABORT_PDO_LENGTH)
+            raise SdoAbortedError(SDO_ABORT_PDO_LENGTH)
         return
     value = struct.unpack("<I", data[:4].ljust(4, b"\x00"))[0]
     obj_index, obj_sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
     if obj_index == 0 and bits == 0:
         return  # clearing an entry
     if max_entries is not None and subindex > max_entries:
-        raise SdoAbortedError(ABORT_PDO_LENGTH)
+        raise SdoAbortedError(SDO_ABORT_PDO_LENGTH)
     var = _find(dictionary, obj_index, obj_sub)
-    if not var.pdo_mappable:
-        raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+    if not var.pdo_mappable and not accept_unmappable:
+        raise SdoAbortedError(SDO_ABORT_NOT_MAPPABLE)
     if bits != len(var) or bits % 8:
-        raise SdoAbortedError(ABORT_GENERAL_INCOMPATIBLE)
+        raise SdoAbortedError(SDO_ABORT_GENERAL_INCOMPATIBLE)
     rx = RPDO_MAP <= index < RPDO_MAP + MAX_PDOS
     if rx and not var.writable:
-        raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+        raise SdoAbortedError(SDO_ABORT_NOT_MAPPABLE)

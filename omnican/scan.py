@@ -1,0 +1,182 @@
+"""Find the CANopen nodes on a bus and check them against a config.
+
+:func:`scan` listens for heartbeats, asks every node id for its device type (SDO
+1000h), then reads each answering node's identity (1018h), supported modes (6502h)
+and name (1008h). :func:`check` compares what was found with the config's nodes and
+their EDS files. Nothing here prints; the ``omnican scan`` command does.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
+
+import canopen
+from canopen import objectdictionary as od
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from omnican.bus import CanBus
+from omnican.cia301 import (
+    DEVICE_NAME,
+    DEVICE_TYPE,
+    HEARTBEAT_BASE,
+    IDENTITY,
+    MAX_NODE_ID,
+    PRODUCER_HEARTBEAT_TIME,
+    nmt_state_name,
+)
+from omnican.cia402 import supported_modes
+from omnican.config import ChassisConfig
+from omnican.layout import NodeLayout
+from omnican.odmap import Obj
+
+logger = logging.getLogger(__name__)
+
+CIA_402 = 402  # device profile number in the low 16 bits of 1000h
+MAX_HEARTBEAT_WAIT_S = 5.0  # listen at most this long for a slow heartbeat
+NODE_GUARDING_WAIT_S = 0.1  # answers to node guarding come within this
+
+
+@dataclass(frozen=True)
+class FoundNode:
+    """One node that answered. ``None``: the node did not answer that read.
+    ``identity``: vendor, product, revision, serial (1018h sub 1-4)."""
+
+    node_id: int
+    nmt: str | None = None  # NMT state from its heartbeat
+    device_type: int | None = None
+    identity: tuple[int | None, ...] = (None, None, None, None)
+    modes: int | None = None  # 6502h bit field
+    name: str | None = None
+    heartbeat_ms: int | None = None  # producer heartbeat time (1017h); 0: sends none
+    flags: tuple[str, ...] = field(default=())  # where it disagrees with the config
+
+    @property
+    def supported_modes(self) -> frozenset[int]:
+        return frozenset() if self.modes is None else supported_modes(self.modes)
+
+
+@dataclass(frozen=True)
+class ScanReport:
+    """The nodes found (with their flags) and the configured nodes that did not answer."""
+
+    found: tuple[FoundNode, ...]
+    missing: tuple[int, ...]
+    configured: frozenset[int]
+
+    @property
+    def ok(self) -> bool:
+        """No configured node missing, none disagreeing with the config."""
+        return not self.missing and not any(f.flags and f.node_id in self.configured
+                                            for f in self.found)
+
+
+def _u32(node: canopen.RemoteNode, index: int, sub: int = 0) -> int | None:
+    try:
+        return int.from_bytes(node.sdo.upload(index, sub)[:4], "little")
+    except (SdoAbortedError, SdoCommunicationError):
+        return None
+
+
+def _u16(node: canopen.RemoteNode, index: int, sub: int = 0) -> int | None:
+    value = _u32(node, index, sub)
+    return None if value is None else value & 0xFFFF
+
+
+def probe(network: canopen.Network, node_id: int, sdo_timeout_s: float) -> FoundNode:
+    """Read what a node says about itself over SDO (each read bounded, not retried)."""
+    node = canopen.RemoteNode(node_id, od.ObjectDictionary())
+    node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
+    node.sdo.MAX_RETRIES = 0
+    network.add_node(node)
+    try:
+        try:
+            name: str | None = node.sdo.upload(DEVICE_NAME, 0).decode("latin-1").strip("\x00 ")
+        except (SdoAbortedError, SdoCommunicationError):
+            name = None
+        return FoundNode(
+            node_id,
+            device_type=_u32(node, DEVICE_TYPE),
+            identity=tuple(_u32(node, IDENTITY, sub) for sub in (1, 2, 3, 4)),
+            modes=_u32(node, int(Obj.SUPPORTED_MODES)),
+            name=name,
+            heartbeat_ms=_u16(node, PRODUCER_HEARTBEAT_TIME),
+        )
+    finally:
+        del network[node_id]
+
+
+def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout_s: float) -> list[FoundNode]:
+    """The nodes on ``cfg``'s bus that send heartbeats or answer an SDO read of 1000h
+    within ``listen_s``, by node id (this host's own id, ``host_node_id``, excluded).
+
+    A node's NMT state comes from its heartbeat. For a node not heard within
+    ``listen_s`` whose producer heartbeat time (1017h) is longer, the scan listens
+    until one period and a half has passed (at most ``MAX_HEARTBEAT_WAIT_S``); a node
+    that sends no heartbeat is asked by node guarding (a remote frame), which many
+    drives answer. ``nmt`` stays None when neither tells."""
+    heartbeats: dict[int, int] = {}
+
+    def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
+        if data:
+            heartbeats[can_id - HEARTBEAT_BASE] = data[0]
+
+    with CanBus(cfg.bus) as can_bus:
+        network = can_bus.network
+        for node_id in range(1, MAX_NODE_ID + 1):
+            network.subscribe(HEARTBEAT_BASE + node_id, on_frame)
+        started = time.monotonic()
+        network.scanner.search()  # SDO upload of 1000h to every node id
+        time.sleep(listen_s)
+        ids = sorted((set(network.scanner.nodes) | set(heartbeats)) - {cfg.chassis.host_node_id})
+        found = [probe(network, node_id, sdo_timeout_s) for node_id in ids]
+        _wait_for_heartbeats(found, heartbeats, started)
+        silent = [f.node_id for f in found if f.node_id not in heartbeats]
+        for node_id in silent:
+            network.send_message(HEARTBEAT_BASE + node_id, b"", remote=True)
+        if silent:
+            time.sleep(NODE_GUARDING_WAIT_S)
+        results = [replace(f, nmt=nmt_state_name(heartbeats[f.node_id]))
+                   if f.node_id in heartbeats else f for f in found]
+    logger.info("scan: %d node(s) found", len(results))
+    return results
+
+
+def _wait_for_heartbeats(found: list[FoundNode], heard: dict[int, int], started: float) -> None:
+    """Until every node with a heartbeat period was heard, or had time to be."""
+    due = {f.node_id: started + min(1.5 * f.heartbeat_ms / 1000.0 + 0.05, MAX_HEARTBEAT_WAIT_S)
+           for f in found if f.heartbeat_ms}
+    while True:
+        waiting = [t for node_id, t in due.items() if node_id not in heard]
+        now = time.monotonic()
+        if not waiting or max(waiting) <= now:
+            return
+        time.sleep(min(0.02, max(waiting) - now))
+
+
+def flags(found: FoundNode, layout: NodeLayout | None) -> tuple[str, ...]:
+    """Where a found node disagrees with its config entry (``layout``; None: the config
+    does not know the node)."""
+    if layout is None:
+        return ("not in the config",)
+    out = []
+    if found.device_type is not None and found.device_type & 0xFFFF != CIA_402:
+        out.append(f"device profile {found.device_type & 0xFFFF}, not CiA 402")
+    info = layout.dictionary.device_information
+    for label, want, got in (("vendor", info.vendor_number, found.identity[0]),
+                             ("product", info.product_number, found.identity[1])):
+        if want not in (None, 0) and got is not None and want != got:
+            out.append(f"{label} 0x{got:08X}, EDS says 0x{want:08X}")
+    if found.modes is not None and int(layout.mode) not in found.supported_modes:
+        out.append(f"does not offer {layout.mode.short} mode")
+    return tuple(out)
+
+
+def check(found: Iterable[FoundNode], layouts: Iterable[NodeLayout]) -> ScanReport:
+    """Compare the nodes found with the config's nodes (``omnican.layout.node_layouts``)."""
+    by_id = {layout.node_id: layout for layout in layouts}
+    checked = tuple(replace(f, flags=flags(f, by_id.get(f.node_id))) for f in found)
+    seen = {f.node_id for f in checked}
+    return ScanReport(checked, tuple(n for n in by_id if n not in seen), frozenset(by_id))
