@@ -153,7 +153,7 @@ def _kv(key: str, value: Any) -> dict[str, str]:
 def wheel_level(w: WheelState) -> int:
     if not w.online or w.fault or w.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
         return ERROR
-    if getattr(w, "stale", False):
+    if w.stale:
         return STALE
     if w.error or w.state is not State.OPERATION_ENABLED:
         return WARN
@@ -188,8 +188,8 @@ def diagnostics(s: Sample, prefix: str = "omnican") -> dict[str, Any]:
     st = s.status
     if st.stopped_reason:
         level, message = ERROR, f"stopped: {st.stopped_reason}"
-    elif st.bus_error:
-        level, message = ERROR, f"bus: {st.bus_error}"
+    elif st.bus_error or not st.bus_up:
+        level, message = ERROR, f"bus down: {st.bus_error or 'reopening'}"
     elif not st.enabled:
         level, message = WARN, "not enabled"
     elif st.warnings:
@@ -209,7 +209,7 @@ def diagnostics(s: Sample, prefix: str = "omnican") -> dict[str, Any]:
                    _kv("bus_load", st.bus_load),
                    _kv("bus_bits_per_s", st.bus_bits_per_s),
                    _kv("bus_error", st.bus_error),
-                   _kv("bus_up", getattr(st, "bus_up", st.bus_error is None)),
+                   _kv("bus_up", st.bus_up),
                    _kv("command_age_s", st.command_age_s)],
     })
     return {"header": _header(s.stamp_ns, ""), "status": statuses}
@@ -248,7 +248,7 @@ def wheels(s: Sample) -> dict[str, Any]:
         "state": "OFFLINE" if not w.online else str(w.state),
         "statusword": w.statusword if w.statusword is not None else -1,
         "target_speed": w.target_speed, "actual_speed": w.actual_speed, "travel": w.travel,
-        "online": w.online, "stale": bool(getattr(w, "stale", False)),
+        "online": w.online, "stale": w.stale,
         "fault": w.fault or "", "error": w.error or "",
     } for w in s.wheels]}
 
@@ -261,7 +261,7 @@ def status(s: Sample) -> dict[str, Any]:
             "late_fraction": st.late_fraction, "cycles": st.cycles,
             "bus_load": st.bus_load if st.bus_load is not None else -1.0,
             "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
-            "bus_up": bool(getattr(st, "bus_up", st.bus_error is None)),
+            "bus_up": st.bus_up,
             "command_age_s": min(st.command_age_s, 1e9)}
 
 

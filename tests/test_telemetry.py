@@ -102,6 +102,20 @@ def test_joint_states_need_every_wheel_radius() -> None:
     assert telemetry.joint_states(sample(), []) is None
 
 
+def test_diagnostics_stale_wheel_and_bus_down() -> None:
+    s = sample(wheels=(wheel(0), wheel(1, stale=True, actual_speed=0.0), wheel(2)),
+               bus_up=False, bus_error="send 0x080 failed: Network is down")
+    msg = decoder("diagnostic_msgs/msg/DiagnosticArray")(
+        rosmsg.encode("diagnostic_msgs/msg/DiagnosticArray", telemetry.diagnostics(s)))
+    levels = {st.name: (ord(st.level) if isinstance(st.level, bytes) else st.level, st.message)
+              for st in msg.status}
+    assert levels["omnican: wheel 1 (node 2)"][0] == telemetry.STALE
+    assert levels["omnican: base"] == (telemetry.ERROR,
+                                       "bus down: send 0x080 failed: Network is down")
+    assert telemetry.status(s)["bus_up"] is False
+    assert [w["stale"] for w in telemetry.wheels(s)["wheels"]] == [False, True, False]
+
+
 def test_diagnostics_levels_and_emcy_text() -> None:
     wheels = (wheel(0), wheel(1, state=State.FAULT, fault="0x2310 continuous over-current"),
               wheel(2, online=False))
