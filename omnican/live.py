@@ -54,6 +54,30 @@ def parse_address(text: str | None) -> tuple[str, int]:
     return host, number
 
 
+_prepared: list[tuple[Any, Any]] = []  # (config, its DBC database) from prepare()
+
+
+def prepare(cfg: Any) -> None:
+    """Do the live view's slow set-up (the SDK, the ROS 2 type store, the base's DBC:
+    about a second of CPU) now, before the base's control loop runs and has to share the
+    CPU with it. Optional: :class:`LiveView` does what was not done here."""
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        return  # LiveView says what to install
+    rosmsg.typestore()
+    _prepared[:] = [(cfg, _database(cfg))]
+
+
+def _database(cfg: Any) -> Any:
+    for known, db in _prepared:
+        if known is cfg:
+            return db
+    from omnican.dbcgen import build_database
+
+    return build_database(cfg)
+
+
 class _Tap(can.Listener):
     """Frames into a bounded queue; called on the Notifier (and control loop) thread."""
 
@@ -128,9 +152,7 @@ class LiveView:
             self._channels[topic] = self._make_channel(topic, telemetry.CAN_FRAME)
         self._decoded: dict[tuple[int, bool], tuple[Any, Any]] = {}
         try:
-            from omnican.dbcgen import build_database
-
-            db = build_database(cfg)
+            db = _database(cfg)
             for message in db.messages:
                 channel = foxglove.Channel(f"/can/{message.name}", schema=_signal_schema(message),
                                            context=self._ctx)

@@ -34,7 +34,7 @@ from omnican.cli.common import (
 )
 from omnican.errors import ConfigError, OmnicanError
 from omnican.kinematics import Twist
-from omnican.live import FOXGLOVE_HELP, foxglove_address, watch
+from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
 from omnican.motion import Leg
 
 DEFAULT_DURATION_S = 1.0
@@ -143,6 +143,8 @@ def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int
             print(f"omnican: warning: vx={_number(r.vx)} vy={_number(r.vy)} wz={_number(r.wz)} "
                   f"is beyond the base's limits ({c.limit}): driving vx={fixed(a.vx, 3)} "
                   f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
+        if args.foxglove is not None:
+            prepare(s.cfg)  # its slow set-up before the control loop runs
         with Chassis.open(s.cfg, record=args.record) as base, \
                 watch(base, s.sim, args.foxglove, announce=_note):
             try:

@@ -31,7 +31,7 @@ from omnican.cli.common import (
     positive_float,
 )
 from omnican.hub import DEFAULT_PORT, LoopbackHub
-from omnican.live import foxglove_address, watch
+from omnican.live import foxglove_address, prepare, watch
 from omnican.sim import SimulatedBase, SimulatedDrive
 
 
@@ -194,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
         where = hub.url
         connect = f"omnican teleop -i remote -c {hub.url}"
     try:
+        if args.foxglove is not None:
+            prepare(cfg)  # its slow set-up before the simulated drives run
         with SimulatedBase.from_config(cfg, **options) as sim:
             nodes = ", ".join(f"{d.node_id} ({d.eds.name})" for d in sim.drives)
             print(f"serving simulated nodes {nodes} on {where}", flush=True)

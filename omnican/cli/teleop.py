@@ -43,7 +43,7 @@ from omnican.cli.common import (
 from omnican.errors import OmnicanError
 from omnican.gamepad import Gamepad, config_table, drive_step, teleop_model_for
 from omnican.kinematics import Twist
-from omnican.live import FOXGLOVE_HELP, foxglove_address, watch
+from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
 from omnican.teleop_model import ESC, TeleopModel, key_help
 
 # The last byte of an arrow key's escape sequence -> the key it stands for.
@@ -281,6 +281,8 @@ def run(args: argparse.Namespace) -> int:
         if pad is not None:
             title += f" - gamepad {pad.name}"
         console.print(f"{title}: bringing the drives up...", style="dim")
+        if args.foxglove is not None:
+            prepare(s.cfg)  # its slow set-up before the control loop runs
         with Chassis.open(s.cfg, record=args.record) as base, \
                 watch(base, s.sim, args.foxglove) as view, cbreak(fd), \
                 logs_into(events), Live(console=console, screen=True, auto_refresh=False,
