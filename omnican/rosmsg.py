@@ -112,7 +112,7 @@ _BODY = struct.Struct("<I???B8s")
 def encode_can_frame(stamp_ns: int, can_id: int, data: bytes, channel: str = "", *,
                      extended: bool = False, remote: bool = False, error: bool = False) -> bytes:
     """CDR of can_msgs/msg/Frame; the same bytes as ``encode(CAN_FRAME, ...)``."""
-    name = channel.encode() + b"\x00"
+    name = channel.encode("utf-8", "replace") + b"\x00"  # never raise on the writer
     payload = bytes(data[:8])
     pad = -(12 + len(name)) % 4
     return b"".join((_CDR_LE,

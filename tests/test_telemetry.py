@@ -150,7 +150,8 @@ def test_every_state_topic_is_declared_and_encodes() -> None:
 
 @codec
 @given(can_id=st.integers(0, 0x1FFFFFFF), data=st.binary(max_size=8),
-       channel=st.text(st.characters(exclude_characters='\x00'), max_size=30),
+       channel=st.text(st.characters(exclude_characters='\x00',
+                                             exclude_categories=('Cs',)), max_size=30),
        ns=st.integers(0, 2**31 * 10**9 - 1),  # ROS time: int32 seconds
        flags=st.tuples(st.booleans(), st.booleans(), st.booleans()))
 def test_fast_can_frame_codec_matches_the_generic_one(can_id: int, data: bytes, channel: str,
