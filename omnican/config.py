@@ -107,6 +107,36 @@ SCHEMA: dict[str, dict[str, Key]] = {
                            "[chassis] base_radius"),
         "mode": Key((str,), None, "this wheel's mode; default [chassis] mode"),
     },
+    # Read by `omnican ros2` (omnican/ros2/settings.py checks the values).
+    "ros2": {
+        "namespace": Key((str,), "", "ROS 2 namespace of the node and its relative topics"),
+        "node_name": Key((str,), "omnican", "ROS 2 node name (~/ topics live under it)"),
+        "domain_id": Key((int,), None, "DDS domain 0-232; default: ROS_DOMAIN_ID, else 0"),
+        "cmd_vel_topic": Key((str,), "cmd_vel", "velocity commands in (Twist)"),
+        "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of Twist"),
+        "cmd_vel_timeout_s": Key(_NUM, None, "no cmd_vel for this long -> stop; default "
+                                 "[chassis] cmd_timeout_s"),
+        "odom_topic": Key((str,), "odom", "nav_msgs/Odometry out"),
+        "odom_frame": Key((str,), "odom", "frame of the odometry pose"),
+        "base_frame": Key((str,), "base_link", "frame of the base (odometry child frame)"),
+        "odom_rate_hz": Key(_NUM, 50.0, "odom and tf publish rate"),
+        "publish_tf": Key((bool,), True, "publish the odom -> base_link transform"),
+        "tf_topic": Key((str,), "/tf", "tf2_msgs/TFMessage out"),
+        "joint_states_topic": Key((str,), "joint_states", "sensor_msgs/JointState out"),
+        "joint_states_rate_hz": Key(_NUM, 50.0, "joint_states publish rate"),
+        "joint_names": Key((list,), None, "one joint name per wheel; default wheel_0_joint, "
+                           "wheel_1_joint, ..."),
+        "wheel_radius": Key(_NUM, None, "m, for joint angles; default the wheels' "
+                            "wheel_radius (no joint_states without one)"),
+        "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
+        "diagnostics_rate_hz": Key(_NUM, 1.0, "diagnostics rate (and at once on a change)"),
+        "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
+        "odom_slip": Key(_NUM, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
+                         "(covariances)"),
+        "interface": Key((str,), None, "DDS network interface name or address; default all"),
+        "peers": Key((list,), None, "unicast discovery peers (addresses or host names)"),
+        "multicast": Key((bool,), True, "DDS multicast discovery"),
+    },
 }
 
 
@@ -145,9 +175,8 @@ class WheelConfig:
     drive_angle_deg: float | None = None
     base_radius: float | None = None
     mode: Mode | None = None
-    # m; known when the scales were derived from it (joint angles for ROS joint_states).
-    # Not part of equality: the scales say all the base needs, and a config written back
-    # with scales only is the same base.
+    # m, when the config gave it (omnican ros2's joint angles need it). Not part of equality:
+    # the scales define the wheel; a config rewritten with scales only is the same wheel.
     wheel_radius: float | None = field(default=None, compare=False)
 
     @property
@@ -186,6 +215,7 @@ class ChassisConfig:
     wheels: tuple[WheelConfig, ...]
     bus: Mapping[str, Any] | None = None
     source: Path | None = field(default=None, compare=False)
+    ros2: Mapping[str, Any] | None = None  # the [ros2] table, schema-checked (omnican ros2)
 
     def kinematics(self) -> OmniKinematics:
         c = self.chassis
@@ -329,7 +359,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        sections = ("bus", "chassis", "wheel", *FRONT_END_SECTIONS)
+        sections = ("bus", "chassis", "wheel", "ros2", *FRONT_END_SECTIONS)
         if key not in sections:
             raise r.fail(key, f"unknown section {key!r}{_suggest(key, sections)}")
     bus = data.get("bus")
@@ -395,7 +425,12 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         _parse_wheel(r, i, w, settings, base_dir) for i, w in enumerate(raw_wheels)
     )
     _check_wheels(r, settings, wheels)
-    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus)
+    ros2 = r.table("ros2", data["ros2"], "ros2") if "ros2" in data else None
+    if ros2 is not None:
+        for key in ("joint_names", "peers"):
+            if ros2[key] is not None and not all(isinstance(v, str) for v in ros2[key]):
+                raise r.fail(f"ros2.{key}", "must be an array of strings")
+    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2)
     try:
         cfg.kinematics()
     except ConfigError as exc:

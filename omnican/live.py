@@ -271,14 +271,15 @@ class LiveView:
 
 
 @contextlib.contextmanager
-def watch(base: Any, sim: Any = None, foxglove: str | None = None,
-          announce: Any = None) -> Iterator[LiveView | None]:
+def watch(base: Any, sim: Any = None, foxglove: str | None = None, announce: Any = None,
+          frames: telemetry.Frames | None = None) -> Iterator[LiveView | None]:
     """What a front end adds around a running base: the simulator's ground truth into an
     MCAP recording, and a Foxglove server when ``foxglove`` (``[HOST:]PORT``) is given.
+    ``frames``: the odometry and body frame names (default odom, base_link).
     ``announce(text)`` is told where the server listens."""
     recorder = getattr(base.bus, "recorder", None) if base is not None else None
     if sim is not None and hasattr(recorder, "attach"):
-        recorder.attach(base, sim)  # type: ignore[union-attr]
+        recorder.attach(base, sim, frames)  # type: ignore[union-attr]
     if foxglove is None:
         yield None
         return
@@ -286,7 +287,7 @@ def watch(base: Any, sim: Any = None, foxglove: str | None = None,
         host, port = parse_address(foxglove)
     except ValueError as exc:
         raise ConfigError(f"--foxglove: {exc}") from None
-    with LiveView(base, sim, host=host, port=port) as view:
+    with LiveView(base, sim, host=host, port=port, frames=frames) as view:
         if announce is not None:
             announce(f"Foxglove: open a connection to {view.url} "
                      "(layout: foxglove/omnican-layout.json)")

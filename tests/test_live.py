@@ -265,3 +265,31 @@ def test_bus_listeners_added_late_see_both_directions_across_a_reconnect(channel
         bus.send(0x202, b"\x05")
         time.sleep(0.2)
     assert sorted(seen.frames) == [(0x181, True), (0x182, True), (0x201, False)]
+
+
+def test_ros2_bridge_serves_foxglove_with_its_frames() -> None:
+    """``omnican ros2 --foxglove``: the live view beside the DDS bridge, with the bridge's
+    frame names. DDS stays on this machine (--localhost: loopback, no multicast)."""
+    pytest.importorskip("cyclonedds", reason="cyclonedds not installed (pip install "
+                        "'omnican[ros2]')")
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "omnican", "ros2", "--sim", "--localhost", "--domain-id", "97",
+         "--odom-frame", "odom_fox", "--duration", "60", "--foxglove", f"127.0.0.1:{port}"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        client = FoxgloveClient(f"ws://127.0.0.1:{port}", timeout=30.0)
+        client.wait_for_topics(["/tf", "/odom"])
+        decode = decoders(client)
+        client.subscribe(["/tf", "/odom"])
+        seen = {topic: decode[topic](payload) for topic, _, payload in client.messages(1.0)}
+        client.close()
+        out, err = proc.communicate("quit\n", timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0, err
+    (tf,) = seen["/tf"].transforms
+    assert (tf.header.frame_id, tf.child_frame_id) == ("odom_fox", "base_link")
+    assert seen["/odom"].header.frame_id == "odom_fox"
+    assert f"ws://127.0.0.1:{port}" in out

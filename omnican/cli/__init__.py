@@ -23,7 +23,8 @@ from omnican.cli.common import (
 )
 from omnican.errors import ConfigError, OmnicanError
 
-SUBCOMMANDS = ("teleop", "drive", "sim", "scan", "monitor", "calibrate", "plot", "check_config")
+SUBCOMMANDS = ("teleop", "drive", "sim", "scan", "monitor", "calibrate", "plot", "check_config",
+               "ros2")
 
 
 def install_hint(module: str) -> str:

@@ -8,9 +8,11 @@ import argparse
 import contextlib
 import logging
 import math
+import select
 import sys
+import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
@@ -205,3 +207,30 @@ def fail(message: str, code: int = EXIT_FAILURE) -> int:
 
 def is_config_error(exc: BaseException) -> bool:
     return isinstance(exc, (ConfigError, UsageError))
+
+
+def serve_lines(handle: Callable[[str], str | None], duration: float | None) -> None:
+    """Feed stdin lines to ``handle`` (its reply is printed; None quits) until the duration
+    ends or Ctrl-C; stdin closing (e.g. < /dev/null) keeps it running."""
+    end = time.monotonic() + duration if duration else None
+    stdin_open = not sys.stdin.closed
+    try:
+        while end is None or time.monotonic() < end:
+            timeout = 0.2 if end is None else max(0.0, min(0.2, end - time.monotonic()))
+            if not stdin_open:
+                time.sleep(timeout)
+                continue
+            ready, _, _ = select.select([sys.stdin], [], [], timeout)
+            if not ready:
+                continue
+            line = sys.stdin.readline()
+            if line == "":
+                stdin_open = False
+                continue
+            reply = handle(line)
+            if reply is None:
+                break
+            if reply:
+                print(reply, flush=True)
+    except KeyboardInterrupt:
+        pass

@@ -1,0 +1,239 @@
+"""omnican ros2: the base as a ROS 2 node, over DDS, without a ROS installation.
+
+Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped); publishes odom
+(nav_msgs/Odometry), tf (odom -> base_link), joint_states and diagnostics; an
+std_msgs/Empty on ~/recover clears a latched stop. Needs pip install 'omnican[ros2]'.
+
+Lines on stdin while it runs:
+
+    recover             clear a latched stop (as ~/recover does)
+    quit
+  under --sim also:
+    fault NODE [CODE]   EMCY + FAULT (default 0x2310 over-current)
+    reboot NODE         boot-up, defaults restored, position counter reset
+    heartbeat NODE off|on
+    pose                print the ground-truth pose
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from dataclasses import replace
+from typing import Any
+
+from omnican.cli.common import (
+    EXIT_OK,
+    UsageError,
+    add_bus_arguments,
+    load,
+    positive_float,
+    serve_lines,
+    session,
+)
+from omnican.errors import ConfigError
+from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
+from omnican.telemetry import Frames
+
+
+def add_subparser(sub: Any) -> None:
+    p = sub.add_parser("ros2", help="run the base as a ROS 2 node (DDS; no ROS install)",
+                       description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    node = p.add_argument_group("ROS 2 (override [ros2] of the config)")
+    node.add_argument("--namespace", metavar="NS", help="node namespace, e.g. /robot1")
+    node.add_argument("--node-name", metavar="NAME", help="node name (default omnican)")
+    node.add_argument("--domain-id", type=int, metavar="N",
+                      help="DDS domain 0-232 (default: [ros2] domain_id, ROS_DOMAIN_ID, 0)")
+    node.add_argument("-r", "--remap", action="append", default=[], metavar="NAME:=TOPIC",
+                      help="topic name: cmd_vel, odom, tf, joint_states, diagnostics or "
+                           "recover, e.g. -r cmd_vel:=/nav/cmd_vel (repeatable)")
+    node.add_argument("--cmd-vel-stamped", action="store_true", default=None,
+                      help="cmd_vel carries geometry_msgs/TwistStamped")
+    node.add_argument("--cmd-vel-timeout", type=positive_float, metavar="S",
+                      help="stop when no cmd_vel arrives for S seconds")
+    node.add_argument("--odom-frame", metavar="FRAME")
+    node.add_argument("--base-frame", metavar="FRAME")
+    node.add_argument("--odom-rate", type=positive_float, metavar="HZ",
+                      help="odom and tf rate (default 50)")
+    node.add_argument("--joint-states-rate", type=positive_float, metavar="HZ")
+    node.add_argument("--diagnostics-rate", type=positive_float, metavar="HZ")
+    node.add_argument("--no-tf", action="store_true", help="do not publish odom -> base_link")
+    node.add_argument("--wheel-radius", type=positive_float, metavar="M",
+                      help="wheel radius for joint angles (default: from the config)")
+    net = p.add_argument_group("DDS network (override [ros2] of the config)")
+    net.add_argument("--dds-interface", metavar="IF",
+                     help="network interface name or address (default: Cyclone DDS picks; "
+                          "under --sim: loopback)")
+    net.add_argument("--dds-peer", action="append", default=[], metavar="ADDR",
+                     help="unicast discovery peer (repeatable)")
+    net.add_argument("--no-multicast", action="store_true",
+                     help="no multicast (discover only the peers)")
+    net.add_argument("--localhost", action="store_true",
+                     help="this machine only: loopback, no multicast, peer 127.0.0.1")
+    p.add_argument("--duration", type=positive_float, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C or 'quit')")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    add_bus_arguments(p, sim_help="run against simulated drives in this process; DDS stays "
+                      "on loopback unless --dds-interface or --dds-peer says otherwise")
+    p.set_defaults(func=run)
+
+
+def settings_from(args: argparse.Namespace, table: dict[str, Any] | None, origin: str,
+                  env: dict[str, str] | None = None) -> Any:
+    """[ros2] of the config, then ROS_DOMAIN_ID, then the flags; validated."""
+    from omnican.ros2.settings import from_table, parse_remap, validate
+
+    environ = os.environ if env is None else env
+    default_domain = 0
+    if environ.get("ROS_DOMAIN_ID", "").strip():
+        try:
+            default_domain = int(environ["ROS_DOMAIN_ID"])
+        except ValueError:
+            raise ConfigError(f"ROS_DOMAIN_ID: not a number: {environ['ROS_DOMAIN_ID']!r}") \
+                from None
+    s = from_table(table or {}, origin, default_domain)
+    changes: dict[str, Any] = {}
+    for flag, key in (("namespace", "namespace"), ("node_name", "node_name"),
+                      ("domain_id", "domain_id"), ("cmd_vel_stamped", "cmd_vel_stamped"),
+                      ("cmd_vel_timeout", "cmd_vel_timeout_s"), ("odom_frame", "odom_frame"),
+                      ("base_frame", "base_frame"), ("odom_rate", "odom_rate_hz"),
+                      ("joint_states_rate", "joint_states_rate_hz"),
+                      ("diagnostics_rate", "diagnostics_rate_hz"),
+                      ("wheel_radius", "wheel_radius"), ("dds_interface", "interface")):
+        value = getattr(args, flag, None)
+        if value is not None:
+            changes[key] = value
+    for text in args.remap:
+        try:
+            key, target = parse_remap(text)
+        except ValueError as exc:
+            raise UsageError(f"--remap: {exc}") from None
+        changes[f"{key}_topic"] = target
+    if args.no_tf:
+        changes["publish_tf"] = False
+    if args.dds_peer:
+        changes["peers"] = tuple(args.dds_peer)
+    if args.no_multicast:
+        changes["multicast"] = False
+    s = replace(s, **changes)
+    network_given = (args.dds_interface or args.dds_peer or args.no_multicast
+                     or (table or {}).get("interface") or (table or {}).get("peers"))
+    if args.localhost or (getattr(args, "sim", False) and not network_given):
+        s = s.with_loopback()
+    return validate(s, origin)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        import cyclonedds.domain  # noqa: F401  (the ros2 extra)
+
+        from omnican.ros2.bridge import Bridge, DdsTransport
+    except ImportError:
+        raise UsageError("'ros2' needs cyclonedds: pip install 'omnican[ros2]'") from None
+    from omnican.chassis import Chassis
+    from omnican.ros2.settings import describe_network
+
+    cfg = load(args)
+    origin = str(cfg.source) if cfg.source else "command line"
+    settings = settings_from(args, dict(cfg.ros2) if cfg.ros2 else None, origin)
+    with session(args) as sess:
+        run_cfg = sess.cfg
+        if settings.cmd_vel_timeout_s is not None:
+            run_cfg = replace(run_cfg, chassis=replace(run_cfg.chassis,
+                                                       cmd_timeout_s=settings.cmd_vel_timeout_s))
+        transport = DdsTransport(settings, os.environ.get("CYCLONEDDS_URI"))
+        if args.foxglove is not None:
+            prepare(run_cfg)  # its slow set-up before the control loop runs
+        try:
+            with Chassis.open(run_cfg) as base, \
+                    Bridge(base, settings, transport, sim=sess.sim) as bridge, \
+                    watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True),
+                          frames=Frames(settings.odom_frame, settings.base_frame)):
+                _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
+                try:
+                    serve_lines(lambda line: command(bridge, line), args.duration)
+                finally:
+                    bridge.close()
+                    transport.close()
+                    _print_summary(bridge)
+        finally:
+            transport.close()
+    print("drives disabled", flush=True)
+    return EXIT_OK
+
+
+def _print_startup(bridge: Any, network: str, timeout_s: float) -> None:
+    s = bridge.settings
+    ns = s.node_namespace
+    node = (ns.rstrip("/") + "/" + s.node_name)
+    cmd_type = "TwistStamped" if s.cmd_vel_stamped else "Twist"
+    out = [f"{s.topic('odom')} {s.odom_rate_hz:g} Hz"]
+    if s.publish_tf:
+        out.append(f"{s.topic('tf')} ({s.odom_frame} -> {s.base_frame})")
+    if bridge.wheel_radii is not None:
+        out.append(f"{s.topic('joint_states')} {s.joint_states_rate_hz:g} Hz")
+    out.append(f"{s.topic('diagnostics')} {s.diagnostics_rate_hz:g} Hz")
+    print(f"ROS 2 node {node} on DDS domain {s.domain_id} ({network})", flush=True)
+    print(f"  in:  {s.topic('cmd_vel')} ({cmd_type}; stop after {timeout_s:g} s without), "
+          f"{s.topic('recover')} (std_msgs/Empty: recover)", flush=True)
+    print(f"  out: {', '.join(out)}", flush=True)
+    if bridge.wheel_radii is None:
+        print("  no joint_states: the config gives no wheel radius (set [ros2] wheel_radius "
+              "or --wheel-radius)", flush=True)
+    if bridge.sim is not None:
+        print(f"  sim: true pose on {bridge.true_pose_topic}; stdin: fault NODE [CODE], "
+              "reboot NODE, heartbeat NODE off|on, pose, recover, quit", flush=True)
+    print("Ctrl-C to stop", flush=True)
+
+
+def _print_summary(bridge: Any) -> None:
+    rates = bridge.achieved_rates()
+    parts = ", ".join(f"{name} {hz:.1f} Hz" for name, hz in rates.items() if hz > 0)
+    print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel", flush=True)
+    if bridge.sim is not None:
+        p = bridge.sim.true_pose
+        print(f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f} (simulated)", flush=True)
+    p = bridge.base.pose
+    print(f"pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f}", flush=True)
+
+
+def command(bridge: Any, line: str) -> str | None:
+    """One stdin line; returns the reply, or None to quit."""
+    words = line.split()
+    if not words:
+        return ""
+    verb, rest = words[0].lower(), words[1:]
+    sim = bridge.sim
+    if verb in ("quit", "exit"):
+        return None
+    if verb == "recover":
+        return "recovered" if bridge.recover() else f"recover {bridge.recover_note}"
+    if sim is None:
+        return f"error: unknown command {verb!r} (recover, quit; more under --sim)"
+    if verb == "pose":
+        p = sim.true_pose
+        return f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f}"
+    if verb not in ("fault", "reboot", "heartbeat"):
+        return f"error: unknown command {verb!r} (fault, reboot, heartbeat, pose, recover, quit)"
+    try:
+        node = int(rest[0], 0)
+        drive = next(d for d in sim.drives if d.node_id == node)
+    except (IndexError, ValueError):
+        return f"error: {verb} needs a node id"
+    except StopIteration:
+        return f"error: no simulated node {rest[0]}"
+    if verb == "fault":
+        try:
+            code = int(rest[1], 0) if len(rest) > 1 else 0x2310
+        except ValueError:
+            return f"error: not an error code: {rest[1]!r}"
+        drive.inject_fault(code)
+        return f"node {node}: fault 0x{code:04X}"
+    if verb == "reboot":
+        drive.reboot()
+        return f"node {node}: rebooted"
+    on = len(rest) > 1 and rest[1].lower() == "on"
+    (drive.start_heartbeat if on else drive.stop_heartbeat)()
+    return f"node {node}: heartbeat {'on' if on else 'off'}"
