@@ -78,6 +78,45 @@ class _Recorder(can.Listener):
                 self._writer = None
 
 
+def _recorder_for(path: Path) -> _Recorder | Any:
+    """The recorder for ``path``'s format: MCAP (raw frames plus the robot's state, see
+    :mod:`omnican.mcap_record`) or any python-can log format."""
+    if path.suffix.lower() == ".mcap":
+        from omnican.mcap_record import McapRecorder
+
+        return McapRecorder(path)
+    return _Recorder(path)
+
+
+class _Taps(can.Listener):
+    """Listeners added while the bus runs (live views). It sits in every Notifier from the
+    start, so adding one never touches a running Notifier (or races a reconnect). Tuples
+    are replaced whole: the threads iterate them unlocked."""
+
+    def __init__(self) -> None:
+        self.received: tuple[can.Listener, ...] = ()
+        self.sent: tuple[can.Listener, ...] = ()
+        self._lock = threading.Lock()
+
+    def add(self, listener: can.Listener, sent: bool) -> None:
+        with self._lock:
+            self.received += (listener,)
+            if sent:
+                self.sent += (listener,)
+
+    def remove(self, listener: can.Listener) -> None:
+        with self._lock:
+            self.received = tuple(t for t in self.received if t is not listener)
+            self.sent = tuple(t for t in self.sent if t is not listener)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        for tap in self.received:
+            tap.on_message_received(msg)
+
+    def stop(self) -> None:
+        """Called by the Notifier when it stops: the taps stay for the next one."""
+
+
 class _Traffic(can.Listener):
     """Counts frames and worst-case bits seen on the bus, both directions.
 
@@ -204,12 +243,14 @@ class CanBus:
         self.clock = clock
         self.lockstep = clock.lockstep
         self.traffic = _Traffic(self)
-        self.recorder = _Recorder(Path(record)) if record is not None else None
+        self.recorder = _recorder_for(Path(record)) if record is not None else None
+        self._taps = _Taps()
         self.network = _Network(self)
         self.network.NOTIFIER_CYCLE = notifier_cycle_s
         # canopen types this list as MessageListener only; any can.Listener works.
         listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
         listeners.append(self.traffic)
+        listeners.append(self._taps)
         if self.recorder is not None:
             listeners.append(self.recorder)
         self.sync_epoch = 0
@@ -359,11 +400,24 @@ class CanBus:
         self._record(can_id, data)
 
     def _record(self, can_id: int, data: bytes | bytearray) -> None:
-        if self.recorder is not None:
-            self.recorder.on_message_received(
-                can.Message(arbitration_id=can_id, data=bytes(data),
-                            is_extended_id=can_id > COB_ID_MASK, timestamp=self.clock.wall(),
-                            is_rx=False, channel=self.bus_kwargs.get("channel")))
+        """A frame this host sent, to the recorder and the listeners that want sent frames."""
+        if self.recorder is not None or self._taps.sent:
+            msg = can.Message(arbitration_id=can_id, data=bytes(data),
+                              is_extended_id=can_id > COB_ID_MASK, timestamp=self.clock.wall(),
+                              is_rx=False, channel=self.bus_kwargs.get("channel"))
+            if self.recorder is not None:
+                self.recorder.on_message_received(msg)
+            for tap in self._taps.sent:
+                tap.on_message_received(msg)
+
+    def add_listener(self, listener: can.Listener, sent: bool = False) -> None:
+        """Hand every received frame to ``listener`` from now on, across reconnects (on the
+        Notifier thread, so it must not block); ``sent``: also the frames this host sends
+        (on the sending thread, the control loop's: append to a queue and return)."""
+        self._taps.add(listener, sent)
+
+    def remove_listener(self, listener: can.Listener) -> None:
+        self._taps.remove(listener)
 
     def send(self, can_id: int, data: bytes) -> bool:
         """Send one frame; a failure is counted and reported, not raised.
@@ -417,7 +471,7 @@ class CanBus:
         traffic = self.traffic
         traffic.loop_frames += 1
         traffic.loop_bits += bits
-        if self.recorder is not None and not self.lockstep:
+        if (self.recorder is not None or self._taps.sent) and not self.lockstep:
             self._record(msg.arbitration_id, msg.data)
         if self.send_errors:
             logger.info("bus sends work again after %d errors", self.send_errors)

@@ -326,6 +326,9 @@ class Chassis:
             can_bus.close()
             raise
         try:
+            attach = getattr(can_bus.recorder, "attach", None)
+            if attach is not None:  # an MCAP recording samples the base's state too (its
+                attach(base)        # set-up costs CPU: before the control loop runs)
             base._start(handle_signals)
         except BaseException:
             base.close(controlled=False)

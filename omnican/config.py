@@ -56,6 +56,10 @@ _NUM = (int, float)
 #: Values of chassis.pdo_mapping (what omnican.pdoplan does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
 
+# Tables a front end reads and checks itself (the base ignores them): [gamepad] is
+# omnican.gamepad_model's.
+FRONT_END_SECTIONS = ("gamepad",)
+
 # Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
 SCHEMA: dict[str, dict[str, Key]] = {
     "chassis": {
@@ -355,7 +359,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        sections = ("bus", "chassis", "wheel", "ros2")
+        sections = ("bus", "chassis", "wheel", "ros2", *FRONT_END_SECTIONS)
         if key not in sections:
             raise r.fail(key, f"unknown section {key!r}{_suggest(key, sections)}")
     bus = data.get("bus")

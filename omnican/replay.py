@@ -352,6 +352,8 @@ def read_frames(path: str | Path) -> list[Any]:
     p = Path(path)
     if not p.is_file():
         raise RecordingError(f"recording not found: {p}")
+    if p.suffix.lower() == ".mcap":
+        return _read_mcap(p)
     try:
         if p.suffix.lower() == ".blf":  # python-can's BLFReader leaks its file on a bad header
             with p.open("rb") as f:
@@ -376,6 +378,24 @@ def read_frames(path: str | Path) -> list[Any]:
             from None
     if not frames:
         raise RecordingError(f"{p}: no CAN frames in the recording")
+    return frames
+
+
+def _read_mcap(p: Path) -> list[Any]:
+    """The CAN frames of an MCAP recording (``--record run.mcap``)."""
+    try:
+        from omnican.mcap_record import read_frames as read_mcap
+        frames = read_mcap(p)
+    except ImportError:
+        raise RecordingError(f"{p}: reading MCAP needs pip install 'omnican[mcap]'") from None
+    except OSError as exc:
+        raise RecordingError(f"cannot read recording {p}: {exc.strerror or exc}") from None
+    except Exception as exc:  # the mcap reader raises its own kinds for a broken file
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RecordingError(f"{p}: not a readable .mcap recording: {text}") from None
+    if not frames:
+        raise RecordingError(f"{p}: no CAN frames in the recording (no /from_can_bus or "
+                             "/to_can_bus messages)")
     return frames
 
 

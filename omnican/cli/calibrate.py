@@ -81,7 +81,8 @@ def add_subparser(sub: Any) -> None:
     angle.add_argument("--measured-angle-deg", type=finite_float, metavar="DEG",
                        help="the angle the base really spun, degrees")
     run_g.add_argument("--record", metavar="FILE",
-                       help="record the run to FILE (.log, .asc, .blf), e.g. for --fit later")
+                       help="record the run to FILE (.log, .asc, .blf, .mcap), e.g. for --fit "
+                            "later")
     sim_g = p.add_argument_group("simulated base (--sim)")
     sim_g.add_argument("--sim-scale-error", type=finite_float, metavar="F",
                        help="the simulated wheels turn 1+F times the configured counts per m "

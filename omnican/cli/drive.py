@@ -35,6 +35,7 @@ from omnican.cli.common import (
 )
 from omnican.errors import ConfigError, OmnicanError
 from omnican.kinematics import Twist
+from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
 from omnican.motion import Leg
 
 DEFAULT_DURATION_S = 1.0
@@ -64,7 +65,10 @@ def add_subparser(sub: Any) -> None:
                    help='print {"pose", "twist", "duration_s"} (+ "true_pose" under --sim); '
                         'a run-time failure prints {"error", "pose", ...} and exits 1')
     p.add_argument("--record", metavar="FILE",
-                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
+                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf; "
+                        ".mcap: frames plus the robot's state as ROS 2 messages)")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
     add_bus_arguments(p)
     add_sim_time_arguments(p)
     p.set_defaults(func=run)
@@ -110,6 +114,10 @@ def _number(value: float) -> str:
     return f"{value:.6g}" if value else "0"
 
 
+def _note(text: str) -> None:
+    print(f"omnican: {text}", file=sys.stderr, flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     plan = legs(args)
     seen: dict[str, Any] = {}  # what is known when a run-time failure ends the run
@@ -137,7 +145,10 @@ def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int
             print(f"omnican: warning: vx={_number(r.vx)} vy={_number(r.vy)} wz={_number(r.wz)} "
                   f"is beyond the base's limits ({c.limit}): driving vx={fixed(a.vx, 3)} "
                   f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
-        with Chassis.open(s.cfg, record=args.record, clock=s.clock) as base:
+        if args.foxglove is not None:
+            prepare(s.cfg)  # its slow set-up before the control loop runs
+        with Chassis.open(s.cfg, record=args.record, clock=s.clock) as base, \
+                watch(base, s.sim, args.foxglove, announce=_note):
             try:
                 result = execute(base, plan)
             except motion.BaseStoppedError as exc:

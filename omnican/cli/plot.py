@@ -66,7 +66,8 @@ def add_subparser(sub: Any) -> None:
     p = sub.add_parser("plot", help="plot a recording: trajectory, wheel speeds, drive states",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recording", nargs="?", metavar="RECORDING",
-                   help="python-can log file (.log, .asc, .blf) recorded by omnican")
+                   help="recording made by omnican: a python-can log (.log, .asc, .blf) "
+                        "or .mcap")
     p.add_argument("-o", "--output", required=True, metavar="OUT.png",
                    help="image to write (format by extension: png, svg, pdf)")
     p.add_argument("--title", help="figure title (default: the recording's name)")
@@ -86,7 +87,7 @@ def add_subparser(sub: Any) -> None:
     demo.add_argument("--fast", action="store_true",
                       help="run the demo in simulated time, as fast as the CPU allows")
     demo.add_argument("--record", metavar="FILE",
-                      help="keep the demo's recording in FILE (.log, .asc, .blf)")
+                      help="keep the demo's recording in FILE (.log, .asc, .blf, .mcap)")
     demo.add_argument("--sim-scale-error", type=finite_float, default=0.0, metavar="F",
                       help="the simulated wheels turn 1+F times the configured counts per "
                            "metre (default 0: odometry matches the truth)")

@@ -32,6 +32,8 @@ from omnican.cli.common import (
     session,
 )
 from omnican.errors import ConfigError
+from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
+from omnican.telemetry import Frames
 
 
 def add_subparser(sub: Any) -> None:
@@ -71,6 +73,8 @@ def add_subparser(sub: Any) -> None:
                      help="this machine only: loopback, no multicast, peer 127.0.0.1")
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
     add_bus_arguments(p, sim_help="run against simulated drives in this process; DDS stays "
                       "on loopback unless --dds-interface or --dds-peer says otherwise")
     p.set_defaults(func=run)
@@ -140,9 +144,13 @@ def run(args: argparse.Namespace) -> int:
             run_cfg = replace(run_cfg, chassis=replace(run_cfg.chassis,
                                                        cmd_timeout_s=settings.cmd_vel_timeout_s))
         transport = DdsTransport(settings, os.environ.get("CYCLONEDDS_URI"))
+        if args.foxglove is not None:
+            prepare(run_cfg)  # its slow set-up before the control loop runs
         try:
             with Chassis.open(run_cfg) as base, \
-                    Bridge(base, settings, transport, sim=sess.sim) as bridge:
+                    Bridge(base, settings, transport, sim=sess.sim) as bridge, \
+                    watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True),
+                          frames=Frames(settings.odom_frame, settings.base_frame)):
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
                     serve_lines(lambda line: command(bridge, line), args.duration)

@@ -31,6 +31,7 @@ from omnican.cli.common import (
     positive_float,
 )
 from omnican.hub import DEFAULT_PORT, LoopbackHub
+from omnican.live import foxglove_address, prepare, watch
 from omnican.sim import SimulatedBase, SimulatedDrive
 
 
@@ -49,6 +50,9 @@ def add_subparser(sub: Any) -> None:
                    help="standard deviation added to reported positions (default 0)")
     p.add_argument("--frame-loss", type=finite_float, default=0.0, metavar="P",
                    help="probability 0-1 of losing each PDO/heartbeat frame (default 0)")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help="serve the ground truth and the bus to Foxglove on "
+                   "[HOST:]PORT (default 127.0.0.1:8765; loopback unless a host is given)")
     can.cli.add_bus_arguments(p, group_title="bus arguments (serve on this bus instead of a hub)")
     p.set_defaults(func=run)
 
@@ -190,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
         where = hub.url
         connect = f"omnican teleop -i remote -c {hub.url}"
     try:
+        if args.foxglove is not None:
+            prepare(cfg)  # its slow set-up before the simulated drives run
         with SimulatedBase.from_config(cfg, **options) as sim:
             nodes = ", ".join(f"{d.node_id} ({d.eds.name})" for d in sim.drives)
             print(f"serving simulated nodes {nodes} on {where}", flush=True)
@@ -198,7 +204,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)
             print("type a command here: " + ", ".join(syntax for syntax, _ in COMMANDS),
                   flush=True)
-            serve(sim, args.duration)
+            with watch(None, sim, args.foxglove, announce=lambda t: print(t, flush=True)):
+                serve(sim, args.duration)
     finally:
         if hub is not None:
             hub.close()

@@ -2,8 +2,10 @@
 
 The keys are those of ROS's teleop_twist_keyboard (the key map is printed below).
 Holding a key keeps the base moving; when keys stop arriving for --key-timeout
-seconds it stops. On exit every drive is disabled and the final pose is printed as
-'pose x=<m> y=<m> theta=<rad>'.
+seconds it stops. With --gamepad a pad drives instead (ROS teleop_twist_joy's rules: hold
+LB/L1, left stick moves, right stick turns, RB/R1 for turbo; releasing LB or unplugging
+the pad stops the base); the keys still quit, recover and scale the speeds. On exit every
+drive is disabled and the final pose is printed as 'pose x=<m> y=<m> theta=<rad>'.
 """
 
 from __future__ import annotations
@@ -39,7 +41,9 @@ from omnican.cli.common import (
     session,
 )
 from omnican.errors import OmnicanError
+from omnican.gamepad import Gamepad, config_table, drive_step, teleop_model_for
 from omnican.kinematics import Twist
+from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
 from omnican.teleop_model import ESC, TeleopModel, key_help
 
 # The last byte of an arrow key's escape sequence -> the key it stands for.
@@ -58,7 +62,14 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--key-timeout", type=float, default=0.6, metavar="S",
                    help="stop when no key arrives for this long (default 0.6; 0: never)")
     p.add_argument("--record", metavar="FILE",
-                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf)")
+                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf; "
+                        ".mcap: frames plus the robot's state as ROS 2 messages)")
+    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    p.add_argument("--gamepad", nargs="?", const="", metavar="DEVICE",
+                   help="drive with a gamepad (evdev; default: the first one found, or e.g. "
+                        "/dev/input/event5): hold LB/L1 to move, RB/R1 for turbo, left stick "
+                        "moves, right stick turns; the [gamepad] table of --config maps it")
     add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
     p.set_defaults(func=run)
 
@@ -219,12 +230,12 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
 
 
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: _Events) -> None:
-    """Keys in, commands out, dashboard refreshed, until Esc."""
+               events: _Events, pad: Gamepad | None = None) -> None:
+    """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc."""
     note = ""
     while not keys.quit_requested:
         now = time.monotonic()
-        for key in read_keys(fd, LOOP_S):
+        for key in read_keys(fd, LOOP_S if pad is None else LOOP_S / 2):
             keys.press(key, now)
         if keys.take_recover():
             note = "recovering..."
@@ -235,9 +246,14 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
                 note = ""
             except OmnicanError as exc:
                 note = f"recover failed: {exc}"
-        command = keys.command(time.monotonic())
-        base.set_velocity(command.vx, command.vy, command.wz)
-        live.update(dashboard(base, keys, command, title, events, note, live.console.width),
+        if pad is not None:  # the pad moves; the keys still quit, recover and scale
+            command = drive_step(base, pad, keys, LOOP_S / 2)
+            shown = note or pad.status_text()
+        else:
+            command = keys.command(time.monotonic())
+            base.set_velocity(command.vx, command.vy, command.wz)
+            shown = note
+        live.update(dashboard(base, keys, command, title, events, shown, live.console.width),
                     refresh=True)
 
 
@@ -251,17 +267,30 @@ def run(args: argparse.Namespace) -> int:
     console = Console()
     events = _Events()
     final = None
-    with session(args) as s:
-        keys = TeleopModel.for_config(s.cfg, args.speed, args.turn, args.key_timeout)
+    pad = None
+    if args.gamepad is not None:  # before the drives come up: no pad, nothing moves
+        pad = Gamepad.open(args.gamepad or None, config_table(args.config))
+    with session(args) as s, (pad or contextlib.nullcontext()):
+        if pad is not None:
+            keys = teleop_model_for(s.cfg, pad.mapping)
+        else:
+            keys = TeleopModel.for_config(s.cfg, args.speed, args.turn, args.key_timeout)
         where = "simulated base" if s.sim else "base"
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"
+        if pad is not None:
+            title += f" - gamepad {pad.name}"
         console.print(f"{title}: bringing the drives up...", style="dim")
-        with Chassis.open(s.cfg, record=args.record) as base, cbreak(fd), \
+        if args.foxglove is not None:
+            prepare(s.cfg)  # its slow set-up before the control loop runs
+        with Chassis.open(s.cfg, record=args.record) as base, \
+                watch(base, s.sim, args.foxglove) as view, cbreak(fd), \
                 logs_into(events), Live(console=console, screen=True, auto_refresh=False,
                                         transient=True) as live:
+            if view is not None:
+                title += f" - Foxglove {view.url}"
             try:
-                drive_loop(base, keys, fd, live, title, events)
+                drive_loop(base, keys, fd, live, title, events, pad)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
                 pass
             base.stop()

@@ -1,0 +1,173 @@
+"""What recording costs the control loop: prints one JSON object per line.
+
+For each rate (100 Hz, 1 kHz) and each recording (none, ``.log`` candump text, ``.mcap``
+frames plus state), the simulated base drives for a while and this reports the control
+loop's own CPU per cycle (its thread's CPU clock), its achieved rate and late cycles,
+and, for the recorders, their writer thread's CPU per second, frames written and dropped;
+last, the same with a Foxglove live view whose client subscribed to every topic.
+The MCAP writer runs on its own thread; the loop's share is one queue append per frame it
+sends (the Notifier thread appends the frames it receives).
+
+Run: ``python bench/bench_record.py`` (about a minute; ``--quick`` for a shorter run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from bench_chassis import config, emit, notifier_threads, thread_cpu
+
+from omnican import Chassis
+from omnican.sim import SimulatedBase
+
+
+def writer_thread() -> threading.Thread | None:
+    return next((t for t in threading.enumerate() if t.name == "omnican-mcap"), None)
+
+
+def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None:
+    cfg = config(rate_hz)
+    record = tmp / f"bench-{int(rate_hz)}{suffix}" if suffix else None
+    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=record) as base:
+        writer = writer_thread() if suffix == ".mcap" else None
+        notif = notifier_threads(base.bus.network)
+        time.sleep(0.3)
+        cycles0, late0 = base.status.cycles, base._late
+        loop0 = thread_cpu(base._thread)
+        notif0 = sum(thread_cpu(t) for t in notif)
+        writer0 = thread_cpu(writer) if writer else 0.0
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            base.set_velocity(0.3 * math.sin(time.monotonic()), 0.1, 0.2)
+            time.sleep(0.01)
+        elapsed = time.monotonic() - t0
+        cycles = base.status.cycles - cycles0
+        loop_cpu = thread_cpu(base._thread) - loop0
+        notif_cpu = sum(thread_cpu(t) for t in notif) - notif0
+        writer_cpu = (thread_cpu(writer) - writer0) if writer else None
+        late = base._late - late0
+        recorder = base.bus.recorder
+    fields = dict(bench="record.loop", rate_hz=rate_hz, recording=suffix or "none",
+                  seconds=round(elapsed, 2), achieved_hz=round(cycles / elapsed, 1),
+                  late_cycle_fraction=round(late / max(cycles, 1), 4),
+                  loop_cpu_us_per_cycle=round(loop_cpu / max(cycles, 1) * 1e6, 1),
+                  notifier_cpu_us_per_cycle=round(notif_cpu / max(cycles, 1) * 1e6, 1))
+    if writer_cpu is not None:
+        fields["writer_cpu_ms_per_s"] = round(writer_cpu / elapsed * 1e3, 1)
+        fields["frames_written"] = getattr(recorder, "frames", None)
+        fields["frames_dropped"] = getattr(recorder, "dropped", None)
+    if record is not None and record.exists():
+        fields["file_kib"] = round(record.stat().st_size / 1024, 1)
+    emit(**fields)
+
+
+def bench_sent_frame(tmp: Path) -> None:
+    """What one sent frame costs the sending (control loop) thread, per recording: the
+    bus's bookkeeping for a frame, timed on its own (no bus traffic, no other threads'
+    noise in it)."""
+    import uuid
+
+    from omnican.bus import CanBus
+
+    n = 20_000
+    for suffix in (None, ".log", ".mcap"):
+        record = tmp / f"sent{suffix}" if suffix else None
+        with CanBus({"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"},
+                    record=record) as bus:
+            t0 = time.thread_time()
+            for i in range(n):
+                bus._sent(0x301, i.to_bytes(4, "little"))
+            cost = (time.thread_time() - t0) / n * 1e6
+            recorder = bus.recorder
+            time.sleep(0.05)  # the MCAP writer drains its queue meanwhile
+        emit(bench="record.sent_frame", recording=suffix or "none",
+             loop_thread_cpu_us_per_frame=round(cost, 2),
+             dropped=getattr(recorder, "dropped", None))
+
+
+class _Watcher(threading.Thread):
+    """A Foxglove client subscribed to every topic, reading and dropping what comes."""
+
+    def __init__(self, url: str) -> None:
+        super().__init__(name="bench-foxglove-client", daemon=True)
+        self.url, self.messages = url, 0
+        self.stop_event = threading.Event()
+
+    def run(self) -> None:
+        import json
+
+        from websockets.sync.client import connect
+
+        with connect(self.url, subprotocols=["foxglove.sdk.v1",  # type: ignore[list-item]
+                                             "foxglove.websocket.v1"], max_size=None) as ws:
+            subscribed = False
+            while not self.stop_event.is_set():
+                try:
+                    data = ws.recv(timeout=0.2)
+                except TimeoutError:
+                    continue
+                if isinstance(data, str):
+                    msg = json.loads(data)
+                    if msg.get("op") == "advertise" and not subscribed:
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                            {"id": i, "channelId": ch["id"]}
+                            for i, ch in enumerate(msg["channels"])]}))
+                        subscribed = True
+                else:
+                    self.messages += 1
+
+
+def bench_live(rate_hz: float, seconds: float) -> None:
+    """The loop with a Foxglove live view that a client watches on every topic."""
+    from omnican.live import LiveView
+
+    cfg = config(rate_hz)
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
+            LiveView(base, sim, port=0) as view:
+        watcher = _Watcher(view.url)
+        watcher.start()
+        publisher = next(t for t in threading.enumerate() if t.name == "omnican-foxglove")
+        time.sleep(1.0)
+        cycles0, late0 = base.status.cycles, base._late
+        loop0, pub0, msgs0 = thread_cpu(base._thread), thread_cpu(publisher), watcher.messages
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            base.set_velocity(0.3 * math.sin(time.monotonic()), 0.1, 0.2)
+            time.sleep(0.01)
+        elapsed = time.monotonic() - t0
+        cycles = base.status.cycles - cycles0
+        fields = dict(bench="record.loop", rate_hz=rate_hz, recording="foxglove live view",
+                      seconds=round(elapsed, 2), achieved_hz=round(cycles / elapsed, 1),
+                      late_cycle_fraction=round((base._late - late0) / max(cycles, 1), 4),
+                      loop_cpu_us_per_cycle=round((thread_cpu(base._thread) - loop0)
+                                                  / max(cycles, 1) * 1e6, 1),
+                      publisher_cpu_ms_per_s=round((thread_cpu(publisher) - pub0)
+                                                   / elapsed * 1e3, 1),
+                      messages_per_s=round((watcher.messages - msgs0) / elapsed))
+        watcher.stop_event.set()
+        watcher.join()
+    emit(**fields)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="shorter runs")
+    parser.add_argument("--repeat", type=int, default=1, help="runs of each case")
+    args = parser.parse_args()
+    seconds = 3.0 if args.quick else 8.0
+    with tempfile.TemporaryDirectory(prefix="omnican-bench-") as tmp:
+        bench_sent_frame(Path(tmp))
+        for rate in (100.0, 1000.0):
+            for _ in range(args.repeat):
+                for suffix in (None, ".log", ".mcap"):
+                    bench(rate, seconds, suffix, Path(tmp))
+                bench_live(rate, seconds)
+
+
+if __name__ == "__main__":
+    main()

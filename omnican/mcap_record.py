@@ -1,0 +1,232 @@
+"""MCAP recordings: every CAN frame plus the robot's state, in one file that Foxglove
+opens and ROS 2's bag tools read (``pip install 'omnican[mcap]'``).
+
+What a recording holds (profile ``ros2``; ROS 2 types are CDR with ``ros2msg`` schemas):
+
+* ``/from_can_bus`` and ``/to_can_bus``: every frame received and sent, as
+  ``can_msgs/msg/Frame`` (the message and topic names of ROS 2's socketcan bridge);
+* the state topics of :data:`omnican.telemetry.TOPICS` (``/odom``, ``/tf``,
+  ``/joint_states``, ``/diagnostics`` as ROS 2 types; ``/pose2d``, ``/twist``, ``/wheels``,
+  ``/status`` as schemaless JSON), sampled from the running base at ``state_rate_hz``;
+* attachment ``omnican.dbc`` (the base's frames, for any DBC tool) and metadata
+  ``omnican`` (version, bus channel, dropped frames).
+
+Recording never holds up the bus or the control loop: frames arrive on the Notifier
+thread (and the loop thread, for the frames it sends) and only go into a bounded queue;
+one writer thread serializes, compresses and writes. When the writer falls behind, frames
+are dropped and counted (``dropped``, also in the file's metadata), never waited for.
+
+:func:`read_frames` reads the frames back as :class:`can.Message` objects for
+:mod:`omnican.replay` (``omnican plot``, ``omnican calibrate --fit``).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+import can
+
+from omnican import rosmsg, telemetry
+from omnican.errors import ConfigError
+
+logger = logging.getLogger(__name__)
+
+QUEUE_FRAMES = 100_000  # ~10 s of a busy 1 Mbit/s bus
+STATE_RATE_HZ = 50.0
+WRITER_PERIOD_S = 0.01
+
+
+class McapRecorder(can.Listener):
+    """Writes frames (and, once :meth:`attach` is called, the base's state) to ``path``."""
+
+    def __init__(self, path: str | Path, *, queue_frames: int = QUEUE_FRAMES,
+                 state_rate_hz: float = STATE_RATE_HZ) -> None:
+        try:
+            from mcap.writer import CompressionType, Writer
+        except ImportError:
+            raise ConfigError(f"recording to {path} needs the MCAP packages: "
+                              "pip install 'omnican[mcap]'") from None
+        rosmsg.typestore()  # import errors surface here, not on the writer thread
+        self.path = Path(path)
+        try:
+            self._file: IO[bytes] = self.path.open("wb")
+        except OSError as exc:
+            raise ConfigError(f"cannot record to {path}: {exc.strerror or exc}") from None
+        from omnican import __version__
+
+        self._writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self._writer.start(profile="ros2", library=f"omnican {__version__}")
+        self._queue: collections.deque[can.Message] = collections.deque()
+        self._max = queue_frames
+        self.dropped = 0
+        self.frames = 0
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._source: Callable[[], telemetry.Sample] | None = None
+        self._frames_cfg = telemetry.Frames()
+        self._radius: tuple[float | None, ...] = ()
+        self._period = 1.0 / state_rate_hz
+        self._channel_name = ""
+        self._attachments: list[tuple[str, str, bytes]] = []
+        self._wake = threading.Event()
+        self._stopping = False
+        self._closed = False
+        self._lock = threading.Lock()
+        self.error: str | None = None
+        self._thread = threading.Thread(target=self._run, name="omnican-mcap", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------ producers (never block)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if len(self._queue) >= self._max:
+            self.dropped += 1
+            return
+        self._queue.append(msg)
+
+    def stop(self) -> None:
+        """Called by the Notifier when it stops: keep recording after a reconnect."""
+
+    def attach(self, base: Any, truth: Any = None, frames: telemetry.Frames | None = None) -> None:
+        """Record ``base``'s state too (a :class:`omnican.Chassis`; ``truth``: a simulated
+        base whose ground truth goes along), and its DBC as an attachment. Calling it again
+        (e.g. to add the truth) replaces the source."""
+        cfg = base.cfg
+        first = self._source is None
+        self._radius = tuple(w.wheel_radius for w in cfg.wheels)
+        self._channel_name = str((cfg.bus or {}).get("channel", ""))
+        if frames is not None:
+            self._frames_cfg = frames
+        try:
+            from omnican.dbcgen import dbc_text
+
+            if first:
+                    self._attachments.append(("omnican.dbc", "text/x-dbc",
+                                          dbc_text(cfg).encode()))
+        except Exception as exc:  # a DBC is a convenience; the frames are what counts
+            logger.warning("recording without a DBC: %s", exc)
+        self._source = lambda: telemetry.sample(base, truth)
+
+    # ------------------------------------------------------------ the writer thread
+
+    def _schema(self, name: str) -> int:
+        if name in telemetry.JSON_SCHEMAS:
+            # Schemaless JSON (schema id 0): Foxglove reads it all the same, and ROS 2 bag
+            # readers pass it through, where a "jsonschema" schema makes some (rosbags) fail.
+            return 0
+        sid = self._schemas.get(name)
+        if sid is None:
+            sid = self._writer.register_schema(name, "ros2msg", rosmsg.msgdef(name).encode())
+            self._schemas[name] = sid
+        return sid
+
+    def _channel(self, topic: str, schema: str) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:
+            encoding = "json" if schema in telemetry.JSON_SCHEMAS else "cdr"
+            cid = self._writer.register_channel(topic, encoding, self._schema(schema))
+            self._channels[topic] = cid
+        return cid
+
+    def _write_frames(self) -> None:
+        queue = self._queue
+        rx = self._channel(telemetry.CAN_RX, telemetry.CAN_FRAME)
+        tx = self._channel(telemetry.CAN_TX, telemetry.CAN_FRAME)
+        add = self._writer.add_message
+        while queue:
+            msg = queue.popleft()
+            ns = int(msg.timestamp * 1e9)
+            data = rosmsg.encode_can_frame(
+                ns, msg.arbitration_id, bytes(msg.data),
+                str(msg.channel) if msg.channel is not None else self._channel_name,
+                extended=msg.is_extended_id, remote=msg.is_remote_frame,
+                error=msg.is_error_frame)
+            add(rx if msg.is_rx else tx, log_time=ns, data=data, publish_time=ns)
+            self.frames += 1
+
+    def _write_state(self, sample: telemetry.Sample) -> None:
+        ns = sample.stamp_ns
+        for topic, message in telemetry.messages(sample, self._frames_cfg, self._radius):
+            schema, kind = telemetry.TOPICS[topic]
+            data = (json.dumps(message).encode() if kind == telemetry.JSON
+                    else rosmsg.encode(schema, message))
+            self._writer.add_message(self._channel(topic, schema), log_time=ns, data=data,
+                                     publish_time=ns)
+
+    def _run(self) -> None:
+        next_state = time.monotonic()
+        try:
+            while True:
+                stopping = self._stopping
+                while self._attachments:
+                    name, media, data = self._attachments.pop(0)
+                    now = time.time_ns()
+                    self._writer.add_attachment(now, now, name, media, data)
+                self._write_frames()
+                source = self._source
+                if source is not None and (stopping or time.monotonic() >= next_state):
+                    next_state = max(next_state + self._period, time.monotonic())
+                    self._write_state(source())
+                if stopping:
+                    break
+                self._wake.wait(WRITER_PERIOD_S)
+        except Exception as exc:  # a full disk must not stop the robot: report, stop writing
+            self.error = str(exc)
+            logger.error("recording to %s stopped: %s", self.path, exc)
+            self._queue.clear()
+            self._max = 0
+
+    # ------------------------------------------------------------ closing
+
+    def close(self) -> None:
+        """Write what is queued, then the file's index. Idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._stopping = True
+        self._wake.set()
+        self._thread.join()
+        self._max = 0  # late frames (none should come: the bus closes first) are dropped
+        try:
+            if self.dropped:
+                logger.warning("recording to %s dropped %d frames (the writer fell behind)",
+                               self.path, self.dropped)
+            from omnican import __version__
+
+            self._writer.add_metadata("omnican", {
+                "version": __version__, "channel": self._channel_name,
+                "frames": str(self.frames), "dropped_frames": str(self.dropped)})
+            self._writer.finish()
+        except Exception as exc:
+            logger.error("finishing %s failed: %s", self.path, exc)
+        finally:
+            self._file.close()
+
+
+def read_frames(path: str | Path) -> list[can.Message]:
+    """The CAN frames of an MCAP recording (``/from_can_bus`` and ``/to_can_bus``), in file
+    order. Raises ImportError without the mcap package; ValueError for a broken file."""
+    from mcap.reader import make_reader
+
+    out: list[can.Message] = []
+    with Path(path).open("rb") as f:
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages(
+                topics=[telemetry.CAN_RX, telemetry.CAN_TX]):
+            if schema is None or schema.name != telemetry.CAN_FRAME:
+                continue
+            ns, can_id, data, name, extended, remote, error = rosmsg.decode_can_frame(
+                message.data)
+            out.append(can.Message(timestamp=ns / 1e9, arbitration_id=can_id, data=data,
+                                   is_extended_id=extended, is_remote_frame=remote,
+                                   is_error_frame=error, channel=name or None,
+                                   is_rx=channel.topic == telemetry.CAN_RX, check=False))
+    return out

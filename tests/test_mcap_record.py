@@ -1,0 +1,163 @@
+"""MCAP recordings (``--record run.mcap``): read back with the mcap reader and an
+independent ROS 2 decoder (mcap_ros2), replayed through omnican.replay."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import cantools
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from omnican import Chassis, default_config, replay
+from omnican.cli import main
+from omnican.mcap_record import McapRecorder, read_frames
+from omnican.sim import SimulatedBase
+
+from .helpers import drive_for, one_error_line
+
+
+def read_all(path: Path) -> tuple[dict[str, list[Any]], dict[str, Any], Any]:
+    """Decoded messages per topic, channel info per topic, and the reader's extras."""
+    topics: dict[str, list[Any]] = {}
+    info: dict[str, Any] = {}
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        header = reader.get_header()
+        for schema, channel, message in reader.iter_messages():
+            info[channel.topic] = ((schema.name, schema.encoding) if schema else (None, None)) \
+                + (channel.message_encoding,)
+            if channel.message_encoding == "json":
+                value = json.loads(message.data)
+            else:
+                value = None
+            topics.setdefault(channel.topic, []).append((message.log_time, value))
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, message, decoded in reader.iter_decoded_messages(
+                topics=[t for t, i in info.items() if i[2] == "cdr"]):
+            topics.setdefault(f"{channel.topic}#", []).append((message.log_time, decoded))
+        attachments = {a.name: a for a in reader.iter_attachments()}
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+    return topics, info, (header, attachments, metadata)
+
+
+def test_drive_records_frames_and_ros2_state(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "run.mcap"
+    assert main(["drive", "--sim", "--vx", "0.2", "--vy", "0.1", "--wz", "0.4", "--duration",
+                 "1.0", "--json", "--record", str(path)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    topics, info, (header, attachments, metadata) = read_all(path)
+    assert header.profile == "ros2"
+    assert info["/odom"] == ("nav_msgs/msg/Odometry", "ros2msg", "cdr")
+    assert info["/tf"] == ("tf2_msgs/msg/TFMessage", "ros2msg", "cdr")
+    assert info["/joint_states"] == ("sensor_msgs/msg/JointState", "ros2msg", "cdr")
+    assert info["/diagnostics"] == ("diagnostic_msgs/msg/DiagnosticArray", "ros2msg", "cdr")
+    assert info["/from_can_bus"] == ("can_msgs/msg/Frame", "ros2msg", "cdr")
+    assert info["/to_can_bus"] == ("can_msgs/msg/Frame", "ros2msg", "cdr")
+    # The last odometry is the pose the command printed; the truth went along under --sim.
+    _, odo = topics["/odom#"][-1]
+    assert odo.pose.pose.position.x == pytest.approx(result["pose"]["x"], abs=1e-3)
+    assert odo.pose.pose.position.y == pytest.approx(result["pose"]["y"], abs=1e-3)
+    _, true = topics["/sim/true_pose#"][-1]
+    assert true.pose.position.x == pytest.approx(result["true_pose"]["x"], abs=1e-3)
+    assert any(abs(o.twist.twist.angular.z - 0.4) < 0.04 for _, o in topics["/odom#"])
+    # Joint angles are rim travel over the wheel radius (50 mm on the demo base).
+    _, js = topics["/joint_states#"][-1]
+    _, wheels = topics["/wheels"][-1]
+    assert list(js.position) == pytest.approx([w["travel"] / 0.05 for w in wheels["wheels"]],
+                                              abs=0.05)
+    _, diag = topics["/diagnostics#"][-1]
+    assert [s.name for s in diag.status] == ["omnican: wheel 0 (node 1)",
+                                             "omnican: wheel 1 (node 2)",
+                                             "omnican: wheel 2 (node 3)", "omnican: base"]
+    # Frames both ways, decodable with the DBC that came along.
+    db = cantools.database.load_string(attachments["omnican.dbc"].data.decode(), "dbc")
+    tx = {f.id for _, f in topics["/to_can_bus#"]}
+    rx = [f for _, f in topics["/from_can_bus#"]]
+    assert {0x80, 0x301, 0x302, 0x303, 0x77F} <= tx
+    tpdo2 = next(f for f in rx if f.id == 0x281)
+    assert "PositionActual" in db.decode_message(0x281, bytes(tpdo2.data)[:tpdo2.dlc])
+    assert metadata["omnican"]["dropped_frames"] == "0"
+    assert int(metadata["omnican"]["frames"]) == len(topics["/to_can_bus"]) + len(rx)
+    assert info["/wheels"] == (None, None, "json")  # schemaless JSON: see the next test
+
+
+def test_a_ros2_bag_reader_reads_the_recording(tmp_path: Path) -> None:
+    """rosbags (a ROS 2 bag library) opens the file and decodes the robot's state."""
+    from rosbags.highlevel import AnyReader
+
+    path = tmp_path / "run.mcap"
+    assert main(["drive", "--sim", "--vx", "0.2", "--duration", "0.5",
+                 "--record", str(path)]) == 0
+    with AnyReader([path]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types["/odom"] == "nav_msgs/msg/Odometry"
+        assert types["/to_can_bus"] == "can_msgs/msg/Frame"
+        odometry = [reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == "/odom"])]
+        frames = [reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == "/to_can_bus"])]
+    assert odometry[-1].pose.pose.position.x > 0.05
+    assert {f.id for f in frames} >= {0x80, 0x301}
+
+
+def test_mcap_replays_like_a_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """plot/calibrate read .mcap through replay: the same decode as from a .log."""
+    mcap_path, log_path = tmp_path / "a.mcap", tmp_path / "a.log"
+    cfg = default_config(bus={"interface": "virtual", "channel": f"mcap-{tmp_path.name}"})
+    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=mcap_path) as base:
+        drive_for(base, 0.8, vx=0.3, wz=0.5)
+        base.stop()
+        drive_for(base, 0.4)
+        pose = base.pose
+    frames = read_frames(mcap_path)
+    assert all(f.timestamp > 1e9 for f in frames)  # wall-clock times, as a .log has
+    rep = replay.load(mcap_path, cfg)
+    assert rep.complete_syncs > 10  # ~100 at 100 Hz; fewer when the machine is busy
+    x, y, theta = rep.poses[-1]
+    assert math.hypot(x - pose.x, y - pose.y) < 0.002
+    assert theta == pytest.approx(pose.theta, abs=0.002)
+    assert main(["plot", str(mcap_path), "-o", str(tmp_path / "a.png")]) == 0
+    assert "complete SYNCs" in capsys.readouterr().out
+    # The same run through the .log path gives the same figure input.
+    import can
+
+    with can.Logger(str(log_path)) as log:
+        for f in frames:
+            log.on_message_received(f)
+    rep_log = replay.load(log_path, cfg)
+    assert rep_log.complete_syncs == rep.complete_syncs
+    assert rep_log.poses[-1] == pytest.approx(rep.poses[-1], abs=1e-6)
+
+
+def test_unreadable_mcap_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file at all")
+    assert main(["plot", str(bad), "-o", str(tmp_path / "x.png")]) == 2
+    assert "bad.mcap: not a readable .mcap recording" in one_error_line(capsys.readouterr().err)
+
+
+def test_recorder_drops_instead_of_blocking(tmp_path: Path) -> None:
+    """A full queue drops (and counts) frames at once; the writer never holds up a sender."""
+    import can
+
+    rec = McapRecorder(tmp_path / "q.mcap", queue_frames=0)
+    for i in range(100):
+        rec.on_message_received(can.Message(arbitration_id=0x181, data=bytes([i])))
+    rec.close()
+    assert rec.dropped == 100
+    with (tmp_path / "q.mcap").open("rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert meta["omnican"]["dropped_frames"] == "100"
+
+
+def test_unwritable_record_path_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["drive", "--sim", "--vx", "0.1", "--record", "/nonexistent/dir/run.mcap"]) == 2
+    assert "cannot record to /nonexistent/dir/run.mcap" in one_error_line(
+        capsys.readouterr().err)

@@ -1,0 +1,170 @@
+"""The robot's state as messages (omnican.telemetry, pure) and their CDR bytes
+(omnican.rosmsg), checked against an independent decoder (mcap_ros2)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.records import Schema
+from mcap_ros2.decoder import DecoderFactory
+
+from omnican import rosmsg, telemetry
+from omnican.chassis import ChassisStatus, WheelState
+from omnican.cia402 import State
+from omnican.kinematics import Twist
+from omnican.odometry import Pose2D
+
+finite = st.floats(-1e3, 1e3, allow_nan=False)
+# The first encode builds rosbags' type store (a few hundred ms): no deadline here.
+codec = settings(deadline=None)
+
+
+def wheel(index: int, **kw: object) -> WheelState:
+    fields: dict[str, object] = dict(
+        index=index, node_id=index + 1, axis=0, state=State.OPERATION_ENABLED,
+        statusword=0x1637, mode=3, target_speed=0.1, actual_speed=0.1, travel=0.5,
+        online=True, fault=None, error=None)
+    fields.update(kw)
+    return WheelState(**fields)  # type: ignore[arg-type]
+
+
+def status(**kw: object) -> ChassisStatus:
+    fields: dict[str, object] = dict(
+        enabled=True, stopped_reason=None, command_age_s=0.01, loop_hz=100.0,
+        late_fraction=0.0, cycles=10, bus_load=0.2, bus_bits_per_s=1e5, bus_error=None,
+        warnings=())
+    fields.update(kw)
+    return ChassisStatus(**fields)  # type: ignore[arg-type]
+
+
+ORIGIN = Pose2D()
+
+
+def sample(pose: Pose2D = ORIGIN, wheels: tuple[WheelState, ...] | None = None,
+           **kw: object) -> telemetry.Sample:
+    return telemetry.Sample(
+        stamp_ns=1_700_000_000_123_456_789, pose=pose, twist=Twist(0.1, 0.2, 0.3),
+        command=Twist(0.1, 0.2, 0.3), wheels=wheels or tuple(wheel(i) for i in range(3)),
+        status=status(**kw))
+
+
+def decoder(typename: str):  # type: ignore[no-untyped-def]
+    schema = Schema(id=1, name=typename, encoding="ros2msg",
+                    data=rosmsg.msgdef(typename).encode())
+    return DecoderFactory().decoder_for("cdr", schema)
+
+
+@codec
+@given(x=finite, y=finite, theta=st.floats(-20, 20))
+def test_odometry_pose_and_transform_agree_with_the_pose(x: float, y: float,
+                                                         theta: float) -> None:
+    s = sample(Pose2D(x, y, theta))
+    odo = decoder("nav_msgs/msg/Odometry")(rosmsg.encode("nav_msgs/msg/Odometry",
+                                                         telemetry.odometry(s)))
+    q = odo.pose.pose.orientation
+    yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y ** 2 + q.z ** 2))
+    assert math.isclose(math.remainder(yaw - theta, math.tau), 0.0, abs_tol=1e-9)
+    assert (odo.pose.pose.position.x, odo.pose.pose.position.y) == (x, y)
+    assert (odo.header.frame_id, odo.child_frame_id) == ("odom", "base_link")
+    assert (odo.header.stamp.sec, odo.header.stamp.nanosec) == (1_700_000_000, 123_456_789)
+    assert (odo.twist.twist.linear.x, odo.twist.twist.linear.y,
+            odo.twist.twist.angular.z) == (0.1, 0.2, 0.3)
+    cov = list(odo.pose.covariance)
+    assert [cov[7 * i] for i in range(6)] == list(telemetry.POSE_VARIANCE)
+    tf = decoder("tf2_msgs/msg/TFMessage")(rosmsg.encode("tf2_msgs/msg/TFMessage",
+                                                         telemetry.transforms(s)))
+    (t,) = tf.transforms
+    assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+    assert (t.transform.translation.x, t.transform.translation.y) == (x, y)
+    r = t.transform.rotation
+    assert (r.x, r.y, r.z, r.w) == (q.x, q.y, q.z, q.w)
+
+
+@codec
+@given(travel=st.lists(finite, min_size=3, max_size=3),
+       radius=st.floats(0.01, 1.0))
+def test_joint_states_are_wheel_angles(travel: list[float], radius: float) -> None:
+    s = sample(wheels=tuple(wheel(i, travel=t, actual_speed=t / 10)
+                            for i, t in enumerate(travel)))
+    js = telemetry.joint_states(s, [radius] * 3)
+    assert js is not None
+    msg = decoder("sensor_msgs/msg/JointState")(rosmsg.encode("sensor_msgs/msg/JointState", js))
+    assert list(msg.name) == ["wheel_0_joint", "wheel_1_joint", "wheel_2_joint"]
+    assert list(msg.position) == pytest.approx([t / radius for t in travel])
+    assert list(msg.velocity) == pytest.approx([t / 10 / radius for t in travel])
+
+
+def test_joint_states_need_every_wheel_radius() -> None:
+    assert telemetry.joint_states(sample(), [0.05, None, 0.05]) is None
+    assert telemetry.joint_states(sample(), []) is None
+
+
+def test_diagnostics_stale_wheel_and_bus_down() -> None:
+    s = sample(wheels=(wheel(0), wheel(1, stale=True, actual_speed=0.0), wheel(2)),
+               bus_up=False, bus_error="send 0x080 failed: Network is down")
+    msg = decoder("diagnostic_msgs/msg/DiagnosticArray")(
+        rosmsg.encode("diagnostic_msgs/msg/DiagnosticArray", telemetry.diagnostics(s)))
+    levels = {st.name: (ord(st.level) if isinstance(st.level, bytes) else st.level, st.message)
+              for st in msg.status}
+    assert levels["omnican: wheel 1 (node 2)"][0] == telemetry.STALE
+    assert levels["omnican: base"] == (telemetry.ERROR,
+                                       "bus down: send 0x080 failed: Network is down")
+    assert telemetry.status(s)["bus_up"] is False
+    assert [w["stale"] for w in telemetry.wheels(s)["wheels"]] == [False, True, False]
+
+
+def test_diagnostics_levels_and_emcy_text() -> None:
+    wheels = (wheel(0), wheel(1, state=State.FAULT, fault="0x2310 continuous over-current"),
+              wheel(2, online=False))
+    s = sample(wheels=wheels, stopped_reason="node 2 fault: 0x2310 continuous over-current",
+               enabled=False)
+    msg = decoder("diagnostic_msgs/msg/DiagnosticArray")(
+        rosmsg.encode("diagnostic_msgs/msg/DiagnosticArray", telemetry.diagnostics(s)))
+    levels = {st.name: (ord(st.level) if isinstance(st.level, bytes) else st.level, st.message)
+              for st in msg.status}
+    assert levels["omnican: wheel 0 (node 1)"] == (telemetry.OK, "OPERATION ENABLED")
+    assert levels["omnican: wheel 1 (node 2)"] == (telemetry.ERROR,
+                                                  "0x2310 continuous over-current")
+    assert levels["omnican: wheel 2 (node 3)"] == (telemetry.ERROR, "offline (no heartbeat)")
+    assert levels["omnican: base"] == (
+        telemetry.ERROR, "stopped: node 2 fault: 0x2310 continuous over-current")
+    base = next(st for st in msg.status if st.name == "omnican: base")
+    assert {kv.key: kv.value for kv in base.values}["loop_hz"] == "100"
+
+
+def test_every_state_topic_is_declared_and_encodes() -> None:
+    s = telemetry.Sample(**{**sample().__dict__, "true_pose": Pose2D(1, 2, 3),
+                            "true_twist": Twist(1, 0, 0)})
+    topics = dict(telemetry.messages(s, wheel_radius=[0.05] * 3))
+    assert set(topics) == set(telemetry.TOPICS)
+    for topic, message in topics.items():
+        schema, kind = telemetry.TOPICS[topic]
+        if kind == telemetry.ROS2:
+            assert decoder(schema)(rosmsg.encode(schema, message)) is not None
+        else:
+            assert set(message) <= set(telemetry.JSON_SCHEMAS[schema]["properties"])
+
+
+@codec
+@given(can_id=st.integers(0, 0x1FFFFFFF), data=st.binary(max_size=8),
+       channel=st.text(st.characters(exclude_characters='\x00',
+                                             exclude_categories=('Cs',)), max_size=30),
+       ns=st.integers(0, 2**31 * 10**9 - 1),  # ROS time: int32 seconds
+       flags=st.tuples(st.booleans(), st.booleans(), st.booleans()))
+def test_fast_can_frame_codec_matches_the_generic_one(can_id: int, data: bytes, channel: str,
+                                                       ns: int,
+                                                       flags: tuple[bool, bool, bool]) -> None:
+    extended, remote, error = flags
+    fast = rosmsg.encode_can_frame(ns, can_id, data, channel, extended=extended, remote=remote,
+                                   error=error)
+    message = telemetry.can_frame(0.0, can_id, data, extended=extended, remote=remote,
+                                  error=error, channel=channel)
+    message["header"]["stamp"] = telemetry.stamp(ns)
+    assert fast == rosmsg.encode(telemetry.CAN_FRAME, message)
+    assert rosmsg.decode_can_frame(fast) == (ns, can_id, data, channel, extended, remote, error)
+    independent = decoder(telemetry.CAN_FRAME)(fast)
+    assert (independent.id, independent.dlc, bytes(independent.data)[:len(data)]) == (
+        can_id, len(data), data)
