@@ -7,6 +7,7 @@ frame, received and sent, to a python-can log file when asked (format by extensi
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import logging
@@ -35,28 +36,60 @@ _FRAME_BITS = tuple(frame_bits(n) for n in range(65))  # worst case, by data len
 
 
 class _Recorder(can.Listener):
-    """Writes frames to a python-can log file; survives Notifier restarts (reconnects)."""
+    """Writes frames to a python-can log file on a thread of its own; survives Notifier
+    restarts (reconnects).
+
+    The threads that see frames (the control loop, the Notifier) only append them to a
+    bounded queue: a slow disk (an SD card) must never stall the loop. When the queue
+    is full, frames are dropped and counted (:attr:`dropped`)."""
+
+    QUEUE_FRAMES = 100_000  # about 20 s of a busy 1 Mbit/s bus
 
     def __init__(self, path: Path) -> None:
-        self._lock = threading.Lock()
         try:
             self._writer: can.Listener | None = can.Logger(str(path))
         except (ValueError, OSError) as exc:  # unknown suffix, unwritable place
             raise ConfigError(f"cannot record to {path}: {exc}") from None
         self.path = path
+        self.dropped = 0
+        self._queue: collections.deque[can.Message] = collections.deque()
+        self._wake = threading.Event()
+        self._closing = False
+        self._thread = threading.Thread(target=self._write_loop, name="omnican-recorder",
+                                        daemon=True)
+        self._thread.start()
 
     def on_message_received(self, msg: can.Message) -> None:
-        # Runs on the Notifier thread: an exception here would stop all reception.
-        with self._lock:
-            if self._writer is None:
+        if len(self._queue) >= self.QUEUE_FRAMES:
+            self.dropped += 1
+            return
+        self._queue.append(msg)  # deque.append is atomic: no lock on the sending threads
+        if len(self._queue) >= 64:
+            self._wake.set()
+
+    def _write_loop(self) -> None:
+        while True:
+            self._wake.wait(0.05)
+            self._wake.clear()
+            self._drain()
+            if self._closing:
+                self._drain()
                 return
+
+    def _drain(self) -> None:
+        queue = self._queue
+        while queue:
+            msg = queue.popleft()
+            writer = self._writer
+            if writer is None:
+                continue
             try:
-                self._writer.on_message_received(msg)
+                writer.on_message_received(msg)
             except (struct.error, ValueError, OverflowError):
                 # BLF stores the channel as a 16-bit number taken from the trailing digits
                 # of its name ("omnican-sim-95857398" overflows): write it without one.
                 try:
-                    self._writer.on_message_received(can.Message(
+                    writer.on_message_received(can.Message(
                         timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
                         is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
                         is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=msg.data,
@@ -72,10 +105,18 @@ class _Recorder(can.Listener):
         """Called by the Notifier when it stops: keep writing after a reconnect."""
 
     def close(self) -> None:
-        with self._lock:
-            if self._writer is not None:
-                self._writer.stop()
-                self._writer = None
+        """Write what is queued, then close the file (idempotent)."""
+        if self._closing:
+            return
+        self._closing = True
+        self._wake.set()
+        self._thread.join(timeout=10.0)
+        if self._writer is not None:
+            self._writer.stop()
+            self._writer = None
+        if self.dropped:
+            logger.warning("recording to %s dropped %d frames (the disk did not keep up)",
+                           self.path, self.dropped)
 
 
 def _recorder_for(path: Path) -> _Recorder | Any:

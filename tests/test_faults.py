@@ -10,6 +10,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import can
@@ -250,3 +251,30 @@ def test_a_reboot_during_startup_configuration_is_not_lost(
             assert accel != 0  # the profile acceleration written after the reboot
             drive_for(base, 0.3, vx=0.3)
             assert sim.true_twist.vx > 0.2
+
+
+def test_a_stalled_disk_never_stalls_the_control_loop(channel: str, tmp_path: Path) -> None:
+    """The recorder writes on a thread of its own: while its writes hang (a slow SD card),
+    the loop keeps its cycles and nothing recorded is lost."""
+    cfg = sim_config(channel)
+    log = tmp_path / "run.log"
+    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=log) as base:
+        recorder = base.bus.recorder
+        assert recorder is not None
+        writer = recorder._writer
+        assert writer is not None
+        stall = threading.Event()
+        write = writer.on_message_received
+
+        def slow(msg: can.Message) -> None:
+            stall.wait(5.0)
+            write(msg)
+
+        writer.on_message_received = slow  # type: ignore[method-assign]
+        cycles = base.status.cycles
+        assert wait_for(lambda: base.status.cycles > cycles + 50, 3.0)  # the loop runs on
+        assert not stall.is_set()
+        stall.set()
+        drive_for(base, 0.2, vx=0.1)
+    frames = list(can.LogReader(str(log)))
+    assert sum(1 for m in frames if m.arbitration_id == 0x80) >= 50  # every SYNC written
