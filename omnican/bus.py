@@ -369,7 +369,13 @@ class CanBus:
         bus = self.network.bus
         if bus is None:
             return 0
-        recv = bus.recv
+        if bus.filters is None and type(bus)._recv_internal is not can.BusABC._recv_internal:
+            # No filters to apply: BusABC.recv would only add its timeout and filter
+            # bookkeeping around the interface's own receive, for every frame.
+            def recv(timeout: float) -> can.Message | None:
+                return bus._recv_internal(timeout)[0]
+        else:
+            recv = bus.recv
         traffic = self.traffic
         extra = self._poll_listeners()
         canopen_notify = self.network.notify

@@ -33,6 +33,7 @@ from types import FrameType
 from typing import Any
 
 from omnican import bus as bus_module
+from omnican import cia402
 from omnican.bus import CanBus
 from omnican.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.cia402 import State, describe_emcy
@@ -97,13 +98,15 @@ class _Snapshot:
     Twist, WheelState, ChassisStatus) are made on first read, by the reader. The loop
     only packs tuples, which keeps it cheap at 1 kHz."""
 
-    __slots__ = ("_command", "_pose", "_rows", "_status", "_twist", "_values", "_wheels")
+    __slots__ = ("_command", "_info", "_pose", "_status", "_twist", "_values", "_wheel_values",
+                 "_wheels")
 
     def __init__(self, pose: tuple[float, float, float], twist: tuple[float, float, float],
-                 command: tuple[float, float, float], rows: tuple[tuple[Any, ...], ...],
-                 status: tuple[Any, ...]) -> None:
+                 command: tuple[float, float, float], wheels: tuple[Any, ...],
+                 status: tuple[Any, ...], info: tuple[tuple[int, int, int, float], ...]) -> None:
         self._values = (pose, twist, command, status)
-        self._rows = rows
+        self._wheel_values = wheels
+        self._info = info
         self._pose: Pose2D | None = None
         self._twist: Twist | None = None
         self._command: Twist | None = None
@@ -137,7 +140,20 @@ class _Snapshot:
     @property
     def wheels(self) -> tuple[WheelState, ...]:
         if self._wheels is None:
-            self._wheels = tuple(WheelState(*row) for row in self._rows)
+            targets, speeds, flags, drives = self._wheel_values
+            out = []
+            for i, ((index, node_id, axis, scale), (online, stale),
+                    (counts, statusword, mode, error_value, error, fault_text)) in enumerate(
+                        zip(self._info, flags, drives, strict=True)):
+                state = cia402.decode_state(statusword)
+                fault = None
+                if state is State.FAULT or state is State.FAULT_REACTION_ACTIVE:
+                    fault = fault_text or (describe_emcy(error_value) if error_value
+                                           else "fault")
+                out.append(WheelState(index, node_id, axis, state, statusword, mode, targets[i],
+                                      0.0 if stale else speeds[i], counts / scale, online,
+                                      fault, error, stale))
+            self._wheels = tuple(out)
         return self._wheels
 
 
@@ -239,6 +255,10 @@ class Chassis:
                                           key=lambda a: a.wheel_index)
         self._node_of = {id(a): n for n in nodes for a in n.axes}
         self._axis_nodes = [(a, self._node_of[id(a)]) for a in self._axes]
+        self._all_ok_flags = ((True, False),) * len(self._axes)
+        # Per wheel, what never changes: index, node id, axis, position scale.
+        self._wheel_info = tuple((a.wheel_index, n.node_id, a.wheel.axis, a.wheel.position_scale)
+                                 for a, n in self._axis_nodes)
         self._all_enabled = False  # every stage OPERATION ENABLED, as of the last cycle
         self._stages = [s for n in nodes for s in n.stages]
         self._cmd: tuple[Twist, float] = (Twist(), -math.inf)
@@ -763,22 +783,21 @@ class Chassis:
             self._loop_hz = (self._cycles - rate_n) / (now - rate_t)
             self._rate_mark = (now, self._cycles)
         offline, configuring, bus_down = self._offline, self._configuring, self._bus_down
-        stale_set, targets, speeds = self._stale, self._targets, self._speeds
-        rows = []
-        for i, (ax, node) in enumerate(self._axis_nodes):
-            stage = ax.stage
-            state = stage.state
-            fault = None
-            if state is State.FAULT or state is State.FAULT_REACTION_ACTIVE:
-                fault = node.fault_text or (describe_emcy(stage.error_value)
-                                            if stage.error_value else "fault")
-            nid = node.node_id
-            online = nid not in offline and nid not in configuring
-            stale = bus_down or not online or i in stale_set
-            rows.append((ax.wheel_index, nid, ax.wheel.axis, state, stage.statusword_value,
-                         stage.mode_value, targets[i], 0.0 if stale else speeds[i],
-                         ax.counts / ax.wheel.position_scale, online, fault, stage.error,
-                         stale))
+        stale_set = self._stale
+        axes = self._axis_nodes
+        if offline or configuring or bus_down or stale_set:
+            flags = []
+            for i, (_, node) in enumerate(axes):
+                online = node.node_id not in offline and node.node_id not in configuring
+                flags.append((online, bus_down or not online or i in stale_set))
+            wheel_flags = tuple(flags)
+        else:
+            wheel_flags = self._all_ok_flags
+        # What the wheels were this cycle, as plain values; WheelState is made on read.
+        wheels = (self._targets, self._speeds, wheel_flags,
+                  tuple([(ax.counts, ax.stage.statusword_value, ax.stage.mode_value,
+                          ax.stage.error_value, ax.stage.error, node.fault_text)
+                         for ax, node in axes]))
         enabled = (self._latched is None and not offline and not configuring and
                    self._all_enabled)
         bus = self._bus
@@ -802,7 +821,7 @@ class Chassis:
         )
         unknown = offline or configuring or bus_down
         return _Snapshot(self._odo.xyt, (0.0, 0.0, 0.0) if unknown else self._measured,
-                         command, tuple(rows), status)
+                         command, wheels, status, self._wheel_info)
 
     def cycle_bits(self) -> int:
         """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
