@@ -48,6 +48,10 @@ def snapshot(base: Chassis) -> dict[str, Any]:
         "wheels": [plain(asdict(w)) for w in base.wheels],
         "dropped_frames": getattr(base.bus, "dropped_frames", None),
         "send_errors": base.bus.send_errors,
+        # For diagnosis when a test fails: which SYNC each wheel's last sample was
+        # filed under, against the last SYNC sent (private; read-only).
+        "sync_epoch": base.bus.sync_epoch,
+        "sample_epochs": [a.epoch for a in base._axes],
     }
 
 

@@ -59,10 +59,10 @@ def test_chassis_api_odometry_matches_ground_truth(sim: SimProcess, host: HostPr
     assert enabled(host)
     start, odo0 = sim.pose(), host.pose()
     host.request("drive 0.2 0.1 -0.4")
-    assert wait_until(sim.moving, SOON_S)
+    assert wait_until(sim.moving, SOON_S), host.status()
     wait_until(lambda: host.pose().relative_to(odo0).x > 0.3, SOON_S)
     host.request("hold")
-    assert wait_until(sim.still, SOON_S)
+    assert wait_until(sim.still, SOON_S), host.status()
     truth = sim.pose().relative_to(start)
     odometry = host.pose().relative_to(odo0)
     assert truth.x > 0.3 and truth.theta < -0.3
@@ -79,16 +79,16 @@ def recover_and_drive(sim: SimProcess, host: HostProcess) -> None:
     assert enabled(host)
     start, odo0 = sim.pose(), host.pose()
     host.request("drive 0.2 0 0")
-    assert wait_until(sim.moving, SOON_S)
+    assert wait_until(sim.moving, SOON_S), host.status()
     host.request("hold")
-    assert wait_until(sim.still, SOON_S)
+    assert wait_until(sim.still, SOON_S), host.status()
     assert_pose_close(host.pose().relative_to(odo0), sim.pose().relative_to(start),
                       "after recover()")
 
 
 def test_a_drive_fault_stops_every_wheel(sim: SimProcess, host: HostProcess) -> None:
     host.request("drive 0.2 0 0.3")
-    assert wait_until(sim.moving, SOON_S)
+    assert wait_until(sim.moving, SOON_S), host.status()
     assert sim.command("fault 2", "node 2: fault").endswith("0x2310")
     assert wait_until(lambda: stopped_for(host, "node 2 fault"), SOON_S)
     assert wait_until(sim.still, SOON_S)  # all three wheels, not just the faulty one
@@ -102,10 +102,10 @@ def test_a_drive_fault_stops_every_wheel(sim: SimProcess, host: HostProcess) -> 
 
 def test_a_lost_heartbeat_stops_every_wheel(sim: SimProcess, host: HostProcess) -> None:
     host.request("drive 0.2 0 0")
-    assert wait_until(sim.moving, SOON_S)
+    assert wait_until(sim.moving, SOON_S), host.status()
     sim.command("heartbeat 3 off", "node 3: heartbeat off")
     assert wait_until(lambda: stopped_for(host, "node 3 heartbeat lost"), SOON_S)
-    assert wait_until(sim.still, SOON_S)
+    assert wait_until(sim.still, SOON_S), host.status()
     wheel3 = next(w for w in host.status()["wheels"] if w["node_id"] == 3)
     assert not wheel3["online"]
     sim.command("heartbeat 3 on", "node 3: heartbeat on")
@@ -117,10 +117,10 @@ def test_a_drive_reboot_stops_every_wheel_and_is_reconfigured(sim: SimProcess,
                                                               host: HostProcess) -> None:
     start, odo0 = sim.pose(), host.pose()
     host.request("drive 0.2 0 0")
-    assert wait_until(sim.moving, SOON_S)
+    assert wait_until(sim.moving, SOON_S), host.status()
     sim.command("reboot 1", "node 1: rebooted")
     assert wait_until(lambda: stopped_for(host, "node 1 rebooted"), SOON_S)
-    assert wait_until(sim.still, SOON_S)
+    assert wait_until(sim.still, SOON_S), host.status()
     # omnican configures the rebooted drive again by itself; then recover() starts it.
     assert wait_until(lambda: all(w["online"] for w in host.status()["wheels"]), SOON_S)
     # The odometry continued across the reboot (its counter restarted at zero).
@@ -131,16 +131,16 @@ def test_a_drive_reboot_stops_every_wheel_and_is_reconfigured(sim: SimProcess,
 
 def test_command_timeout_stops_a_live_host(sim: SimProcess, host: HostProcess) -> None:
     host.request("drive 0.2 0 0")
-    assert wait_until(sim.moving, SOON_S)
+    assert wait_until(sim.moving, SOON_S), host.status()
     host.request("hold")  # the host lives on, but sends no more commands
-    assert wait_until(sim.still, SOON_S)
+    assert wait_until(sim.still, SOON_S), host.status()
     st = host.status()["status"]
     assert st["command_age_s"] > 1.0  # cmd_timeout_s of the test config
     assert st["stopped_reason"] is None and st["enabled"]  # a pause, not a failure
     host.request("drive 0.2 0 0")  # the next command moves again, no recover() needed
-    assert wait_until(sim.moving, SOON_S)
+    assert wait_until(sim.moving, SOON_S), host.status()
     host.request("hold")
-    assert wait_until(sim.still, SOON_S)
+    assert wait_until(sim.still, SOON_S), host.status()
 
 
 def test_killed_host_drives_stop_on_their_own(sim: SimProcess, toml: Path,
@@ -148,7 +148,7 @@ def test_killed_host_drives_stop_on_their_own(sim: SimProcess, toml: Path,
     h = HostProcess(toml, tmp_path / "host.stderr")
     try:
         h.request("drive 0.2 0 0.3")
-        assert wait_until(sim.moving, SOON_S)
+        assert wait_until(sim.moving, SOON_S), h.status()
         os.kill(h.proc.pid, signal.SIGKILL)
         assert h.proc.wait(timeout=30) == -signal.SIGKILL
         # Nobody disables them: each drive's consumer of the host's heartbeat stops it.
@@ -172,7 +172,7 @@ def test_terminated_host_disables_every_drive(sim: SimProcess, toml: Path,
     h = HostProcess(toml, tmp_path / "host.stderr")
     try:
         h.request("drive 0.2 0 0")
-        assert wait_until(sim.moving, SOON_S)
+        assert wait_until(sim.moving, SOON_S), h.status()
         start = sim.pose()
         h.proc.send_signal(signal.SIGTERM)
         assert h.proc.wait(timeout=START_S) == 128 + signal.SIGTERM
