@@ -5,7 +5,14 @@ saturated bus). The host must report it, the drives must stop on their own, and 
 base must come back in the same process, with nothing printing a traceback.
 
 These run on vcan1 with a simulator of their own, so the shared one on vcan0 is not
-disturbed; the interface is put back whatever happens (fixture ``disrupted_toml``)."""
+disturbed; the interface is put back whatever happens (fixture ``disrupted_toml``).
+
+Why a token-bucket queue and not ``ip link set vcan1 txqueuelen 1``: a vcan interface
+has no queue of its own (qdisc noqueue) and hands every frame on at once, so its
+txqueuelen changes nothing (two processes sending flat out through txqueuelen 1: no
+ENOBUFS in 13,000 frames; with a pfifo_fast of length 1, 10 in 18,000). A queue that
+drains slower than it is filled behaves like a real controller's on a saturated bus:
+once it is full, every send fails with ENOBUFS until it drains."""
 
 from __future__ import annotations
 
