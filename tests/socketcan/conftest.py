@@ -4,10 +4,12 @@ They need real kernel CAN interfaces ``vcan0`` and ``vcan1``; where there are no
 (our machines' kernel has no CAN) they skip, saying how to run them:
 ``tools/socketcan-tests`` boots a Linux guest that has SocketCAN and runs them there.
 
-``omnican sim`` on vcan0 is shared by the tests of a session (it takes ~10 s to start
-under emulation); each test leaves its drives as it found them (heartbeats on, not
-frozen) and compares poses relative to where the base stood when it began. Tests that
-take an interface down or fill its transmit queue use vcan1 and a simulator of their own.
+``omnican sim`` on vcan0 and the host program on the Chassis API are shared by the
+tests of a session (each takes 10-30 s to start under emulation): each test leaves the
+drives as it found them (heartbeats on, not frozen) and the base recovered and still,
+and compares poses relative to where the base stood when it began. A test that needs a
+fresh host (killed, terminated) starts its own. Tests that take an interface down or
+fill its transmit queue use vcan1 and a simulator and host of their own.
 """
 
 from __future__ import annotations
@@ -17,7 +19,15 @@ from pathlib import Path
 
 import pytest
 
-from .support import SimProcess, admin_problem, sh, vcan_problem, write_config
+from .support import (
+    HostProcess,
+    SimProcess,
+    admin_problem,
+    no_traceback,
+    sh,
+    vcan_problem,
+    write_config,
+)
 
 CHANNEL = "vcan0"
 DISRUPTED = "vcan1"
@@ -66,8 +76,64 @@ def sim(_shared_sim: list[SimProcess], toml: Path) -> Iterator[SimProcess]:
     assert "Traceback" not in s.stderr(), s.stderr()[-4000:]
 
 
+@pytest.fixture(scope="session")
+def _shared_host(_shared_sim: list[SimProcess]) -> Iterator[list[HostProcess]]:
+    box: list[HostProcess] = []
+    yield box
+    _close_host(box)
+
+
+def _usable(h: HostProcess) -> bool:
+    """Alive, and enabled (after recover() if a test left the base stopped)."""
+    if h.proc.poll() is not None:
+        return False
+    if h.status()["status"]["enabled"]:
+        return True
+    return bool(h.request("recover")["ok"])
+
+
 @pytest.fixture
-def disrupted_toml(tmp_path: Path) -> Iterator[Path]:
+def host(sim: SimProcess, _shared_host: list[HostProcess], toml: Path) -> Iterator[HostProcess]:
+    """tests/socketcan/host.py on vcan0 (a new one if the last one is unusable)."""
+    if _shared_host and not _usable(_shared_host[0]):
+        _shared_host.pop().kill()
+    if not _shared_host:
+        n = len(list(toml.parent.glob("host*.stderr")))
+        _shared_host.append(HostProcess(toml, toml.with_name(f"host{n}.stderr")))
+    h = _shared_host[0]
+    yield h
+    if h.proc.poll() is None:
+        h.request("hold")
+    no_traceback(h.stderr(), "the host")
+
+
+def _close_host(box: list[HostProcess]) -> None:
+    while box:
+        h = box.pop()
+        try:
+            assert h.close() == 0, h.stderr()[-3000:]
+            no_traceback(h.stderr(), "the host")
+        finally:
+            h.kill()
+
+
+@pytest.fixture
+def no_host(_shared_host: list[HostProcess]) -> None:
+    """The shared host closed: the test runs its own master on vcan0."""
+    _close_host(_shared_host)
+
+
+@pytest.fixture
+def quiet_vcan0(_shared_host: list[HostProcess], _shared_sim: list[SimProcess]) -> None:
+    """Nothing left running on vcan0 (the guest's two CPUs go to the test's processes)."""
+    _close_host(_shared_host)
+    while _shared_sim:
+        sim = _shared_sim.pop()
+        assert sim.close() == 0, sim.stderr()[-3000:]
+
+
+@pytest.fixture
+def disrupted_toml(tmp_path: Path, quiet_vcan0: None) -> Iterator[Path]:
     """A config on vcan1, for tests that take the interface down or fill its queue; the
     interface is put back (up, no qdisc) whatever the test did."""
     problem = admin_problem()

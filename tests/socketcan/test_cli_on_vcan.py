@@ -35,6 +35,7 @@ def omnican(*argv: str, timeout: float = 4 * START_S) -> subprocess.CompletedPro
                           text=True, env=env(), timeout=timeout, check=False)
 
 
+@pytest.mark.usefixtures("no_host")
 def test_drive_moves_the_base_and_records_the_bus(sim: SimProcess, toml: Path,
                                                   tmp_path: Path) -> None:
     start = sim.pose()
@@ -60,6 +61,7 @@ def test_drive_moves_the_base_and_records_the_bus(sim: SimProcess, toml: Path,
                    for f in frames), f"no RPDO to node {node} recorded"
 
 
+@pytest.mark.usefixtures("no_host")
 def test_teleop_drives_from_the_keyboard(sim: SimProcess, toml: Path) -> None:
     start = sim.pose()
     term = Pty("--config", str(toml))
@@ -86,6 +88,7 @@ def test_teleop_drives_from_the_keyboard(sim: SimProcess, toml: Path) -> None:
     assert_pose_close(odometry, truth, "omnican teleop")
 
 
+@pytest.mark.usefixtures("no_host")
 def test_scan_finds_the_simulated_nodes(sim: SimProcess, toml: Path) -> None:
     done = omnican("scan", "--config", str(toml), "--listen", "2", "--sdo-timeout", "1")
     assert done.returncode == 0, done.stdout + done.stderr
@@ -98,18 +101,16 @@ def test_scan_finds_the_simulated_nodes(sim: SimProcess, toml: Path) -> None:
         assert "0x00020192" in row and "ok" in row, row  # CiA 402 device type, no complaint
 
 
-def test_monitor_decodes_a_driving_base(sim: SimProcess, toml: Path, tmp_path: Path) -> None:
-    host = HostProcess(toml, tmp_path / "host.stderr")
+def test_monitor_decodes_a_driving_base(sim: SimProcess, toml: Path,
+                                       host: HostProcess) -> None:
+    host.request("drive 0.1 0 0.4")
     try:
-        host.request("drive 0.1 0 0.4")
         done = omnican("monitor", "--config", str(toml), "-i", "socketcan", "-c", "vcan0",
                        "--duration", "6", "--interval", "3")
-        status = host.close()
     finally:
-        host.kill()
+        host.request("hold")
     assert done.returncode == 0, done.stderr
     no_traceback(done.stderr, "omnican monitor")
-    assert status == 0
     summary = done.stdout.split("omnican monitor (summary")[-1]
     assert "on socketcan vcan0" in summary
     rows = {line.split()[0]: line for line in summary.splitlines() if line.startswith("0x")}

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import signal
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -30,18 +29,6 @@ pytestmark = pytest.mark.socketcan
 # The drives' own timeout on the host's heartbeat is 2 s in the test config; the emulated
 # CPU may stall for a while on top of that: "soon" is anything well within a minute.
 SOON_S = 30.0
-
-
-@pytest.fixture
-def host(sim: SimProcess, toml: Path, tmp_path: Path) -> Iterator[HostProcess]:
-    h = HostProcess(toml, tmp_path / "host.stderr")
-    try:
-        yield h
-        if h.proc.poll() is None:
-            assert h.close() == 0, h.stderr()[-3000:]
-        no_traceback(h.stderr(), "the host")
-    finally:
-        h.kill()
 
 
 def enabled(host: HostProcess) -> bool:
@@ -143,6 +130,7 @@ def test_command_timeout_stops_a_live_host(sim: SimProcess, host: HostProcess) -
     assert wait_until(sim.still, SOON_S), host.status()
 
 
+@pytest.mark.usefixtures("no_host")
 def test_killed_host_drives_stop_on_their_own(sim: SimProcess, toml: Path,
                                               tmp_path: Path) -> None:
     h = HostProcess(toml, tmp_path / "host.stderr")
@@ -167,6 +155,7 @@ def test_killed_host_drives_stop_on_their_own(sim: SimProcess, toml: Path,
         after.kill()
 
 
+@pytest.mark.usefixtures("no_host")
 def test_terminated_host_disables_every_drive(sim: SimProcess, toml: Path,
                                               tmp_path: Path) -> None:
     h = HostProcess(toml, tmp_path / "host.stderr")
