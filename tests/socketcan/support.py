@@ -255,13 +255,52 @@ def wait_until(pred: Callable[[], bool], timeout: float, every: float = 0.2) -> 
     return pred()
 
 
-def assert_pose_close(odometry: Pose2D, truth: Pose2D, what: str) -> None:
-    """Odometry against ground truth: a few mm plus 3 % of the path, 0.03 rad."""
+def pose_problem(odometry: Pose2D, truth: Pose2D) -> str | None:
+    """Odometry against ground truth: within a centimetre plus 3 % of the path and
+    0.03 rad, or what is wrong."""
     path = math.hypot(truth.x, truth.y)
-    tol = 0.01 + 0.03 * path
-    assert math.hypot(odometry.x - truth.x, odometry.y - truth.y) < tol, (
-        f"{what}: odometry {odometry} vs truth {truth}")
-    assert abs(odometry.theta - truth.theta) < 0.03, f"{what}: odometry {odometry} vs {truth}"
+    if (math.hypot(odometry.x - truth.x, odometry.y - truth.y) < 0.01 + 0.03 * path
+            and abs(odometry.theta - truth.theta) < 0.03):
+        return None
+    return f"odometry {odometry} vs truth {truth}"
+
+
+def assert_pose_close(odometry: Pose2D, truth: Pose2D, what: str) -> None:
+    problem = pose_problem(odometry, truth)
+    assert problem is None, f"{what}: {problem}"
+
+
+def settled(host: HostProcess, sim: SimProcess, timeout: float = 30.0) -> tuple[Pose2D, Pose2D]:
+    """(true pose, odometry) once both stand still: a start for relative comparisons."""
+
+    def calm() -> bool:
+        before = host.pose()
+        return sim.still(0.5) and moved_mm(before, host.pose()) < STILL_MM
+
+    assert wait_until(calm, timeout), f"never settled: {host.status()}"
+    return sim.pose(), host.pose()
+
+
+def assert_odometry_reaches_truth(host: HostProcess, sim: SimProcess, odo0: Pose2D,
+                                  start: Pose2D, what: str, timeout: float = 30.0) -> None:
+    """With the base standing still, the host's odometry (relative to ``odo0``) reaches
+    the true displacement since ``start``: its last samples may still be on their way
+    under emulation, but it must get there, and stay there."""
+    truth = sim.pose().relative_to(start)
+    last: dict[str, Any] = {}
+
+    def reached() -> bool:
+        last.update(host.status())
+        p = last["pose"]
+        return pose_problem(Pose2D(p["x"], p["y"], p["theta"]).relative_to(odo0), truth) is None
+
+    if not wait_until(reached, timeout):
+        p = last["pose"]
+        raise AssertionError(
+            f"{what}: {pose_problem(Pose2D(p['x'], p['y'], p['theta']).relative_to(odo0), truth)}"
+            f" after {timeout:g} s still; last SYNC {last.get('sync_epoch')}, samples filed "
+            f"under {last.get('sample_epochs')}, wheels "
+            f"{[(w['node_id'], w['state'], w['online'], w.get('stale')) for w in last['wheels']]}")
 
 
 def no_traceback(text: str, what: str) -> None:

@@ -17,10 +17,11 @@ from .support import (
     START_S,
     HostProcess,
     SimProcess,
-    assert_pose_close,
+    assert_odometry_reaches_truth,
     next_frame,
     nmt_states,
     no_traceback,
+    settled,
     wait_until,
 )
 
@@ -44,16 +45,15 @@ def stopped_for(host: HostProcess, words: str) -> bool:
 
 def test_chassis_api_odometry_matches_ground_truth(sim: SimProcess, host: HostProcess) -> None:
     assert enabled(host)
-    start, odo0 = sim.pose(), host.pose()
+    start, odo0 = settled(host, sim)
     host.request("drive 0.2 0.1 -0.4")
     assert wait_until(sim.moving, SOON_S), host.status()
     wait_until(lambda: host.pose().relative_to(odo0).x > 0.3, SOON_S)
     host.request("hold")
     assert wait_until(sim.still, SOON_S), host.status()
     truth = sim.pose().relative_to(start)
-    odometry = host.pose().relative_to(odo0)
     assert truth.x > 0.3 and truth.theta < -0.3
-    assert_pose_close(odometry, truth, "Chassis API")
+    assert_odometry_reaches_truth(host, sim, odo0, start, "Chassis API")
     st = host.status()
     assert st["status"]["stopped_reason"] is None
     assert st["status"]["cycles"] > 0 and st["status"]["bus_error"] is None
@@ -64,13 +64,12 @@ def recover_and_drive(sim: SimProcess, host: HostProcess) -> None:
     reply = host.request("recover")
     assert reply["ok"], reply
     assert enabled(host)
-    start, odo0 = sim.pose(), host.pose()
+    start, odo0 = settled(host, sim)
     host.request("drive 0.2 0 0")
     assert wait_until(sim.moving, SOON_S), host.status()
     host.request("hold")
     assert wait_until(sim.still, SOON_S), host.status()
-    assert_pose_close(host.pose().relative_to(odo0), sim.pose().relative_to(start),
-                      "after recover()")
+    assert_odometry_reaches_truth(host, sim, odo0, start, "after recover()")
 
 
 def test_a_drive_fault_stops_every_wheel(sim: SimProcess, host: HostProcess) -> None:
@@ -102,7 +101,7 @@ def test_a_lost_heartbeat_stops_every_wheel(sim: SimProcess, host: HostProcess) 
 
 def test_a_drive_reboot_stops_every_wheel_and_is_reconfigured(sim: SimProcess,
                                                               host: HostProcess) -> None:
-    start, odo0 = sim.pose(), host.pose()
+    start, odo0 = settled(host, sim)
     host.request("drive 0.2 0 0")
     assert wait_until(sim.moving, SOON_S), host.status()
     sim.command("reboot 1", "node 1: rebooted")
@@ -111,8 +110,7 @@ def test_a_drive_reboot_stops_every_wheel_and_is_reconfigured(sim: SimProcess,
     # omnican configures the rebooted drive again by itself; then recover() starts it.
     assert wait_until(lambda: all(w["online"] for w in host.status()["wheels"]), SOON_S)
     # The odometry continued across the reboot (its counter restarted at zero).
-    assert_pose_close(host.pose().relative_to(odo0), sim.pose().relative_to(start),
-                      "across the reboot")
+    assert_odometry_reaches_truth(host, sim, odo0, start, "across the reboot")
     recover_and_drive(sim, host)
 
 

@@ -27,8 +27,9 @@ import pytest
 from .support import (
     HostProcess,
     SimProcess,
-    assert_pose_close,
+    assert_odometry_reaches_truth,
     no_traceback,
+    settled,
     sh,
     wait_until,
 )
@@ -70,13 +71,12 @@ def bus_up(host: HostProcess) -> object:
 def recover_and_drive(sim: SimProcess, host: HostProcess) -> None:
     reply = host.request("recover")
     assert reply["ok"], reply
-    start, odo0 = sim.pose(), host.pose()
+    start, odo0 = settled(host, sim)
     host.request("drive 0.2 0 0")
     assert wait_until(sim.moving, SOON_S)
     host.request("hold")
     assert wait_until(sim.still, SOON_S)
-    assert_pose_close(host.pose().relative_to(odo0), sim.pose().relative_to(start),
-                      "after the bus came back")
+    assert_odometry_reaches_truth(host, sim, odo0, start, "after the bus came back")
 
 
 def boot_ups(watch: can.BusABC, nodes: set[int], timeout: float) -> set[int]:
@@ -104,7 +104,7 @@ def test_interface_down_and_up_while_driving(rig: tuple[SimProcess, HostProcess]
     assert wait_until(lambda: bus_up(host) is False, SOON_S), status(host)
     st = status(host)
     assert str(st["stopped_reason"]).startswith("CAN bus down"), st
-    assert "down" in str(st["bus_error"]), st
+    assert st["bus_error"], st  # and why (its wording changes as the bus is reopened)
     # Nothing the host sends gets through: the drives' own host-heartbeat consumers
     # stopped the wheels.
     assert wait_until(sim.still, SOON_S)
@@ -146,11 +146,11 @@ def test_transmit_queue_full_drops_frames_and_recovers(
 
     # Back to normal: the errors clear, and no more frames are dropped.
     assert wait_until(lambda: status(host)["bus_error"] is None, SOON_S), status(host)
-    settled = host.status()
+    quiet = host.status()
     time.sleep(2.0)
     after = host.status()
-    assert after["dropped_frames"] == settled["dropped_frames"]
-    assert after["status"]["cycles"] > settled["status"]["cycles"]
+    assert after["dropped_frames"] == quiet["dropped_frames"]
+    assert after["status"]["cycles"] > quiet["status"]["cycles"]
     # Dropped, never queued for later: at most every frame of every cycle meanwhile.
     cycles = after["status"]["cycles"] - before["status"]["cycles"]
     assert after["dropped_frames"] - (before["dropped_frames"] or 0) <= 8 * cycles
