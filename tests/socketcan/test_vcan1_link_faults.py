@@ -155,3 +155,14 @@ def test_transmit_queue_full_drops_frames_and_recovers(
     cycles = after["status"]["cycles"] - before["status"]["cycles"]
     assert after["dropped_frames"] - (before["dropped_frames"] or 0) <= 8 * cycles
     recover_and_drive(sim, host)
+
+    # Quitting while the queue is full (Ctrl-C on a saturated bus) ends cleanly too: the
+    # frames of the shutdown that the bus refuses are dropped like any other.
+    host.request("drive 0.2 0 0")
+    host.request("watch")
+    sh("tc", "qdisc", "replace", "dev", CHANNEL, "root", "tbf", "rate", "10kbit", "burst", "200",
+       "limit", "160")
+    assert wait_until(lambda: any(QUEUE_FULL.search(e or "") for e in
+                                  host.request("seen")["bus_errors"]), SOON_S)
+    assert host.close() == 0, host.stderr()[-3000:]
+    no_traceback(host.stderr(), "the host")
