@@ -61,6 +61,7 @@ def test_chassis_api_odometry_matches_ground_truth(sim: SimProcess, host: HostPr
 
 def recover_and_drive(sim: SimProcess, host: HostProcess) -> None:
     """recover() brings the base back in the same process, and it drives again."""
+    host.request("hold")  # a new command after recover(), not the one from before the stop
     reply = host.request("recover")
     assert reply["ok"], reply
     assert enabled(host)

@@ -69,6 +69,7 @@ def bus_up(host: HostProcess) -> object:
 
 
 def recover_and_drive(sim: SimProcess, host: HostProcess) -> None:
+    host.request("hold")  # a new command after recover(), not the one from before the stop
     reply = host.request("recover")
     assert reply["ok"], reply
     start, odo0 = settled(host, sim)
