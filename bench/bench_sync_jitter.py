@@ -104,18 +104,16 @@ def rpdo_frames(tag: int) -> list[can.Message]:
     return [can.Message(arbitration_id=cob, data=data, is_extended_id=False) for cob in RPDOS]
 
 
-def run_loop(bus: can.BusABC, period: float, seconds: float) -> None:
-    """The chassis's loop: targets, then SYNC, paced by monotonic time + Event.wait."""
+def paced(period: float, seconds: float, cycle: Callable[[int], None]) -> None:
+    """The chassis's pacing: ``cycle(k)`` every period on monotonic time + Event.wait,
+    no burst to catch up after falling far behind."""
     stop = threading.Event()
-    sync = can.Message(arbitration_id=SYNC, data=b"", is_extended_id=False)
     next_t = time.monotonic()
     end = next_t + seconds
-    cycle = 0
+    k = 0
     while next_t < end:
-        cycle += 1
-        for msg in rpdo_frames(cycle):
-            bus.send(msg)
-        bus.send(sync)
+        k += 1
+        cycle(k)
         next_t += period
         delay = next_t - time.monotonic()
         if delay < -period:
@@ -123,6 +121,18 @@ def run_loop(bus: can.BusABC, period: float, seconds: float) -> None:
             delay = 0.0
         if delay > 0:
             stop.wait(delay)
+
+
+def run_loop(bus: can.BusABC, period: float, seconds: float) -> None:
+    """The chassis's loop: the cycle's targets, then SYNC."""
+    sync = can.Message(arbitration_id=SYNC, data=b"", is_extended_id=False)
+
+    def cycle(k: int) -> None:
+        for msg in rpdo_frames(k):
+            bus.send(msg)
+        bus.send(sync)
+
+    paced(period, seconds, cycle)
 
 
 def loop_late(frames: list[tuple[float, int, bytes]]) -> dict[str, float]:
@@ -203,21 +213,12 @@ def free_host(channel: str, period: float) -> Callable[[float], None]:
 
     def host(seconds: float) -> None:
         with can.Bus(interface="socketcan", channel=channel) as bus:
-            stop = threading.Event()
-            next_t = time.monotonic()
-            end = next_t + seconds
-            cycle = 0
-            while next_t < end:
-                cycle += 1
-                for msg in rpdo_frames(cycle):
+
+            def cycle(k: int) -> None:
+                for msg in rpdo_frames(k):
                     bus.send(msg)
-                next_t += period
-                delay = next_t - time.monotonic()
-                if delay < -period:
-                    next_t = time.monotonic()
-                    delay = 0.0
-                if delay > 0:
-                    stop.wait(delay)
+
+            paced(period, seconds, cycle)
 
     return host
 

@@ -24,6 +24,8 @@ from typing import IO, Any
 
 from omnican.odometry import Pose2D
 
+from ..helpers import wait_for
+
 ROOT = Path(__file__).resolve().parents[2]
 HOST = Path(__file__).with_name("host.py")
 
@@ -246,13 +248,9 @@ class HostProcess(Child):
             self.kill()
 
 
-def wait_until(pred: Callable[[], bool], timeout: float, every: float = 0.2) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(every)
-    return pred()
+def wait_until(pred: Callable[[], bool], timeout: float) -> bool:
+    """``pred`` within ``timeout``, asked every 0.2 s (each ask may be a round trip)."""
+    return wait_for(pred, timeout, step=0.2)
 
 
 def pose_problem(odometry: Pose2D, truth: Pose2D) -> str | None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import signal
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -129,22 +130,28 @@ def test_command_timeout_stops_a_live_host(sim: SimProcess, host: HostProcess) -
     assert wait_until(sim.still, SOON_S), host.status()
 
 
-@pytest.mark.usefixtures("no_host")
-def test_killed_host_drives_stop_on_their_own(sim: SimProcess, toml: Path,
-                                              tmp_path: Path) -> None:
+@pytest.fixture
+def driving_host(sim: SimProcess, toml: Path, tmp_path: Path,
+                 no_host: None) -> Iterator[HostProcess]:
+    """A host of its own, driving the base, for a test that ends it by a signal."""
     h = HostProcess(toml, tmp_path / "host.stderr")
     try:
         h.request("drive 0.2 0 0.3")
         assert wait_until(sim.moving, SOON_S), h.status()
-        os.kill(h.proc.pid, signal.SIGKILL)
-        assert h.proc.wait(timeout=30) == -signal.SIGKILL
-        # Nobody disables them: each drive's consumer of the host's heartbeat stops it.
-        assert wait_until(sim.still, SOON_S)
-        assert sim.still(2.0)
-        # Still OPERATIONAL: no host shut them down, their own watchdog did.
-        assert nmt_states("vcan0") == dict.fromkeys((1, 2, 3), NMT_OPERATIONAL)
+        yield h
     finally:
         h.kill()
+
+
+def test_killed_host_drives_stop_on_their_own(sim: SimProcess, driving_host: HostProcess,
+                                              toml: Path, tmp_path: Path) -> None:
+    os.kill(driving_host.proc.pid, signal.SIGKILL)
+    assert driving_host.proc.wait(timeout=30) == -signal.SIGKILL
+    # Nobody disables them: each drive's consumer of the host's heartbeat stops it.
+    assert wait_until(sim.still, SOON_S)
+    assert sim.still(2.0)
+    # Still OPERATIONAL: no host shut them down, their own watchdog did.
+    assert nmt_states("vcan0") == dict.fromkeys((1, 2, 3), NMT_OPERATIONAL)
     # And the drives come up again for the next host, without a restart of anything.
     after = HostProcess(toml, tmp_path / "host2.stderr")
     try:
@@ -154,18 +161,11 @@ def test_killed_host_drives_stop_on_their_own(sim: SimProcess, toml: Path,
         after.kill()
 
 
-@pytest.mark.usefixtures("no_host")
-def test_terminated_host_disables_every_drive(sim: SimProcess, toml: Path,
-                                              tmp_path: Path) -> None:
-    h = HostProcess(toml, tmp_path / "host.stderr")
-    try:
-        h.request("drive 0.2 0 0")
-        assert wait_until(sim.moving, SOON_S), h.status()
-        h.proc.send_signal(signal.SIGTERM)
-        assert h.proc.wait(timeout=START_S) == 128 + signal.SIGTERM
-        no_traceback(h.stderr(), "the host")
-        assert sim.still(1.0)
-        # The host shut them down in order: disabled and back in PRE-OPERATIONAL.
-        assert nmt_states("vcan0") == dict.fromkeys((1, 2, 3), NMT_PRE_OPERATIONAL)
-    finally:
-        h.kill()
+def test_terminated_host_disables_every_drive(sim: SimProcess,
+                                              driving_host: HostProcess) -> None:
+    driving_host.proc.send_signal(signal.SIGTERM)
+    assert driving_host.proc.wait(timeout=START_S) == 128 + signal.SIGTERM
+    no_traceback(driving_host.stderr(), "the host")
+    assert sim.still(1.0)
+    # The host shut them down in order: disabled and back in PRE-OPERATIONAL.
+    assert nmt_states("vcan0") == dict.fromkeys((1, 2, 3), NMT_PRE_OPERATIONAL)
