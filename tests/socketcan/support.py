@@ -74,13 +74,13 @@ def sh(*argv: str) -> None:
 
 def write_config(path: Path, channel: str) -> Path:
     """The demo base (three bundled drives, nodes 1-3) on ``channel``, slow enough for
-    an emulated CPU: 50 Hz, a 2 s heartbeat timeout both ways, long SDO timeouts."""
+    an emulated CPU: 50 Hz, a 2 s heartbeat timeout both ways, 2 s SDO timeouts."""
     wheels = "".join(f"[[wheel]]\nnode_id = {n}\ngear_ratio = 16\nencoder_cpr = 4096\n"
                      "wheel_radius = 0.05\n\n" for n in (1, 2, 3))
     path.write_text(
         f'[bus]\ninterface = "socketcan"\nchannel = "{channel}"\n\n'
         '[chassis]\nlayout = "b21"\nbase_radius = 0.19\nrate_hz = 50\ncmd_timeout_s = 1.0\n'
-        "heartbeat_ms = 200\nheartbeat_timeout_factor = 10\nsdo_timeout_s = 1.0\n"
+        "heartbeat_ms = 200\nheartbeat_timeout_factor = 10\nsdo_timeout_s = 2.0\n"
         "boot_timeout_s = 5.0\nenable_timeout_s = 5.0\n\n" + wheels)
     return path
 
