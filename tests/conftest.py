@@ -10,6 +10,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests check behaviour, not speed: no per-example deadline (on a loaded
+# machine hypothesis's default 200 ms deadline fails examples that are correct).
+settings.register_profile("omnican", deadline=None)
+settings.load_profile("omnican")
 
 VENDOR_EDS = Path(__file__).resolve().parent / "vendor_eds"
 
