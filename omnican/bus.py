@@ -227,6 +227,12 @@ class _Network(canopen.Network):
         super().send_message(can_id, data, remote)
         self._owner._sent(can_id, data)
 
+    def check(self) -> None:
+        """canopen raises the Notifier's stored receive error after every send; omnican's
+        listener handles those errors (the bus counts as down, then is reopened), so a
+        handled one must not fail the sends that follow (a configuration after the link
+        came back, say)."""
+
     def subscribe(self, can_id: int, callback: Any) -> None:
         with self._subscribe_lock:
             current = self.subscribers.get(can_id, [])

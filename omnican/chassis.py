@@ -35,7 +35,7 @@ from typing import Any
 from omnican import bus as bus_module
 from omnican import cia402
 from omnican.bus import CanBus
-from omnican.cia301 import HEARTBEAT_BASE, NmtState
+from omnican.cia301 import HEARTBEAT_BASE, NMT_COB_ID, NmtCommand, NmtState
 from omnican.cia402 import State, describe_emcy
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig
@@ -52,6 +52,7 @@ logger = logging.getLogger(__name__)
 BUS_DOWN_AFTER_S = 0.05  # sends or receives failing for this long: the bus is down
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
 STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
+NMT_RESTART_S = 0.5  # a started node reporting PRE-OPERATIONAL is started again this often
 RECONFIGURE_ATTEMPTS = 2  # a node configured again (reboot, bus back) that fails once
 STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being configured
 SIGNAL_GRACE_S = 3.0  # repeated signals this soon after the first do not cut the stop short
@@ -264,6 +265,8 @@ class Chassis:
         self._cmd: tuple[Twist, float] = (Twist(), -math.inf)
         self._latched: str | None = None
         self._recovering = False
+        self._config_failed: set[int] = set()  # nodes whose re-configuration failed
+        self._nmt_started: dict[int, float] = {}  # when NMT start was last re-sent, by node
         self._want_enabled = True
         self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         self._configuring: set[int] = set()
@@ -473,6 +476,9 @@ class Chassis:
             self._cmd = (Twist(), now)
             self._want_enabled = True
             self._recovering = True  # a silent node may come back meanwhile
+            for node in self.nodes:  # a failed configuration gets another go
+                if node.node_id in self._config_failed and node.node_id not in self._configuring:
+                    self._reconfigure(node, "recover()")
             for node in self.nodes:
                 if node.node_id in self._offline and not node.heartbeat_lost(now):
                     self._offline.discard(node.node_id)
@@ -639,6 +645,13 @@ class Chassis:
                 self._latch(f"node {nid} rebooted")
                 self._reconfigure(node, "its reboot")
                 continue
+            if (node.nmt_state == NmtState.PRE_OPERATIONAL and not self._closed
+                    and now - self._nmt_started.get(nid, -math.inf) >= NMT_RESTART_S):
+                # Configured and started, yet its heartbeat says PRE-OPERATIONAL (the
+                # start was lost, or the drive fell back): it ignores every PDO. Start it.
+                self._nmt_started[nid] = now
+                logger.info("node %d reports PRE-OPERATIONAL: starting it again", nid)
+                self._bus.send(NMT_COB_ID, bytes([NmtCommand.START, nid]))
             if node.heartbeat_lost(now):
                 self._offline.add(nid)
                 if not self._recovering:  # recover() waits for it, and says if it never came
@@ -680,8 +693,10 @@ class Chassis:
                                     exc)
                 self._seed_statuswords(node)
                 logger.info("node %d re-configured after %s", node.node_id, why)
+                self._requests.put(lambda: self._config_failed.discard(node.node_id))
             except Exception as exc:
                 logger.error("re-configuring node %d failed: %s", node.node_id, exc)
+                self._requests.put(lambda: self._config_failed.add(node.node_id))
                 # Not again until the drive boots once more (it announces that itself).
                 node.configured_boot = node.boot_count
                 reason = f"re-configuring node {node.node_id} failed: {exc}"

@@ -734,14 +734,19 @@ class DriveNode:
 
     def stop(self) -> None:
         """Stop watching the host (consumer off) and leave OPERATIONAL; best effort."""
+        # A bus that refuses frames (down, transmit queue full) must not turn the way
+        # out into a traceback: the drives' heartbeat consumers stop them anyway.
         if self.has_consumer and self.boot_count:  # a node never heard has no consumer on
             try:
                 self.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
-            except (SdoAbortedError, SdoCommunicationError) as exc:
+            except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                 logger.debug("node %d: clearing the heartbeat consumer failed: %s", self.node_id,
                              exc)
-        self.network.send_message(NMT_COB_ID,
-                                  bytes([NmtCommand.ENTER_PRE_OPERATIONAL, self.node_id]))
+        try:
+            self.network.send_message(NMT_COB_ID,
+                                      bytes([NmtCommand.ENTER_PRE_OPERATIONAL, self.node_id]))
+        except (can.CanError, OSError, RuntimeError) as exc:
+            logger.debug("node %d: NMT pre-operational not sent: %s", self.node_id, exc)
 
     def detach(self) -> None:
         for cob, handler in self._subscribed:

@@ -294,8 +294,9 @@ def run(args: argparse.Namespace) -> int:
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
                 pass
             base.stop()
-            final = base.pose
-        # Leaving the block stopped the wheels and disabled every drive.
+        # Leaving the block stopped the wheels and disabled every drive: the pose now
+        # includes the stop (read inside the block, it would miss the last samples).
+        final = base.pose
     if final is not None:
         print(pose_line(final))
     return 0

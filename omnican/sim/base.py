@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import can
 import canopen
 import numpy as np
 import numpy.typing as npt
@@ -26,6 +28,34 @@ from omnican.sim.drive import SimulatedDrive
 from omnican.sim.scheduler import SimScheduler
 
 logger = logging.getLogger(__name__)
+
+
+class _ReceiveErrors(can.Listener):
+    """Takes python-can's receive errors (reported once per outage) so the Notifier
+    thread lives on; pauses a little so a permanently failing receive does not spin."""
+
+    def __init__(self) -> None:
+        self._reported = False
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._reported = False
+
+    def on_error(self, exc: Exception) -> None:
+        if not self._reported:
+            self._reported = True
+            logger.warning("simulated drives: receive failed: %s", exc)
+        time.sleep(0.05)
+
+    def stop(self) -> None:
+        pass
+
+
+class _Network(canopen.Network):
+    """canopen's network without its after-send check, which raises a receive error the
+    Notifier kept although it was handled (the SDO answers after a link flap)."""
+
+    def check(self) -> None:
+        pass
 
 
 class SimulatedBase:
@@ -96,7 +126,7 @@ class SimulatedBase:
         if len(scales) != len(cfg.wheels):
             raise ConfigError(f"true_scale has {len(scales)} values for {len(cfg.wheels)} wheels")
         clock = clock if clock is not None else REAL_TIME
-        network = canopen.Network()
+        network = _Network()
         network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the Notifier
         if clock.lockstep:
             channel = bus_kwargs.get("channel")
@@ -107,6 +137,9 @@ class SimulatedBase:
             lockstep.set_receiver(listeners_receiver(network.listeners))
             network.bus = lockstep
         else:
+            # A receive error (an interface that went down) is handled, not the end of
+            # the simulator's Notifier: it keeps serving when the link returns.
+            network.listeners.append(_ReceiveErrors())  # type: ignore[arg-type]
             try:
                 network.connect(**bus_kwargs)
             except Exception as exc:

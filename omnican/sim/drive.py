@@ -86,6 +86,7 @@ _ERROR_REGISTER_BITS = {0x2: ERROR_REGISTER_CURRENT, 0x3: ERROR_REGISTER_VOLTAGE
 
 _STATE_BITS: dict[State, int] = {s: cia402.state_bits(s) for s in State if s is not State.UNKNOWN}
 
+SEND_WARNING_EVERY_S = 5.0  # a refused send is logged at most this often
 COAST_TAU_S = 0.1  # a disabled motor spins down with this time constant
 DEFAULT_TAU_S = 0.01  # velocity loop lag of an enabled motor
 STANDSTILL_UNITS = 1.0  # below this many velocity units the drive reports speed zero
@@ -247,6 +248,8 @@ class SimulatedDrive:
         self._last_advance = clock.now()
         self._window = 1.0
         self._closed = False
+        self._send_failures = 0
+        self._send_warned_at = -math.inf
 
         # LocalNode produces its heartbeat from a 1017h write callback; we do it ourselves.
         self.node._write_callbacks.remove(self.node.nmt.on_write)
@@ -849,8 +852,13 @@ class SimulatedDrive:
             with self.network.send_lock:
                 bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
         except (can.CanError, OSError, RuntimeError) as exc:
-            logger.warning("simulated node %d could not send 0x%03X: %s", self.node_id, cob_id,
-                           exc)
+            # A link that is down refuses every frame: say so once, then now and then.
+            self._send_failures += 1
+            now = self.clock.now()
+            if now - self._send_warned_at >= SEND_WARNING_EVERY_S:
+                self._send_warned_at = now
+                logger.warning("simulated node %d could not send 0x%03X (%d frames refused "
+                               "so far): %s", self.node_id, cob_id, self._send_failures, exc)
 
     def _emcy(self, code: int, register: int) -> None:
         self._send(EMCY_BASE + self.node_id, struct.pack("<HB5s", code, register, b""),
