@@ -14,6 +14,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
@@ -101,12 +102,15 @@ def free_port() -> int:
 class SimProcess:
     """``omnican sim`` serving a loopback hub on ``port``, in a process of its own."""
 
+    started: ClassVar[list[SimProcess]] = []  # killed after each test whatever happened
+
     def __init__(self, port: int) -> None:
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "omnican", "sim", "--serve", f"127.0.0.1:{port}"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             env=env)
+        SimProcess.started.append(self)
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline()
         if "serving simulated nodes" not in line:
@@ -127,14 +131,19 @@ class SimProcess:
         return float(match[1]) if match else 0.0
 
     def kill(self) -> None:
+        if self.proc.returncode is not None and self.proc.stdout is None:
+            return  # already killed and reaped
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.communicate(timeout=5)
+        self.proc.stdout = self.proc.stderr = self.proc.stdin = None
 
 
 @pytest.fixture
 def port() -> Iterator[int]:
     yield free_port()
+    while SimProcess.started:  # no simulator outlives its test
+        SimProcess.started.pop().kill()
 
 
 def test_simulator_killed_and_restarted_under_a_connected_base(port: int) -> None:
