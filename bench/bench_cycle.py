@@ -85,6 +85,7 @@ def virtual_bus_cost() -> tuple[float, float]:
     with can.Bus(interface="virtual", channel=channel) as tx, \
             can.Bus(interface="virtual", channel=channel) as rx:
         msg = can.Message(arbitration_id=0x301, data=bytes(4), is_extended_id=False)
+        msg.data = bytes(4)  # type: ignore[assignment]  # as omnican sends: bytes copy for free
         t0 = time.thread_time()
         for _ in range(n):
             tx.send(msg)
