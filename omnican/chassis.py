@@ -267,6 +267,7 @@ class Chassis:
         self._recovering = False
         self._config_failed: set[int] = set()  # nodes whose re-configuration failed
         self._nmt_started: dict[int, float] = {}  # when NMT start was last re-sent, by node
+        self._sdo_aborts: dict[int, int] = {}  # per-cycle SDO aborts seen, by node
         self._want_enabled = True
         self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         self._configuring: set[int] = set()
@@ -652,6 +653,14 @@ class Chassis:
                 self._nmt_started[nid] = now
                 logger.info("node %d reports PRE-OPERATIONAL: starting it again", nid)
                 self._bus.send(NMT_COB_ID, bytes([NmtCommand.START, nid]))
+            aborts = node.sdo_counts.aborts
+            if aborts != self._sdo_aborts.get(nid, 0):
+                # A drive that refuses the target written by SDO each cycle keeps turning
+                # at the last one it took: stop the base.
+                self._sdo_aborts[nid] = aborts
+                if aborts:
+                    self._latch(f"node {nid} refuses its per-cycle SDO transfers "
+                                f"({node.sdo_counts.last_abort})")
             if node.heartbeat_lost(now):
                 self._offline.add(nid)
                 if not self._recovering:  # recover() waits for it, and says if it never came

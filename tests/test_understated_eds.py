@@ -213,3 +213,25 @@ def test_vendor_eds_understating_its_target(channel: str, tmp_path: Path) -> Non
             Chassis.open(cfg) as base:
         assert any("mapping anyway" in w for w in base.status.warnings)
         drives_and_tracks_truth(sim, base)
+
+
+def test_a_drive_refusing_its_per_cycle_target_stops_the_base(channel: str,
+                                                              tmp_path: Path) -> None:
+    """Targets written by SDO that the drive aborts leave its wheel at the last target it
+    took: the base stops, saying which node and why."""
+    from canopen.sdo.exceptions import SdoAbortedError
+
+    eds = understated_eds(tmp_path / "understated.eds", {TARGET}, drop={TARGET})
+    cfg = with_eds(sim_config(channel), eds)
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
+        drive_for(base, 0.3, vx=0.2)
+        drive = sim.drives[2]
+
+        def refuse(value: int) -> None:
+            raise SdoAbortedError(0x08000022)  # not in the present device state
+
+        with drive.lock:
+            drive._writers[(TARGET, 0)] = refuse
+        assert wait_for(lambda: (base.status.stopped_reason or "").startswith(
+            "node 3 refuses its per-cycle SDO transfers"), 1.0), base.status
+        assert "0x08000022" in (base.status.stopped_reason or "")
