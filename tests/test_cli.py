@@ -66,15 +66,15 @@ def test_drive_square_closes(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_drive_fast_is_simulated_time_identical_run_to_run(
         capsys: pytest.CaptureFixture[str]) -> None:
-    """--fast runs the simulation in lock-step: a 24 s square in a fraction of that, with
+    """--fast runs the simulation in lock-step: a 14 s square in a fraction of that, with
     the odometry as good as in real time, and the same numbers every run."""
-    argv = ["drive", "--sim", "--fast", "--square", "1", "--json"]
+    argv = ["drive", "--sim", "--fast", "--square", "0.5", "--json"]
     assert main(argv) == 0
     first = json.loads(capsys.readouterr().out)
     assert main(argv) == 0
     second = json.loads(capsys.readouterr().out)
     assert first == second
-    assert first["duration_s"] > 15  # simulated seconds
+    assert first["duration_s"] > 10  # simulated seconds
     pose, truth = first["pose"], first["true_pose"]
     assert abs(pose["x"] - truth["x"]) < 0.001 and abs(pose["y"] - truth["y"]) < 0.001
     assert abs(truth["x"]) < 0.01 and abs(truth["y"]) < 0.01  # the square closed

@@ -356,7 +356,7 @@ def test_readme_and_help_show_the_key_map() -> None:
 
 
 def test_the_square_ends_on_a_full_turn(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["drive", "--sim", "--square", "0.4", "--speed", "0.4", "--omega", "1.5",
+    assert main(["drive", "--sim", "--fast", "--square", "0.4", "--speed", "0.4", "--omega", "1.5",
                  "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     for pose in (out["pose"], out["true_pose"]):  # odometry, and where the base really is
