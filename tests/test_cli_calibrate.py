@@ -19,7 +19,7 @@ from omnican.calibration import truth_options
 from omnican.cli import main
 from omnican.kinematics import Twist
 from omnican.motion import Leg
-from omnican.sim import SimulatedBase
+from omnican.sim import SimClock, SimulatedBase
 
 from .helpers import one_error_line
 
@@ -75,7 +75,7 @@ def first_run(tmp_path_factory: pytest.TempPathFactory) -> FirstRun:
     d = tmp_path_factory.mktemp("calibrate")
     config, written = d / "robot.toml", d / "corrected.toml"
     config.write_text(QUICK)
-    code, out, _ = run_main(["calibrate", "--sim", "--config", str(config), *RUN,
+    code, out, _ = run_main(["calibrate", "--sim", "--fast", "--config", str(config), *RUN,
                              "--sim-scale-error", str(SCALE_ERROR),
                              "--sim-radius-error", str(RADIUS_ERROR), "--write", str(written)])
     return FirstRun(config, written, code, out)
@@ -120,7 +120,7 @@ def test_rerun_with_the_written_config_finds_nothing_to_correct(first_run: First
     scale_left = true_cpm / new.wheels[1].position_scale - 1
     radius_left = true_radius / new.chassis.base_radius - 1
     assert abs(scale_left) < 2e-4 and abs(radius_left) < 2e-4
-    code, out, _ = run_main(["calibrate", "--sim", "--config", str(first_run.written), *RUN,
+    code, out, _ = run_main(["calibrate", "--sim", "--fast", "--config", str(first_run.written), *RUN,
                              f"--sim-scale-error={scale_left!r}",
                              f"--sim-radius-error={radius_left!r}", "--json"])
     assert code == 0
@@ -132,7 +132,7 @@ def test_rerun_with_the_written_config_finds_nothing_to_correct(first_run: First
 def test_demo_base_json_and_a_new_config_file(tmp_path: Path,
                                               capsys: pytest.CaptureFixture[str]) -> None:
     out_toml = tmp_path / "demo.toml"
-    assert main(["calibrate", "--sim", *RUN, "--json", "--write", str(out_toml)]) == 0
+    assert main(["calibrate", "--sim", "--fast", *RUN, "--json", "--write", str(out_toml)]) == 0
     result = json.loads(capsys.readouterr().out)
     assert set(result) == {"source", "distance", "angle_rad", "scale_factor", "radius_factor",
                            "wheels", "base_radius", "written"}
@@ -294,8 +294,9 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> Recordings:
     runs = []
     for name, line in (("forward", Twist(0.5, 0, 0)), ("left", Twist(0, 0.5, 0))):
         path = d / f"{name}.log"
-        with SimulatedBase.from_config(cfg, **truth) as sim, \
-                Chassis.open(cfg, record=path) as base:
+        clock = SimClock()  # recorded in simulated time: the same frames, sooner
+        with SimulatedBase.from_config(cfg, clock=clock, **truth) as sim, \
+                Chassis.open(cfg, record=path, clock=clock) as base:
             motion.run(base, [Leg(line, 0.4, "line", distance=0.2),
                            Leg(Twist(0, 0, 3.0), 0.5, "spin", angle=math.pi / 2)])
             end = sim.true_pose

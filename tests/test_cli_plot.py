@@ -122,7 +122,7 @@ def test_plot_sim_overlays_the_ground_truth(tmp_path: Path, monkeypatch: pytest.
 
     monkeypatch.setattr(plot_cli, "build_figure", keep)
     out, rec = tmp_path / "demo.png", tmp_path / "demo.log"
-    assert main(["plot", "--sim", "-o", str(out), "--square", "0.1", "--sides", "1",
+    assert main(["plot", "--sim", "--fast", "-o", str(out), "--square", "0.1", "--sides", "1",
                  "--speed", "0.5", "--omega", "3", "--record", str(rec)]) == 0
     assert WROTE.fullmatch(capsys.readouterr().out.strip())
     assert out.read_bytes()[:8] == PNG_MAGIC

@@ -64,7 +64,7 @@ def test_calibrate_prints_what_it_writes_in_the_configs_own_terms(tmp_path: Path
     cfg = tmp_path / "robot.toml"
     cfg.write_text(PHYSICAL)
     out_toml = tmp_path / "out.toml"
-    code, out, err = run_main(["calibrate", "--sim", "--config", str(cfg), "--distance", "0.2",
+    code, out, err = run_main(["calibrate", "--sim", "--fast", "--config", str(cfg), "--distance", "0.2",
                                "--turns", "0.25", "--speed", "0.5", "--omega", "3",
                                "--write", str(out_toml)])
     assert code == 0, err
@@ -474,7 +474,7 @@ def test_help_and_readme_speak_to_a_new_user() -> None:
 def test_a_speed_beyond_the_limits_is_driven_at_the_limit_with_one_warning() -> None:
     from omnican import Twist, default_config
 
-    code, out, err = run_main(["drive", "--sim", "--vx", "100", "--duration", "1.6", "--json"])
+    code, out, err = run_main(["drive", "--sim", "--fast", "--vx", "100", "--duration", "1.6", "--json"])
     assert code == 0
     warnings = [line for line in err.splitlines() if line.strip()]
     assert len(warnings) == 1, err
