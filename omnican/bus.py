@@ -554,6 +554,8 @@ class CanBus:
 
     def _reconnect_loop(self) -> None:
         while not self._closed:
+            if self.failing is None:  # it works again as it is (the link came back up)
+                break
             if self._reopen():
                 self._reconnect_wanted.clear()
                 return

@@ -50,6 +50,7 @@ from omnican.odometry import Odometry, Pose2D
 logger = logging.getLogger(__name__)
 
 BUS_DOWN_AFTER_S = 0.05  # sends or receives failing for this long: the bus is down
+BUS_UP_AFTER_S = 0.2  # and working again for this long: it is back up
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
 STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
 NMT_RESTART_S = 0.5  # a started node reporting PRE-OPERATIONAL is started again this often
@@ -287,6 +288,7 @@ class Chassis:
         self._late = 0
         self._last_hb = -math.inf
         self._bus_fail_since: float | None = None
+        self._bus_ok_since: float | None = None
         self._load_mark = (clock.now(), 0)
         self._bus_bits_per_s = 0.0
         self._rate_mark = (clock.now(), 0)
@@ -299,8 +301,6 @@ class Chassis:
         self._close_lock = threading.Lock()
         self._guards_signals = False
         self._bus_down = False
-        self._bus_generation = bus.generation
-        self._down_since_generation = bus.generation
         self._reconnect_asked_at = -math.inf
         self.loop_cpu_s = 0.0  # CPU time of the loop thread (for benchmarks)
         self._snapshot = self._make_snapshot(clock.now())
@@ -469,6 +469,9 @@ class Chassis:
         Raises DriveError naming what could not be recovered."""
         if self._closed:
             raise DriveError("the base is closed")
+        if self._bus_down:
+            raise DriveError(f"{self._latched or 'the CAN bus is down'}: recover once it is "
+                             "back (status.bus_up)")
         timeout = timeout_s if timeout_s is not None else (
             self.cfg.chassis.enable_timeout_s + self.cfg.chassis.boot_timeout_s)
 
@@ -702,7 +705,7 @@ class Chassis:
                                     exc)
                 self._seed_statuswords(node)
                 logger.info("node %d re-configured after %s", node.node_id, why)
-                self._requests.put(lambda: self._config_failed.discard(node.node_id))
+                self._requests.put(lambda: self._configured(node))
             except Exception as exc:
                 logger.error("re-configuring node %d failed: %s", node.node_id, exc)
                 self._requests.put(lambda: self._config_failed.add(node.node_id))
@@ -720,6 +723,14 @@ class Chassis:
         self._workers = [w for w in self._workers if w.is_alive()]
         self._workers.append(t)
         t.start()
+
+    def _configured(self, node: DriveNode) -> None:
+        """A re-configuration ended well (loop thread): a recover() waiting for it wants
+        the node enabled."""
+        self._config_failed.discard(node.node_id)
+        if self._recovering:
+            for stage in node.stages:
+                stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
 
     def _integrate_samples(self) -> None:
         epoch = self._bus.sync_epoch
@@ -764,7 +775,8 @@ class Chassis:
     def _check_bus(self, now: float) -> None:
         """Bus down: sends or receives failing for ``BUS_DOWN_AFTER_S``. Then the bus is
         reopened on a thread of its own (this loop never waits for it) and the base stays
-        stopped. Back up: reopened and working again; every drive is configured anew,
+        stopped. Back up: sends and receives working for ``BUS_UP_AFTER_S`` (on a reopened
+        bus, or the old one where the link came back); every drive is configured anew,
         since the drives stopped (or rebooted) meanwhile, and recover() starts them."""
         bus = self._bus
         failing = bus.failing
@@ -777,20 +789,24 @@ class Chassis:
             if now - self._bus_fail_since < BUS_DOWN_AFTER_S:
                 return
             self._bus_down = True
-            self._down_since_generation = bus.generation
             reason = f"CAN bus down ({failing})"
             if self._latched is not None and not self._latched.startswith("CAN bus down"):
                 logger.warning("base stopped: %s", reason)
                 self._latched = reason  # the cause of the lost heartbeats & co.
             self._latch(reason)
-        if bus.generation == self._down_since_generation or failing is not None:
+        if failing is not None:
+            self._bus_ok_since = None
             if (not bus.reconnecting and
                     now - self._reconnect_asked_at >= bus_module.RECONNECT_EVERY_S):
                 self._reconnect_asked_at = now
                 bus.request_reconnect()
             return
+        if self._bus_ok_since is None:
+            self._bus_ok_since = now
+        if now - self._bus_ok_since < BUS_UP_AFTER_S:
+            return  # one frame through a filling queue is not a bus that works
         self._bus_down = False
-        self._bus_fail_since = None
+        self._bus_fail_since = self._bus_ok_since = None
         logger.warning("CAN bus back up; configuring every drive again")
         for node in self.nodes:
             if node.node_id not in self._configuring:
@@ -823,7 +839,7 @@ class Chassis:
                           ax.stage.error_value, ax.stage.error, node.fault_text)
                          for ax, node in axes]))
         enabled = (self._latched is None and not offline and not configuring and
-                   self._all_enabled)
+                   not bus_down and self._all_enabled)
         bus = self._bus
         bitrate = bus.bitrate
         failing = bus.failing

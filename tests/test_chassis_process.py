@@ -112,7 +112,8 @@ def test_bus_down_is_reported_and_reconnected(channel: str) -> None:
             assert wait_for(lambda: FlakyBus.opened > opened, 2.0)  # tried to reopen the bus
         finally:
             FlakyBus.failing = False
-        assert wait_for(lambda: base.status.bus_error is None, 2.0)
+        assert wait_for(lambda: base.status.bus_up and base.status.bus_error is None, 3.0)
+        assert wait_for(lambda: all(w.online for w in base.wheels), 3.0)  # configured again
         base.recover()
         drive_for(base, 0.3, vx=0.3)
         assert sim.true_twist.vx > 0.2
