@@ -313,6 +313,7 @@ class CanBus:
         self._lock = threading.Lock()
         self._reconnect_wanted = threading.Event()
         self._polling = False
+        self._force_reopen = False
         self._poll_cache: tuple[tuple[Any, ...], tuple[can.Listener, ...]] = ((), ())
         self._reconnect_thread: threading.Thread | None = None
         self._connect()
@@ -473,40 +474,18 @@ class CanBus:
         self._taps.remove(listener)
 
     def send(self, can_id: int, data: bytes) -> bool:
-        """Send one frame; a failure is counted and reported, not raised.
-
-        A frame the bus refuses (interface down, transmit queue full) is dropped, never
-        queued: what the drives need is this cycle's targets, not a backlog.
-
-        The control loop's path: straight to the bus (canopen's ``send_message`` adds a
-        second message object and a Notifier check per frame)."""
-        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
-        network = self.network
-        if self.lockstep:  # the answers arrive inside the send: record it first
-            self._sent(can_id, data)
-        try:
-            with network.send_lock:
-                bus = network.bus
-                if bus is None:
-                    raise can.CanOperationError("bus is closed (reopening)")
-                bus.send(msg)
-        except (can.CanError, OSError, RuntimeError, ValueError) as exc:
-            self.send_errors += 1
-            self.dropped_frames += 1
-            self.last_error = describe_send_error(can_id, exc)
-            return False
-        if not self.lockstep:
-            self._sent(can_id, data)
-        if self.send_errors:
-            logger.info("bus sends work again after %d errors", self.send_errors)
-            self.send_errors = 0
-            self.last_error = None
-        return True
+        """Send one frame from the control loop (a heartbeat, an NMT start); a failure is
+        counted and reported, not raised. See :meth:`send_prepared`."""
+        return self.send_prepared(prepared_message(can_id, bytes(data)), _FRAME_BITS[len(data)])
 
     def send_prepared(self, msg: can.Message, bits: int) -> bool:
         """The control loop's send: ``msg`` is made once and reused (its ``data`` a
         ``bytes`` object, which python-can's virtual bus copies for free), ``bits`` its
-        worst-case size. Only the loop thread calls this; failures as in :meth:`send`."""
+        worst-case size. Only the loop thread calls this (its traffic counters take no
+        lock). A failure is counted and reported, not raised; a frame the bus refuses
+        (interface down, transmit queue full) is dropped, never queued: what the drives
+        need is this cycle's targets, not a backlog. Straight to the bus: canopen's
+        ``send_message`` adds a second message object and a Notifier check per frame."""
         network = self.network
         if self.lockstep:
             self._record(msg.arbitration_id, msg.data)
@@ -540,12 +519,14 @@ class CanBus:
 
     # ------------------------------------------------------------ reconnecting
 
-    def request_reconnect(self) -> None:
+    def request_reconnect(self, force: bool = False) -> None:
         """Reopen the bus in the background, retrying every ``RECONNECT_EVERY_S`` until
-        it opens (or the bus is closed). Returns at once."""
+        it opens (or the bus is closed). Returns at once. A bus that works again by the
+        time of an attempt is left as it is, unless ``force``."""
         with self._lock:
             if self._closed or self._reconnect_wanted.is_set() or self.lockstep:
                 return
+            self._force_reopen = force
             self._reconnect_wanted.set()
             if self._reconnect_thread is None or not self._reconnect_thread.is_alive():
                 self._reconnect_thread = threading.Thread(
@@ -554,8 +535,8 @@ class CanBus:
 
     def _reconnect_loop(self) -> None:
         while not self._closed:
-            if self.failing is None:  # it works again as it is (the link came back up)
-                break
+            if self.failing is None and not self._force_reopen:
+                break  # it works again as it is (the link came back up)
             if self._reopen():
                 self._reconnect_wanted.clear()
                 return

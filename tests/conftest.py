@@ -8,6 +8,7 @@ import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import settings
@@ -56,3 +57,23 @@ def no_leaked_virtual_channels() -> Iterator[None]:
             break
         time.sleep(0.02)
     assert not leaked, f"test left virtual buses open on: {sorted(leaked)}"
+
+
+@pytest.fixture
+def served(channel: str, tmp_path: Path) -> Iterator[tuple[Any, Path]]:
+    """Simulated drives in this process behind a loopback hub, and a config file that
+    reaches them from another process (``interface = "remote"``)."""
+    from omnican.hub import LoopbackHub
+    from omnican.sim import SimulatedBase
+
+    from .helpers import sim_config
+
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg) as sim, LoopbackHub(channel, port=0) as hub:
+        toml = tmp_path / "robot.toml"
+        toml.write_text(
+            f'[bus]\ninterface = "remote"\nchannel = "{hub.url}"\n\n'
+            "[chassis]\nlayout = \"b21\"\nbase_radius = 0.19\n\n" +
+            "".join(f"[[wheel]]\nnode_id = {n}\ngear_ratio = 16\nencoder_cpr = 4096\n"
+                    "wheel_radius = 0.05\n\n" for n in (1, 2, 3)))
+        yield sim, toml

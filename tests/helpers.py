@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -71,3 +72,9 @@ def one_error_line(err: str) -> str:
     assert len(lines) == 1, err
     assert "Traceback" not in err
     return lines[0]
+
+
+def still(sim: Any) -> bool:
+    """The simulated base stands still (its true twist, not the odometry)."""
+    t = sim.true_twist
+    return bool(math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2)

@@ -53,7 +53,7 @@ class Pty:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             screen = self.read(0.1)
-            if text in screen[-6000:]:
+            if text in screen:
                 return screen
             if self.proc.poll() is not None:
                 break

@@ -21,7 +21,7 @@ from omnican.errors import DriveError
 from omnican.lockstep import LockstepBus
 from omnican.sim import SimulatedBase
 
-from .helpers import drive_for, sim_config, vendor_config, wait_for
+from .helpers import drive_for, sim_config, still, vendor_config, wait_for
 
 
 @pytest.fixture
@@ -46,11 +46,6 @@ def lockstep(cfg: ChassisConfig, **sim_options: Any) -> tuple[SimClock, Any, Any
     clock = SimClock()
     return (clock, SimulatedBase.from_config(cfg, clock=clock, **sim_options),
             lambda: Chassis.open(cfg, clock=clock))
-
-
-def still(sim: SimulatedBase) -> bool:
-    t = sim.true_twist
-    return math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2
 
 
 @pytest.mark.parametrize("rig_name", ["rig", "realtime_rig"])

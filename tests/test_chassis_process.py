@@ -4,12 +4,10 @@ a child process that reaches them through a loopback hub."""
 
 from __future__ import annotations
 
-import math
 import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,32 +15,15 @@ import pytest
 
 from omnican import Chassis
 from omnican.cia402 import State
-from omnican.hub import LoopbackHub
 from omnican.sim import SimulatedBase
 
 from .flaky_bus import FlakyBus, register
-from .helpers import drive_for, sim_config, wait_for
+from .helpers import drive_for, sim_config, still, wait_for
 
 HOST = Path(__file__).with_name("host_process.py")
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def still(sim: SimulatedBase) -> bool:
-    t = sim.true_twist
-    return math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2
-
-
-@pytest.fixture
-def served(channel: str, tmp_path: Path) -> Iterator[tuple[SimulatedBase, Path]]:
-    cfg = sim_config(channel)
-    with SimulatedBase.from_config(cfg) as sim, LoopbackHub(channel, port=0) as hub:
-        toml = tmp_path / "robot.toml"
-        toml.write_text(
-            f'[bus]\ninterface = "remote"\nchannel = "{hub.url}"\n\n'
-            "[chassis]\nlayout = \"b21\"\nbase_radius = 0.19\n\n" +
-            "".join(f"[[wheel]]\nnode_id = {n}\ngear_ratio = 16\nencoder_cpr = 4096\n"
-                    "wheel_radius = 0.05\n\n" for n in (1, 2, 3)))
-        yield sim, toml
 
 
 def start_host(toml: Path) -> subprocess.Popen[str]:

@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import re
 import select
 import shutil
-import struct
 import subprocess
 import sys
-import termios
 import time
 from pathlib import Path
 
@@ -20,6 +17,7 @@ import pytest
 from omnican.cli import main
 from omnican.sim import SimulatedBase
 
+from . import terminal
 from .conftest import VENDOR_EDS
 from .helpers import one_error_line
 
@@ -307,61 +305,11 @@ def test_teleop_needs_a_terminal(capsys: pytest.CaptureFixture[str]) -> None:
     assert "stdin is not one" in one_error_line(capsys.readouterr().err)
 
 
-class Pty:
+class Pty(terminal.Pty):
     """omnican teleop in a pseudo-terminal: send keys, read the screen."""
 
     def __init__(self, *args: str, columns: int = 120, lines: int = 40) -> None:
-        self.master, slave = os.openpty()
-        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", lines, columns, 0, 0))
-        env = {**os.environ, "PYTHONPATH": str(ROOT), "TERM": "xterm-256color",
-               "COLUMNS": str(columns), "LINES": str(lines)}
-        def controlling_terminal() -> None:  # so Ctrl-C on the pty sends SIGINT
-            os.setsid()
-            fcntl.ioctl(0, termios.TIOCSCTTY, 0)
-
-        self.proc = subprocess.Popen([sys.executable, "-m", "omnican", "teleop", *args],
-                                     stdin=slave, stdout=slave, stderr=slave, env=env,
-                                     preexec_fn=controlling_terminal)  # noqa: PLW1509
-        os.close(slave)
-        self.screen = ""
-
-    def read(self, timeout: float = 0.2) -> str:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            ready, _, _ = select.select([self.master], [], [], 0.05)
-            if ready:
-                try:
-                    chunk = os.read(self.master, 65536).decode("utf-8", "replace")
-                except OSError:
-                    break
-                self.screen += chunk
-        return ANSI.sub("", self.screen)
-
-    def wait_for(self, text: str, timeout: float = 15.0) -> str:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            screen = self.read(0.1)
-            if text in screen:
-                return screen
-            if self.proc.poll() is not None:
-                break
-        raise AssertionError(f"{text!r} not on screen:\n{self.read(0.1)[-3000:]}")
-
-    def exit_code(self, timeout: float = 15.0) -> int | None:
-        """Wait for the program to end, reading the screen so it never blocks on output."""
-        end = time.monotonic() + timeout
-        while self.proc.poll() is None and time.monotonic() < end:
-            self.read(0.05)
-        return self.proc.poll()
-
-    def keys(self, keys: str) -> None:
-        os.write(self.master, keys.encode())
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-        self.proc.wait(timeout=5)
-        os.close(self.master)
+        super().__init__("teleop", *args, columns=columns, lines=lines)
 
 
 @pytest.mark.skipif(shutil.which("stty") is None and sys.platform != "linux",

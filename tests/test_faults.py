@@ -5,7 +5,6 @@ Notifier, the control loop and the configuration workers."""
 from __future__ import annotations
 
 import errno
-import math
 import sys
 import threading
 from collections.abc import Iterator
@@ -23,12 +22,7 @@ from omnican.clock import SimClock
 from omnican.sim import SimulatedBase
 
 from .flaky_bus import FlakyBus, register
-from .helpers import drive_for, sim_config, wait_for
-
-
-def still(sim: SimulatedBase) -> bool:
-    t = sim.true_twist
-    return math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2
+from .helpers import drive_for, sim_config, still, wait_for
 
 
 @pytest.fixture

@@ -254,7 +254,7 @@ def test_bus_listeners_added_late_see_both_directions_across_a_reconnect(channel
         assert wait_for(lambda: len(seen.frames) == 2)
         if hasattr(bus, "request_reconnect"):  # the bus reopens on a thread of its own
             generation = bus.generation
-            bus.request_reconnect()
+            bus.request_reconnect(force=True)
             assert wait_for(lambda: bus.generation > generation, timeout=5.0)
         else:
             bus.reconnect()

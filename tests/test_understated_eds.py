@@ -22,7 +22,7 @@ from omnican.pdoplan import frame_bits
 from omnican.sim import SimulatedBase
 
 from .conftest import VENDOR_EDS
-from .helpers import drive_for, sim_config, vendor_config, wait_for
+from .helpers import drive_for, sim_config, still, vendor_config, wait_for
 
 TARGET, POSITION, CONTROLWORD, STATUSWORD = 0x60FF, 0x6064, 0x6040, 0x6041
 
@@ -55,11 +55,6 @@ def understated_eds(dest: Path, unmappable: Collection[int], drop: Collection[in
 def with_eds(cfg: ChassisConfig, eds: Path, **chassis: Any) -> ChassisConfig:
     return replace(cfg, wheels=tuple(replace(w, eds=eds) for w in cfg.wheels),
                    chassis=replace(cfg.chassis, **chassis))
-
-
-def still(sim: SimulatedBase) -> bool:
-    t = sim.true_twist
-    return math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2
 
 
 def drives_and_tracks_truth(sim: SimulatedBase, base: Chassis) -> None:

@@ -14,9 +14,6 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
-import select
-import sys
-import time
 import uuid
 from collections.abc import Mapping
 from typing import Any
@@ -29,6 +26,7 @@ from omnican.cli.common import (
     load,
     pose_line,
     positive_float,
+    serve_lines,
 )
 from omnican.hub import DEFAULT_PORT, LoopbackHub
 from omnican.live import foxglove_address, prepare, watch
@@ -223,26 +221,5 @@ def _bus_flags(bus: Mapping[str, Any]) -> list[str]:
 
 def serve(sim: SimulatedBase, duration: float | None) -> None:
     """Run until the duration ends, stdin says quit (or closes), or Ctrl-C."""
-    end = time.monotonic() + duration if duration else None
-    stdin_open = True
-    try:
-        while end is None or time.monotonic() < end:
-            timeout = 0.2 if end is None else max(0.0, min(0.2, end - time.monotonic()))
-            if not stdin_open:
-                time.sleep(timeout)
-                continue
-            ready, _, _ = select.select([sys.stdin], [], [], timeout)
-            if not ready:
-                continue
-            line = sys.stdin.readline()
-            if line == "":
-                stdin_open = False  # stdin closed (e.g. < /dev/null): keep serving
-                continue
-            reply = command(sim, line)
-            if reply is None:
-                break
-            if reply:
-                print(reply, flush=True)
-    except KeyboardInterrupt:
-        pass
+    serve_lines(lambda line: command(sim, line), duration)
 
