@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 Step = Callable[[float], None]
 
+_SLACK_S = 1e-9  # float rounding in due times, far below any task period
+
 
 class Clock:
     """Real time (the default everywhere): ``time.monotonic`` and ``time.sleep``."""
@@ -119,14 +121,17 @@ class SimClock(Clock):
             raise RuntimeError("SimClock.sleep() called from a task it runs: a task must "
                                "return, and let the clock call it again")
         end = self._t + max(0.0, seconds)
+        # A task due within a nanosecond of the end is due now: 0.001 + 29 * 0.001
+        # is 0.030000000000000002, and sleep(0.03) must still run its 30th call.
+        horizon = end + _SLACK_S
         self._running = True
         try:
             tasks = self._tasks
-            while tasks and tasks[0].due <= end:
+            while tasks and tasks[0].due <= horizon:
                 task = heapq.heappop(tasks)
                 if task.cancelled:
                     continue
-                self._t = max(self._t, task.due)
+                self._t = max(self._t, min(task.due, end))
                 if self.speed is not None:
                     self._wait_real(self._t)
                 task.step(self._t)
