@@ -238,7 +238,9 @@ class OmniKinematics:
             raise ValueError(f"max_speed must be a positive number, got {max_speed!r}")
         speeds = _finite_array(wheel_speeds, "wheel_speeds")
         peak = np.max(np.abs(speeds), axis=-1, keepdims=True) if speeds.size else speeds
-        scale = np.where(peak > max_speed, max_speed / np.where(peak > 0, peak, 1.0), 1.0)
+        # Only peaks above max_speed are divided by (a subnormal peak would overflow).
+        scale = np.where(peak > max_speed, max_speed / np.where(peak > max_speed, peak, 1.0),
+                         1.0)
         out: FloatArray = speeds * scale
         return out
 
