@@ -118,6 +118,9 @@ class _Axis:
     internal_limit: bool = False
     target_units: float = 0.0
     command: tuple[float, float, float, float] | None = None  # cached motion command
+    # Cached (mode, quick stop, accel, decel in counts/s^2, limit, target entry): what
+    # only changes when the drive is configured, not with each cycle's target.
+    params: tuple[int, float, float, float, int, Entry | None] | None = None
 
 
 @dataclass
@@ -231,6 +234,7 @@ class SimulatedDrive:
         self._readers: dict[tuple[int, int], Callable[[], int]] = {}
         self._writers: dict[tuple[int, int], Callable[[int], None]] = {}
         self._motion_objects: set[tuple[int, int]] = set()
+        self._target_objects: dict[tuple[int, int], _Axis] = {}
         self._build_object_hooks()
 
         self._nmt = NmtState.BOOT_UP
@@ -330,6 +334,8 @@ class SimulatedDrive:
                 entry = ax.objs.get(obj)
                 if entry is not None:
                     self._motion_objects.add((entry.index, entry.subindex))
+                    if obj in (Obj.TARGET_VELOCITY, Obj.VL_TARGET):
+                        self._target_objects[(entry.index, entry.subindex)] = ax
             for rec in (Obj.VL_ACCEL, Obj.VL_DECEL, Obj.VL_QUICK_STOP):
                 index = ax.objs.record(rec)
                 if index is not None:
@@ -446,6 +452,7 @@ class SimulatedDrive:
         for index in [i for i in self.node.data_store if i in COMMUNICATION_PROFILE]:
             del self.node.data_store[index]
         self._prefill_defaults()
+        self._invalidate()
 
     def _load_heartbeat_config(self) -> None:
         self._heartbeat_period = self._u16(PRODUCER_HEARTBEAT_TIME, 0) / 1000.0
@@ -597,15 +604,24 @@ class SimulatedDrive:
             check_mapping_write(self.dictionary, self.node.get_data, index, subindex, data,
                                 self.max_mapping_entries, self.accept_unmappable)
             return
-        if key in self._motion_objects:
+        store = self.node.data_store.setdefault(index, {})
+        data = bytes(data)
+        unchanged = store.get(subindex) == data
+        if key in self._motion_objects and not unchanged:
             self._advance(self.clock.now())  # the old value applied until now
         writer = self._writers.get(key)
         if writer is not None:  # may refuse the value (SDO abort): then nothing is stored
             value = int.from_bytes(data, "little", signed=od.data_type in SIGNED_TYPES)
             writer(value)
         # Store now (LocalNode stores again after us) so what follows reads the new value.
-        self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
-        self._invalidate()
+        store[subindex] = data
+        if unchanged:
+            return  # the same value again (a cyclic controlword): nothing to recompute
+        target_of = self._target_objects.get(key)
+        if target_of is not None:
+            target_of.command = None  # a new target: the axis's parameters still hold
+        else:
+            self._invalidate()
         if index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME):
             self._load_heartbeat_config()
         elif index == 0x606D:
@@ -617,6 +633,7 @@ class SimulatedDrive:
         """Something that shapes the motion changed: recompute the commands lazily."""
         for ax in self.axes:
             ax.command = None
+            ax.params = None
 
     def _set_state(self, stage: _PowerStage, state: State) -> None:
         if stage.state is not state:
@@ -759,42 +776,51 @@ class SimulatedDrive:
             return None
         return speed / seconds
 
-    def _motion_command(self, ax: _Axis) -> tuple[float, float, float, float]:
-        """(target counts/s, accel, decel, tau) for the axis in its current state."""
-        stage = ax.stage
+    def _motion_params(self, ax: _Axis) -> tuple[int, float, float, float, int, Entry | None]:
+        """(mode, quick stop decel, accel, decel (counts/s^2, inf: none), max profile
+        velocity, the target object of the mode or None) from the dictionary."""
         inf = math.inf
         cpu = abs(ax.counts_per_unit)
         quick = self._axis_raw(ax.objs.get(Obj.QUICK_STOP_DECEL)) * cpu
-        mode = self._mode(stage)
+        mode = self._mode(ax.stage)
+        target: Entry | None = None
+        accel_c = decel_c = inf
         if mode == Mode.VELOCITY:
             vl_quick = self._record_rate(ax.objs.record(Obj.VL_QUICK_STOP))
             quick = vl_quick * cpu if vl_quick else quick
+            target = ax.objs.get(Obj.VL_TARGET)
+            accel = self._record_rate(ax.objs.record(Obj.VL_ACCEL))
+            decel = self._record_rate(ax.objs.record(Obj.VL_DECEL))
+            accel_c = accel * cpu if accel else inf
+            decel_c = decel * cpu if decel else inf
+        elif mode in (Mode.PROFILE_VELOCITY, Mode.CYCLIC_SYNC_VELOCITY):
+            target = ax.objs.get(Obj.TARGET_VELOCITY)
+            if mode == Mode.PROFILE_VELOCITY:
+                accel_c = self._axis_raw(ax.objs.get(Obj.PROFILE_ACCEL)) * cpu or inf
+                decel_c = self._axis_raw(ax.objs.get(Obj.PROFILE_DECEL)) * cpu or accel_c
         quick = quick if quick > 0 else inf
+        limit = self._axis_raw(ax.objs.get(Obj.MAX_PROFILE_VELOCITY))
+        return mode, quick, accel_c, decel_c, limit, target
+
+    def _motion_command(self, ax: _Axis) -> tuple[float, float, float, float]:
+        """(target counts/s, accel, decel, tau) for the axis in its current state."""
+        stage = ax.stage
+        params = ax.params
+        if params is None:
+            params = ax.params = self._motion_params(ax)
+        mode, quick, accel_c, decel_c, limit, target_entry = params
         state = stage.state
         if state in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE):
             ax.target_units = 0.0
             return 0.0, quick, quick, self.tau_s
         if state is not State.OPERATION_ENABLED:
             ax.target_units = 0.0
-            return 0.0, inf, inf, COAST_TAU_S
-        halted = bool(stage.last_cw & cia402.CW_HALT)
-        if mode == Mode.VELOCITY:
-            target = self._axis_raw(ax.objs.get(Obj.VL_TARGET))
-            accel = self._record_rate(ax.objs.record(Obj.VL_ACCEL))
-            decel = self._record_rate(ax.objs.record(Obj.VL_DECEL))
-            accel_c = accel * cpu if accel else inf
-            decel_c = decel * cpu if decel else inf
-        elif mode in (Mode.PROFILE_VELOCITY, Mode.CYCLIC_SYNC_VELOCITY):
-            target = self._axis_raw(ax.objs.get(Obj.TARGET_VELOCITY))
-            if mode == Mode.PROFILE_VELOCITY:
-                accel_c = self._axis_raw(ax.objs.get(Obj.PROFILE_ACCEL)) * cpu or inf
-                decel_c = self._axis_raw(ax.objs.get(Obj.PROFILE_DECEL)) * cpu or accel_c
-            else:
-                accel_c = decel_c = inf
-        else:
+            return 0.0, math.inf, math.inf, COAST_TAU_S
+        if mode not in (Mode.VELOCITY, Mode.PROFILE_VELOCITY, Mode.CYCLIC_SYNC_VELOCITY):
             ax.target_units = 0.0
             return 0.0, quick, quick, self.tau_s  # no velocity mode: hold still
-        limit = self._axis_raw(ax.objs.get(Obj.MAX_PROFILE_VELOCITY))
+        halted = bool(stage.last_cw & cia402.CW_HALT)
+        target = self._axis_raw(target_entry)
         ax.internal_limit = bool(limit) and abs(target) > limit
         if ax.internal_limit:
             target = int(math.copysign(limit, target))
