@@ -8,7 +8,13 @@ For each rate (default 100 Hz and 1 kHz), in the same run:
 * omnican: a Chassis against three simulated drives in this process, host CPU per
   cycle counted over every thread omnican's host side runs (control loop, Notifier,
   reconnect, recorder), late cycles, SYNC period jitter; with and without recording;
-* plain canopen: the same cycle written with canopen's PdoMap and SYNC calls.
+* plain canopen: the same cycle written with canopen's PdoMap and SYNC calls;
+* lock-step: the same Chassis and drives on a simulated clock, one thread, no waits,
+  with the simulated drives' own handlers timed and taken out (the in-process bus,
+  canopen's dispatch to the drives and the clock's scheduling stay in: an upper
+  bound on omnican's Python per cycle). No wake-ups and no thread beside it: the
+  steadiest figure to compare commits by; the threaded figures above move by 30 %
+  from one day to the next on a shared VM.
 
 SYNC times are the bus timestamps the simulated drives' network sees (no extra
 receiver on the channel: a receiver would make every send copy each frame once more).
@@ -39,8 +45,10 @@ import canopen
 import numpy as np
 
 from omnican import Chassis, default_config
+from omnican.clock import SimClock
 from omnican.config import ChassisConfig
 from omnican.sim import SimulatedBase
+from omnican.sim.drive import SimulatedDrive
 
 LATE = 0.2  # of a period
 ROWS: list[dict[str, Any]] = []
@@ -255,6 +263,51 @@ def plain_canopen(rate_hz: float, seconds: float) -> None:
          late_fraction=round(late / max(cycles, 1), 4), **jitter(sync, rate_hz))
 
 
+# ---------------------------------------------------------------- lock-step
+
+
+def lockstep_cycle(rate_hz: float, seconds: float) -> None:
+    """CPU per simulated cycle on one thread, with and without the simulated drives."""
+    cfg = config(rate_hz)
+    inside = [0.0]
+    clock_cpu = time.thread_time
+    originals = {name: getattr(SimulatedDrive, name)
+                 for name in ("_on_sync", "_on_rpdo", "_on_sdo", "_on_heartbeat", "tick")}
+
+    def timed(fn: Any) -> Any:
+        def run(*args: Any, **kwargs: Any) -> Any:
+            t0 = clock_cpu()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                inside[0] += clock_cpu() - t0
+        return run
+
+    clock = SimClock()
+    try:
+        for name, fn in originals.items():
+            setattr(SimulatedDrive, name, timed(fn))
+        with SimulatedBase.from_config(cfg, clock=clock) as sim, \
+                Chassis.open(cfg, clock=clock) as base:
+            del sim
+            clock.sleep(0.3)
+            cycles0, inside[0] = base.status.cycles, 0.0
+            t0 = clock_cpu()
+            steps = int(seconds / 0.01)
+            for k in range(steps):
+                base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.2)
+                clock.sleep(0.01)
+            total = clock_cpu() - t0
+            cycles = base.status.cycles - cycles0
+    finally:
+        for name, fn in originals.items():
+            setattr(SimulatedDrive, name, fn)
+    emit(bench="lockstep", rate_hz=rate_hz,
+         cpu_us_per_cycle_with_drives=round(total / cycles * 1e6, 1),
+         host_cpu_us_per_cycle=round((total - inside[0]) / cycles * 1e6, 1),
+         late_fraction=0.0)
+
+
 # ---------------------------------------------------------------- report
 
 
@@ -263,9 +316,9 @@ def table() -> None:
     print(f"{'rate':>6} {'what':<22} {'CPU us/cycle':>12} {'late':>7} "
           f"{'SYNC jitter p50/p99 us':>23}")
     for r in ROWS:
-        if r["bench"] not in ("omnican", "plain_canopen", "sleeper"):
+        if r["bench"] not in ("omnican", "plain_canopen", "sleeper", "lockstep"):
             continue
-        what = r["bench"] + (f" +rec {r['record']}" if r.get("record", "-") != "-" else "")
+        what = ("omnican lock-step" if r["bench"] == "lockstep" else r["bench"]) + (f" +rec {r['record']}" if r.get("record", "-") != "-" else "")
         jit = (f"{r['sync_jitter_us_p50']:.0f} / {r['sync_jitter_us_p99']:.0f}"
                if "sync_jitter_us_p50" in r else "-")
         print(f"{r['rate_hz']:>6.0f} {what:<22} {r['host_cpu_us_per_cycle']:>12.1f} "
@@ -307,6 +360,7 @@ def main() -> None:
         if args.record:
             omnican_loop(rate, seconds, args.record)
         plain_canopen(rate, seconds)
+        lockstep_cycle(rate, seconds)
     table()
     print(f"\nfloor: virtual bus {send:.1f} us per frame sent, {recv:.1f} us received; "
           f"cpus {cpus}; median late of sleepers "
