@@ -3,6 +3,7 @@ leave a thread or a bus behind (the check runs after each test)."""
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 import uuid
@@ -17,6 +18,13 @@ from hypothesis import settings
 # machine hypothesis's default 200 ms deadline fails examples that are correct).
 settings.register_profile("omnican", deadline=None)
 settings.load_profile("omnican")
+
+# A test run started in the background (`cmd &` in a script, some CI launchers) has
+# SIGINT ignored, and every program it starts would inherit that: each Ctrl-C test
+# would then find a program that never saw its Ctrl-C. The tests stand for a user
+# at a terminal, where Ctrl-C is live; programs started from here get the default.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 VENDOR_EDS = Path(__file__).resolve().parent / "vendor_eds"
 
