@@ -9,10 +9,9 @@ For each rate (default 100 Hz and 1 kHz), in the same run:
   cycle counted over every thread omnican's host side runs (control loop, Notifier,
   reconnect, recorder), late cycles, SYNC period jitter; with and without recording;
 * plain canopen: the same cycle written with canopen's PdoMap and SYNC calls;
-* lock-step: the same Chassis and drives on a simulated clock, one thread, no waits,
-  with the simulated drives' own handlers timed and taken out (the in-process bus,
-  canopen's dispatch to the drives and the clock's scheduling stay in: an upper
-  bound on omnican's Python per cycle). No wake-ups and no thread beside it: the
+* lock-step: the same Chassis and drives on a simulated clock, one thread, no waits;
+  the time of omnican's host side (control cycle, its sends, its receive handlers)
+  counted apart from the simulated drives'. No wake-ups and no thread beside it: the
   steadiest figure to compare commits by; the threaded figures above move by 30 %
   from one day to the next on a shared VM.
 
@@ -47,8 +46,8 @@ import numpy as np
 from omnican import Chassis, default_config
 from omnican.clock import SimClock
 from omnican.config import ChassisConfig
+from omnican.lockstep import LockstepBus
 from omnican.sim import SimulatedBase
-from omnican.sim.drive import SimulatedDrive
 
 LATE = 0.2  # of a period
 ROWS: list[dict[str, Any]] = []
@@ -266,46 +265,64 @@ def plain_canopen(rate_hz: float, seconds: float) -> None:
 # ---------------------------------------------------------------- lock-step
 
 
-def lockstep_cycle(rate_hz: float, seconds: float) -> None:
-    """CPU per simulated cycle on one thread, with and without the simulated drives."""
-    cfg = config(rate_hz)
-    inside = [0.0]
-    clock_cpu = time.thread_time
-    originals = {name: getattr(SimulatedDrive, name)
-                 for name in ("_on_sync", "_on_rpdo", "_on_sdo", "_on_heartbeat", "tick")}
+class _Attribution:
+    """Time on one thread split between owners, nested calls counted to the inner
+    owner: a SYNC the host sends runs the simulated drives inside the send, and their
+    TPDOs run the host's handlers inside the drives' send."""
 
-    def timed(fn: Any) -> Any:
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._stack: list[list[Any]] = []
+
+    def wrap(self, owner: str, fn: Any) -> Any:
+        clock = time.perf_counter  # one thread that never waits: wall time is CPU time
+        stack, seconds = self._stack, self.seconds
+        seconds.setdefault(owner, 0.0)
+
         def run(*args: Any, **kwargs: Any) -> Any:
-            t0 = clock_cpu()
+            now = clock()
+            if stack:
+                outer = stack[-1]
+                seconds[outer[0]] += now - outer[1]
+            stack.append([owner, now])
             try:
                 return fn(*args, **kwargs)
             finally:
-                inside[0] += clock_cpu() - t0
+                end = clock()
+                inner = stack.pop()
+                seconds[inner[0]] += end - inner[1]
+                if stack:
+                    stack[-1][1] = end
         return run
 
+
+def lockstep_cycle(rate_hz: float, seconds: float) -> None:
+    """Time per simulated cycle on one thread: omnican's host side (the control cycle and
+    its receive handlers, its sends included) apart from the simulated drives."""
+    cfg = config(rate_hz)
+    acct = _Attribution()
     clock = SimClock()
-    try:
-        for name, fn in originals.items():
-            setattr(SimulatedDrive, name, timed(fn))
-        with SimulatedBase.from_config(cfg, clock=clock) as sim, \
-                Chassis.open(cfg, clock=clock) as base:
-            del sim
-            clock.sleep(0.3)
-            cycles0, inside[0] = base.status.cycles, 0.0
-            t0 = clock_cpu()
-            steps = int(seconds / 0.01)
-            for k in range(steps):
-                base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.2)
-                clock.sleep(0.01)
-            total = clock_cpu() - t0
-            cycles = base.status.cycles - cycles0
-    finally:
-        for name, fn in originals.items():
-            setattr(SimulatedDrive, name, fn)
-    emit(bench="lockstep", rate_hz=rate_hz,
-         cpu_us_per_cycle_with_drives=round(total / cycles * 1e6, 1),
-         host_cpu_us_per_cycle=round((total - inside[0]) / cycles * 1e6, 1),
-         late_fraction=0.0)
+    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
+            Chassis.open(cfg, clock=clock) as base:
+        clock.sleep(0.3)
+        sim_bus, host_bus = sim.network.bus, base.bus.network.bus
+        assert isinstance(sim_bus, LockstepBus) and isinstance(host_bus, LockstepBus)
+        sim_bus.set_receiver(acct.wrap("sim", sim_bus._receiver))
+        host_bus.set_receiver(acct.wrap("host", host_bus._receiver))
+        ticks = sim.scheduler._ticks
+        ticks[:] = [acct.wrap("sim", tick) for tick in ticks]
+        base._cycle = acct.wrap("host", base._cycle)  # type: ignore[method-assign]
+        cycles0 = base.status.cycles
+        t0 = time.perf_counter()
+        for k in range(int(seconds / 0.01)):
+            base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.2)
+            clock.sleep(0.01)
+        total = time.perf_counter() - t0
+        cycles = base.status.cycles - cycles0
+    per = 1e6 / cycles
+    emit(bench="lockstep", rate_hz=rate_hz, host_cpu_us_per_cycle=round(acct.seconds["host"] * per, 1),
+         sim_us_per_cycle=round(acct.seconds["sim"] * per, 1),
+         all_us_per_cycle=round(total * per, 1), late_fraction=0.0)
 
 
 # ---------------------------------------------------------------- report
