@@ -385,28 +385,38 @@ class CanBus:
             recv = bus.recv
         traffic = self.traffic
         extra = self._poll_listeners()
-        canopen_notify = self.network.notify
-        n = 0
-        while n < limit:
-            try:
-                msg = recv(0)
-            except Exception as exc:  # an interface gone down: as the Notifier reports it
-                self.rx_error = f"receive failed: {exc}"
-                break
-            if msg is None:
-                break
-            n += 1
-            data = msg.data
-            traffic.loop_frames += 1
-            traffic.loop_bits += _FRAME_BITS[len(data)]
-            for listener in extra:
-                listener.on_message_received(msg)
-            if msg.is_error_frame or msg.is_remote_frame:
-                continue
-            try:
-                canopen_notify(msg.arbitration_id, data, msg.timestamp)
-            except Exception as exc:  # a callback's failure must not stop reception
-                logger.error("handling frame 0x%03X: %s", msg.arbitration_id, exc)
+        # canopen's Network.notify, less its node scanner (omnican scan runs a network of
+        # its own): the subscribers by COB-ID, a copy-on-write dict of lists.
+        subscribers = self.network.subscribers
+        frame_bits = _FRAME_BITS
+        n = frames = bits = 0
+        try:
+            while n < limit:
+                try:
+                    msg = recv(0)
+                except Exception as exc:  # an interface gone down: as the Notifier says
+                    self.rx_error = f"receive failed: {exc}"
+                    break
+                if msg is None:
+                    break
+                n += 1
+                data = msg.data
+                frames += 1
+                bits += frame_bits[len(data)]
+                for listener in extra:
+                    listener.on_message_received(msg)
+                if msg.is_error_frame or msg.is_remote_frame:
+                    continue
+                callbacks = subscribers.get(msg.arbitration_id)
+                if callbacks:
+                    try:
+                        for callback in callbacks:
+                            callback(msg.arbitration_id, data, msg.timestamp)
+                    except Exception as exc:  # a callback's failure must not stop reception
+                        logger.error("handling frame 0x%03X: %s", msg.arbitration_id, exc)
+        finally:
+            traffic.loop_frames += frames
+            traffic.loop_bits += bits
         if n and self.rx_error is not None:
             self.rx_error = None
         return n

@@ -735,7 +735,14 @@ class Chassis:
     def _integrate_samples(self) -> None:
         epoch = self._bus.sync_epoch
         axes = self._axes
-        if not axes or any(a.epoch != epoch or a.raw is None for a in axes):
+        raws: list[int] = []
+        for a in axes:
+            raw = a.raw
+            if raw is None or a.epoch != epoch:
+                raws = []
+                break
+            raws.append(raw)
+        if not raws:
             # Not every wheel has answered the last SYNC: wait for a complete set. A wheel
             # silent for STALE_AFTER_S has no known speed: report none rather than the
             # last one (a drive gone offline must not look as if it were still turning).
@@ -743,7 +750,7 @@ class Chassis:
             return
         if self._stale:
             self._stale = ()
-        travel = [a.travel_from_sample(a.raw) for a in axes]  # type: ignore[arg-type]
+        travel = [a.travel_from_sample(raw) for a, raw in zip(axes, raws, strict=True)]
         t = self._last_sync_time
         history = self._history
         if not self._odo.seeded:
