@@ -44,6 +44,11 @@ class _Recorder(can.Listener):
     is full, frames are dropped and counted (:attr:`dropped`)."""
 
     QUEUE_FRAMES = 100_000  # about 20 s of a busy 1 Mbit/s bus
+    # The writer wakes for a batch this big, or this often: each wake-up of a thread is
+    # a few tens of microseconds on a small computer (or a VM), per cycle if it wakes
+    # for every few frames.
+    BATCH_FRAMES = 1024
+    WRITE_EVERY_S = 0.2
 
     def __init__(self, path: Path) -> None:
         try:
@@ -64,12 +69,12 @@ class _Recorder(can.Listener):
             self.dropped += 1
             return
         self._queue.append(msg)  # deque.append is atomic: no lock on the sending threads
-        if len(self._queue) >= 64:
+        if len(self._queue) >= self.BATCH_FRAMES and not self._wake.is_set():
             self._wake.set()
 
     def _write_loop(self) -> None:
         while True:
-            self._wake.wait(0.05)
+            self._wake.wait(self.WRITE_EVERY_S)
             self._wake.clear()
             self._drain()
             if self._closing:
