@@ -40,7 +40,8 @@ logger = logging.getLogger(__name__)
 
 QUEUE_FRAMES = 100_000  # ~10 s of a busy 1 Mbit/s bus
 STATE_RATE_HZ = 50.0
-WRITER_PERIOD_S = 0.01
+DIAGNOSTICS_PERIOD_NS = 1_000_000_000
+WRITER_IDLE_S = 0.2  # the longest the writer sleeps: frames wait at most this in memory
 
 
 class McapRecorder(can.Listener):
@@ -73,6 +74,8 @@ class McapRecorder(can.Listener):
         self._frames_cfg = telemetry.Frames()
         self._radius: tuple[float | None, ...] = ()
         self._period = 1.0 / state_rate_hz
+        self._diag_signature: tuple[tuple[Any, Any], ...] | None = None
+        self._diag_ns = 0
         self._channel_name = ""
         self._attachments: list[tuple[str, str, bytes]] = []
         self._wake = threading.Event()
@@ -151,14 +154,27 @@ class McapRecorder(can.Listener):
             add(rx if msg.is_rx else tx, log_time=ns, data=data, publish_time=ns)
             self.frames += 1
 
-    def _write_state(self, sample: telemetry.Sample) -> None:
+    def _write_state(self, sample: telemetry.Sample, last: bool = False) -> None:
         ns = sample.stamp_ns
         for topic, message in telemetry.messages(sample, self._frames_cfg, self._radius):
+            if topic == "/diagnostics" and not last and not self._diagnostics_due(ns, message):
+                continue
             schema, kind = telemetry.TOPICS[topic]
             data = (json.dumps(message).encode() if kind == telemetry.JSON
                     else rosmsg.encode(schema, message))
             self._writer.add_message(self._channel(topic, schema), log_time=ns, data=data,
                                      publish_time=ns)
+
+    def _diagnostics_due(self, ns: int, message: dict[str, Any]) -> bool:
+        """Diagnostics go once a second, as ROS's diagnostic aggregator expects, and at
+        once when a level or a message changes (a fault, the bus down). Serializing them
+        with every state sample was most of what a recording cost; /wheels and /status
+        carry the changing values at the state rate."""
+        signature = tuple((st["level"], st["message"]) for st in message["status"])
+        if signature == self._diag_signature and ns - self._diag_ns < DIAGNOSTICS_PERIOD_NS:
+            return False
+        self._diag_signature, self._diag_ns = signature, ns
+        return True
 
     def _run(self) -> None:
         next_state = time.monotonic()
@@ -173,10 +189,13 @@ class McapRecorder(can.Listener):
                 source = self._source
                 if source is not None and (stopping or time.monotonic() >= next_state):
                     next_state = max(next_state + self._period, time.monotonic())
-                    self._write_state(source())
+                    self._write_state(source(), last=stopping)
                 if stopping:
                     break
-                self._wake.wait(WRITER_PERIOD_S)
+                # Sleep until the next state sample is due: a wake-up per sample, not per
+                # 10 ms (each one costs tens of microseconds on a small computer).
+                due = WRITER_IDLE_S if source is None else next_state - time.monotonic()
+                self._wake.wait(min(max(due, 0.0), WRITER_IDLE_S))
         except Exception as exc:  # a full disk must not stop the robot: report, stop writing
             self.error = str(exc)
             logger.error("recording to %s stopped: %s", self.path, exc)

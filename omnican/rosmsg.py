@@ -10,6 +10,7 @@ rosbags' store) is registered from its message definition.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from functools import cache, lru_cache
 from typing import Any
 
@@ -48,39 +49,50 @@ def msgdef(typename: str) -> str:
     return text
 
 
-def _build(store: Any, typename: str, value: dict[str, Any]) -> Any:
+Maker = Callable[[Any], Any]
+
+
+@cache
+def _builder(typename: str) -> Maker:
+    """A function from a dict message to rosbags' message object of ``typename``. The
+    field definitions are read once per type, not once per message (a state sample of
+    a recording is a few hundred fields)."""
+    store = typestore()
     cls = store.types[typename]
     _, fields = store.fielddefs[typename]
-    kwargs = {}
-    for name, desc in fields:
-        kwargs[name] = _field(store, desc, value.get(name))
-    return cls(**kwargs)
+    makers = tuple((name, _field_maker(desc)) for name, desc in fields)
+
+    def build(value: dict[str, Any]) -> Any:
+        get = value.get
+        return cls(**{name: make(get(name)) for name, make in makers})
+
+    return build
 
 
-def _field(store: Any, desc: tuple[Any, Any], value: Any) -> Any:
+def _field_maker(desc: tuple[Any, Any]) -> Maker:
     kind, spec = desc
     kind = int(kind)
     if kind == 1:  # base type
         typ = spec[0]
-        if value is None:
-            return "" if typ == "string" else _DTYPES[typ](0).item()
-        return value
+        default = "" if typ == "string" else _DTYPES[typ](0).item()
+        return lambda value: default if value is None else value
     if kind == 2:  # a message
-        return _build(store, spec, value or {})
+        sub_builder = _builder(spec)
+        return lambda value: sub_builder(value or {})
     sub, _size = spec  # 3 = fixed array, 4 = sequence
     sub_kind, sub_spec = sub
-    items = [] if value is None else value
     if int(sub_kind) == 1 and sub_spec[0] != "string":
-        return np.asarray(items, dtype=_DTYPES[sub_spec[0]])
+        dtype = _DTYPES[sub_spec[0]]
+        return lambda value: np.asarray([] if value is None else value, dtype=dtype)
     if int(sub_kind) == 1:
-        return list(items)
-    return [_build(store, sub_spec, item) for item in items]
+        return lambda value: [] if value is None else list(value)
+    item_builder = _builder(sub_spec)
+    return lambda value: [] if value is None else [item_builder(item) for item in value]
 
 
 def encode(typename: str, message: dict[str, Any]) -> bytes:
     """CDR bytes (little endian, with the encapsulation header) of a dict message."""
-    store = typestore()
-    data: Any = store.serialize_cdr(_build(store, typename, message), typename)
+    data: Any = typestore().serialize_cdr(_builder(typename)(message), typename)
     return bytes(data)
 
 

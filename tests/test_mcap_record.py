@@ -161,3 +161,34 @@ def test_unwritable_record_path_is_a_usage_error(capsys: pytest.CaptureFixture[s
     assert main(["drive", "--sim", "--vx", "0.1", "--record", "/nonexistent/dir/run.mcap"]) == 2
     assert "cannot record to /nonexistent/dir/run.mcap" in one_error_line(
         capsys.readouterr().err)
+
+
+def test_diagnostics_once_a_second_and_at_once_on_a_fault(tmp_path: Path) -> None:
+    """The state topics go at the state rate; diagnostics once a second (as ROS expects
+    them), at once when a level changes, and in the final sample."""
+    path = tmp_path / "diag.mcap"
+    cfg = default_config(bus={"interface": "virtual", "channel": f"mcap-{tmp_path.name}"})
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=path) as base:
+        drive_for(base, 2.3, vx=0.2)
+        sim.drives[0].inject_fault(0x2310)
+        drive_for(base, 0.3, vx=0.2)
+        assert base.status.stopped_reason is not None
+    topics, _, _ = read_all(path)
+    diag = topics["/diagnostics#"]
+    statuses = topics["/status"]
+    assert len(statuses) > 40  # ~130 at 50 Hz; fewer on a busy machine
+    # The drives coming up, 1 and 2 s, the fault, the last sample: a handful, not one
+    # per state sample.
+    assert 3 <= len(diag) <= 12, [t for t, _ in diag]
+    assert len(statuses) >= 5 * len(diag)
+    # Unchanged diagnostics are a second apart.
+    for (t0, d0), (t1, d1) in zip(diag, diag[1:]):
+        same = [(s.level, s.message) for s in d0.status] == [(s.level, s.message)
+                                                              for s in d1.status]
+        assert not same or t1 - t0 >= 999_000_000 or (t1, d1) == diag[-1]
+    levels = [max(s.level for s in d.status) for _, d in diag]
+    first_error = next(i for i, level in enumerate(levels) if level == 2)
+    fault_at = next(t for t, s in statuses if s["stopped_reason"])
+    # The diagnostics that say ERROR come with the first state sample that shows the fault.
+    assert diag[first_error][0] == fault_at
+    assert diag[-1][0] == statuses[-1][0]  # the final sample carries them too
