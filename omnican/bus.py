@@ -57,7 +57,7 @@ class _Recorder(can.Listener):
             raise ConfigError(f"cannot record to {path}: {exc}") from None
         self.path = path
         self.dropped = 0
-        self._queue: collections.deque[can.Message] = collections.deque()
+        self._queue: collections.deque[can.Message | SentFrame] = collections.deque()
         self._wake = threading.Event()
         self._closing = False
         self._thread = threading.Thread(target=self._write_loop, name="omnican-recorder",
@@ -65,11 +65,20 @@ class _Recorder(can.Listener):
         self._thread.start()
 
     def on_message_received(self, msg: can.Message) -> None:
-        if len(self._queue) >= self.QUEUE_FRAMES:
+        self._put(msg)
+
+    def record_sent(self, timestamp: float, can_id: int, data: bytes, channel: Any) -> None:
+        """A frame this host sent: queued as plain values, made into a message (or a log
+        line) on the writer thread, not on the control loop."""
+        self._put((timestamp, can_id, data, channel))
+
+    def _put(self, item: can.Message | SentFrame) -> None:
+        queue = self._queue
+        if len(queue) >= self.QUEUE_FRAMES:
             self.dropped += 1
             return
-        self._queue.append(msg)  # deque.append is atomic: no lock on the sending threads
-        if len(self._queue) >= self.BATCH_FRAMES and not self._wake.is_set():
+        queue.append(item)  # deque.append is atomic: no lock on the sending threads
+        if len(queue) >= self.BATCH_FRAMES and not self._wake.is_set():
             self._wake.set()
 
     def _write_loop(self) -> None:
@@ -83,28 +92,56 @@ class _Recorder(can.Listener):
 
     def _drain(self) -> None:
         queue = self._queue
+        writer = self._writer
+        # candump's .log, the default: lines made here and written a batch at a time
+        # (python-can's writer makes the same line, one write per frame).
+        log = writer if type(writer) is can.CanutilsLogWriter else None
+        lines: list[str] = []
         while queue:
-            msg = queue.popleft()
-            writer = self._writer
-            if writer is None:
+            item = queue.popleft()
+            if self._writer is None:
                 continue
+            if log is not None:
+                line = log_line(log, item)
+                if line is not None:
+                    lines.append(line)
+                    continue
+                self._write_lines(log, lines)  # keep the order around a frame it writes
+                lines = []
+            self._write(item if isinstance(item, can.Message) else sent_message(item))
+        if lines and log is not None:
+            self._write_lines(log, lines)
+
+    def _write_lines(self, log: can.CanutilsLogWriter, lines: list[str]) -> None:
+        if not lines or self._writer is None:
+            return
+        try:
+            log.file.write("".join(lines))
+        except Exception as exc:  # a full disk must not take the bus down with it
+            logger.error("recording to %s stopped: %s", self.path, exc)
+            self._writer = None
+
+    def _write(self, msg: can.Message) -> None:
+        writer = self._writer
+        if writer is None:
+            return
+        try:
+            writer.on_message_received(msg)
+        except (struct.error, ValueError, OverflowError):
+            # BLF stores the channel as a 16-bit number taken from the trailing digits
+            # of its name ("omnican-sim-95857398" overflows): write it without one.
             try:
-                writer.on_message_received(msg)
-            except (struct.error, ValueError, OverflowError):
-                # BLF stores the channel as a 16-bit number taken from the trailing digits
-                # of its name ("omnican-sim-95857398" overflows): write it without one.
-                try:
-                    writer.on_message_received(can.Message(
-                        timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
-                        is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
-                        is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=msg.data,
-                        is_rx=msg.is_rx, channel=None))
-                except Exception as exc:  # a broken log must not take the bus down with it
-                    logger.error("recording to %s stopped: %s", self.path, exc)
-                    self._writer = None
-            except Exception as exc:
+                writer.on_message_received(can.Message(
+                    timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+                    is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
+                    is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=msg.data,
+                    is_rx=msg.is_rx, channel=None))
+            except Exception as exc:  # a broken log must not take the bus down with it
                 logger.error("recording to %s stopped: %s", self.path, exc)
                 self._writer = None
+        except Exception as exc:
+            logger.error("recording to %s stopped: %s", self.path, exc)
+            self._writer = None
 
     def stop(self) -> None:
         """Called by the Notifier when it stops: keep writing after a reconnect."""
@@ -122,6 +159,41 @@ class _Recorder(can.Listener):
         if self.dropped:
             logger.warning("recording to %s dropped %d frames (the disk did not keep up)",
                            self.path, self.dropped)
+
+
+SentFrame = tuple[float, int, bytes, Any]  # timestamp, COB-ID, data, channel
+
+
+def sent_message(frame: SentFrame) -> can.Message:
+    """The message of a frame this host sent."""
+    timestamp, can_id, data, channel = frame
+    return can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > COB_ID_MASK,
+                       timestamp=timestamp, is_rx=False, channel=channel)
+
+
+def log_line(log: can.CanutilsLogWriter, item: can.Message | SentFrame) -> str | None:
+    """The line python-can's candump writer ``log`` writes for ``item`` (and the same
+    time-keeping), or None for a frame it formats otherwise (error, remote, CAN FD)."""
+    data: bytes | bytearray
+    if isinstance(item, tuple):
+        timestamp, can_id, data, channel = item
+        extended, rx = can_id > COB_ID_MASK, False
+    else:
+        if item.is_error_frame or item.is_remote_frame or item.is_fd:
+            return None
+        timestamp, can_id, data, channel = (item.timestamp, item.arbitration_id, item.data,
+                                            item.channel)
+        extended, rx = item.is_extended_id, item.is_rx
+    if log.last_timestamp is None:  # python-can keeps the first frame's time as its floor
+        log.last_timestamp = timestamp or 0.0
+    if timestamp is None or timestamp < log.last_timestamp:
+        timestamp = log.last_timestamp
+    if channel is None:
+        channel = log.channel
+    if isinstance(channel, int) or (isinstance(channel, str) and channel.isdigit()):
+        channel = f"can{channel}"
+    ident = f"{can_id:08X}" if extended else f"{can_id:03X}"
+    return f"({timestamp:f}) {channel} {ident}#{data.hex().upper()}{' R' if rx else ' T'}\n"
 
 
 def _recorder_for(path: Path) -> _Recorder | Any:
@@ -470,13 +542,17 @@ class CanBus:
 
     def _record(self, can_id: int, data: bytes | bytearray) -> None:
         """A frame this host sent, to the recorder and the listeners that want sent frames."""
-        if self.recorder is not None or self._taps.sent:
-            msg = can.Message(arbitration_id=can_id, data=bytes(data),
-                              is_extended_id=can_id > COB_ID_MASK, timestamp=self.clock.wall(),
-                              is_rx=False, channel=self.bus_kwargs.get("channel"))
-            if self.recorder is not None:
-                self.recorder.on_message_received(msg)
-            for tap in self._taps.sent:
+        recorder, taps = self.recorder, self._taps.sent
+        if recorder is None and not taps:
+            return
+        frame = (self.clock.wall(), can_id, bytes(data), self.bus_kwargs.get("channel"))
+        if isinstance(recorder, _Recorder):
+            recorder.record_sent(*frame)  # made into a message on its writer thread
+        elif recorder is not None:
+            recorder.on_message_received(sent_message(frame))
+        if taps:
+            msg = sent_message(frame)
+            for tap in taps:
                 tap.on_message_received(msg)
 
     def add_listener(self, listener: can.Listener, sent: bool = False) -> None:
