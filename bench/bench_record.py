@@ -5,8 +5,8 @@ frames plus state), the simulated base drives for a while and this reports the c
 loop's own CPU per cycle (its thread's CPU clock), its achieved rate and late cycles,
 and, for the recorders, their writer thread's CPU per second, frames written and dropped;
 last, the same with a Foxglove live view whose client subscribed to every topic.
-The MCAP writer runs on its own thread; the loop's share is one queue append per frame it
-sends (the Notifier thread appends the frames it receives).
+Both writers run on a thread of their own; the loop's share is one queue append per
+frame it sends or receives.
 
 Run: ``python bench/bench_record.py`` (about a minute; ``--quick`` for a shorter run).
 """
@@ -19,6 +19,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 from bench_chassis import config, emit, notifier_threads, thread_cpu
 
@@ -26,15 +27,17 @@ from omnican import Chassis
 from omnican.sim import SimulatedBase
 
 
-def writer_thread() -> threading.Thread | None:
-    return next((t for t in threading.enumerate() if t.name == "omnican-mcap"), None)
+def writer_thread(suffix: str | None) -> threading.Thread | None:
+    """The recorder's writer thread: MCAP's, or the python-can log formats'."""
+    name = {".mcap": "omnican-mcap", None: None}.get(suffix, "omnican-recorder")
+    return next((t for t in threading.enumerate() if t.name == name), None)
 
 
 def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None:
     cfg = config(rate_hz)
     record = tmp / f"bench-{int(rate_hz)}{suffix}" if suffix else None
     with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=record) as base:
-        writer = writer_thread() if suffix == ".mcap" else None
+        writer = writer_thread(suffix)
         notif = notifier_threads(base.bus.network)
         time.sleep(0.3)
         cycles0, late0 = base.status.cycles, base._late
@@ -59,7 +62,7 @@ def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None
                   notifier_cpu_us_per_cycle=round(notif_cpu / max(cycles, 1) * 1e6, 1))
     if writer_cpu is not None:
         fields["writer_cpu_ms_per_s"] = round(writer_cpu / elapsed * 1e3, 1)
-        fields["frames_written"] = getattr(recorder, "frames", None)
+        fields["frames_written"] = getattr(recorder, "frames", None)  # MCAP counts them
         fields["frames_dropped"] = getattr(recorder, "dropped", None)
     if record is not None and record.exists():
         fields["file_kib"] = round(record.stat().st_size / 1024, 1)
@@ -103,8 +106,8 @@ class _Watcher(threading.Thread):
 
         from websockets.sync.client import connect
 
-        with connect(self.url, subprotocols=["foxglove.sdk.v1",  # type: ignore[list-item]
-                                             "foxglove.websocket.v1"], max_size=None) as ws:
+        protocols: Any = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # websockets' Subprotocol
+        with connect(self.url, subprotocols=protocols, max_size=None) as ws:
             subscribed = False
             while not self.stop_event.is_set():
                 try:
