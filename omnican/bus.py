@@ -546,10 +546,8 @@ class CanBus:
         if recorder is None and not taps:
             return
         frame = (self.clock.wall(), can_id, bytes(data), self.bus_kwargs.get("channel"))
-        if isinstance(recorder, _Recorder):
+        if recorder is not None:
             recorder.record_sent(*frame)  # made into a message on its writer thread
-        elif recorder is not None:
-            recorder.on_message_received(sent_message(frame))
         if taps:
             msg = sent_message(frame)
             for tap in taps:

@@ -34,6 +34,7 @@ from typing import IO, Any
 import can
 
 from omnican import rosmsg, telemetry
+from omnican.cia301 import COB_ID_MASK
 from omnican.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -64,7 +65,8 @@ class McapRecorder(can.Listener):
 
         self._writer = Writer(self._file, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library=f"omnican {__version__}")
-        self._queue: collections.deque[can.Message] = collections.deque()
+        self._queue: collections.deque[can.Message | tuple[float, int, bytes, Any]] = \
+            collections.deque()
         self._max = queue_frames
         self.dropped = 0
         self.frames = 0
@@ -93,6 +95,13 @@ class McapRecorder(can.Listener):
             self.dropped += 1
             return
         self._queue.append(msg)
+
+    def record_sent(self, timestamp: float, can_id: int, data: bytes, channel: Any) -> None:
+        """A frame this host sent, as plain values (no message made on the control loop)."""
+        if len(self._queue) >= self._max:
+            self.dropped += 1
+            return
+        self._queue.append((timestamp, can_id, data, channel))
 
     def stop(self) -> None:
         """Called by the Notifier when it stops: keep recording after a reconnect."""
@@ -144,14 +153,23 @@ class McapRecorder(can.Listener):
         tx = self._channel(telemetry.CAN_TX, telemetry.CAN_FRAME)
         add = self._writer.add_message
         while queue:
-            msg = queue.popleft()
-            ns = int(msg.timestamp * 1e9)
-            data = rosmsg.encode_can_frame(
-                ns, msg.arbitration_id, bytes(msg.data),
-                str(msg.channel) if msg.channel is not None else self._channel_name,
-                extended=msg.is_extended_id, remote=msg.is_remote_frame,
-                error=msg.is_error_frame)
-            add(rx if msg.is_rx else tx, log_time=ns, data=data, publish_time=ns)
+            item = queue.popleft()
+            if isinstance(item, tuple):  # sent by this host: (time, COB-ID, data, channel)
+                stamp, can_id, payload, channel = item
+                ns = int(stamp * 1e9)
+                data = rosmsg.encode_can_frame(
+                    ns, can_id, payload,
+                    str(channel) if channel is not None else self._channel_name,
+                    extended=can_id > COB_ID_MASK)
+                add(tx, log_time=ns, data=data, publish_time=ns)
+            else:
+                ns = int(item.timestamp * 1e9)
+                data = rosmsg.encode_can_frame(
+                    ns, item.arbitration_id, bytes(item.data),
+                    str(item.channel) if item.channel is not None else self._channel_name,
+                    extended=item.is_extended_id, remote=item.is_remote_frame,
+                    error=item.is_error_frame)
+                add(rx if item.is_rx else tx, log_time=ns, data=data, publish_time=ns)
             self.frames += 1
 
     def _write_state(self, sample: telemetry.Sample, last: bool = False) -> None:
