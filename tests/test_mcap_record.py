@@ -3,6 +3,7 @@ independent ROS 2 decoder (mcap_ros2), replayed through omnican.replay."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -182,7 +183,7 @@ def test_diagnostics_once_a_second_and_at_once_on_a_fault(tmp_path: Path) -> Non
     assert 3 <= len(diag) <= 12, [t for t, _ in diag]
     assert len(statuses) >= 5 * len(diag)
     # Unchanged diagnostics are a second apart.
-    for (t0, d0), (t1, d1) in zip(diag, diag[1:]):
+    for (t0, d0), (t1, d1) in itertools.pairwise(diag):
         same = [(s.level, s.message) for s in d0.status] == [(s.level, s.message)
                                                               for s in d1.status]
         assert not same or t1 - t0 >= 999_000_000 or (t1, d1) == diag[-1]
