@@ -17,6 +17,9 @@ from hypothesis import settings
 # Property tests check behaviour, not speed: no per-example deadline (on a loaded
 # machine hypothesis's default 200 ms deadline fails examples that are correct).
 settings.register_profile("omnican", deadline=None)
+# Before a release, or after touching pure code: pytest --hypothesis-profile thorough
+# (tests that set their own max_examples keep it; vary --hypothesis-seed for those).
+settings.register_profile("thorough", deadline=None, max_examples=2000)
 settings.load_profile("omnican")
 
 # A test run started in the background (`cmd &` in a script, some CI launchers) has
