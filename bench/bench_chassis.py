@@ -52,8 +52,10 @@ def notifier_threads(network: canopen.Network) -> list[threading.Thread]:
     return [r for r in readers if isinstance(r, threading.Thread)]
 
 
-def percentile(values: list[float], q: float) -> float:
-    return float(np.percentile(np.array(values), q)) if values else float("nan")
+def percentile(values: Any, q: float) -> float:
+    """The q-th percentile of a list or an array; NaN when empty."""
+    arr = np.asarray(values, dtype=float)
+    return float(np.percentile(arr, q)) if arr.size else float("nan")
 
 
 class SyncListener(can.Listener):

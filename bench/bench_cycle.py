@@ -35,17 +35,16 @@ import tempfile
 import threading
 import time
 import uuid
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import can
 import canopen
 import numpy as np
+from bench_chassis import config, percentile, thread_cpu
 
-from omnican import Chassis, default_config
+from omnican import Chassis
 from omnican.clock import SimClock
-from omnican.config import ChassisConfig
 from omnican.lockstep import LockstepBus
 from omnican.sim import SimulatedBase
 
@@ -58,20 +57,16 @@ def emit(**fields: Any) -> None:
     print(json.dumps(fields), flush=True)
 
 
-def config(rate_hz: float) -> ChassisConfig:
-    cfg = default_config(bus={"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"})
-    return replace(cfg, chassis=replace(cfg.chassis, rate_hz=rate_hz, max_accel=2.0,
-                                         max_angular_accel=6.0))
-
-
-def thread_cpu(thread: threading.Thread) -> float:
-    assert thread.ident is not None
-    return time.clock_gettime(time.pthread_getcpuclockid(thread.ident))
-
-
-def percentile(values: Any, q: float) -> float:
-    arr = np.asarray(values, dtype=float)
-    return float(np.percentile(arr, q)) if arr.size else float("nan")
+def sleep_to_next_tick(tick: float, period: float) -> float:
+    """Sleep to the tick after ``tick`` and return it; far behind, start again from now
+    rather than burst to catch up (as omnican's loop does)."""
+    tick += period
+    delay = tick - time.monotonic()
+    if delay < -period:
+        return time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
+    return tick
 
 
 def jitter(stamps: list[float], rate_hz: float) -> dict[str, float]:
@@ -120,12 +115,7 @@ def idle_sleeper(rate_hz: float, seconds: float) -> tuple[float, float]:
             if now - next_t > period * LATE:
                 late += 1
             cycles += 1
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay < -period:
-                next_t = time.monotonic()
-            elif delay > 0:
-                time.sleep(delay)
+            next_t = sleep_to_next_tick(next_t, period)
         out["cpu"] = (time.thread_time() - cpu0) / cycles * 1e6
         out["late"] = late / cycles
 
@@ -231,12 +221,7 @@ def plain_canopen(rate_hz: float, seconds: float) -> None:
                     kin.to_twist(travel - last)
                 last = travel
                 counters["cycles"] += 1
-                nxt += period
-                delay = nxt - time.monotonic()
-                if delay < -period:
-                    nxt = time.monotonic()
-                elif delay > 0:
-                    time.sleep(delay)
+                nxt = sleep_to_next_tick(nxt, period)
 
         t = threading.Thread(target=loop, name="plain-canopen-loop")
         t.start()
