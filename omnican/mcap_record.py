@@ -156,20 +156,17 @@ class McapRecorder(can.Listener):
             item = queue.popleft()
             if isinstance(item, tuple):  # sent by this host: (time, COB-ID, data, channel)
                 stamp, can_id, payload, channel = item
-                ns = int(stamp * 1e9)
-                data = rosmsg.encode_can_frame(
-                    ns, can_id, payload,
-                    str(channel) if channel is not None else self._channel_name,
-                    extended=can_id > COB_ID_MASK)
-                add(tx, log_time=ns, data=data, publish_time=ns)
+                extended, remote, error, received = can_id > COB_ID_MASK, False, False, False
             else:
-                ns = int(item.timestamp * 1e9)
-                data = rosmsg.encode_can_frame(
-                    ns, item.arbitration_id, bytes(item.data),
-                    str(item.channel) if item.channel is not None else self._channel_name,
-                    extended=item.is_extended_id, remote=item.is_remote_frame,
-                    error=item.is_error_frame)
-                add(rx if item.is_rx else tx, log_time=ns, data=data, publish_time=ns)
+                stamp, can_id, payload, channel = (item.timestamp, item.arbitration_id,
+                                                   bytes(item.data), item.channel)
+                extended, remote, error, received = (item.is_extended_id, item.is_remote_frame,
+                                                     item.is_error_frame, item.is_rx)
+            ns = int(stamp * 1e9)
+            data = rosmsg.encode_can_frame(
+                ns, can_id, payload, str(channel) if channel is not None else self._channel_name,
+                extended=extended, remote=remote, error=error)
+            add(rx if received else tx, log_time=ns, data=data, publish_time=ns)
             self.frames += 1
 
     def _write_state(self, sample: telemetry.Sample, last: bool = False) -> None:
