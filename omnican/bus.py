@@ -578,6 +578,7 @@ class CanBus:
         network = self.network
         if self.lockstep:
             self._record(msg.arbitration_id, msg.data)
+        bus = None
         try:
             with network.send_lock:
                 bus = network.bus
@@ -587,7 +588,10 @@ class CanBus:
         except (can.CanError, OSError, RuntimeError, ValueError) as exc:
             self.send_errors += 1
             self.dropped_frames += 1
-            self.last_error = describe_send_error(msg.arbitration_id, exc)
+            if bus is not None or self.last_error is None:
+                # While the bus is closed to be reopened, the error shown stays the one it
+                # went down for (the interface is down, say), not "closed".
+                self.last_error = describe_send_error(msg.arbitration_id, exc)
             return False
         traffic = self.traffic
         traffic.loop_frames += 1
