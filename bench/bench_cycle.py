@@ -9,6 +9,9 @@ For each rate (default 100 Hz and 1 kHz), in the same run:
   cycle counted over every thread omnican's host side runs (control loop, Notifier,
   reconnect, recorder), late cycles, SYNC period jitter; with and without recording;
 * plain canopen: the same cycle written with canopen's PdoMap and SYNC calls;
+* minimal: the same frames and odometry hand-written with nothing else (no state
+  machines, health checks, limiter, status or recording): Python's floor for this cycle
+  on this machine, and so the best ratio to plain canopen any Python loop can show here;
 * lock-step: the same Chassis and drives on a simulated clock, one thread, no waits;
   the time of omnican's host side (control cycle, its sends, its receive handlers)
   counted apart from the simulated drives'. No wake-ups and no thread beside it: the
@@ -31,6 +34,7 @@ import json
 import math
 import os
 import statistics
+import struct
 import tempfile
 import threading
 import time
@@ -174,6 +178,30 @@ def omnican_loop(rate_hz: float, seconds: float, record: str | None) -> None:
 # ---------------------------------------------------------------- plain canopen
 
 
+def enabled_canopen_nodes(cfg: Any) -> tuple[canopen.Network, list[canopen.RemoteNode]]:
+    """A canopen network on the config's bus with every drive in velocity mode, its PDO
+    maps read, started and enabled: where the hand-written loops below begin."""
+    net = canopen.Network()
+    net.NOTIFIER_CYCLE = 0.1
+    net.connect(**cfg.bus)
+    nodes = []
+    for w in cfg.wheels:
+        node = canopen.RemoteNode(w.node_id, str(w.eds))
+        net.add_node(node)
+        node.sdo[0x6060].raw = 3
+        node.tpdo.read()
+        node.rpdo.read()
+        nodes.append(node)
+    net.nmt.state = "OPERATIONAL"
+    time.sleep(0.05)
+    for node in nodes:
+        for cw in (6, 7, 15):
+            node.rpdo[1]["Controlword"].raw = cw
+            node.rpdo[1].transmit()
+            time.sleep(0.01)
+    return net, nodes
+
+
 def plain_canopen(rate_hz: float, seconds: float) -> None:
     """The same cycle with canopen's PdoMap calls: targets, SYNC, positions, odometry."""
     cfg = config(rate_hz)
@@ -182,24 +210,7 @@ def plain_canopen(rate_hz: float, seconds: float) -> None:
     stamps: list[float] = []
     with SimulatedBase.from_config(cfg) as sim:
         sim.network.subscribe(0x80, lambda cid, data, ts: stamps.append(ts))
-        net = canopen.Network()
-        net.NOTIFIER_CYCLE = 0.1
-        net.connect(**cfg.bus)
-        nodes = []
-        for w in cfg.wheels:
-            node = canopen.RemoteNode(w.node_id, str(w.eds))
-            net.add_node(node)
-            node.sdo[0x6060].raw = 3
-            node.tpdo.read()
-            node.rpdo.read()
-            nodes.append(node)
-        net.nmt.state = "OPERATIONAL"
-        time.sleep(0.05)
-        for node in nodes:
-            for cw in (6, 7, 15):
-                node.rpdo[1]["Controlword"].raw = cw
-                node.rpdo[1].transmit()
-                time.sleep(0.01)
+        net, nodes = enabled_canopen_nodes(cfg)
         stop = threading.Event()
         counters = {"cycles": 0, "late": 0}
 
@@ -245,6 +256,106 @@ def plain_canopen(rate_hz: float, seconds: float) -> None:
     emit(bench="plain_canopen", rate_hz=rate_hz, achieved_hz=round(cycles / elapsed, 1),
          host_cpu_us_per_cycle=round(cpu / max(cycles, 1) * 1e6, 1),
          late_fraction=round(late / max(cycles, 1), 4), **jitter(sync, rate_hz))
+
+
+def minimal_loop(rate_hz: float, seconds: float) -> None:
+    """Python's floor for this cycle: the same frames and odometry hand-written with
+    nothing else (the issue's throwaway prototype): prebuilt messages refilled with
+    ``bytes`` from a precompiled ``struct``, the bus drained with ``recv(0)`` and
+    dispatched by COB-ID on the loop thread (no Notifier), plain floats, ``time.sleep``.
+    No health checks, state machines, limiter, status or recording: what omnican adds
+    on top of this is what it costs beyond the floor."""
+    cfg = config(rate_hz)
+    kin = cfg.kinematics()
+    rows = kin.rows
+    fwd = kin.forward_rows
+    stamps: list[float] = []
+    with SimulatedBase.from_config(cfg) as sim:
+        sim.network.subscribe(0x80, lambda cid, data, ts: stamps.append(ts))
+        net, nodes = enabled_canopen_nodes(cfg)
+        assert net.notifier is not None and net.bus is not None
+        net.notifier.stop(1.0)
+        bus = net.bus
+        targets = []
+        slots: dict[int, tuple[int, int, float]] = {}
+        for i, (node, w) in enumerate(zip(nodes, cfg.wheels, strict=True)):
+            var = node.rpdo[2]["Target velocity"]
+            fmt = struct.Struct("<i")
+            msg = can.Message(arbitration_id=node.rpdo[2].cob_id, is_extended_id=False,
+                              data=bytes(node.rpdo[2].data))
+            targets.append((msg, fmt.pack, var.offset // 8, w.velocity_scale,
+                            bytearray(node.rpdo[2].data)))
+            pos = node.tpdo[2]["Position actual value"]
+            slots[node.tpdo[2].cob_id] = (i, pos.offset // 8, w.position_scale)
+        unpack = struct.Struct("<i").unpack_from
+        sync_msg = can.Message(arbitration_id=0x80, is_extended_id=False, data=b"")
+        stop = threading.Event()
+        counters = {"cycles": 0, "late": 0, "samples": 0}
+        pose = [0.0, 0.0, 0.0]
+
+        def loop() -> None:
+            period = 1.0 / rate_hz
+            nxt = time.monotonic()
+            travel = [0.0] * len(nodes)
+            last: list[float] | None = None
+            recv = bus.recv
+            send = bus.send
+            while not stop.is_set():
+                if time.monotonic() - nxt > period * LATE:
+                    counters["late"] += 1
+                while (m := recv(0)) is not None:
+                    slot = slots.get(m.arbitration_id)
+                    if slot is not None:
+                        travel[slot[0]] = unpack(m.data, slot[1])[0] / slot[2]
+                        counters["samples"] += 1
+                if last is not None:
+                    dx = dy = dw = 0.0
+                    for k, (t, t0) in enumerate(zip(travel, last, strict=True)):
+                        d = t - t0
+                        dx += fwd[0][k] * d
+                        dy += fwd[1][k] * d
+                        dw += fwd[2][k] * d
+                    c, s_ = math.cos(pose[2]), math.sin(pose[2])
+                    pose[0] += c * dx - s_ * dy
+                    pose[1] += s_ * dx + c * dy
+                    pose[2] += dw
+                last = list(travel)
+                for (msg, pack, off, scale, buf), (a, b, c_) in zip(targets, rows, strict=True):
+                    buf[off:off + 4] = pack(round((a * 0.2 + b * 0.1 + c_ * 0.3) * scale))
+                    msg.data = bytes(buf)  # type: ignore[assignment]  # copied for free
+                    send(msg)
+                send(sync_msg)
+                counters["cycles"] += 1
+                nxt = sleep_to_next_tick(nxt, period)
+
+        t = threading.Thread(target=loop, name="minimal-loop")
+        t.start()
+        time.sleep(0.3)
+        c0, l0, s0 = counters["cycles"], counters["late"], counters["samples"]
+        cpu0 = thread_cpu(t)
+        stamps.clear()
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        cycles, late = counters["cycles"] - c0, counters["late"] - l0
+        cpu = thread_cpu(t) - cpu0
+        elapsed = time.monotonic() - t0
+        sync = list(stamps)
+        samples = counters["samples"] - s0
+        stop.set()
+        t.join()
+        truth = sim.true_pose
+        for node in nodes:
+            node.rpdo[1]["Controlword"].raw = 0
+            node.rpdo[1].transmit()
+        net.disconnect()
+    # Proof that it did the work: a position sample from every wheel each cycle, and its
+    # pose where the simulator's true pose is (within the motion since its last sample).
+    emit(bench="minimal", rate_hz=rate_hz, achieved_hz=round(cycles / elapsed, 1),
+         host_cpu_us_per_cycle=round(cpu / max(cycles, 1) * 1e6, 1),
+         late_fraction=round(late / max(cycles, 1), 4),
+         samples_per_cycle=round(samples / max(cycles, 1), 2),
+         odometry_error_mm=round(math.hypot(pose[0] - truth.x, pose[1] - truth.y) * 1e3, 2),
+         **jitter(sync, rate_hz))
 
 
 # ---------------------------------------------------------------- lock-step
@@ -327,7 +438,7 @@ def table() -> None:
     print(f"{'rate':>6} {'what':<22} {'CPU us/cycle':>12} {'late':>7} "
           f"{'SYNC jitter p50/p99 us':>23}")
     for r in ROWS:
-        if r["bench"] not in ("omnican", "plain_canopen", "sleeper", "lockstep"):
+        if r["bench"] not in ("omnican", "plain_canopen", "minimal", "sleeper", "lockstep"):
             continue
         what = ("omnican lock-step" if r["bench"] == "lockstep" else r["bench"]) + (f" +rec {r['record']}" if r.get("record", "-") != "-" else "")
         jit = (f"{r['sync_jitter_us_p50']:.0f} / {r['sync_jitter_us_p99']:.0f}"
@@ -340,9 +451,13 @@ def table() -> None:
         pc = [r for r in ROWS if r["bench"] == "plain_canopen" and r["rate_hz"] == rate]
         rec = [r for r in ROWS if r["bench"] == "omnican" and r["rate_hz"] == rate
                and r["record"] != "-"]
+        mn = [r for r in ROWS if r["bench"] == "minimal" and r["rate_hz"] == rate]
         if om and pc:
             print(f"{rate:>6.0f} omnican is {pc[0]['host_cpu_us_per_cycle'] / om[0]['host_cpu_us_per_cycle']:.2f}x "
                   "cheaper than plain canopen", end="")
+            if mn:
+                print(f" (the minimal loop {pc[0]['host_cpu_us_per_cycle'] / mn[0]['host_cpu_us_per_cycle']:.2f}x)",
+                      end="")
             if rec:
                 extra = rec[0]["host_cpu_us_per_cycle"] / om[0]["host_cpu_us_per_cycle"] - 1
                 print(f"; recording adds {extra:+.0%}", end="")
@@ -371,6 +486,7 @@ def main() -> None:
         if args.record:
             omnican_loop(rate, seconds, args.record)
         plain_canopen(rate, seconds)
+        minimal_loop(rate, seconds)
         lockstep_cycle(rate, seconds)
     table()
     print(f"\nfloor: virtual bus {send:.1f} us per frame sent, {recv:.1f} us received; "
