@@ -97,6 +97,30 @@ def test_fault_stops_all_wheels_until_recover(rig: tuple[SimulatedBase, Chassis]
     assert sim.true_twist.vy > 0.1
 
 
+
+def test_at_1_khz_a_fault_zeroes_every_target_in_the_cycle_that_sees_it(channel: str) -> None:
+    """Above 250 Hz the fault latch is checked every few cycles, not every cycle; the
+    stop itself must not wait for it: the cycle whose statusword shows the drive out
+    of OPERATION ENABLED already sends 0 to every wheel."""
+    clock, sim, open_base = lockstep(sim_config(channel, rate_hz=1000.0))
+    with sim, open_base() as base:
+        drive_for(base, 0.2, vx=0.3, wz=0.5)
+        assert all(abs(w.target_speed) > 0.05 for w in base.wheels)
+        sim.drives[0].inject_fault(0x2310)
+        seen_at = latched_at = None
+        for _ in range(50):
+            clock.sleep(0.001)  # one cycle
+            wheels, status = base.wheels, base.status
+            if wheels[0].state is not State.OPERATION_ENABLED:
+                assert [w.target_speed for w in wheels] == [0.0, 0.0, 0.0]
+                seen_at = seen_at if seen_at is not None else status.cycles
+            if status.stopped_reason is not None and latched_at is None:
+                latched_at = status.cycles
+                assert status.stopped_reason == "node 1 fault: 0x2310 continuous over-current"
+        assert seen_at is not None and latched_at is not None
+        assert 0 <= latched_at - seen_at < 4  # checked every 4th cycle at 1 kHz
+        assert [w.target_speed for w in base.wheels] == [0.0, 0.0, 0.0]
+
 def test_heartbeat_loss_stops_all(rig: tuple[SimulatedBase, Chassis]) -> None:
     sim, base = rig
     drive_for(base, 0.3, vx=0.3)
