@@ -618,7 +618,7 @@ class Chassis:
         dt = now - self._last_sync_time if self._last_sync_time else self._period
         limited = self._limiter.step_xyz(vx, vy, wz, min(dt, 5 * self._period))
         speeds = self._kin.wheel_speeds_of(*limited)
-        peak = max(abs(v) for v in speeds)
+        peak = max(map(abs, speeds))
         if peak > self._max_wheel_speed:  # the limiter keeps this from happening
             speeds = [v * self._max_wheel_speed / peak for v in speeds]
         self._targets = speeds

@@ -136,17 +136,25 @@ class VelocityLimiter:
                  dt: float) -> tuple[float, float, float]:
         """:meth:`step` on plain floats, unchecked (finite command, dt >= 0): the control
         loop's form. Same three steps, no objects made."""
+        # The factors are _ratio's, written out: this runs every cycle of the loop.
         lim = self.limits
         # 1. speed limits, one factor
-        lin = math.hypot(vx, vy)
-        k = min(_ratio(lim.max_linear, lin), _ratio(lim.max_angular, abs(wz)))
+        lin, limit = math.hypot(vx, vy), lim.max_linear
+        k = 1.0 if lin <= limit else limit / lin
+        ang, limit = abs(wz), lim.max_angular
+        if ang > limit and limit / ang < k:
+            k = limit / ang
         if k != 1.0:
             vx, vy, wz = vx * k, vy * k, wz * k
         # 2. wheel desaturation, one factor
-        if self._rows and not math.isinf(lim.max_wheel_speed):
-            peak = max(abs(a * vx + b * vy + c * wz) for a, b, c in self._rows)
-            k = _ratio(lim.max_wheel_speed, peak)
-            if k != 1.0:
+        limit = lim.max_wheel_speed
+        if self._rows and limit != math.inf:
+            peak = 0.0
+            for a, b, c in self._rows:
+                v = abs(a * vx + b * vy + c * wz)
+                peak = max(peak, v)
+            if peak > limit:
+                k = limit / peak
                 vx, vy, wz = vx * k, vy * k, wz * k
         # 3. acceleration limits on the change, one factor
         cx, cy, cw = self._last
@@ -154,7 +162,11 @@ class VelocityLimiter:
         lin_a = lim.stop_linear_decel if stopping else lim.max_linear_accel
         ang_a = lim.stop_angular_decel if stopping else lim.max_angular_accel
         dvx, dvy, dwz = vx - cx, vy - cy, wz - cw
-        k = min(_ratio(lin_a * dt, math.hypot(dvx, dvy)), _ratio(ang_a * dt, abs(dwz)))
+        step, limit = math.hypot(dvx, dvy), lin_a * dt
+        k = 1.0 if step <= limit else limit / step
+        step, limit = abs(dwz), ang_a * dt
+        if step > limit and limit / step < k:
+            k = limit / step
         out = (vx, vy, wz) if k == 1.0 else (cx + k * dvx, cy + k * dvy, cw + k * dwz)
         self._last = out
         return out
