@@ -208,6 +208,9 @@ class _RpdoIO:
     bits: int
     sources: list[tuple[AxisIO | None, float, StageDriver | None]] = field(
         default_factory=list)
+    _fields: tuple[tuple[tuple[AxisIO | None, float, StageDriver | None],
+                         tuple[int, int]], ...] = ()
+    _pack: Callable[..., bytes] = bytes
 
     def values(self, speeds: Sequence[float]) -> list[int]:
         """Field values for ``speeds`` (m/s by wheel index; empty: targets 0)."""
@@ -216,6 +219,25 @@ class _RpdoIO:
         return [round(speeds[ax.wheel_index] * scale) if ax is not None else
                 stage.cw if stage is not None else 0
                 for ax, scale, stage in self.sources]
+
+    def fill(self, speeds: Sequence[float]) -> None:
+        """Refill the frame for ``speeds``: ``codec.pack(values(speeds))`` in one call
+        (each cycle, for each RPDO): values clamped as they are made, the compiled
+        struct called directly."""
+        if not speeds:
+            self.msg.data = self.codec.pack(self.values(speeds))  # type: ignore[assignment]
+            return
+        out = []
+        for (ax, scale, stage), (lo, hi) in self._fields:
+            v = (round(speeds[ax.wheel_index] * scale) if ax is not None else
+                 stage.cw if stage is not None else 0)
+            out.append(lo if v < lo else hi if v > hi else v)
+        self.msg.data = self._pack(*out)  # type: ignore[assignment]
+
+    def seal(self) -> None:
+        """Compile :meth:`fill` once ``sources`` is complete."""
+        self._fields = tuple(zip(self.sources, self.codec.ranges, strict=True))
+        self._pack = self.codec.packer()
 
 
 @dataclass
@@ -270,6 +292,7 @@ class DriveNode:
                             self.stages[a.stage]) for a in layout.axes]
         self._rpdo_io: list[_RpdoIO] = []
         self._cyclic_io: list[_RpdoIO] = []
+        self._cyclic_frames: list[tuple[can.Message, int]] = []
         self._cw_io: dict[int, _RpdoIO] = {}  # id(stage) -> the RPDO carrying its controlword
         self._subscribed: list[tuple[int, TpdoHandler]] = []
         self._sdo_io: dict[tuple[int, int], _SdoIO] = {}  # (index, subindex) -> transfer
@@ -314,10 +337,12 @@ class DriveNode:
                     cw_io[id(stage)] = io
                 scale = axis.wheel.velocity_scale if axis is not None else 0.0
                 io.sources.append((axis, scale, stage))
+            io.seal()
             rpdo_io.append(io)
         # Swapped whole: the loop may be sending from the old ones meanwhile.
         self._rpdo_io, self._cw_io = rpdo_io, cw_io
         self._cyclic_io = [io for io in rpdo_io if io.pdo.cyclic]
+        self._cyclic_frames = [(io.msg, io.bits) for io in self._cyclic_io]
         for pdo in plan.tpdos:
             codec = PdoCodec(pdo)
             roles: list[tuple[int, str, object]] = []
@@ -690,10 +715,11 @@ class DriveNode:
         bits). The RPDO frames are made once and refilled: send them before the next
         call. Called once per cycle, before the cycle's SYNC: a read requested now
         belongs to that SYNC."""
-        frames = []
         for io in self._cyclic_io:
-            io.msg.data = io.codec.pack(io.values(speeds))  # type: ignore[assignment]
-            frames.append((io.msg, io.bits))
+            io.fill(speeds)
+        if not self._sdo_cyclic:
+            return self._cyclic_frames  # the same frames each cycle, refilled
+        frames = list(self._cyclic_frames)
         if self._sdo_cyclic:
             epoch = self._epoch_source.sync_epoch + 1  # the SYNC this cycle sends next
             for sdo in self._sdo_cyclic:

@@ -11,7 +11,7 @@ Pure module: no I/O, no CAN imports.
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from omnican.odmap import Entry
@@ -78,6 +78,19 @@ class PdoCodec:
             if (f.entry.index, f.entry.subindex) == (entry.index, entry.subindex):
                 return i
         return None
+
+    def packer(self) -> Callable[..., bytes]:
+        """``pack`` for values already in range, one argument per field: the compiled
+        ``struct`` itself where there is one (the control loop's form: it clamps as it
+        makes the values, and saves the list and the call)."""
+        if self._struct is not None:
+            return self._struct.pack
+        return lambda *values: self.pack(values)
+
+    @property
+    def ranges(self) -> tuple[tuple[int, int], ...]:
+        """(lowest, highest) value of each field."""
+        return self._ranges
 
     def pack(self, values: Sequence[int]) -> bytes:
         """The frame's data bytes for ``values`` (one per field, saturated)."""
