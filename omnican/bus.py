@@ -453,13 +453,12 @@ class CanBus:
         bus = self.network.bus
         if bus is None:
             return 0
+        recv = bus.recv
+        internal = None
         if bus.filters is None and type(bus)._recv_internal is not can.BusABC._recv_internal:
             # No filters to apply: BusABC.recv would only add its timeout and filter
             # bookkeeping around the interface's own receive, for every frame.
-            def recv(timeout: float) -> can.Message | None:
-                return bus._recv_internal(timeout)[0]
-        else:
-            recv = bus.recv
+            internal = bus._recv_internal
         traffic = self.traffic
         extra = self._poll_listeners()
         # canopen's Network.notify, less its node scanner (omnican scan runs a network of
@@ -470,7 +469,7 @@ class CanBus:
         try:
             while n < limit:
                 try:
-                    msg = recv(0)
+                    msg = internal(0)[0] if internal is not None else recv(0)
                 except Exception as exc:  # an interface gone down: as the Notifier says
                     self.rx_error = f"receive failed: {exc}"
                     break

@@ -48,7 +48,6 @@ from omnican.cia301 import (
 from omnican.cia402 import Command, Mode, State
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import WheelConfig
-from omnican.encoder import fold_counter
 from omnican.errors import DriveError
 from omnican.layout import NodeLayout
 from omnican.odmap import AxisObjects, Entry, Obj, entry_at, obj_name
@@ -92,12 +91,20 @@ class AxisIO:
     # Continuous travel (loop thread only).
     counts: float = 0.0
     last_raw: int | None = None
+    _half_span: int = field(init=False, repr=False, default=0)
 
     def travel_from_sample(self, raw: int) -> float:
-        """Fold a raw counter value into continuous counts; returns travel in m."""
-        self.counts = fold_counter(self.counts, self.last_raw, raw, self.position.bits)
+        """Fold a raw counter value into continuous counts; returns travel in m.
+        :func:`fold_counter`, written out (each cycle, each wheel)."""
+        last = self.last_raw
         self.last_raw = raw
+        if last is not None:
+            half = self._half_span
+            self.counts += (raw - last + half) % (half << 1) - half
         return self.counts / self.wheel.position_scale
+
+    def __post_init__(self) -> None:
+        self._half_span = 1 << (self.position.bits - 1)
 
     def reseed(self) -> None:
         """After a reboot the counter restarts: the next sample continues the travel."""
@@ -432,14 +439,17 @@ class DriveNode:
                            roles: list[tuple[int, str, object]]) -> TpdoHandler:
         """A handler that unpacks the whole TPDO in one call and copies the values."""
         source = self._epoch_source
-        unpack = codec.unpack
+        unpack = codec.unpacker()
+        length = codec.length
         positions = tuple((i, o) for i, r, o in roles if r == "position")
         others = tuple((i, r, o) for i, r, o in roles if r != "position")
 
         def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
+            if len(data) < length:
+                return  # not our frame (or a broken one): ignore
             values = unpack(data)
             if values is None:
-                return  # not our frame (or a broken one): ignore
+                return
             epoch = source.sync_epoch
             for i, ax in positions:
                 ax.raw, ax.epoch = values[i], epoch  # type: ignore[attr-defined]

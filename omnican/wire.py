@@ -87,6 +87,13 @@ class PdoCodec:
             return self._struct.pack
         return lambda *values: self.pack(values)
 
+    def unpacker(self) -> Callable[[bytes | bytearray], tuple[int, ...] | None]:
+        """:meth:`unpack` as one call: the compiled ``struct``'s own where there is one
+        (it raises on a short frame, so check ``length`` first)."""
+        if self._struct is not None:
+            return self._struct.unpack_from
+        return self.unpack
+
     @property
     def ranges(self) -> tuple[tuple[int, int], ...]:
         """(lowest, highest) value of each field."""

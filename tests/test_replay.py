@@ -83,6 +83,33 @@ def test_fold_counter_without_a_previous_sample_keeps_the_count() -> None:
     assert fold_counter(123.0, None, 99999, 32) == 123.0
 
 
+@given(bits=st.sampled_from([16, 32]), start=st.integers(0, (1 << 32) - 1),
+       raws=st.lists(st.integers(0, (1 << 32) - 1), max_size=40),
+       reseed_at=st.integers(0, 40))
+def test_the_loop_folds_counters_as_replay_does(bits: int, start: int, raws: list[int],
+                                                 reseed_at: int) -> None:
+    """The control loop's fold (written out in AxisIO) is fold_counter, a reboot's
+    reseed included: live odometry and a replayed recording read counters alike."""
+    from types import SimpleNamespace
+
+    from omnican.drive import AxisIO
+    from omnican.odmap import Entry
+
+    position = Entry(obj=None, index=0x6064, subindex=0, bits=bits, signed=True,
+                     declared_signed=True, shared=False, pdo_mappable=True, writable=False,
+                     name="Position actual value")
+    wheel = SimpleNamespace(position_scale=1000.0)
+    axis = AxisIO(0, wheel, None, position, position, None)  # type: ignore[arg-type]
+    counts, last = 0.0, None
+    for k, raw in enumerate(r % (1 << bits) for r in [start, *raws]):
+        if k == reseed_at:
+            axis.reseed()
+            last = None
+        counts = fold_counter(counts, last, raw, bits)
+        last = raw
+        assert axis.travel_from_sample(raw) == counts / 1000.0
+
+
 # ---------------------------------------------------------------- decoding
 
 
