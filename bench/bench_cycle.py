@@ -19,7 +19,9 @@ For each rate (default 100 Hz and 1 kHz), in the same run:
   from one day to the next on a shared VM.
 
 SYNC times are the bus timestamps the simulated drives' network sees (no extra
-receiver on the channel: a receiver would make every send copy each frame once more).
+receiver on the channel: a receiver would make every send copy each frame once more);
+the period jitter of a loop is that of its SYNCs, the sleeper's that of its wake-ups
+(the floor under any loop's jitter on this machine).
 A cycle is late when it starts more than a fifth of a period after its tick.
 
 Run: ``python bench/bench_cycle.py`` (about a minute); ``--quick``; ``--rates 1000``;
@@ -104,10 +106,12 @@ def virtual_bus_cost() -> tuple[float, float]:
     return send, recv
 
 
-def idle_sleeper(rate_hz: float, seconds: float) -> tuple[float, float]:
-    """(CPU us per cycle, late fraction) of a thread that only sleeps to each tick."""
+def idle_sleeper(rate_hz: float, seconds: float) -> tuple[float, float, list[float]]:
+    """(CPU us per cycle, late fraction, wake-up times) of a thread that only sleeps to
+    each tick: the floor of a loop's CPU, of its late cycles, and of its period jitter."""
     period = 1.0 / rate_hz
     out: dict[str, float] = {}
+    wakes: list[float] = []
 
     def run() -> None:
         cycles = late = 0
@@ -116,6 +120,7 @@ def idle_sleeper(rate_hz: float, seconds: float) -> tuple[float, float]:
         cpu0 = time.thread_time()
         while next_t < end:
             now = time.monotonic()
+            wakes.append(now)
             if now - next_t > period * LATE:
                 late += 1
             cycles += 1
@@ -126,7 +131,7 @@ def idle_sleeper(rate_hz: float, seconds: float) -> tuple[float, float]:
     t = threading.Thread(target=run, name="bench-sleeper")
     t.start()
     t.join()
-    return out["cpu"], out["late"]
+    return out["cpu"], out["late"], wakes
 
 
 # ---------------------------------------------------------------- omnican
@@ -436,7 +441,7 @@ def lockstep_cycle(rate_hz: float, seconds: float) -> None:
 def table() -> None:
     print()
     print(f"{'rate':>6} {'what':<22} {'CPU us/cycle':>12} {'late':>7} "
-          f"{'SYNC jitter p50/p99 us':>23}")
+          f"{'period jitter p50/p99 us':>25}")
     for r in ROWS:
         if r["bench"] not in ("omnican", "plain_canopen", "minimal", "sleeper", "lockstep"):
             continue
@@ -444,7 +449,7 @@ def table() -> None:
         jit = (f"{r['sync_jitter_us_p50']:.0f} / {r['sync_jitter_us_p99']:.0f}"
                if "sync_jitter_us_p50" in r else "-")
         print(f"{r['rate_hz']:>6.0f} {what:<22} {r['host_cpu_us_per_cycle']:>12.1f} "
-              f"{r['late_fraction']:>7.2%} {jit:>23}")
+              f"{r['late_fraction']:>7.2%} {jit:>25}")
     for rate in sorted({r["rate_hz"] for r in ROWS if "rate_hz" in r}):
         om = [r for r in ROWS if r["bench"] == "omnican" and r["rate_hz"] == rate
               and r["record"] == "-"]
@@ -479,9 +484,9 @@ def main() -> None:
     emit(bench="floor.virtual_bus", send_us_per_frame=round(send, 2),
          recv_us_per_frame=round(recv, 2), cpus=cpus)
     for rate in rates:
-        cpu, late = idle_sleeper(rate, seconds)
+        cpu, late, wakes = idle_sleeper(rate, seconds)
         emit(bench="sleeper", rate_hz=rate, host_cpu_us_per_cycle=round(cpu, 1),
-             late_fraction=round(late, 4))
+             late_fraction=round(late, 4), **jitter(wakes, rate))
         omnican_loop(rate, seconds, None)
         if args.record:
             omnican_loop(rate, seconds, args.record)
