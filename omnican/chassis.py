@@ -56,6 +56,10 @@ STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as un
 NMT_RESTART_S = 0.5  # a started node reporting PRE-OPERATIONAL is started again this often
 RECONFIGURE_ATTEMPTS = 2  # a node configured again (reboot, bus back) that fails once
 STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being configured
+# Enum members as plain names: each State.X costs a descriptor call on Python 3.11.
+_ENABLED, _FAULT, _FAULT_REACTION, _UNKNOWN = (State.OPERATION_ENABLED, State.FAULT,
+                                               State.FAULT_REACTION_ACTIVE, State.UNKNOWN)
+_PRE_OPERATIONAL = NmtState.PRE_OPERATIONAL
 HEALTH_CHECK_HZ = 250.0  # faster loops check the drives' health every few cycles (below)
 SIGNAL_GRACE_S = 3.0  # repeated signals this soon after the first do not cut the stop short
 
@@ -618,7 +622,7 @@ class Chassis:
         cmd, t_cmd = self._cmd
         all_enabled = True
         for stage in self._stages:
-            if stage.state is not State.OPERATION_ENABLED:
+            if stage.state is not _ENABLED:
                 all_enabled = False
                 break
         self._all_enabled = all_enabled
@@ -661,15 +665,16 @@ class Chassis:
         self._snapshot = self._make_snapshot(now, limited)
 
     def _check_health(self, now: float) -> None:
+        configuring, offline, sdo_aborts = self._configuring, self._offline, self._sdo_aborts
         for node in self.nodes:
             nid = node.node_id
-            if nid in self._configuring:
+            if nid in configuring:
                 continue
-            if node.rebooted:
+            if node.boot_count != node.configured_boot:  # node.rebooted
                 self._latch(f"node {nid} rebooted")
                 self._reconfigure(node, "its reboot")
                 continue
-            if (node.nmt_state == NmtState.PRE_OPERATIONAL and not self._closed
+            if (node.nmt_state == _PRE_OPERATIONAL and not self._closed
                     and now - self._nmt_started.get(nid, -math.inf) >= NMT_RESTART_S):
                 # Configured and started, yet its heartbeat says PRE-OPERATIONAL (the
                 # start was lost, or the drive fell back): it ignores every PDO. Start it.
@@ -677,29 +682,28 @@ class Chassis:
                 logger.info("node %d reports PRE-OPERATIONAL: starting it again", nid)
                 self._bus.send(NMT_COB_ID, bytes([NmtCommand.START, nid]))
             aborts = node.sdo_counts.aborts
-            if aborts != self._sdo_aborts.get(nid, 0):
+            if aborts != sdo_aborts.get(nid, 0):
                 # A drive that refuses the target written by SDO each cycle keeps turning
                 # at the last one it took: stop the base.
-                self._sdo_aborts[nid] = aborts
+                sdo_aborts[nid] = aborts
                 if aborts:
                     self._latch(f"node {nid} refuses its per-cycle SDO transfers "
                                 f"({node.sdo_counts.last_abort})")
             if node.heartbeat_lost(now):
-                self._offline.add(nid)
+                offline.add(nid)
                 if not self._recovering:  # recover() waits for it, and says if it never came
                     self._latch(f"node {nid} heartbeat lost")
-            elif nid in self._offline and (self._latched is None or self._recovering):
-                self._offline.discard(nid)
+            elif nid in offline and (self._latched is None or self._recovering):
+                offline.discard(nid)
             for stage in node.stages:
                 state = stage.state
-                if stage.allow_fault_reset:
-                    continue  # starting up or recovering: the stage driver resets faults
-                if state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+                if state is _ENABLED or stage.allow_fault_reset:
+                    continue  # all is well, or the stage driver resets faults (starting up)
+                if state is _FAULT or state is _FAULT_REACTION:
                     text = node.fault_text or (describe_emcy(stage.error_value)
                                                if stage.error_value else "no EMCY")
                     self._latch(f"node {nid} fault: {text}")
-                elif (state is not State.OPERATION_ENABLED and stage.goal is
-                      State.OPERATION_ENABLED and state is not State.UNKNOWN):
+                elif stage.goal is _ENABLED and state is not _UNKNOWN:
                     self._latch(f"node {nid} left OPERATION ENABLED (now {state})")
 
     def _reconfigure(self, node: DriveNode, why: str) -> None:
@@ -785,8 +789,9 @@ class Chassis:
         t0, travel0 = history[0]
         if t > t0:  # speeds over the window: SYNC timing jitter averages out
             span = t - t0
-            sp = self._speeds = [(a - b) / span for a, b in zip(travel, travel0, strict=True)]
-            self._measured = self._kin.body_of(sp)
+            self._speeds = [(a - b) / span for a, b in zip(travel, travel0, strict=True)]
+            x, y, w = self._kin.body_of_change(travel, travel0)
+            self._measured = (x / span, y / span, w / span)
 
     def _mark_stale(self, epoch: int) -> None:
         stale = tuple(i for i, a in enumerate(self._axes)

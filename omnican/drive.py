@@ -63,6 +63,7 @@ from omnican.wire import PdoCodec
 
 logger = logging.getLogger(__name__)
 
+_UNKNOWN = State.UNKNOWN  # a plain name: State.X is a descriptor call on Python 3.11
 _MAX_PENDING = 8  # unanswered per-cycle SDO requests kept (a silent drive must not grow them)
 
 
@@ -162,7 +163,7 @@ class StageDriver:
     def step(self, now: float) -> int | None:
         """The controlword to send this cycle, or None."""
         state = self.state
-        if state is self.goal or state is State.UNKNOWN:
+        if state is self.goal or state is _UNKNOWN:
             self._waiting_since = None
             if state is self.goal and self._sent_cw != self.cw:
                 return self._emit(now)  # e.g. the enable bits after a reboot
