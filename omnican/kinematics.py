@@ -148,6 +148,9 @@ class OmniKinematics:
         rx, ry, rw = self._inverse.tolist()
         self.forward_rows: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]] = (
             tuple(rx), tuple(ry), tuple(rw))
+        # By wheel: what one wheel's value adds to (vx, vy, wz).
+        self._forward_cols: tuple[tuple[float, float, float], ...] = tuple(
+            zip(rx, ry, rw, strict=True))
 
     @staticmethod
     def _check_vector(values: Any, name: str) -> FloatArray:
@@ -197,12 +200,23 @@ class OmniKinematics:
     def body_of(self, wheel_values: Sequence[float]) -> tuple[float, float, float]:
         """:meth:`to_twist` on plain floats, unchecked: (vx, vy, wz) from wheel speeds,
         or a body displacement from wheel travel deltas."""
-        rx, ry, rw = self.forward_rows
         x = y = w = 0.0
-        for i, v in enumerate(wheel_values):
-            x += rx[i] * v
-            y += ry[i] * v
-            w += rw[i] * v
+        for (a, b, c), v in zip(self._forward_cols, wheel_values, strict=True):
+            x += a * v
+            y += b * v
+            w += c * v
+        return x, y, w
+
+    def body_of_change(self, now: Sequence[float],
+                       before: Sequence[float]) -> tuple[float, float, float]:
+        """``body_of(now - before)`` without the list: the body displacement between two
+        sets of cumulative wheel travel (odometry's step, the measured speed's window)."""
+        x = y = w = 0.0
+        for (a, b, c), v1, v0 in zip(self._forward_cols, now, before, strict=True):
+            d = v1 - v0
+            x += a * d
+            y += b * d
+            w += c * d
         return x, y, w
 
     def to_twist(self, wheel_speeds: Sequence[float] | FloatArray) -> Twist:

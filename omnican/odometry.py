@@ -168,7 +168,7 @@ class Odometry:
         self._last = travel
         if last is None:
             return
-        dx, dy, dw = self._kin.body_of([a - b for a, b in zip(travel, last, strict=True)])
+        dx, dy, dw = self._kin.body_of_change(travel, last)
         self._d, self._dt = (dx, dy, dw), dt_s
         # Compose the SE(2) exponential of the step onto the pose.
         a, b = _sinc_terms(dw)

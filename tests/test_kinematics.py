@@ -159,6 +159,22 @@ def test_vectorised_forms_match_scalar(ts: list[Twist], r: float) -> None:
     np.testing.assert_allclose(kin.to_twist_array(wheels), arr, atol=1e-9)
 
 
+
+@given(twists, st.integers(3, 6), radii, st.data())
+def test_the_loops_float_forms_match_the_numpy_ones(t: Twist, n: int, r: float,
+                                                     data: st.DataObject) -> None:
+    """wheel_speeds_of, body_of and body_of_change (what the control loop, odometry and
+    the measured speed use each cycle) are to_wheel_speeds and to_twist on plain floats."""
+    kin = OmniKinematics([360.0 * i / n + 10 for i in range(n)], base_radius=r)
+    np.testing.assert_allclose(kin.wheel_speeds_of(t.vx, t.vy, t.wz), kin.to_wheel_speeds(t),
+                               atol=1e-12)
+    now = data.draw(st.lists(st.floats(-1e3, 1e3), min_size=n, max_size=n))
+    before = data.draw(st.lists(st.floats(-1e3, 1e3), min_size=n, max_size=n))
+    change = [a - b for a, b in zip(now, before, strict=True)]
+    expected = kin.to_twist(change).as_array()
+    np.testing.assert_allclose(kin.body_of(change), expected, atol=1e-9)
+    np.testing.assert_allclose(kin.body_of_change(now, before), expected, atol=1e-9)
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
