@@ -261,6 +261,7 @@ class Chassis:
         # target in the cycle that sees it (``all_enabled`` below), the latch only makes
         # that stop stick, at most 4 ms later.
         self._health_every = max(1, math.ceil(cfg.chassis.rate_hz / HEALTH_CHECK_HZ))
+        self._hb_period = cfg.chassis.heartbeat_ms / 1000.0
         self._cmd_timeout = cfg.chassis.cmd_timeout_s
         self._max_wheel_speed = cfg.chassis.max_wheel_speed
         self._axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
@@ -313,6 +314,8 @@ class Chassis:
         self._bus_down = False
         self._reconnect_asked_at = -math.inf
         self._loop_cpu_at_end = 0.0
+        self._failing: str | None = None  # the bus's trouble, as this cycle's _check_bus saw it
+        self._bitrate = self._bus.bitrate
         self._snapshot = self._make_snapshot(clock.now())
         self._thread = threading.Thread(target=self._run, name="omnican-loop", daemon=True)
 
@@ -655,8 +658,7 @@ class Chassis:
                 send(msg, bits)
         self._bus.sync()
         self._last_sync_time = self._bus.sync_time
-        hb_period = self.cfg.chassis.heartbeat_ms / 1000.0
-        if now - self._last_hb >= hb_period:
+        if now - self._last_hb >= self._hb_period:
             self._last_hb = now
             self._bus.send(HEARTBEAT_BASE + self.cfg.chassis.host_node_id,
                            bytes([NmtState.OPERATIONAL]))
@@ -811,7 +813,7 @@ class Chassis:
         bus, or the old one where the link came back); every drive is configured anew,
         since the drives stopped (or rebooted) meanwhile, and recover() starts them."""
         bus = self._bus
-        failing = bus.failing
+        failing = self._failing = bus.failing
         if not self._bus_down:
             if failing is None:
                 self._bus_fail_since = None
@@ -873,8 +875,8 @@ class Chassis:
         enabled = (self._latched is None and not offline and not configuring and
                    not bus_down and self._all_enabled)
         bus = self._bus
-        bitrate = bus.bitrate
-        failing = bus.failing
+        bitrate = self._bitrate
+        failing = self._failing  # as _check_bus found it this cycle
         cycles = self._cycles
         if self.warnings != self._warnings_list:
             self._warnings_list, self._warnings = list(self.warnings), tuple(self.warnings)
