@@ -723,24 +723,24 @@ class DriveNode:
     def cyclic_frames(self, speeds: Sequence[float]) -> list[tuple[can.Message, int]]:
         """SYNC-applied RPDO frames with the targets of ``speeds`` (m/s by wheel index),
         then the requests of the objects moved by SDO every cycle, as (frame, worst-case
-        bits). The RPDO frames are made once and refilled: send them before the next
-        call. Called once per cycle, before the cycle's SYNC: a read requested now
+        bits). The RPDO frames, and the list itself when no object goes by SDO, are
+        made once and refilled: send them before the next call, and do not change the
+        list. Called once per cycle, before the cycle's SYNC: a read requested now
         belongs to that SYNC."""
         for io in self._cyclic_io:
             io.fill(speeds)
         if not self._sdo_cyclic:
-            return self._cyclic_frames  # the same frames each cycle, refilled
+            return self._cyclic_frames
         frames = list(self._cyclic_frames)
-        if self._sdo_cyclic:
-            epoch = self._epoch_source.sync_epoch + 1  # the SYNC this cycle sends next
-            for sdo in self._sdo_cyclic:
-                cob, data = self._sdo_request(sdo, speeds, epoch)
-                frames.append((prepared_message(cob, data), frame_bits(len(data))))
-            counts = self.sdo_counts
-            if counts.aborts != self._aborts_logged:
-                self._aborts_logged = counts.aborts
-                logger.warning("node %d: per-cycle SDO aborted (%d so far), last: %s",
-                               self.node_id, counts.aborts, counts.last_abort)
+        epoch = self._epoch_source.sync_epoch + 1  # the SYNC this cycle sends next
+        for sdo in self._sdo_cyclic:
+            cob, data = self._sdo_request(sdo, speeds, epoch)
+            frames.append((prepared_message(cob, data), frame_bits(len(data))))
+        counts = self.sdo_counts
+        if counts.aborts != self._aborts_logged:
+            self._aborts_logged = counts.aborts
+            logger.warning("node %d: per-cycle SDO aborted (%d so far), last: %s",
+                           self.node_id, counts.aborts, counts.last_abort)
         return frames
 
     def _sdo_request(self, io: _SdoIO, speeds: Sequence[float], epoch: int) -> tuple[int, bytes]:
