@@ -62,9 +62,12 @@ def test_spin_has_no_translation(channel: str) -> None:
         twist = sim.true_twist
         pose = sim.true_pose
         assert pose.theta == pytest.approx(0.6, abs=0.1)
-        # Each drive handles the SYNC a few microseconds after the previous one, like real
-        # drives do: that skew is the only translation (well under 0.1 mm).
-        assert math.hypot(pose.x, pose.y) < 1e-4
+        # Each drive handles the SYNC a little after the previous one, like real drives
+        # do: that skew is the only translation. A few microseconds on an idle machine
+        # (well under 0.1 mm); on a loaded one the simulator's thread can be held up for
+        # a millisecond between two drives (0.4 mm at this spin). A kinematics error
+        # would move the base by centimetres.
+        assert math.hypot(pose.x, pose.y) < 1e-3
         assert abs(twist.vx) < 1e-6
 
 
