@@ -24,7 +24,7 @@ import canopen
 from omnican.cia301 import COB_ID_MASK, SYNC_COB_ID
 from omnican.clock import REAL_TIME, Clock
 from omnican.errors import BusError, ConfigError
-from omnican.lockstep import LockstepBus, listeners_receiver
+from omnican.lockstep import LockstepBus
 from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
@@ -391,7 +391,8 @@ class CanBus:
         self._reconnect_wanted = threading.Event()
         self._polling = False
         self._force_reopen = False
-        self._poll_cache: tuple[tuple[Any, ...], tuple[can.Listener, ...]] = ((), ())
+        self._poll_cache: tuple[tuple[int, int], tuple[can.Listener, ...]] = ((0, -1), ())
+        self._poll_bus: tuple[Any, Any, Any] = (None, None, None)  # bus, its recv, fast recv
         self._reconnect_thread: threading.Thread | None = None
         self._connect()
 
@@ -453,12 +454,14 @@ class CanBus:
         bus = self.network.bus
         if bus is None:
             return 0
-        recv = bus.recv
-        internal = None
-        if bus.filters is None and type(bus)._recv_internal is not can.BusABC._recv_internal:
-            # No filters to apply: BusABC.recv would only add its timeout and filter
-            # bookkeeping around the interface's own receive, for every frame.
-            internal = bus._recv_internal
+        cached_bus, recv, internal = self._poll_bus
+        if bus is not cached_bus:  # a new bus (opened, reopened): look at it once
+            recv, internal = bus.recv, None
+            if bus.filters is None and type(bus)._recv_internal is not can.BusABC._recv_internal:
+                # No filters to apply: BusABC.recv would only add its timeout and filter
+                # bookkeeping around the interface's own receive, for every frame.
+                internal = bus._recv_internal
+            self._poll_bus = (bus, recv, internal)
         traffic = self.traffic
         extra = self._poll_listeners()
         # canopen's Network.notify, less its node scanner (omnican scan runs a network of
@@ -499,11 +502,12 @@ class CanBus:
 
     def _poll_listeners(self) -> tuple[can.Listener, ...]:
         """Listeners other than the ones poll() serves inline (traffic, canopen)."""
-        listeners: tuple[Any, ...] = tuple(self.network.listeners)
-        if listeners != self._poll_cache[0]:
+        listeners: list[Any] = self.network.listeners
+        key = (id(listeners), len(listeners))  # the list only ever grows (appends)
+        if key != self._poll_cache[0]:
             kept = tuple(x for x in listeners if x is not self.traffic and
                          not isinstance(x, canopen.network.MessageListener))
-            self._poll_cache = (listeners, kept)
+            self._poll_cache = (key, kept)
         return self._poll_cache[1]
 
     def _connect(self) -> None:
@@ -531,8 +535,14 @@ class CanBus:
             raise ConfigError("lock-step simulation runs on an in-process channel: the bus "
                               f"must be interface 'virtual' with a channel, not {interface!r}")
         lockstep = LockstepBus(str(channel), self.clock)
-        listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
-        lockstep.set_receiver(listeners_receiver(listeners))
+
+        def receive(msg: can.Message) -> None:
+            # The real-time loop's own receive, for each frame as it arrives: lock-step
+            # runs exercise the same dispatch (subscribers, taps, traffic) as a robot.
+            lockstep.push(msg)
+            self.poll()
+
+        lockstep.set_receiver(receive)
         self.network.bus = lockstep
 
     def _sent(self, can_id: int, data: bytes) -> None:

@@ -58,6 +58,11 @@ class LockstepBus(can.BusABC):
                     is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=bytes(msg.data),
                     channel=self.channel, is_rx=True))
 
+    def push(self, msg: can.Message) -> None:
+        """Queue ``msg`` for :meth:`recv` (a receiver that reads through recv calls this
+        first)."""
+        self._queue.append(msg)
+
     def _deliver(self, msg: can.Message) -> None:
         receiver = self._receiver
         if receiver is not None:
