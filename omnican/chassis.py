@@ -176,7 +176,13 @@ class _SignalGuard:
     child and then its whole process group) would otherwise raise inside that stop and
     cut it short, leaving drives enabled with a target. So signals that come while a
     base is closing, or within ``SIGNAL_GRACE_S`` of the first, are logged and ignored;
-    the stop-and-disable sequence is bounded, so the program still ends."""
+    the stop-and-disable sequence is bounded, so the program still ends.
+
+    The grace outlives the base: a stop that ends within it leaves the handlers in place
+    until it is over, so the second Ctrl-C cannot cut short what the program does after
+    the stop either (a front end printing the final pose, a simulator shutting down).
+    The first signal after the grace restores the program's own handlers and acts as
+    they would."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -185,13 +191,18 @@ class _SignalGuard:
         self._closing = 0
         self._saved: dict[int, Any] = {}
         self._first_at = -math.inf
+        self._lingering = False  # released within the grace: handlers still installed
 
     def acquire(self) -> bool:
         """Install the handlers (main thread only); False where that is impossible."""
         if threading.current_thread() is not threading.main_thread():
             return False
         if self._users == 0:
-            self._saved = {int(sig): signal.signal(sig, self._handle) for sig in self.SIGNALS}
+            if self._lingering:
+                self._lingering = False  # still installed, the program's ones saved
+            else:
+                self._saved = {int(sig): signal.signal(sig, self._handle)
+                               for sig in self.SIGNALS}
             self._first_at = -math.inf
         self._users += 1
         return True
@@ -201,10 +212,17 @@ class _SignalGuard:
             return
         self._users -= 1
         if self._users == 0:
-            for sig, old in self._saved.items():
-                with contextlib.suppress(ValueError, TypeError):  # not the main thread now
-                    signal.signal(sig, old if old is not None else signal.SIG_DFL)
-            self._saved = {}
+            if time.monotonic() - self._first_at < SIGNAL_GRACE_S:
+                self._lingering = True
+                return
+            self._restore()
+
+    def _restore(self) -> None:
+        self._lingering = False
+        for sig, old in self._saved.items():
+            with contextlib.suppress(ValueError, TypeError):  # not the main thread now
+                signal.signal(sig, old if old is not None else signal.SIG_DFL)
+        self._saved = {}
 
     @contextlib.contextmanager
     def closing(self) -> Iterator[None]:
@@ -218,10 +236,14 @@ class _SignalGuard:
         name = signal.Signals(signum).name
         now = time.monotonic()
         if self._closing or now - self._first_at < SIGNAL_GRACE_S:
-            logger.warning("%s ignored: stopping the wheels and disabling the drives", name)
+            logger.warning("%s ignored: %s", name, "the drives are stopped and disabled; "
+                           "finishing" if self._lingering else
+                           "stopping the wheels and disabling the drives")
             return
         self._first_at = now
         old = self._saved.get(signum)
+        if self._lingering:  # the base is gone and the grace over: the program's own again
+            self._restore()
         if old is signal.SIG_IGN:
             return
         if callable(old) and old is not signal.default_int_handler:

@@ -351,3 +351,19 @@ def test_teleop_ctrl_c_quits_with_the_pose() -> None:
         assert re.search(r"pose x=\S+ y=\S+ theta=\S+", term.read(0.5))
     finally:
         term.close()
+
+
+@pytest.mark.parametrize("gap_s", [0.05, 0.3])
+def test_teleop_ctrl_c_twice_still_quits_with_the_pose(gap_s: float) -> None:
+    """An impatient second Ctrl-C, during the stop or after it while the program shuts
+    the simulator down, neither cuts the stop short nor loses the final pose."""
+    term = Pty("--sim")
+    try:
+        term.wait_for("RUNNING")
+        term.keys("\x03")
+        time.sleep(gap_s)
+        term.keys("\x03")
+        assert term.exit_code() == 0
+        assert re.search(r"pose x=\S+ y=\S+ theta=\S+", term.read(0.5))
+    finally:
+        term.close()
