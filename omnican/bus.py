@@ -171,19 +171,27 @@ def sent_message(frame: SentFrame) -> can.Message:
                        timestamp=timestamp, is_rx=False, channel=channel)
 
 
+FrameFields = tuple[float, int, "bytes | bytearray", Any, bool, bool, bool, bool]
+
+
+def frame_fields(item: can.Message | SentFrame) -> FrameFields:
+    """(timestamp, COB-ID, data, channel, extended, remote, error, received) of a frame
+    a recorder queued: a received message, or a frame this host sent (plain values)."""
+    if isinstance(item, tuple):
+        timestamp, can_id, data, channel = item
+        return timestamp, can_id, data, channel, can_id > COB_ID_MASK, False, False, False
+    return (item.timestamp, item.arbitration_id, item.data, item.channel, item.is_extended_id,
+            item.is_remote_frame, item.is_error_frame, item.is_rx)
+
+
 def log_line(log: can.CanutilsLogWriter, item: can.Message | SentFrame) -> str | None:
     """The line python-can's candump writer ``log`` writes for ``item`` (and the same
     time-keeping), or None for a frame it formats otherwise (error, remote, CAN FD)."""
-    data: bytes | bytearray
-    if isinstance(item, tuple):
-        timestamp, can_id, data, channel = item
-        extended, rx = can_id > COB_ID_MASK, False
-    else:
-        if item.is_error_frame or item.is_remote_frame or item.is_fd:
-            return None
-        timestamp, can_id, data, channel = (item.timestamp, item.arbitration_id, item.data,
-                                            item.channel)
-        extended, rx = item.is_extended_id, item.is_rx
+    if not isinstance(item, tuple) and item.is_fd:
+        return None
+    timestamp, can_id, data, channel, extended, remote, error, rx = frame_fields(item)
+    if remote or error:
+        return None
     if log.last_timestamp is None:  # python-can keeps the first frame's time as its floor
         log.last_timestamp = timestamp or 0.0
     if timestamp is None or timestamp < log.last_timestamp:

@@ -34,7 +34,7 @@ from typing import IO, Any
 import can
 
 from omnican import rosmsg, telemetry
-from omnican.cia301 import COB_ID_MASK
+from omnican.bus import SentFrame, frame_fields
 from omnican.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -65,8 +65,7 @@ class McapRecorder(can.Listener):
 
         self._writer = Writer(self._file, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library=f"omnican {__version__}")
-        self._queue: collections.deque[can.Message | tuple[float, int, bytes, Any]] = \
-            collections.deque()
+        self._queue: collections.deque[can.Message | SentFrame] = collections.deque()
         self._max = queue_frames
         self.dropped = 0
         self.frames = 0
@@ -153,18 +152,12 @@ class McapRecorder(can.Listener):
         tx = self._channel(telemetry.CAN_TX, telemetry.CAN_FRAME)
         add = self._writer.add_message
         while queue:
-            item = queue.popleft()
-            if isinstance(item, tuple):  # sent by this host: (time, COB-ID, data, channel)
-                stamp, can_id, payload, channel = item
-                extended, remote, error, received = can_id > COB_ID_MASK, False, False, False
-            else:
-                stamp, can_id, payload, channel = (item.timestamp, item.arbitration_id,
-                                                   bytes(item.data), item.channel)
-                extended, remote, error, received = (item.is_extended_id, item.is_remote_frame,
-                                                     item.is_error_frame, item.is_rx)
+            stamp, can_id, payload, channel, extended, remote, error, received = \
+                frame_fields(queue.popleft())
             ns = int(stamp * 1e9)
             data = rosmsg.encode_can_frame(
-                ns, can_id, payload, str(channel) if channel is not None else self._channel_name,
+                ns, can_id, bytes(payload),
+                str(channel) if channel is not None else self._channel_name,
                 extended=extended, remote=remote, error=error)
             add(rx if received else tx, log_time=ns, data=data, publish_time=ns)
             self.frames += 1
