@@ -32,6 +32,7 @@ Prints one JSON object per line, then a table.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -41,13 +42,14 @@ import tempfile
 import threading
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import can
 import canopen
 import numpy as np
-from bench_chassis import config, percentile, thread_cpu
+from bench_chassis import config, notifier_threads, percentile, thread_cpu
 
 from omnican import Chassis
 from omnican.clock import SimClock
@@ -183,9 +185,11 @@ def omnican_loop(rate_hz: float, seconds: float, record: str | None) -> None:
 # ---------------------------------------------------------------- plain canopen
 
 
-def enabled_canopen_nodes(cfg: Any) -> tuple[canopen.Network, list[canopen.RemoteNode]]:
+@contextlib.contextmanager
+def enabled_canopen_nodes(cfg: Any) -> Iterator[tuple[canopen.Network, list[canopen.RemoteNode]]]:
     """A canopen network on the config's bus with every drive in velocity mode, its PDO
-    maps read, started and enabled: where the hand-written loops below begin."""
+    maps read, started and enabled: where the hand-written loops below begin. On exit
+    the drives are disabled and the network disconnected."""
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.1
     net.connect(**cfg.bus)
@@ -204,7 +208,42 @@ def enabled_canopen_nodes(cfg: Any) -> tuple[canopen.Network, list[canopen.Remot
             node.rpdo[1]["Controlword"].raw = cw
             node.rpdo[1].transmit()
             time.sleep(0.01)
-    return net, nodes
+    try:
+        yield net, nodes
+    finally:
+        for node in nodes:
+            node.rpdo[1]["Controlword"].raw = 0
+            node.rpdo[1].transmit()
+        net.disconnect()
+
+
+def run_hand_loop(loop: Any, name: str, rate_hz: float, seconds: float, stop: threading.Event,
+                  counters: dict[str, int], stamps: list[float],
+                  more_threads: Any = lambda: []) -> tuple[dict[str, int], dict[str, Any]]:
+    """Run a hand-written ``loop`` (it ends when ``stop`` is set) on a thread of its own
+    and measure it for ``seconds`` after 0.3 s to settle: (the change of each of its
+    ``counters``, the figures to emit: rate, CPU per cycle of its thread and of
+    ``more_threads()``, late cycles, SYNC jitter from ``stamps``)."""
+    t = threading.Thread(target=loop, name=name)
+    t.start()
+    time.sleep(0.3)
+    threads = [t, *more_threads()]
+    before = dict(counters)
+    cpu0 = sum(thread_cpu(x) for x in threads)
+    stamps.clear()
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    counted = {k: v - before[k] for k, v in counters.items()}
+    cpu = sum(thread_cpu(x) for x in threads) - cpu0
+    elapsed = time.monotonic() - t0
+    sync = list(stamps)
+    stop.set()
+    t.join()
+    cycles = max(counted["cycles"], 1)
+    return counted, {"achieved_hz": round(counted["cycles"] / elapsed, 1),
+                     "host_cpu_us_per_cycle": round(cpu / cycles * 1e6, 1),
+                     "late_fraction": round(counted["late"] / cycles, 4),
+                     **jitter(sync, rate_hz)}
 
 
 def plain_canopen(rate_hz: float, seconds: float) -> None:
@@ -213,9 +252,8 @@ def plain_canopen(rate_hz: float, seconds: float) -> None:
     assert cfg.bus is not None
     kin = cfg.kinematics()
     stamps: list[float] = []
-    with SimulatedBase.from_config(cfg) as sim:
+    with SimulatedBase.from_config(cfg) as sim, enabled_canopen_nodes(cfg) as (net, nodes):
         sim.network.subscribe(0x80, lambda cid, data, ts: stamps.append(ts))
-        net, nodes = enabled_canopen_nodes(cfg)
         stop = threading.Event()
         counters = {"cycles": 0, "late": 0}
 
@@ -239,28 +277,9 @@ def plain_canopen(rate_hz: float, seconds: float) -> None:
                 counters["cycles"] += 1
                 nxt = sleep_to_next_tick(nxt, period)
 
-        t = threading.Thread(target=loop, name="plain-canopen-loop")
-        t.start()
-        time.sleep(0.3)
-        notif = [r for r in getattr(net.notifier, "_readers", []) if isinstance(r, threading.Thread)]
-        c0, l0 = counters["cycles"], counters["late"]
-        cpu0 = thread_cpu(t) + sum(thread_cpu(n) for n in notif)
-        stamps.clear()
-        t0 = time.monotonic()
-        time.sleep(seconds)
-        cycles, late = counters["cycles"] - c0, counters["late"] - l0
-        cpu = thread_cpu(t) + sum(thread_cpu(n) for n in notif) - cpu0
-        elapsed = time.monotonic() - t0
-        sync = list(stamps)
-        stop.set()
-        t.join()
-        for node in nodes:
-            node.rpdo[1]["Controlword"].raw = 0
-            node.rpdo[1].transmit()
-        net.disconnect()
-    emit(bench="plain_canopen", rate_hz=rate_hz, achieved_hz=round(cycles / elapsed, 1),
-         host_cpu_us_per_cycle=round(cpu / max(cycles, 1) * 1e6, 1),
-         late_fraction=round(late / max(cycles, 1), 4), **jitter(sync, rate_hz))
+        _, figures = run_hand_loop(loop, "plain-canopen-loop", rate_hz, seconds, stop, counters,
+                                   stamps, lambda: notifier_threads(net))
+    emit(bench="plain_canopen", rate_hz=rate_hz, **figures)
 
 
 def minimal_loop(rate_hz: float, seconds: float) -> None:
@@ -275,20 +294,19 @@ def minimal_loop(rate_hz: float, seconds: float) -> None:
     rows = kin.rows
     fwd = kin.forward_rows
     stamps: list[float] = []
-    with SimulatedBase.from_config(cfg) as sim:
+    with SimulatedBase.from_config(cfg) as sim, enabled_canopen_nodes(cfg) as (net, nodes):
         sim.network.subscribe(0x80, lambda cid, data, ts: stamps.append(ts))
-        net, nodes = enabled_canopen_nodes(cfg)
         assert net.notifier is not None and net.bus is not None
         net.notifier.stop(1.0)
         bus = net.bus
         targets = []
         slots: dict[int, tuple[int, int, float]] = {}
+        pack = struct.Struct("<i").pack
         for i, (node, w) in enumerate(zip(nodes, cfg.wheels, strict=True)):
             var = node.rpdo[2]["Target velocity"]
-            fmt = struct.Struct("<i")
             msg = can.Message(arbitration_id=node.rpdo[2].cob_id, is_extended_id=False,
                               data=bytes(node.rpdo[2].data))
-            targets.append((msg, fmt.pack, var.offset // 8, w.velocity_scale,
+            targets.append((msg, pack, var.offset // 8, w.velocity_scale,
                             bytearray(node.rpdo[2].data)))
             pos = node.tpdo[2]["Position actual value"]
             slots[node.tpdo[2].cob_id] = (i, pos.offset // 8, w.position_scale)
@@ -333,34 +351,14 @@ def minimal_loop(rate_hz: float, seconds: float) -> None:
                 counters["cycles"] += 1
                 nxt = sleep_to_next_tick(nxt, period)
 
-        t = threading.Thread(target=loop, name="minimal-loop")
-        t.start()
-        time.sleep(0.3)
-        c0, l0, s0 = counters["cycles"], counters["late"], counters["samples"]
-        cpu0 = thread_cpu(t)
-        stamps.clear()
-        t0 = time.monotonic()
-        time.sleep(seconds)
-        cycles, late = counters["cycles"] - c0, counters["late"] - l0
-        cpu = thread_cpu(t) - cpu0
-        elapsed = time.monotonic() - t0
-        sync = list(stamps)
-        samples = counters["samples"] - s0
-        stop.set()
-        t.join()
+        counted, figures = run_hand_loop(loop, "minimal-loop", rate_hz, seconds, stop,
+                                         counters, stamps)
         truth = sim.true_pose
-        for node in nodes:
-            node.rpdo[1]["Controlword"].raw = 0
-            node.rpdo[1].transmit()
-        net.disconnect()
     # Proof that it did the work: a position sample from every wheel each cycle, and its
     # pose where the simulator's true pose is (within the motion since its last sample).
-    emit(bench="minimal", rate_hz=rate_hz, achieved_hz=round(cycles / elapsed, 1),
-         host_cpu_us_per_cycle=round(cpu / max(cycles, 1) * 1e6, 1),
-         late_fraction=round(late / max(cycles, 1), 4),
-         samples_per_cycle=round(samples / max(cycles, 1), 2),
-         odometry_error_mm=round(math.hypot(pose[0] - truth.x, pose[1] - truth.y) * 1e3, 2),
-         **jitter(sync, rate_hz))
+    emit(bench="minimal", rate_hz=rate_hz, **figures,
+         samples_per_cycle=round(counted["samples"] / max(counted["cycles"], 1), 2),
+         odometry_error_mm=round(math.hypot(pose[0] - truth.x, pose[1] - truth.y) * 1e3, 2))
 
 
 # ---------------------------------------------------------------- lock-step
