@@ -21,10 +21,11 @@ from typing import Any
 import can
 import canopen
 
-from omnican.cia301 import COB_ID_MASK, SYNC_COB_ID
+from omnican.cia301 import COB_ID_MASK, SDO_RX_BASE, SYNC_COB_ID
 from omnican.clock import REAL_TIME, Clock
 from omnican.errors import BusError, ConfigError
 from omnican.lockstep import LockstepBus
+from omnican.network import FRAME_ERRORS, Network, frame_error
 from omnican.pdoplan import frame_bits
 
 logger = logging.getLogger(__name__)
@@ -290,50 +291,26 @@ class _Traffic(can.Listener):
         pass
 
 
-class _Network(canopen.Network):
-    """canopen's network with every sent frame counted and recorded, and subscriptions
-    that never change a list the Notifier thread may be iterating.
-
-    canopen's ``notify`` iterates ``subscribers[cob]`` on the Notifier thread, while a
-    configuration worker subscribes and unsubscribes PDO handlers: an in-place
-    ``list.remove`` under a running iteration skips the next callback. Each change here
-    builds a new list and swaps it in (one atomic dict store)."""
+class _Network(Network):
+    """The shared-bus network (:mod:`omnican.network`) with every sent frame counted and
+    recorded, and the configuration SDO requests counted per node (a node whose answers
+    outnumber them is two devices on one id)."""
 
     def __init__(self, owner: CanBus) -> None:
-        self._subscribe_lock = threading.Lock()  # before canopen's __init__ subscribes
         super().__init__()
         self._owner = owner
+        self.sdo_requests: dict[int, int] = {}  # node id -> configuration requests sent
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        if SDO_RX_BASE < can_id <= SDO_RX_BASE + 0x7F:
+            node = can_id - SDO_RX_BASE
+            self.sdo_requests[node] = self.sdo_requests.get(node, 0) + 1
         if self._owner.lockstep:  # the answers arrive inside the send: record it first
             self._owner._sent(can_id, data)
             super().send_message(can_id, data, remote)
             return
         super().send_message(can_id, data, remote)
         self._owner._sent(can_id, data)
-
-    def check(self) -> None:
-        """canopen raises the Notifier's stored receive error after every send; omnican's
-        listener handles those errors (the bus counts as down, then is reopened), so a
-        handled one must not fail the sends that follow (a configuration after the link
-        came back, say)."""
-
-    def subscribe(self, can_id: int, callback: Any) -> None:
-        with self._subscribe_lock:
-            current = self.subscribers.get(can_id, [])
-            if callback not in current:
-                self.subscribers[can_id] = [*current, callback]
-
-    def unsubscribe(self, can_id: int, callback: Any = None) -> None:
-        with self._subscribe_lock:
-            current = self.subscribers.get(can_id)
-            if current is None:
-                return
-            kept = [] if callback is None else [c for c in current if c != callback]
-            if kept:
-                self.subscribers[can_id] = kept
-            else:
-                del self.subscribers[can_id]
 
 
 def shutdown_quietly(bus: can.BusABC) -> None:
@@ -492,15 +469,15 @@ class CanBus:
                 bits += frame_bits[len(data)]
                 for listener in extra:
                     listener.on_message_received(msg)
-                if msg.is_error_frame or msg.is_remote_frame:
-                    continue
+                if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+                    continue  # 29-bit frames are other devices', never CANopen
                 callbacks = subscribers.get(msg.arbitration_id)
                 if callbacks:
                     try:
                         for callback in callbacks:
                             callback(msg.arbitration_id, data, msg.timestamp)
                     except Exception as exc:  # a callback's failure must not stop reception
-                        logger.error("handling frame 0x%03X: %s", msg.arbitration_id, exc)
+                        frame_error(msg.arbitration_id, exc)
         finally:
             traffic.loop_frames += frames
             traffic.loop_bits += bits
@@ -717,6 +694,7 @@ class CanBus:
                 with contextlib.suppress(Exception):
                     pdo.stop()
         self._release()
+        FRAME_ERRORS.flush()
         if self.recorder is not None:
             self.recorder.close()
 

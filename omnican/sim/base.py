@@ -23,6 +23,7 @@ from omnican.config import ChassisConfig, WheelConfig
 from omnican.errors import BusError, ConfigError
 from omnican.kinematics import OmniKinematics, Twist
 from omnican.lockstep import LockstepBus, listeners_receiver
+from omnican.network import Network
 from omnican.odometry import Odometry, Pose2D
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.scheduler import SimScheduler
@@ -47,14 +48,6 @@ class _ReceiveErrors(can.Listener):
         time.sleep(0.05)
 
     def stop(self) -> None:
-        pass
-
-
-class _Network(canopen.Network):
-    """canopen's network without its after-send check, which raises a receive error the
-    Notifier kept although it was handled (the SDO answers after a link flap)."""
-
-    def check(self) -> None:
         pass
 
 
@@ -126,7 +119,7 @@ class SimulatedBase:
         if len(scales) != len(cfg.wheels):
             raise ConfigError(f"true_scale has {len(scales)} values for {len(cfg.wheels)} wheels")
         clock = clock if clock is not None else REAL_TIME
-        network = _Network()
+        network = Network()
         network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the Notifier
         if clock.lockstep:
             channel = bus_kwargs.get("channel")
