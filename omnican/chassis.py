@@ -35,17 +35,27 @@ from typing import Any
 from omnican import bus as bus_module
 from omnican import cia402
 from omnican.bus import CanBus
-from omnican.cia301 import HEARTBEAT_BASE, NMT_COB_ID, NmtCommand, NmtState
-from omnican.cia402 import State, describe_emcy
+from omnican.cia301 import (
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    NMT_COMMAND_NAMES,
+    NmtCommand,
+    NmtState,
+    nmt_state_name,
+)
+from omnican.cia402 import Command, State, describe_emcy
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
 from omnican.encoder import SPEED_WINDOW_S
 from omnican.errors import DriveError, OmnicanError
+from omnican.heartbeat import HeartbeatSchedule
 from omnican.kinematics import Twist
 from omnican.layout import cycle_bits, node_layouts
 from omnican.limits import VelocityLimiter
+from omnican.logthrottle import Throttle
 from omnican.odometry import Odometry, Pose2D
+from omnican.sdocycle import SDO_REQUEST_BASE, download_request
 
 logger = logging.getLogger(__name__)
 
@@ -59,7 +69,8 @@ STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being config
 # Enum members as plain names: each State.X costs a descriptor call on Python 3.11.
 _ENABLED, _FAULT, _FAULT_REACTION, _UNKNOWN = (State.OPERATION_ENABLED, State.FAULT,
                                                State.FAULT_REACTION_ACTIVE, State.UNKNOWN)
-_PRE_OPERATIONAL = NmtState.PRE_OPERATIONAL
+_PRE_OPERATIONAL, _OPERATIONAL = NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL
+_NMT_LOG = Throttle(logger)
 HEALTH_CHECK_HZ = 250.0  # faster loops check the drives' health every few cycles (below)
 SIGNAL_GRACE_S = 3.0  # repeated signals this soon after the first do not cut the stop short
 
@@ -224,6 +235,15 @@ class _SignalGuard:
                 signal.signal(sig, old if old is not None else signal.SIG_DFL)
         self._saved = {}
 
+    def at_exit(self) -> None:
+        """The interpreter is ending within the grace: ignore the signals from here on.
+        Python puts back the default SIGINT as it finalises, and a second Ctrl-C landing
+        then would end the program by the signal, after it did all it had to."""
+        if self._lingering and time.monotonic() - self._first_at < SIGNAL_GRACE_S:
+            for sig in self.SIGNALS:
+                with contextlib.suppress(ValueError, TypeError, OSError):
+                    signal.signal(sig, signal.SIG_IGN)
+
     @contextlib.contextmanager
     def closing(self) -> Iterator[None]:
         self._closing += 1
@@ -261,6 +281,7 @@ _signals = _SignalGuard()
 def _close_all() -> None:
     for base in list(_open_chassis):
         base.close()
+    _signals.at_exit()
 
 
 class Chassis:
@@ -283,7 +304,7 @@ class Chassis:
         # target in the cycle that sees it (``all_enabled`` below), the latch only makes
         # that stop stick, a few ms later (4 ms at 1 kHz, 8 ms at most).
         self._health_every = max(1, math.ceil(cfg.chassis.rate_hz / HEALTH_CHECK_HZ))
-        self._hb_period = cfg.chassis.heartbeat_ms / 1000.0
+        self._heartbeat = HeartbeatSchedule(cfg.chassis.heartbeat_ms / 1000.0, self._period)
         self._cmd_timeout = cfg.chassis.cmd_timeout_s
         self._max_wheel_speed = cfg.chassis.max_wheel_speed
         self._axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
@@ -301,6 +322,12 @@ class Chassis:
         self._recovering = False
         self._config_failed: set[int] = set()  # nodes whose re-configuration failed
         self._nmt_started: dict[int, float] = {}  # when NMT start was last re-sent, by node
+        self._sdo_stop_sent: dict[int, float] = {}  # a quick stop by SDO, by node
+        # NMT commands heard on the bus (receive thread appends, loop pops): never ours,
+        # since a bus does not hand a sender its own frames. Another master's.
+        self._foreign_nmt: collections.deque[tuple[int, int]] = collections.deque(maxlen=64)
+        self._node_ids = frozenset(n.node_id for n in nodes)
+        bus.network.subscribe(NMT_COB_ID, self._on_nmt)
         self._sdo_aborts: dict[int, int] = {}  # per-cycle SDO aborts seen, by node
         self._want_enabled = True
         self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
@@ -319,7 +346,6 @@ class Chassis:
         self._stop = threading.Event()
         self._cycles = 0
         self._late = 0
-        self._last_hb = -math.inf
         self._bus_fail_since: float | None = None
         self._bus_ok_since: float | None = None
         self._load_mark = (clock.now(), 0)
@@ -521,6 +547,10 @@ class Chassis:
             for node in self.nodes:
                 if node.node_id in self._offline and not node.heartbeat_lost(now):
                     self._offline.discard(node.node_id)
+                if (node.node_id not in self._configuring and node.nmt_state is not None
+                        and node.nmt_state != _OPERATIONAL):
+                    node.seen_operational = False  # left OPERATIONAL: start it again
+                    self._start_node(node, now)
             for stage in self._stages:
                 stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
             self._latched = None
@@ -680,16 +710,59 @@ class Chassis:
                 send(msg, bits)
         self._bus.sync()
         self._last_sync_time = self._bus.sync_time
-        if now - self._last_hb >= self._hb_period:
-            self._last_hb = now
+        heartbeat = self._heartbeat
+        if now >= heartbeat.send_at:  # on a fixed schedule: never a cycle late per period
+            heartbeat.sent(now)
             self._bus.send(HEARTBEAT_BASE + self.cfg.chassis.host_node_id,
                            bytes([NmtState.OPERATIONAL]))
         self._check_bus(now)
         self._cycles += 1
         self._snapshot = self._make_snapshot(now, limited)
 
+    def _left_operational(self, node: DriveNode, nmt: int, now: float) -> None:
+        """It ran and left OPERATIONAL (another master, the drive itself): it ignores
+        every PDO now, the zero targets of a stop included, and sends none (its statuswords
+        are no longer news). Nothing moves again without recover(); a drive in
+        PRE-OPERATIONAL still takes SDO, so it is told to quick-stop that way."""
+        nid = node.node_id
+        self._latch(f"node {nid} left OPERATIONAL (now {nmt_state_name(nmt)})")
+        for stage in node.stages:
+            stage.statusword_value = None
+        if nmt == _PRE_OPERATIONAL and now - self._sdo_stop_sent.get(nid, -math.inf) >= \
+                NMT_RESTART_S:
+            self._sdo_stop_sent[nid] = now
+            for stage in node.stages:
+                cw = stage.controlword
+                quick_stop = cia402.apply_command(stage.cw, Command.QUICK_STOP)
+                self._bus.send(SDO_REQUEST_BASE + nid,
+                               download_request(cw.index, cw.subindex, cw.encode(quick_stop)))
+
+    def _start_node(self, node: DriveNode, now: float) -> None:
+        self._nmt_started[node.node_id] = now
+        logger.info("node %d reports %s: starting it", node.node_id,
+                    nmt_state_name(node.nmt_state or 0))
+        self._bus.send(NMT_COB_ID, bytes([NmtCommand.START, node.node_id]))
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """An NMT command on the bus (receive thread): another master's."""
+        if len(data) >= 2 and (data[1] == 0 or data[1] in self._node_ids):
+            self._foreign_nmt.append((data[0], data[1]))
+
+    def _foreign_nmt_seen(self) -> None:
+        while self._foreign_nmt:
+            command, target = self._foreign_nmt.popleft()
+            name = NMT_COMMAND_NAMES.get(command, f"0x{command:02X}")
+            whom = "all nodes" if target == 0 else f"node {target}"
+            if command == NmtCommand.START:  # changes nothing for a node that runs
+                _NMT_LOG.warning(("start", target), "another master sent NMT %s to %s",
+                                 name, whom)
+                continue
+            self._latch(f"another master sent NMT {name} to {whom}")
+
     def _check_health(self, now: float) -> None:
         configuring, offline, sdo_aborts = self._configuring, self._offline, self._sdo_aborts
+        if self._foreign_nmt:
+            self._foreign_nmt_seen()
         for node in self.nodes:
             nid = node.node_id
             if nid in configuring:
@@ -698,13 +771,14 @@ class Chassis:
                 self._latch(f"node {nid} rebooted")
                 self._reconfigure(node, "its reboot")
                 continue
-            if (node.nmt_state == _PRE_OPERATIONAL and not self._closed
-                    and now - self._nmt_started.get(nid, -math.inf) >= NMT_RESTART_S):
-                # Configured and started, yet its heartbeat says PRE-OPERATIONAL (the
-                # start was lost, or the drive fell back): it ignores every PDO. Start it.
-                self._nmt_started[nid] = now
-                logger.info("node %d reports PRE-OPERATIONAL: starting it again", nid)
-                self._bus.send(NMT_COB_ID, bytes([NmtCommand.START, nid]))
+            nmt = node.nmt_state
+            if nmt is not None and nmt != _OPERATIONAL and not self._closed:
+                if node.seen_operational:
+                    self._left_operational(node, nmt, now)
+                elif now - self._nmt_started.get(nid, -math.inf) >= NMT_RESTART_S:
+                    # Configured and started, yet its heartbeat has never said OPERATIONAL:
+                    # the start was lost. Start it.
+                    self._start_node(node, now)
             aborts = node.sdo_counts.aborts
             if aborts != sdo_aborts.get(nid, 0):
                 # A drive that refuses the target written by SDO each cycle keeps turning
@@ -719,10 +793,15 @@ class Chassis:
                     self._latch(f"node {nid} heartbeat lost")
             elif nid in offline and (self._latched is None or self._recovering):
                 offline.discard(nid)
+            latched = self._latched is not None and not self._recovering
             for stage in node.stages:
                 state = stage.state
                 if state is _ENABLED or stage.allow_fault_reset:
                     continue  # all is well, or the stage driver resets faults (starting up)
+                if latched and stage.goal is _ENABLED and state is not _UNKNOWN:
+                    # Stopped and out of OPERATION ENABLED (a quick stop, a fault): left
+                    # de-energised until recover(), not walked back up meanwhile.
+                    stage.set_goal(State.SWITCH_ON_DISABLED)
                 if state is _FAULT or state is _FAULT_REACTION:
                     text = node.fault_text or (describe_emcy(stage.error_value)
                                                if stage.error_value else "no EMCY")
@@ -935,8 +1014,9 @@ class Chassis:
         with _signals.closing():
             try:
                 if self._loop_running():
-                    if controlled:
-                        self._controlled_shutdown()
+                    # Disabled whatever the way out: a failed open too (controlled=False
+                    # only skips the deceleration).
+                    self._controlled_shutdown(decelerate=controlled)
                     if self._task is not None:
                         self.clock.cancel(self._task)
                         self._task = None
@@ -957,16 +1037,21 @@ class Chassis:
                 if self._guards_signals:
                     self._guards_signals = False
                     _signals.release()
-        logger.info("base closed; drives disabled")
+        powered = [f"node {st.node_id} ({st.state})" for st in self._stages
+                   if st.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)]
+        if powered:
+            logger.error("base closed; not confirmed disabled: %s", ", ".join(powered))
+        else:
+            logger.info("base closed; drives disabled")
 
-    def _controlled_shutdown(self) -> None:
+    def _controlled_shutdown(self, decelerate: bool = True) -> None:
         self._cmd = (Twist(), -math.inf)
         s = self.cfg.chassis
         clock = self.clock
         speed = max(abs(self._limiter.output.linear_speed),
                     abs(self._limiter.output.wz) * max(self._kin.base_radius))
         deadline = clock.now() + speed / s.stop_decel + 0.5
-        while clock.now() < deadline:
+        while decelerate and clock.now() < deadline:
             if self._limiter.output.is_zero() and all(abs(v) < 0.005 for v in self._speeds):
                 break
             clock.sleep(self._period)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from omnican import heartbeat
 from omnican.cia402 import Mode
 from omnican.errors import ConfigError
 from omnican.kinematics import LAYOUTS, OmniKinematics
@@ -78,8 +79,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "mode": Key((str,), None, "\"pv\", \"csv\" or \"vl\"; default: pv, or what 6502h offers"),
         "host_node_id": Key((int,), 127, "node id of this host's heartbeat (0x700 + id)"),
         "heartbeat_ms": Key((int,), 100, "heartbeat period of host and drives, ms"),
-        "heartbeat_timeout_factor": Key(_NUM, 3.0, "a heartbeat is lost after this many periods"),
-        "sdo_timeout_s": Key(_NUM, 0.3, "one SDO request's timeout (retried once)"),
+        "heartbeat_timeout_factor": Key(_NUM, 3.0, "a heartbeat is lost after this many "
+                                        "periods and half a period more: that many lost in a "
+                                        "row stop the base, one fewer never does"),
+        "sdo_timeout_s": Key(_NUM, 0.3, "one SDO request's wait for its answer"),
+        "sdo_retries": Key((int,), 3, "an SDO request unanswered within sdo_timeout_s is sent "
+                           "again, up to this many times"),
         "boot_timeout_s": Key(_NUM, 2.0, "wait for a drive's boot-up after NMT reset"),
         "enable_timeout_s": Key(_NUM, 1.0, "bring a drive to OPERATION ENABLED within this"),
         "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
@@ -202,6 +207,7 @@ class ChassisSettings:
     heartbeat_ms: int = 100
     heartbeat_timeout_factor: float = 3.0
     sdo_timeout_s: float = 0.3
+    sdo_retries: int = 3
     boot_timeout_s: float = 2.0
     enable_timeout_s: float = 1.0
     pdo_mapping: str = "try"  # see pdoplan.MAPPING_POLICIES
@@ -388,6 +394,12 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         raise r.fail("chassis.host_node_id", f"must be 1-127, got {c['host_node_id']}")
     if not 1 <= c["heartbeat_ms"] <= 65535:
         raise r.fail("chassis.heartbeat_ms", f"must be 1-65535, got {c['heartbeat_ms']}")
+    if 1.0 / rate > heartbeat.max_cycle_s(c["heartbeat_ms"] / 1000.0):
+        raise r.fail("chassis.rate_hz", f"a {rate:g} Hz loop cannot send the host's heartbeat "
+                     f"every {c['heartbeat_ms']} ms: raise rate_hz to at least "
+                     f"{1000.0 / c['heartbeat_ms']:g} or heartbeat_ms")
+    if not 0 <= c["sdo_retries"] <= 20:
+        raise r.fail("chassis.sdo_retries", f"must be 0-20, got {c['sdo_retries']}")
     if c["pdo_mapping"] not in PDO_MAPPINGS:
         raise r.fail("chassis.pdo_mapping", f"must be one of {', '.join(PDO_MAPPINGS)}, got "
                      f"{c['pdo_mapping']!r}")
@@ -411,6 +423,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         heartbeat_ms=c["heartbeat_ms"],
         heartbeat_timeout_factor=float(c["heartbeat_timeout_factor"]),
         sdo_timeout_s=float(c["sdo_timeout_s"]),
+        sdo_retries=c["sdo_retries"],
         boot_timeout_s=float(c["boot_timeout_s"]),
         enable_timeout_s=float(c["enable_timeout_s"]),
         pdo_mapping=c["pdo_mapping"],

@@ -29,7 +29,7 @@ import canopen
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from omnican import cia402
+from omnican import cia402, heartbeat
 from omnican.bus import prepared_message
 from omnican.cia301 import (
     COB_ID_INVALID,
@@ -43,6 +43,7 @@ from omnican.cia301 import (
     TRANS_EVENT,
     TRANS_SYNC,
     NmtCommand,
+    NmtState,
     abort_text,
 )
 from omnican.cia402 import Command, Mode, State
@@ -50,6 +51,7 @@ from omnican.clock import REAL_TIME, Clock
 from omnican.config import WheelConfig
 from omnican.errors import DriveError
 from omnican.layout import NodeLayout
+from omnican.logthrottle import Throttle
 from omnican.odmap import AxisObjects, Entry, Obj, entry_at, obj_name
 from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer, frame_bits
 from omnican.sdocycle import (
@@ -64,7 +66,12 @@ from omnican.wire import PdoCodec
 logger = logging.getLogger(__name__)
 
 _UNKNOWN = State.UNKNOWN  # a plain name: State.X is a descriptor call on Python 3.11
+# Power stages with no torque: nothing to disable on the way out.
+_OFF_STATES = frozenset({State.SWITCH_ON_DISABLED, State.NOT_READY_TO_SWITCH_ON, State.FAULT})
 _MAX_PENDING = 8  # unanswered per-cycle SDO requests kept (a silent drive must not grow them)
+_EMCY_KEPT = 32  # EMCYs canopen keeps per node (its log and active list), newest last
+BOOT_RESETS = 4  # NMT resets sent (within boot_timeout_s) before a node counts as absent
+LOCKSTEP_SDO_WAIT_S = 0.001  # lock-step: an answer is in the queue when its request was sent
 
 
 class EpochSource(Protocol):
@@ -180,7 +187,8 @@ class StageDriver:
                 cmd.name.lower().replace("_", " ") if cmd else "waiting")
             self.error = (f"node {self.node_id}: stuck in {state} on the way to {self.goal}: "
                           f"{what} not accepted within {self.timeout_s:g} s")
-            logger.warning("%s", self.error)
+            # Said once, by whoever waits for the goal (open(), recover()): not here too.
+            logger.info("%s", self.error)
         cmd = cia402.command_towards(state, self.goal)
         if cmd is None:
             return None
@@ -290,8 +298,11 @@ class DriveNode:
         self.has_consumer = layout.has_consumer
         self.plan = layout.plan
         self.remote = canopen.RemoteNode(node_id, self.dictionary)
-        self.remote.sdo.RESPONSE_TIMEOUT = settings.sdo_timeout_s
-        self.remote.sdo.MAX_RETRIES = 1
+        # canopen's MAX_RETRIES counts attempts, not retries. In lock-step an answer arrives
+        # inside its request's send, or never: nothing to wait for.
+        self.remote.sdo.RESPONSE_TIMEOUT = (LOCKSTEP_SDO_WAIT_S if clock.lockstep
+                                            else settings.sdo_timeout_s)
+        self.remote.sdo.MAX_RETRIES = settings.sdo_retries + 1
         network.add_node(self.remote)
         self.stages = [StageDriver(node_id, s.controlword, s.statusword, s.mode, s.mode_display,
                                    s.error_code, settings.enable_timeout_s)
@@ -313,6 +324,11 @@ class DriveNode:
         # Liveness and events (Notifier thread writes; loop reads).
         self.last_heartbeat: float | None = None
         self.nmt_state: int | None = None
+        # Heard OPERATIONAL since its configuration: a node that then reports another
+        # state left OPERATIONAL (another master, its own doing); one that never did may
+        # only have missed its start.
+        self.seen_operational = False
+        self.twins = False  # two devices answer as this node: never configured, never talked to
         # Boot-ups seen (only the Notifier thread writes it) and the one the present
         # configuration followed (only the configuring thread writes it): a drive that
         # booted since it was configured has lost its configuration.
@@ -320,8 +336,10 @@ class DriveNode:
         self.configured_boot = 0
         self._boot_seen = threading.Condition()
         self.emcy: EmcyError | None = None
+        self._emcy_log = Throttle(logger, clock=clock.now)
         self.fault_text: str | None = None
-        self._hb_period = settings.heartbeat_ms / 1000.0
+        self._hb_timeout = heartbeat.timeout_s(settings.heartbeat_ms / 1000.0,
+                                               settings.heartbeat_timeout_factor)
         network.subscribe(HEARTBEAT_BASE + node_id, self._on_heartbeat)
         self.remote.emcy.add_callback(self._on_emcy)
 
@@ -472,6 +490,8 @@ class DriveNode:
         state = data[0] & NMT_STATE_MASK
         self.last_heartbeat = self.clock.now()
         self.nmt_state = state
+        if state == NmtState.OPERATIONAL:
+            self.seen_operational = True
         if state == 0:
             with self._boot_seen:
                 self.boot_count += 1
@@ -483,17 +503,24 @@ class DriveNode:
         return self.boot_count != self.configured_boot
 
     def _on_emcy(self, error: EmcyError) -> None:
+        emcy = self.remote.emcy  # canopen keeps every EMCY: a storm would fill the memory
+        with emcy.emcy_received:
+            for kept in (emcy.log, emcy.active):
+                if len(kept) > _EMCY_KEPT:
+                    del kept[:-_EMCY_KEPT]
         if error.code == 0:
             self.fault_text = None
         else:
             self.emcy = error
             self.fault_text = cia402.describe_emcy(error.code)
-            logger.warning("node %d EMCY %s", self.node_id, self.fault_text)
+            # A drive in an EMCY storm (or a device imitating one) gets a line every few
+            # seconds per code, with a count, not one per frame.
+            self._emcy_log.warning(error.code, "node %d EMCY %s", self.node_id, self.fault_text)
 
     def heartbeat_lost(self, now: float) -> bool:
         if self.last_heartbeat is None:
             return False
-        return now - self.last_heartbeat > self._hb_period * self.settings.heartbeat_timeout_factor
+        return now - self.last_heartbeat > self._hb_timeout
 
     # ------------------------------------------------------------ SDO configuration
 
@@ -505,8 +532,11 @@ class DriveNode:
         except SdoAbortedError as exc:
             raise DriveError(f"node {self.node_id}: {doing} refused: {abort_text(exc.code)}"
                              ) from None
-        except SdoCommunicationError as exc:
-            raise DriveError(f"node {self.node_id}: no SDO answer {doing}: {exc}") from None
+        except SdoCommunicationError:
+            sdo = self.remote.sdo
+            wait = self.settings.sdo_timeout_s if not self.clock.lockstep else 0.0
+            raise DriveError(f"node {self.node_id}: no SDO answer {doing} ({sdo.MAX_RETRIES} "
+                             f"attempts{f', {wait:g} s each' if wait else ''})") from None
 
     def _sdo_write(self, entry_or_index: Entry | int, subindex: int, data: bytes,
                    what: str) -> None:
@@ -519,8 +549,17 @@ class DriveNode:
             self._sdo_write(entry, entry.subindex, entry.encode(value), what)
 
     def configure(self, warn: list[str] | None = None) -> None:
-        """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded."""
+        """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded.
+
+        Raises DriveError naming the node and what it was doing; also when two devices
+        answer as this node (each boot-up and SDO answer comes twice), before it starts."""
+        with self._counting_sdo_answers():
+            self._configure(warn)
+        self.network.send_message(NMT_COB_ID, bytes([NmtCommand.START, self.node_id]))
+
+    def _configure(self, warn: list[str] | None) -> None:
         s = self.settings
+        self.seen_operational = False
         self._reset_communication()
         # PDOs first: a drive that refuses the plan is reset once more to get its own
         # mapping back, which also resets what is set below in 1000h-1FFFh (1016h, 1017h).
@@ -533,8 +572,8 @@ class DriveNode:
         self._sdo_write(PRODUCER_HEARTBEAT_TIME, 0, s.heartbeat_ms.to_bytes(2, "little"),
                         "heartbeat producer")
         if self.has_consumer:
-            ms = round(s.heartbeat_ms * s.heartbeat_timeout_factor)
-            value = (s.host_node_id << 16) | min(ms, 0xFFFF)
+            ms = heartbeat.consumer_time_ms(s.heartbeat_ms, s.heartbeat_timeout_factor)
+            value = (s.host_node_id << 16) | ms
             self._sdo_write(CONSUMER_HEARTBEAT_TIME, 1, value.to_bytes(4, "little"),
                             "heartbeat consumer")
             abort = self.axes[0].objs.get(Obj.ABORT_OPTION)
@@ -547,7 +586,6 @@ class DriveNode:
             ax.reseed()
             ax.raw, ax.epoch = None, -1
         self._drop_canopen_pdo_handlers()
-        self.network.send_message(NMT_COB_ID, bytes([NmtCommand.START, self.node_id]))
 
     def _drop_canopen_pdo_handlers(self) -> None:
         """canopen's PdoMap subscribes its own decoder to each PDO it saves or reads;
@@ -560,18 +598,68 @@ class DriveNode:
 
     def _reset_communication(self) -> None:
         """NMT reset communication and wait for the boot-up: the drive's 1000h-1FFFh
-        (PDOs, heartbeat) are back at their power-on values."""
+        (PDOs, heartbeat) are back at their power-on values. A reset or a boot-up lost on
+        the way is asked for again, up to ``BOOT_RESETS`` times within boot_timeout_s."""
         s = self.settings
+        wait = 0.0 if self.clock.lockstep else s.boot_timeout_s / BOOT_RESETS
         with self._boot_seen:
             before = self.boot_count
-        self.network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_COMMUNICATION, self.node_id]))
+        booted = resets = 0
+        while not booted and resets < BOOT_RESETS:
+            resets += 1
+            self.network.send_message(NMT_COB_ID,
+                                      bytes([NmtCommand.RESET_COMMUNICATION, self.node_id]))
+            with self._boot_seen:
+                if self._boot_seen.wait_for(lambda: self.boot_count != before, wait):
+                    booted = self.boot_count - before
+        if not booted:
+            within = f" within {s.boot_timeout_s:g} s" if wait else ""
+            raise DriveError(f"node {self.node_id}: no boot-up{within} after NMT reset "
+                             f"communication (sent {BOOT_RESETS} times; powered? node id? "
+                             "bitrate?)")
+        if resets == 1 and booted > 1:  # one reset, two boot-ups
+            self.twins = True
+            raise DriveError(self._twins(f"{booted} boot-ups answered one NMT reset"))
         with self._boot_seen:
-            if not self._boot_seen.wait_for(lambda: self.boot_count != before,
-                                            s.boot_timeout_s):
-                raise DriveError(f"node {self.node_id}: no boot-up within "
-                                 f"{s.boot_timeout_s:g} s after NMT reset communication "
-                                 "(powered? node id? bitrate?)")
             self.configured_boot = self.boot_count
+
+    def _twins(self, evidence: str) -> str:
+        return (f"node {self.node_id}: two devices answer as node {self.node_id} ({evidence}): "
+                "a cloned drive? give each its own node id")
+
+    @contextlib.contextmanager
+    def _counting_sdo_answers(self) -> Iterator[None]:
+        """Count this node's SDO answers against the requests sent meanwhile: a second
+        device on the same id answers every request too."""
+        answers = [0]
+
+        def count(can_id: int, data: bytearray, timestamp: float) -> None:
+            answers[0] += 1
+
+        requests: dict[int, int] = getattr(self.network, "sdo_requests", {})
+        asked = requests.get(self.node_id, 0)
+        cob = self.remote.sdo.tx_cobid
+
+        def twins() -> str | None:
+            sent = requests.get(self.node_id, 0) - asked
+            if sent and answers[0] >= 3 + 1.5 * sent:
+                self.twins = True
+                return self._twins(f"{answers[0]} SDO answers to {sent} requests")
+            return None
+
+        self.network.subscribe(cob, count)
+        try:
+            yield
+        except DriveError:
+            found = twins()  # what failed may be the second device's doing
+            if found is not None:
+                raise DriveError(found) from None
+            raise
+        finally:
+            self.network.unsubscribe(cob, count)
+        found = twins()
+        if found is not None:
+            raise DriveError(found)
 
     def _configure_ramps(self) -> None:
         """Drive ramps a little steeper than omnican's own limits, so they never lag them."""
@@ -770,10 +858,27 @@ class DriveNode:
         return io.msg, io.bits
 
     def stop(self) -> None:
-        """Stop watching the host (consumer off) and leave OPERATIONAL; best effort."""
+        """Disable any power stage not known to be off, stop watching the host (consumer
+        off) and leave OPERATIONAL; best effort."""
         # A bus that refuses frames (down, transmit queue full) must not turn the way
         # out into a traceback: the drives' heartbeat consumers stop them anyway.
-        if self.has_consumer and self.boot_count:  # a node never heard has no consumer on
+        if not self.boot_count or self.twins:
+            return  # never heard, or two devices answering as one: nothing was enabled
+        for stage in self.stages:
+            # The loop's disable did not get there (it did not run, or not for long
+            # enough); a STOPPED node answers no SDO (its 6007h reaction stopped it).
+            if stage.state not in _OFF_STATES and self.nmt_state != NmtState.STOPPED:
+                cw = stage.controlword
+                off = cia402.apply_command(stage.cw, Command.DISABLE_VOLTAGE)
+                try:
+                    self.remote.sdo.download(cw.index, cw.subindex, cw.encode(off))
+                    sw = stage.statusword  # what it is now, for the closing line
+                    raw = self.remote.sdo.upload(sw.index, sw.subindex)
+                    stage.statusword_value = sw.decode(raw) & 0xFFFF
+                except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+                    logger.warning("node %d: disabling its drive by SDO failed: %s",
+                                   self.node_id, exc)
+        if self.has_consumer:
             try:
                 self.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
@@ -786,6 +891,7 @@ class DriveNode:
             logger.debug("node %d: NMT pre-operational not sent: %s", self.node_id, exc)
 
     def detach(self) -> None:
+        self._emcy_log.flush()
         for cob, handler in self._subscribed:
             if handler in self.network.subscribers.get(cob, []):
                 self.network.unsubscribe(cob, handler)

@@ -25,6 +25,7 @@ from omnican.cia301 import (
     IDENTITY,
     MAX_NODE_ID,
     PRODUCER_HEARTBEAT_TIME,
+    SDO_TX_BASE,
     nmt_state_name,
 )
 from omnican.cia402 import supported_modes
@@ -52,6 +53,7 @@ class FoundNode:
     name: str | None = None
     heartbeat_ms: int | None = None  # producer heartbeat time (1017h); 0: sends none
     flags: tuple[str, ...] = field(default=())  # where it disagrees with the config
+    answers: int = 1  # answers to the scan's one SDO request: 2 or more, two devices
 
     @property
     def supported_modes(self) -> frozenset[int]:
@@ -89,7 +91,7 @@ def probe(network: canopen.Network, node_id: int, sdo_timeout_s: float) -> Found
     """Read what a node says about itself over SDO (each read bounded, not retried)."""
     node = canopen.RemoteNode(node_id, od.ObjectDictionary())
     node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
-    node.sdo.MAX_RETRIES = 0
+    node.sdo.MAX_RETRIES = 1  # canopen counts attempts (0 would retry for ever)
     network.add_node(node)
     try:
         try:
@@ -118,20 +120,29 @@ def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout_s: float) -> list[Foun
     that sends no heartbeat is asked by node guarding (a remote frame), which many
     drives answer. ``nmt`` stays None when neither tells."""
     heartbeats: dict[int, int] = {}
+    answers: dict[int, int] = {}
 
     def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
         if data:
             heartbeats[can_id - HEARTBEAT_BASE] = data[0]
 
+    def on_answer(can_id: int, data: bytearray, timestamp: float) -> None:
+        node_id = can_id - SDO_TX_BASE
+        answers[node_id] = answers.get(node_id, 0) + 1
+
     with CanBus(cfg.bus) as can_bus:
         network = can_bus.network
         for node_id in range(1, MAX_NODE_ID + 1):
             network.subscribe(HEARTBEAT_BASE + node_id, on_frame)
+            network.subscribe(SDO_TX_BASE + node_id, on_answer)
         started = time.monotonic()
         network.scanner.search()  # SDO upload of 1000h to every node id
         time.sleep(listen_s)
+        for node_id in range(1, MAX_NODE_ID + 1):  # one request each, counted: now the reads
+            network.unsubscribe(SDO_TX_BASE + node_id, on_answer)
         ids = sorted((set(network.scanner.nodes) | set(heartbeats)) - {cfg.chassis.host_node_id})
-        found = [probe(network, node_id, sdo_timeout_s) for node_id in ids]
+        found = [replace(probe(network, node_id, sdo_timeout_s), answers=answers.get(node_id, 0))
+                 for node_id in ids]
         _wait_for_heartbeats(found, heartbeats, started)
         silent = [f.node_id for f in found if f.node_id not in heartbeats]
         for node_id in silent:
@@ -159,9 +170,12 @@ def _wait_for_heartbeats(found: list[FoundNode], heard: dict[int, int], started:
 def flags(found: FoundNode, layout: NodeLayout | None) -> tuple[str, ...]:
     """Where a found node disagrees with its config entry (``layout``; None: the config
     does not know the node)."""
-    if layout is None:
-        return ("not in the config",)
     out = []
+    if found.answers > 1:
+        out.append(f"{found.answers} devices answer as node {found.node_id} (a cloned drive? "
+                   "give each its own node id)")
+    if layout is None:
+        return (*out, "not in the config")
     if found.device_type is not None and found.device_type & 0xFFFF != CIA_402:
         out.append(f"device profile {found.device_type & 0xFFFF}, not CiA 402")
     info = layout.dictionary.device_information

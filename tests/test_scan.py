@@ -40,3 +40,26 @@ def test_check_flags_what_disagrees(channel: str) -> None:
     # A stranger on the bus is flagged, but only configured nodes make the check fail.
     report = check([replace(good, node_id=n) for n in (1, 2, 3, 9)], layouts)
     assert report.found[-1].flags == ("not in the config",) and report.ok
+
+
+def test_scan_reports_two_devices_answering_as_one_node(channel: str) -> None:
+    import canopen
+
+    from omnican.sim import SimulatedDrive
+
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg):
+        net = canopen.Network()
+        net.connect(interface="virtual", channel=channel)
+        twin = SimulatedDrive(net, 3)  # a second drive with node 3's settings
+        try:
+            found = scan(cfg, listen_s=0.2, sdo_timeout_s=0.2)
+        finally:
+            twin.close()
+            net.disconnect()
+    by_id = {f.node_id: f for f in found}
+    assert by_id[3].answers == 2 and by_id[1].answers == 1
+    report = check(found, node_layouts(cfg))
+    assert not report.ok
+    (three,) = [f for f in report.found if f.node_id == 3]
+    assert any("2 devices answer as node 3" in flag for flag in three.flags), three.flags

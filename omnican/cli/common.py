@@ -217,6 +217,12 @@ def setup_logging(verbosity: int, stream: Any = None) -> None:
     # with a minimum of 1); canopen warns on every such read. Keep that for -v.
     logging.getLogger("canopen.objectdictionary").setLevel(
         logging.WARNING if verbosity >= 1 else logging.ERROR)
+    # canopen warns of each SDO request it sends again and logs the abort of one that
+    # failed: omnican retries on purpose (a lost frame is normal) and says itself, in
+    # one line naming the node and the step, when a request failed for good.
+    logging.getLogger("canopen.sdo.client").setLevel(
+        logging.DEBUG if verbosity >= 2 else logging.INFO if verbosity == 1 else
+        logging.CRITICAL)
 
 
 def fail(message: str, code: int = EXIT_FAILURE) -> int:

@@ -136,6 +136,8 @@ class _PowerStage:
     warning: bool = False
     fault_code: int = 0
     mode_cache: int | None = None
+    fault_persists: bool = False  # its cause is still there: a fault reset does not clear it
+    enable_held: bool = False  # no power for the motor (DC link off, safe torque off)
 
 
 class SimulatedDrive:
@@ -391,11 +393,26 @@ class SimulatedDrive:
 
     # ------------------------------------------------------------- injection
 
-    def inject_fault(self, code: int = 0x2310, axis: int = 0) -> None:
-        """Trip a fault: EMCY with ``code``, then FAULT REACTION ACTIVE -> FAULT."""
+    def inject_fault(self, code: int = 0x2310, axis: int = 0, persistent: bool = False) -> None:
+        """Trip a fault: EMCY with ``code``, then FAULT REACTION ACTIVE -> FAULT.
+        ``persistent``: its cause stays (a motor that has not cooled down): fault resets
+        are refused until :meth:`clear_fault`."""
         with self.lock:
             self._advance(self.clock.now())
-            self._fault(self.axes[axis].stage, code)
+            stage = self.axes[axis].stage
+            stage.fault_persists = persistent
+            self._fault(stage, code)
+
+    def clear_fault(self, axis: int = 0) -> None:
+        """The cause of a persistent fault is gone: the next fault reset clears it."""
+        with self.lock:
+            self.axes[axis].stage.fault_persists = False
+
+    def hold_switched_on(self, held: bool = True, axis: int = 0) -> None:
+        """The power stage cannot enable (no DC link voltage, safe torque off): enable
+        operation is ignored, the drive stays SWITCHED ON."""
+        with self.lock:
+            self.axes[axis].stage.enable_held = held
 
     def stop_heartbeat(self) -> None:
         """Stop producing heartbeats (the drive keeps working otherwise)."""
@@ -438,13 +455,14 @@ class SimulatedDrive:
             for stage in self.stages:
                 stage.state, stage.last_cw, stage.fault_code, stage.warning = (
                     State.SWITCH_ON_DISABLED, 0, 0, False)
-                stage.mode_cache = None
+                stage.mode_cache, stage.fault_persists = None, False
         else:
             self._reset_comm_objects()
         self._window = self._velocity_window()
         self._heartbeat_enabled = True
         self._send(HEARTBEAT_BASE + self.node_id, bytes([NmtState.BOOT_UP]), droppable=False)
         self._nmt = NmtState.PRE_OPERATIONAL
+        self._restart_consumers()
         self._load_heartbeat_config()
         self._last_heartbeat = self.clock.now()
 
@@ -472,6 +490,11 @@ class SimulatedDrive:
                 self._subscribed_hb.add(producer)
         self._consumer_seen = {p: t for p, t in self._consumer_seen.items() if p in self._consumers}
         self._consumer_lost &= set(self._consumers)
+
+    def _restart_consumers(self) -> None:
+        """After a boot a consumer watches from the next heartbeat it receives, not from
+        one it heard before (a host that ran earlier)."""
+        self._consumer_seen, self._consumer_lost = {}, set()
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if len(data) < 2 or data[1] not in (0, self.node_id):
@@ -658,7 +681,7 @@ class SimulatedDrive:
         previous, stage.last_cw = stage.last_cw, value & 0xFFFF
         rising_reset = value & cia402.CW_FAULT_RESET and not previous & cia402.CW_FAULT_RESET
         if stage.state is State.FAULT:
-            if rising_reset:
+            if rising_reset and not stage.fault_persists:
                 stage.fault_code = 0
                 self._set_state(stage, State.SWITCH_ON_DISABLED)
                 self._emcy(EMCY_NO_ERROR, 0)  # error reset
@@ -674,6 +697,8 @@ class SimulatedDrive:
         if transition.number == 16 and self._quick_stop_option() not in (5, 6, 7, 8):
             return
         if transition.target is State.OPERATION_ENABLED:
+            if stage.enable_held:
+                return
             for ax in stage.axes:  # start from where the wheel is, not from an old demand
                 ax.state = motor.MotorState(ax.state.position, ax.state.velocity,
                                             ax.state.velocity)
