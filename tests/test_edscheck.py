@@ -20,6 +20,7 @@ from omnican.cli import main
 from omnican.config import load_config
 from omnican.errors import ConfigError
 from omnican.layout import node_layouts
+from omnican.odmap import load_dictionary
 
 from .conftest import VENDOR_EDS
 from .helpers import one_error_line, sim_config, vendor_config
@@ -178,3 +179,43 @@ def test_check_config_passes_real_drives_files(tmp_path: Path, eds: Path) -> Non
     code, out, err = run_main(["check-config", str(cfg)])
     assert code == 0, err
     assert f"{cfg}: OK" in out
+
+
+# ---------------------------------------------------------------- one section less
+
+
+def _sections(eds: Path) -> list[str]:
+    return [m.group(1) for line in eds.read_text().splitlines()
+            if (m := re.fullmatch(r"\[(1[0-9A-Fa-f]{3}(?:sub[0-9A-Fa-f]+)?)\]", line.strip()))]
+
+
+def relied_on(section: str) -> bool:
+    """Whether omnican relies on a communication-profile section of the bundled EDS."""
+    index, _, sub = section.partition("sub")
+    i, s = int(index, 16), int(sub, 16) if sub else None
+    if s is None and any(x.startswith(f"{index}sub") for x in _sections(WHEEL_EDS)):
+        return True  # the head of a record without the record: canopen cannot parse it
+    if i in (0x1000, 0x1001, 0x1017):
+        return True
+    if i == 0x1018:
+        return s in (None, 0, 1)
+    if i == 0x1016:
+        return s in (0, 1)
+    if 0x1400 <= i < 0x1C00:  # either half of a PDO, or a sub-index it must have
+        comm = i < 0x1600 or 0x1800 <= i < 0x1A00
+        return s is None or s == 0 or (comm and s in (1, 2))
+    return False
+
+
+def test_one_section_less_is_refused_exactly_when_omnican_relies_on_it(tmp_path: Path) -> None:
+    """Every communication-profile section of the bundled EDS, left out in turn."""
+    sections = _sections(WHEEL_EDS)
+    assert len(sections) > 100
+    for section in sections:
+        eds = edit_eds(tmp_path / f"without-{section}.eds", drop=(section,))
+        if relied_on(section):
+            with pytest.raises(ConfigError) as raised:
+                load_dictionary(eds)
+            assert f"0x{section[:4].upper()}" in str(raised.value), section
+        else:
+            load_dictionary(eds)
