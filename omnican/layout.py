@@ -17,7 +17,15 @@ from omnican.cia301 import CONSUMER_HEARTBEAT_TIME
 from omnican.cia402 import Mode
 from omnican.config import ChassisConfig, ChassisSettings, WheelConfig
 from omnican.errors import ConfigError
-from omnican.odmap import AxisObjects, Entry, Obj, declared_types, load_dictionary, obj_name
+from omnican.odmap import (
+    AxisObjects,
+    Entry,
+    Obj,
+    declared_types,
+    load_dictionary,
+    obj_name,
+    variable_at,
+)
 from omnican.pdoplan import NodePlan, frame_bits, plan_node
 
 
@@ -100,9 +108,8 @@ class NodeLayout:
                             used[(index, sub)] = (f"{obj_name(rec)} sub {sub}", width)
         problems = []
         for (index, sub), (name, bits) in used.items():
-            item = self.dictionary[index]
-            var = item if isinstance(item, od.ODVariable) else item.subindices.get(sub)
-            if not isinstance(var, od.ODVariable):
+            var = variable_at(self.dictionary, index, sub)
+            if var is None:
                 problems.append(f"0x{index:04X} {name} has no sub-index {sub}")
                 continue
             problem = edscheck.variable_problem(var, name, declared, bits)

@@ -150,6 +150,16 @@ def entry_at(dictionary: od.ObjectDictionary, index: int, subindex: int) -> Entr
     return _entry(obj, var, shared=False)
 
 
+def variable_at(dictionary: od.ObjectDictionary, index: int,
+                subindex: int) -> od.ODVariable | None:
+    """The variable at ``index:subindex`` (a VAR at sub 0, or a sub of a record or array)."""
+    item = dictionary.get(index)
+    if isinstance(item, od.ODVariable):
+        return item if subindex == 0 else None
+    var = item.subindices.get(subindex) if item is not None else None
+    return var if isinstance(var, od.ODVariable) else None
+
+
 def count_axes(dictionary: od.ObjectDictionary) -> int:
     """Number of axes a drive has, from its position-actual objects."""
     base = int(Obj.POSITION_ACTUAL)

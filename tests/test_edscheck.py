@@ -128,11 +128,12 @@ def test_check_config_refuses_an_eds_no_drive_could_have(tmp_path: Path, case: s
                                   "target velocity of a structure type"])
 def test_a_run_command_refuses_it_too(tmp_path: Path, case: str) -> None:
     cfg, eds = broken_config(tmp_path, case)
-    code, out, err = run_main(["drive", "--sim", "--config", str(cfg), "--vx", "0.2",
-                               "--duration", "0.3"])
-    assert code == 2
-    says(one_error_line(err), eds, case)
-    assert "pose" not in out
+    for argv in (["drive", "--sim", "--config", str(cfg), "--vx", "0.2", "--duration", "0.3"],
+                 ["sim", "--config", str(cfg), "--duration", "0.3"]):
+        code, out, err = run_main(argv)
+        assert code == 2
+        says(one_error_line(err), eds, case)
+        assert "pose" not in out and "serving" not in out
 
 
 @pytest.mark.parametrize("case", sorted(BROKEN))
