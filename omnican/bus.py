@@ -118,6 +118,7 @@ class _Recorder(can.Listener):
             return
         try:
             log.file.write("".join(lines))
+            log.file.flush()  # whole lines to the OS each batch: a crash loses only the queue
         except Exception as exc:  # a full disk must not take the bus down with it
             logger.error("recording to %s stopped: %s", self.path, exc)
             self._writer = None

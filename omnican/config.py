@@ -537,8 +537,17 @@ def _check_wheels(r: _Reader, s: ChassisSettings, wheels: tuple[WheelConfig, ...
 
 
 def check_eds_files(cfg: ChassisConfig, origin: str = "config") -> None:
-    """Each wheel's EDS exists, parses, has the axis and the objects omnican needs."""
-    from omnican.odmap import AxisObjects, Obj, load_dictionary, obj_name
+    """Each wheel's EDS exists, parses, has what every node needs (see
+    :mod:`omnican.edscheck`), the axis, and the objects omnican needs as integers."""
+    from omnican.edscheck import variable_problem
+    from omnican.odmap import (
+        AxisObjects,
+        Obj,
+        declared_types,
+        load_dictionary,
+        obj_name,
+        variable_at,
+    )
 
     cache: dict[Path, Any] = {}
     for i, w in enumerate(cfg.wheels):
@@ -555,11 +564,17 @@ def check_eds_files(cfg: ChassisConfig, origin: str = "config") -> None:
         mode = w.mode or Mode.PROFILE_VELOCITY
         target = Obj.VL_TARGET if mode is Mode.VELOCITY else Obj.TARGET_VELOCITY
         for obj in (Obj.CONTROLWORD, Obj.STATUSWORD, Obj.POSITION_ACTUAL, Obj.MODE, target):
-            if obj not in objs:
+            entry = objs.get(obj)
+            if entry is None:
                 raise ConfigError(
                     f"{where}: {w.eds.name} lacks {obj_name(obj)} "
                     f"(0x{int(obj):04X}) for axis {w.axis}, needed in {mode.short} mode"
                 )
+            var = variable_at(cache[w.eds], entry.index, entry.subindex)
+            problem = (variable_problem(var, entry.name, declared_types(w.eds))
+                       if var is not None else None)
+            if problem:
+                raise ConfigError(f"{where}: EDS {w.eds}: {problem}")
 
 
 def load_config(path: str | Path, check_eds: bool = True) -> ChassisConfig:

@@ -12,12 +12,20 @@ from dataclasses import dataclass
 
 from canopen import objectdictionary as od
 
-from omnican import cia402
+from omnican import cia402, edscheck
 from omnican.cia301 import CONSUMER_HEARTBEAT_TIME
 from omnican.cia402 import Mode
 from omnican.config import ChassisConfig, ChassisSettings, WheelConfig
 from omnican.errors import ConfigError
-from omnican.odmap import AxisObjects, Entry, Obj, load_dictionary
+from omnican.odmap import (
+    AxisObjects,
+    Entry,
+    Obj,
+    declared_types,
+    load_dictionary,
+    obj_name,
+    variable_at,
+)
 from omnican.pdoplan import NodePlan, frame_bits, plan_node
 
 
@@ -74,7 +82,40 @@ class NodeLayout:
                                         objs[Obj.POSITION_ACTUAL], by_cw[key]))
         self.has_consumer = isinstance(self.dictionary.get(CONSUMER_HEARTBEAT_TIME),
                                        (od.ODArray, od.ODRecord))
+        problems = self._object_problems()
+        if problems:
+            raise ConfigError(f"node {node_id}: EDS {eds}: {edscheck.one_line(problems)}")
         self.plan = self._plan()
+
+    def _object_problems(self) -> list[str]:
+        """The CiA 402 objects the drive layer will map, write or read, each an integer
+        of a type omnican can encode (the node-wide objects were checked on loading)."""
+        declared = declared_types(self.eds)
+        used: dict[tuple[int, int], tuple[str, int | None]] = {}  # (index, sub): name, bits
+        for ax in self.axes:
+            objs = ax.objs
+            ramps = ((Obj.PROFILE_ACCEL, Obj.PROFILE_DECEL, Obj.QUICK_STOP_DECEL)
+                     if self.mode is not Mode.VELOCITY else ())
+            optional = (Obj.MODE, Obj.MODE_DISPLAY, Obj.ERROR_CODE, Obj.ABORT_OPTION, *ramps)
+            for entry in (ax.target, ax.position, objs[Obj.CONTROLWORD], objs[Obj.STATUSWORD],
+                          *(e for e in map(objs.get, optional) if e is not None)):
+                used.setdefault((entry.index, entry.subindex), (entry.name, None))
+            if self.mode is Mode.VELOCITY:  # delta speed written as 32 bits, delta time as 16
+                for rec in (Obj.VL_ACCEL, Obj.VL_DECEL):
+                    index = objs.record(rec)
+                    if index is not None:
+                        for sub, width in ((1, 32), (2, 16)):
+                            used[(index, sub)] = (f"{obj_name(rec)} sub {sub}", width)
+        problems = []
+        for (index, sub), (name, bits) in used.items():
+            var = variable_at(self.dictionary, index, sub)
+            if var is None:
+                problems.append(f"0x{index:04X} {name} has no sub-index {sub}")
+                continue
+            problem = edscheck.variable_problem(var, name, declared, bits)
+            if problem:
+                problems.append(problem)
+        return problems
 
     def _choose_mode(self, wheels: list[tuple[int, WheelConfig]]) -> Mode:
         """The configured mode, else the first of pv, csv, vl that 6502h offers, else pv."""

@@ -14,12 +14,16 @@ only reads a parsed :class:`canopen.ObjectDictionary`.
 
 from __future__ import annotations
 
+import configparser
 import enum
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from canopen import objectdictionary as od
+from canopen.objectdictionary import datatypes
 
+from omnican import edscheck
 from omnican.errors import ConfigError
 
 AXIS_OFFSET = 0x800
@@ -146,6 +150,16 @@ def entry_at(dictionary: od.ObjectDictionary, index: int, subindex: int) -> Entr
     return _entry(obj, var, shared=False)
 
 
+def variable_at(dictionary: od.ObjectDictionary, index: int,
+                subindex: int) -> od.ODVariable | None:
+    """The variable at ``index:subindex`` (a VAR at sub 0, or a sub of a record or array)."""
+    item = dictionary.get(index)
+    if isinstance(item, od.ODVariable):
+        return item if subindex == 0 else None
+    var = item.subindices.get(subindex) if item is not None else None
+    return var if isinstance(var, od.ODVariable) else None
+
+
 def count_axes(dictionary: od.ObjectDictionary) -> int:
     """Number of axes a drive has, from its position-actual objects."""
     base = int(Obj.POSITION_ACTUAL)
@@ -224,15 +238,56 @@ class AxisObjects:
 
 
 def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:
-    """Parse an EDS/DCF file; a missing or unreadable file is a :class:`ConfigError`."""
+    """Parse an EDS/DCF file and check what omnican needs of every node's dictionary
+    (:func:`omnican.edscheck.dictionary_problems`); a missing, unreadable or impossible
+    file is a :class:`ConfigError` of one line naming the file and the object."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"EDS file not found: {p}")
     try:
-        return od.import_od(str(p), node_id)
+        dictionary = od.import_od(str(p), node_id)
     except Exception as exc:  # canopen raises a variety of parser errors, some multi-line
         text = str(exc).strip().splitlines()[0].rstrip(".") if str(exc).strip() else \
             type(exc).__name__
         line = getattr(exc, "lineno", None)  # configparser's errors know where
         where = f" at line {line}" if isinstance(line, int) else ""
         raise ConfigError(f"cannot parse EDS {p}: {text}{where}") from None
+    problems = edscheck.dictionary_problems(dictionary, declared_types(p))
+    if problems:
+        raise ConfigError(f"EDS {p}: {edscheck.one_line(problems)}")
+    return dictionary
+
+
+_SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]+))?")
+
+
+def declared_types(path: Path) -> edscheck.DeclaredType:
+    """The DataType a variable has in the file itself: canopen turns one it does not know
+    (0x0020, a structure) into DOMAIN. The file is read again only for such a variable."""
+    sections: dict[tuple[int, int], str] | None = None
+
+    def declared(var: od.ODVariable) -> int:
+        nonlocal sections
+        parsed = var.data_type or 0
+        if parsed != datatypes.DOMAIN:
+            return parsed
+        if sections is None:
+            parser = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=False)
+            parser.optionxform = str  # type: ignore[assignment,method-assign]
+            try:
+                parser.read(path)  # as canopen reads it
+            except (configparser.Error, OSError, UnicodeDecodeError):
+                return parsed
+            sections = {}
+            for name in parser.sections():
+                m = _SECTION.fullmatch(name)
+                text = parser.get(name, "DataType", fallback=None)
+                if m and text is not None:
+                    sections[(int(m.group(1), 16), int(m.group(2) or "0", 16))] = text
+        text = sections.get((var.index, var.subindex))
+        try:
+            return int(text, 0) if text is not None else parsed
+        except ValueError:
+            return parsed
+
+    return declared

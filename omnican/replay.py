@@ -10,16 +10,19 @@ frames in time order and applies the chassis' rules:
 * counters are folded into continuous counts across wrap-around, and a drive's
   boot-up (a reboot) restarts the fold without a jump, as :class:`omnican.drive.AxisIO`.
 
-:func:`read_frames` is the only I/O: it reads any python-can log format by extension.
+:func:`read_frames` is the only I/O: it reads any python-can log format by extension,
+and ``.mcap``. A recording cut short (the recording process killed) or damaged is read
+up to the damage (a candump ``.log`` line by line: only the damaged lines are lost), with
+one warning saying how much could not be read (:func:`cut_note`).
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import IO, Any, Protocol, TextIO, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -119,6 +122,7 @@ class Replay:
     syncs: int  # every SYNC in the recording
     reboots: tuple[tuple[float, int], ...]  # (t, node id): boot-ups the host did not ask for
     node_frames: int  # frames from or to the configured nodes (0: wrong config?)
+    cut: str | None = None  # cut short or damaged: what was read and what not (cut_note)
 
     @property
     def complete_syncs(self) -> int:
@@ -342,11 +346,43 @@ _FORMATS = {
 }
 
 
+def _size(n: int) -> str:
+    return f"{n} bytes" if n < 1024 else f"{n / 1024:.0f} KB" if n < 1024 * 1024 else \
+        f"{n / 1024 / 1024:.1f} MB"
+
+
+def cut_note(frames: Sequence[Frame], unreadable: int | None, lines: int | None = None) -> str:
+    """What to say of a recording that could not be read whole (after its name):
+    ``read 5.1 s of frames; the rest (12 KB) is damaged or cut off`` (``unreadable``
+    bytes; None: unknown). ``lines``: the damaged lines a text log left out
+    (``unreadable`` bytes of them)."""
+    stamps = [f.timestamp for f in frames]
+    read = f"read {max(stamps) - min(stamps) if stamps else 0.0:.1f} s of frames"
+    if lines is not None:
+        return (f"{read}; {lines} damaged or cut-off line{'s' if lines != 1 else ''} "
+                f"({_size(unreadable or 0)}) left out")
+    if unreadable is None:
+        return f"{read}; the rest is damaged or cut off"
+    if unreadable == 0:
+        return f"{read}; the file ends there, cut off (never closed)"
+    return f"{read}; the rest ({_size(unreadable)}) is damaged or cut off"
+
+
 def read_frames(path: str | Path) -> list[Any]:
-    """Every frame of a python-can log file (format by extension: .log, .asc, .blf, ...).
+    """Every frame of a recording (format by extension: .log, .asc, .blf, ..., .mcap);
+    of one cut short or damaged, what could be read, with one warning (:func:`cut_note`).
 
     Raises RecordingError (one line) for a missing, unreadable or empty file or an
     unknown format."""
+    frames, note = read_recording(path)
+    if note:
+        logger.warning("%s: %s", path, note)
+    return frames
+
+
+def read_recording(path: str | Path) -> tuple[list[Any], str | None]:
+    """The frames of a recording, and what could not be read of it (:func:`cut_note`;
+    None: nothing)."""
     import can
 
     p = Path(path)
@@ -354,14 +390,29 @@ def read_frames(path: str | Path) -> list[Any]:
         raise RecordingError(f"recording not found: {p}")
     if p.suffix.lower() == ".mcap":
         return _read_mcap(p)
+    note = None
     try:
         if p.suffix.lower() == ".blf":  # python-can's BLFReader leaks its file on a bad header
             with p.open("rb") as f:
                 if f.read(4) != b"LOGG":
                     raise RecordingError(f"{p}: not a readable .blf recording: no BLF header")
-        reader = can.LogReader(str(p))
-        with reader:
-            frames = list(reader)
+        if p.suffix.lower() == ".log":
+            frames, lines, bad = _read_candump(p)
+            if lines and frames:
+                note = cut_note(frames, bad, lines)
+            elif lines:
+                raise ValueError("no line is a frame")
+        else:
+            frames = []
+            reader = can.LogReader(str(p))
+            with reader:
+                try:
+                    for frame in reader:
+                        frames.append(frame)
+                except Exception:
+                    if not frames:
+                        raise
+                    note = cut_note(frames, None)
     except OSError as exc:
         raise RecordingError(f"cannot read recording {p}: {exc.strerror or exc}") from None
     except RecordingError:
@@ -378,27 +429,92 @@ def read_frames(path: str | Path) -> list[Any]:
             from None
     if not frames:
         raise RecordingError(f"{p}: no CAN frames in the recording")
-    return frames
+    return frames, note
 
 
-def _read_mcap(p: Path) -> list[Any]:
+class _CandumpLines:
+    """The lines of a candump log for python-can's reader, as text; a line that is no
+    text, or the last one when the file does not end with a newline (cut off mid-line),
+    is counted and left out here."""
+
+    def __init__(self, raw: IO[bytes]) -> None:
+        self._raw = raw
+        self.bad_lines = 0
+        self.bad_bytes = 0
+        self.taken = 0  # lines handed to the reader
+        self.last = b""
+
+    def __iter__(self) -> _CandumpLines:
+        return self
+
+    def __next__(self) -> str:
+        for line in self._raw:
+            if line.endswith(b"\n"):
+                try:
+                    text = line.decode("ascii")
+                except UnicodeDecodeError:
+                    pass
+                else:
+                    self.last = line
+                    self.taken += 1
+                    return text
+            self.count_bad(line)
+        raise StopIteration
+
+    def count_bad(self, line: bytes) -> None:
+        self.bad_lines += 1
+        self.bad_bytes += len(line)
+
+    def close(self) -> None:
+        """The reader closes its file when done; the file is the caller's."""
+
+
+def _read_candump(p: Path) -> tuple[list[Any], int, int]:
+    """A candump ``.log`` line by line: its frames, and the number of lines (and bytes)
+    that were no frame: damaged, or cut off at the end."""
+    from can.io.canutils import CanutilsLogReader
+
+    frames: list[Any] = []
+    with p.open("rb") as raw:
+        lines = _CandumpLines(raw)
+        while True:
+            taken = lines.taken
+            try:
+                frames.extend(CanutilsLogReader(cast(TextIO, lines)))
+                break
+            except Exception:  # that line is no frame: go on with the next one
+                if lines.taken == taken:  # not a line's fault
+                    raise
+                lines.count_bad(lines.last)
+    return frames, lines.bad_lines, lines.bad_bytes
+
+
+def _read_mcap(p: Path) -> tuple[list[Any], str | None]:
     """The CAN frames of an MCAP recording (``--record run.mcap``)."""
     try:
-        from omnican.mcap_record import read_frames as read_mcap
-        frames = read_mcap(p)
+        from omnican.mcap_record import read_recording as read_mcap
+        read = read_mcap(p)
     except ImportError:
         raise RecordingError(f"{p}: reading MCAP needs pip install 'omnican[mcap]'") from None
     except OSError as exc:
         raise RecordingError(f"cannot read recording {p}: {exc.strerror or exc}") from None
-    except Exception as exc:  # the mcap reader raises its own kinds for a broken file
-        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise RecordingError(f"{p}: not a readable .mcap recording: {text}") from None
-    if not frames:
+    if not read.frames:
+        if read.problem.startswith("not an MCAP file"):
+            raise RecordingError(f"{p}: not a readable .mcap recording: {read.problem}")
+        if not read.whole:
+            raise RecordingError(
+                f"{p}: no CAN frames in the recording: it is cut off or damaged before the "
+                f"first ones ({_size(read.size - read.unreadable)} of {_size(read.size)} "
+                "readable)")
         raise RecordingError(f"{p}: no CAN frames in the recording (no /from_can_bus or "
                              "/to_can_bus messages)")
-    return frames
+    return read.frames, None if read.whole else cut_note(read.frames, read.unreadable)
 
 
 def load(path: str | Path, cfg: ChassisConfig) -> Replay:
-    """Read and decode a recording made on ``cfg``'s base."""
-    return decode(read_frames(path), cfg)
+    """Read and decode a recording made on ``cfg``'s base (one cut short or damaged: what
+    could be read, with one warning; :attr:`Replay.cut` says what was not)."""
+    frames, note = read_recording(path)
+    if note:
+        logger.warning("%s: %s", path, note)
+    return replace(decode(frames, cfg), cut=note)

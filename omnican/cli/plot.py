@@ -135,8 +135,9 @@ def build_figure(rep: replay.Replay, title: str,
     state_rows = max(1, len(rep.stages))
     heights = [1.0] * n + [max(0.8, 0.35 * state_rows)]
     grid = fig.add_gridspec(n + 1, 2, width_ratios=[1.0, 1.45], height_ratios=heights)
+    cut = f"; recording cut: {rep.cut}" if rep.cut else ""
     fig.suptitle(f"{title}\n{rep.duration:.1f} s, {rep.complete_syncs} of {rep.syncs} SYNCs "
-                 f"with every wheel's position, {len(rep.emcy)} EMCY", fontsize=12)
+                 f"with every wheel's position, {len(rep.emcy)} EMCY{cut}", fontsize=12)
 
     # Trajectory.
     ax = fig.add_subplot(grid[:, 0])

@@ -64,6 +64,11 @@ class Transport(Protocol):
         ...
 
 
+def _read_text(path: str) -> str:
+    with open(path, encoding="utf-8") as f:  # as Cyclone reads it: bytes, mostly ASCII
+        return f.read()
+
+
 class DdsTransport:
     """Cyclone DDS: one domain and participant; topics ``rt/<name>`` with ROS 2's
     type names; data in XCDR1, the representation ROS 2's middlewares use."""
@@ -72,7 +77,7 @@ class DdsTransport:
         from cyclonedds.core import DDSException
         from cyclonedds.domain import Domain, DomainParticipant
 
-        self.config = cyclone_config(settings, env_uri)
+        self.config = cyclone_config(settings, env_uri, _read_text)
         said: list[str] = []
         try:
             with _c_stderr_to(said):

@@ -1,5 +1,6 @@
 """What ``omnican ros2`` runs with: the ``[ros2]`` table, command-line overrides, ROS 2
-names, and the Cyclone DDS configuration. Pure: no DDS, no I/O.
+names, and the Cyclone DDS configuration. Pure: no DDS, no I/O (the user's Cyclone files
+are read through a function the caller passes).
 
 ROS 2 naming (as rcl does it): a relative name ``cmd_vel`` lives in the node's
 namespace (``/robot1/cmd_vel``), ``~/recover`` under the node (``/robot1/omnican/recover``),
@@ -10,9 +11,10 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
+from xml.etree import ElementTree
 from xml.sax.saxutils import quoteattr
 
 from omnican.errors import ConfigError
@@ -220,19 +222,33 @@ def parse_remap(text: str) -> tuple[str, str]:
 
 # ------------------------------------------------------------ Cyclone DDS configuration
 
-def cyclone_config(s: Ros2Settings, env_uri: str | None = None) -> str:
+def cyclone_config(s: Ros2Settings, env_uri: str | None = None,
+                   read_file: Callable[[str], str] | None = None) -> str:
     """The configuration string for ``cyclonedds.domain.Domain``: omnican's compatibility
     settings first, then the user's ``CYCLONEDDS_URI`` (files or XML, which may override
     them), then what ``[ros2]`` or the command line said about the network (which wins).
 
-    Cyclone reads a comma-separated list of XML fragments and ``file://`` URIs, later
-    ones overriding earlier ones, which is the form ``CYCLONEDDS_URI`` takes."""
+    Cyclone reads a comma-separated list of XML fragments and file names (``file://``
+    URIs too), later ones overriding earlier ones, which is the form ``CYCLONEDDS_URI``
+    takes. Lists are not overridden but added to: an interface named by the user and by
+    omnican is selected twice, which Cyclone refuses, and a user's other interface or
+    peer would widen ``--sim``'s loopback-only network. So where omnican names the
+    interface, the user's interface selection is left out of the user's part, and where
+    it names peers, the user's peers; the rest of the user's configuration stays.
+    ``read_file`` (a path -> its text) reads the user's files for that; without it, or
+    for a file it cannot read or parse, the user's part goes to Cyclone as it is."""
     parts = [_domain_xml(
         "<Compatibility>"
         f"<IgnoreTypeInformation>{EPROSIMA_VENDOR_ID}</IgnoreTypeInformation>"
         "</Compatibility>")]
     if env_uri and env_uri.strip():
-        parts.append(env_uri.strip())
+        drop = (_INTERFACE_TAGS if s.interface is not None else frozenset()) | (
+            _PEER_TAGS if s.peers else frozenset())
+        if drop:
+            parts += [_without(item, is_xml, drop, read_file)
+                      for item, is_xml in split_cyclone_uri(env_uri)]
+        else:
+            parts.append(env_uri.strip())
     general = ""
     if s.interface is not None:
         general += ("<Interfaces><NetworkInterface "
@@ -250,6 +266,85 @@ def cyclone_config(s: Ros2Settings, env_uri: str | None = None) -> str:
     if network:
         parts.append(_domain_xml(network))
     return ",".join(parts)
+
+
+# What selects network interfaces in a Cyclone configuration: General/Interfaces and the
+# deprecated General elements (which Cyclone refuses beside General/Interfaces), and the
+# discovery peers. Cyclone matches element names without regard to case.
+_INTERFACE_TAGS = frozenset({"networkinterface", "networkinterfaceaddress",
+                             "multicastrecvnetworkinterfaceaddresses",
+                             "assumemulticastcapable", "prefermulticast"})
+_PEER_TAGS = frozenset({"peer"})
+_XML_TOKEN = re.compile(r"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<[?!].*?>|<(/?)[^>]*?(/?)>", re.S)
+
+
+def split_cyclone_uri(uri: str) -> Iterator[tuple[str, bool]]:
+    """The items of a ``CYCLONEDDS_URI`` as Cyclone reads them: (text, True) for an XML
+    fragment (it starts with ``<`` and runs to the end of its element, commas and all),
+    (name, False) for a file (up to the next comma)."""
+    i, n = 0, len(uri)
+    while True:
+        while i < n and (uri[i].isspace() or uri[i] == ","):
+            i += 1
+        if i >= n:
+            return
+        if uri[i] != "<":
+            end = uri.find(",", i)
+            end = n if end < 0 else end
+            yield uri[i:end].strip(), False
+            i = end
+            continue
+        depth, end = 0, n
+        for m in _XML_TOKEN.finditer(uri, i):
+            closing, empty = m.group(1), m.group(2)
+            if closing is None:  # a comment, CDATA, declaration or processing instruction
+                continue
+            depth += -1 if closing else 0 if empty else 1
+            if depth <= 0:
+                end = m.end()
+                break
+        yield uri[i:end], True
+        i = end
+
+
+def _without(item: str, is_xml: bool, drop: frozenset[str],
+             read_file: Callable[[str], str] | None) -> str:
+    """One item of the user's configuration without the elements ``drop`` names (local
+    names, lower case), inline; the item as it was when nothing goes or it cannot be read."""
+    if is_xml:
+        text = item
+    elif read_file is None:
+        return item
+    else:
+        try:
+            text = read_file(item[len("file://"):] if item.startswith("file://") else item)
+        except (OSError, UnicodeDecodeError):
+            return item  # Cyclone says it cannot open it
+    try:
+        root = ElementTree.fromstring(text)
+    except ElementTree.ParseError:
+        return item  # Cyclone says what is wrong with it
+    removed = False
+    for parent in list(root.iter()):
+        for child in list(parent):
+            if _local(child.tag).lower() in drop:
+                parent.remove(child)
+                removed = True
+    if not removed:
+        return item
+    for parent in list(root.iter()):  # an Interfaces or Peers left empty goes too
+        for child in list(parent):
+            if _local(child.tag).lower() in ("interfaces", "peers") and len(child) == 0:
+                parent.remove(child)
+    for element in root.iter():  # Cyclone reads plain names: no namespace prefixes
+        element.tag = _local(element.tag)
+        for key in [k for k in element.attrib if k.startswith("{")]:
+            del element.attrib[key]
+    return ElementTree.tostring(root, encoding="unicode")
+
+
+def _local(tag: Any) -> str:
+    return str(tag).rpartition("}")[2]
 
 
 def _domain_xml(inner: str) -> str:
@@ -282,5 +377,6 @@ __all__ = [
     "normalize_namespace",
     "parse_remap",
     "resolve_name",
+    "split_cyclone_uri",
     "validate",
 ]
