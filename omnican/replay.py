@@ -387,7 +387,9 @@ def _read_mcap(p: Path) -> list[Any]:
         from omnican.mcap_record import read_frames as read_mcap
         frames = read_mcap(p)
     except ImportError:
-        raise RecordingError(f"{p}: reading MCAP needs pip install 'omnican[mcap]'") from None
+        from omnican.extras import install_hint
+
+        raise RecordingError(f"{p}: reading MCAP needs {install_hint('mcap')}") from None
     except OSError as exc:
         raise RecordingError(f"cannot read recording {p}: {exc.strerror or exc}") from None
     except Exception as exc:  # the mcap reader raises its own kinds for a broken file
