@@ -7,7 +7,6 @@ Every front end says it the same way; nothing here imports an extra."""
 from __future__ import annotations
 
 import functools
-import importlib.metadata
 import importlib.util
 import json
 import os
@@ -50,6 +49,8 @@ def _source() -> tuple[str, bool] | None:
     tree = Path(__file__).resolve().parents[1]
     if (tree / "pyproject.toml").is_file() and (tree / "omnican").is_dir():
         return str(tree), True
+    import importlib.metadata  # only here: it costs more than the rest of startup
+
     for dist in importlib.metadata.distributions(name="omnican"):
         text = dist.read_text("direct_url.json")
         if not text:
