@@ -179,8 +179,9 @@ TABLE_KEYS: dict[str, str] = {
                       "(LB / L1)",
     "turbo_button": "button for the turbo scales, e.g. \"BTN_TR\"; \"\" for none; default the "
                     "preset's (RB / R1)",
-    "require_deadman": "false: move without holding the deadman",
-    **{f"axis_{a}": f"axis for {a}, e.g. \"ABS_Y\"; default the preset's" for a in _AXES},
+    "require_deadman": "whether the deadman must be held for any motion",
+    **{f"axis_{a}": f"axis for {a}, e.g. \"{code}\"; default the preset's"
+       for a, code in zip(_AXES, ("ABS_Y", "ABS_X", "ABS_RX"), strict=True)},
     **{f"scale_{a}": f"{a} at full deflection ({'rad/s' if a == 'wz' else 'm/s'}; "
                      "negative flips it)" for a in _AXES},
     **{f"turbo_scale_{a}": f"{a} at full deflection with turbo held" for a in _AXES},
