@@ -502,7 +502,8 @@ def test_a_bus_that_cannot_be_built_is_a_usage_error(argv: list[str], message: s
     for var in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
         monkeypatch.delenv(var, raising=False)
     monkeypatch.setenv("HOME", "/nonexistent")  # no ~/.canrc
-    for command in (["drive", "--vx", "0.1"], ["scan"], ["monitor", "--duration", "0.1"]):
+    for command in (["drive", "--vx", "0.1"], ["scan"], ["monitor", "--duration", "0.1"],
+                    ["sim", "--duration", "0.1"]):
         code, out, err = run_main([*command, *argv])
         assert code == 2 and out == "", (command, err)
         assert message in one_error_line(err), (command, err)

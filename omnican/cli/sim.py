@@ -21,6 +21,7 @@ from typing import Any
 from omnican.cli.common import (
     UsageError,
     add_config_argument,
+    check_bus,
     bus_overrides,
     finite_float,
     load,
@@ -182,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
     options = {"encoder_noise": args.encoder_noise, "frame_loss": args.frame_loss}
     hub = None
     if on_bus:
+        check_bus(cfg.bus)
         where = ", ".join(f"{k}={v}" for k, v in (cfg.bus or {}).items())
         connect = f"omnican teleop {' '.join(_bus_flags(cfg.bus or {}))}"
     else:
