@@ -21,8 +21,8 @@ from typing import Any
 from omnican.cli.common import (
     UsageError,
     add_config_argument,
-    check_bus,
     bus_overrides,
+    check_bus,
     finite_float,
     load,
     pose_line,
