@@ -7,18 +7,37 @@ Public API (see DESIGN.md)::
 
 from __future__ import annotations
 
+import importlib
 from typing import TYPE_CHECKING, Any
-
-from omnican.config import WHEEL_EDS, ChassisConfig, WheelConfig, default_config, load_config
-from omnican.errors import BusError, ConfigError, DriveError, OmnicanError
-from omnican.kinematics import OmniKinematics, Twist
-from omnican.limits import VelocityLimiter, VelocityLimits
-from omnican.odometry import Odometry, Pose2D
 
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
     from omnican.chassis import Chassis, WheelState
+    from omnican.config import (
+        WHEEL_EDS,
+        ChassisConfig,
+        WheelConfig,
+        default_config,
+        load_config,
+    )
+    from omnican.errors import BusError, ConfigError, DriveError, OmnicanError
+    from omnican.kinematics import OmniKinematics, Twist
+    from omnican.limits import VelocityLimiter, VelocityLimits
+    from omnican.odometry import Odometry, Pose2D
+
+# Each public name and the module it lives in. Nothing is imported with the package:
+# `omnican --version` and `--help` must not pay for numpy, python-can or canopen.
+_HOMES = {
+    "WHEEL_EDS": "config", "ChassisConfig": "config", "WheelConfig": "config",
+    "default_config": "config", "load_config": "config",
+    "BusError": "errors", "ConfigError": "errors", "DriveError": "errors",
+    "OmnicanError": "errors",
+    "OmniKinematics": "kinematics", "Twist": "kinematics",
+    "VelocityLimiter": "limits", "VelocityLimits": "limits",
+    "Odometry": "odometry", "Pose2D": "odometry",
+    "Chassis": "chassis", "WheelState": "chassis",
+}
 
 __all__ = [
     "WHEEL_EDS",
@@ -43,9 +62,13 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    # The I/O layer (python-can, canopen) loads only when it is asked for.
-    if name in ("Chassis", "WheelState"):
-        from omnican import chassis
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'omnican' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"omnican.{home}"), name)
+    globals()[name] = value
+    return value
 
-        return getattr(chassis, name)
-    raise AttributeError(f"module 'omnican' has no attribute {name!r}")
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -216,6 +216,9 @@ def _recorder_for(path: Path) -> _Recorder | Any:
     return _Recorder(path)
 
 
+recorder_for = _recorder_for  # for a front end that records a bus of its own (monitor)
+
+
 class _Taps(can.Listener):
     """Listeners added while the bus runs (live views). It sits in every Notifier from the
     start, so adding one never touches a running Notifier (or races a reconnect). Tuples

@@ -55,6 +55,9 @@ class Correction:
 
     wheel_factors: tuple[float, ...]  # s_i: true counts per m / configured position_scale
     radius_factor: float = 1.0  # g: true base radius / configured
+    # Significant digits the corrected numbers are written with: what the measurements
+    # support (see measured_digits), not a float's noise (0.1938, not 0.1937999).
+    digits: int = 7
 
     def __post_init__(self) -> None:
         for v in (*self.wheel_factors, self.radius_factor):
@@ -64,6 +67,9 @@ class Correction:
     @classmethod
     def common(cls, n_wheels: int, scale: float, radius_factor: float = 1.0) -> Correction:
         return cls((scale,) * n_wheels, radius_factor)
+
+    def with_digits(self, digits: int) -> Correction:
+        return replace(self, digits=digits)
 
     def apply(self, cfg: ChassisConfig) -> ChassisConfig:
         """``cfg`` with corrected scales and radii."""
@@ -76,6 +82,33 @@ class Correction:
             for w, s in zip(cfg.wheels, self.wheel_factors, strict=True))
         chassis = replace(cfg.chassis, base_radius=cfg.chassis.base_radius * g)
         return replace(cfg, chassis=chassis, wheels=wheels)
+
+
+# ---------------------------------------------------------------- how precise
+
+#: What a person measures a calibration run with: a tape to the millimetre, a mark on
+#: the floor to about a degree.
+DISTANCE_RESOLUTION_M = 0.001
+ANGLE_RESOLUTION_RAD = math.radians(1.0)
+
+
+def measured_digits(distance_m: float | None, angle_rad: float | None = None,
+                    distance_resolution_m: float = DISTANCE_RESOLUTION_M,
+                    angle_resolution_rad: float = ANGLE_RESOLUTION_RAD) -> int:
+    """Significant digits the corrected numbers carry, from the relative resolution of
+    the measurements (by default 1 mm over ``distance_m``, 1 degree over ``angle_rad``):
+    one more digit than the measurements resolve, between 3 and 6 (a seventh digit is
+    below what the odometry itself repeats to). 1 m and 2 turns measured by hand give 4
+    (0.1938, not 0.1937999)."""
+    parts = []
+    if distance_m:
+        parts.append(distance_resolution_m / abs(distance_m))
+    if angle_rad and abs(angle_rad) > 5 * angle_resolution_rad:
+        parts.append(angle_resolution_rad / abs(angle_rad))
+    if not parts:
+        return 6
+    relative = math.hypot(*parts)
+    return max(3, min(6, 1 + math.ceil(-math.log10(relative))))
 
 
 # ---------------------------------------------------------------- guided calibration
@@ -314,9 +347,9 @@ _KEY_VALUE = re.compile(
 )
 
 
-def format_number(value: float) -> str:
-    """A TOML float with 7 significant digits (``0.1938``, ``21487.35``)."""
-    return repr(float(f"{value:.7g}"))
+def format_number(value: float, digits: int = 7) -> str:
+    """A TOML float with ``digits`` significant digits (``0.1938``, ``21487.35``)."""
+    return repr(float(f"{value:.{digits}g}"))
 
 
 @dataclass(frozen=True)
@@ -369,7 +402,7 @@ def edit_config(text: str, correction: Correction) -> tuple[str, list[ConfigEdit
             out.append(line)
             continue
         old = float(m.group("value").replace("_", ""))
-        new = format_number(old * factor)
+        new = format_number(old * factor, correction.digits)
         edits.append(ConfigEdit(wheel if section == "wheel" else None, m.group("key"), old,
                                 float(new)))
         out.append(f"{m.group('pre')}{new}{m.group('post')}{ending}")
@@ -378,7 +411,8 @@ def edit_config(text: str, correction: Correction) -> tuple[str, list[ConfigEdit
 
 def check_edited(text: str, expected: ChassisConfig, origin: str = "config",
                  rel_tol: float = 1e-6) -> None:
-    """Raise ConfigError unless ``text`` loads with ``expected``'s scales and radii."""
+    """Raise ConfigError unless ``text`` loads with ``expected``'s scales and radii (to
+    ``rel_tol``: give about 10**(1 - digits) for numbers written with ``digits``)."""
     try:
         got = parse_config(tomllib.loads(text), origin, check_eds=False)
     except (tomllib.TOMLDecodeError, ConfigError) as exc:
@@ -398,7 +432,7 @@ def check_edited(text: str, expected: ChassisConfig, origin: str = "config",
                               "by hand")
 
 
-def render_config(cfg: ChassisConfig, comment: str = "") -> str:
+def render_config(cfg: ChassisConfig, comment: str = "", digits: int = 7) -> str:
     """A TOML config equivalent to ``cfg`` (for a config that has no file: the demo
     base). Chassis settings are written where they differ from the defaults; the
     [bus] table is left out (give the bus on the command line or in python-can's config)."""
@@ -408,7 +442,7 @@ def render_config(cfg: ChassisConfig, comment: str = "") -> str:
     c, default = cfg.chassis, ChassisSettings()
     if c.layout is not None:
         lines.append(f'layout = "{c.layout}"')
-    lines.append(f"base_radius = {format_number(c.base_radius)}")
+    lines.append(f"base_radius = {format_number(c.base_radius, digits)}")
     for f in fields(ChassisSettings):
         if f.name in ("layout", "base_radius"):
             continue
@@ -431,8 +465,8 @@ def render_config(cfg: ChassisConfig, comment: str = "") -> str:
             lines.append(f"axis = {w.axis}")
         if w.eds != WHEEL_EDS:
             lines.append(f"eds = {_toml_string(str(w.eds))}")
-        lines.append(f"velocity_scale = {format_number(w.velocity_scale)}")
-        lines.append(f"position_scale = {format_number(w.position_scale)}")
+        lines.append(f"velocity_scale = {format_number(w.velocity_scale, digits)}")
+        lines.append(f"position_scale = {format_number(w.position_scale, digits)}")
         for key in ("angle_deg", "drive_angle_deg", "base_radius"):
             value = getattr(w, key)
             if value is not None:

@@ -164,6 +164,10 @@ def reference_rows() -> list[tuple[str, str, str]]:
             else:
                 text = f"{d:g}"
             rows.append((f"{section}.{name}", text, spec.doc))
+    from omnican.gamepad_model import TABLE_DEFAULTS, TABLE_KEYS
+
+    rows += [(f"gamepad.{key}", TABLE_DEFAULTS.get(key, "-"), doc)
+             for key, doc in TABLE_KEYS.items()]
     return rows
 
 
@@ -443,6 +447,12 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         for key in ("joint_names", "peers"):
             if ros2[key] is not None and not all(isinstance(v, str) for v in ros2[key]):
                 raise r.fail(f"ros2.{key}", "must be an array of strings")
+    if ros2 is not None:  # the values as omnican ros2 checks them (0-232 for domain_id ...)
+        from omnican.ros2.settings import from_table
+
+        from_table(ros2, origin)
+    if "gamepad" in data:
+        _check_gamepad(r, data["gamepad"])
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2)
     try:
         cfg.kinematics()
@@ -451,6 +461,18 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     if check_eds:
         check_eds_files(cfg, r.origin)
     return cfg
+
+
+def _check_gamepad(r: _Reader, table: Any) -> None:
+    """The ``[gamepad]`` table as ``omnican teleop --gamepad`` reads it."""
+    from omnican.gamepad_model import TABLE_KEYS, mapping_from_table
+
+    if not isinstance(table, dict):
+        raise r.fail("gamepad", f"must be a table, got {type(table).__name__}")
+    for key in table:
+        if key not in TABLE_KEYS:
+            raise r.fail(f"gamepad.{key}", f"unknown key {key!r}{_suggest(key, TABLE_KEYS)}")
+    mapping_from_table(table, origin=f"{r.origin}: gamepad")
 
 
 def _parse_wheel(r: _Reader, i: int, data: Any, settings: ChassisSettings,

@@ -44,8 +44,9 @@ def _evdev() -> Any:
     try:
         import evdev
     except ImportError:
-        raise ConfigError("--gamepad needs evdev (Linux): pip install 'omnican[gamepad]'") \
-            from None
+        from omnican.extras import install_hint
+
+        raise ConfigError(f"--gamepad needs evdev (Linux): {install_hint('gamepad')}") from None
     return evdev
 
 

@@ -174,15 +174,24 @@ _AXES = ("vx", "vy", "wz")
 #: Keys of the config's ``[gamepad]`` table and their meaning (README lists them).
 TABLE_KEYS: dict[str, str] = {
     "preset": "xbox, ps (PS4/PS5), f710 (X mode) or f710-d; default: from the device name",
-    "deadzone": "stick deadzone, fraction of full deflection (default 0.05)",
-    "deadman_button": "button to hold for any motion, e.g. \"BTN_TL\" (default LB / L1)",
-    "turbo_button": "button for the turbo scales, e.g. \"BTN_TR\"; \"\" for none",
-    "require_deadman": "false: move without holding the deadman (default true)",
-    **{f"axis_{a}": f"axis for {a}, e.g. \"ABS_Y\"" for a in _AXES},
+    "deadzone": "stick deadzone, fraction of full deflection",
+    "deadman_button": "button to hold for any motion, e.g. \"BTN_TL\"; default the preset's "
+                      "(LB / L1)",
+    "turbo_button": "button for the turbo scales, e.g. \"BTN_TR\"; \"\" for none; default the "
+                    "preset's (RB / R1)",
+    "require_deadman": "whether the deadman must be held for any motion",
+    **{f"axis_{a}": f"axis for {a}, e.g. \"{code}\"; default the preset's"
+       for a, code in zip(_AXES, ("ABS_Y", "ABS_X", "ABS_RX"), strict=True)},
     **{f"scale_{a}": f"{a} at full deflection ({'rad/s' if a == 'wz' else 'm/s'}; "
                      "negative flips it)" for a in _AXES},
     **{f"turbo_scale_{a}": f"{a} at full deflection with turbo held" for a in _AXES},
 }
+#: Defaults of the ``[gamepad]`` keys that do not depend on the preset (README's reference).
+TABLE_DEFAULTS: dict[str, str] = {"deadzone": f"{DEFAULT_DEADZONE:g}", "require_deadman": "true"}
+for _a in _AXES:
+    _axis: AxisMap = getattr(PRESETS["xbox"], _a)  # every preset has the same scales
+    TABLE_DEFAULTS[f"scale_{_a}"] = f"{_axis.scale:g}"
+    TABLE_DEFAULTS[f"turbo_scale_{_a}"] = f"{_axis.turbo_scale:g}"
 
 
 def _code(where: str, value: Any, table: Mapping[str, int]) -> int:

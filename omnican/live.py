@@ -96,6 +96,39 @@ class _Tap(can.Listener):
         pass
 
 
+# How the SDK's server words a viewer that went away without a closing handshake (a
+# closed browser tab, a laptop that slept): a viewer leaving, not an error.
+_LEFT_WORDS = ("Connection reset", "closing handshake", "Broken pipe", "os error 104",
+               "os error 32")
+
+
+class _ViewerLeft(logging.Filter):
+    """Turns the SDK's ERROR "Error receiving from client ...: Connection reset ..." into
+    an INFO line that a viewer left; other records pass as they are."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if record.levelno >= logging.ERROR and "from client" in text and any(
+                w in text for w in _LEFT_WORDS):
+            client = text.split("from client", 1)[1].split(":", 2)
+            who = ":".join(client[:2]).strip() if len(client) > 1 else "a client"
+            record.msg, record.args = "Foxglove viewer %s left", (who,)
+            record.levelno, record.levelname = logging.INFO, "INFO"
+            return logging.getLogger(record.name).isEnabledFor(logging.INFO)
+        return True
+
+
+_VIEWER_LEFT = _ViewerLeft()
+
+
+def _quiet_viewers_leaving() -> None:
+    for name in ("foxglove.websocket.connected_client.poller",
+                 "foxglove.websocket.connected_client", "foxglove.websocket.server"):
+        logger_ = logging.getLogger(name)
+        if _VIEWER_LEFT not in logger_.filters:
+            logger_.addFilter(_VIEWER_LEFT)
+
+
 def _signal_schema(message: Any) -> dict[str, Any]:
     props: dict[str, Any] = {"timestamp": {"type": "object", "properties": {
         "sec": {"type": "integer"}, "nsec": {"type": "integer"}}}}
@@ -114,8 +147,10 @@ class LiveView:
         try:
             import foxglove
         except ImportError:
+            from omnican.extras import install_hint
+
             raise ConfigError("--foxglove needs the Foxglove SDK: "
-                              "pip install 'omnican[foxglove]'") from None
+                              f"{install_hint('foxglove')}") from None
         if base is None and sim is None:
             raise ValueError("nothing to publish: give a base, a simulated base or both")
         self.base, self.sim = base, sim
@@ -125,6 +160,7 @@ class LiveView:
         self._radius = tuple(w.wheel_radius for w in cfg.wheels)
         self._channel_name = str((cfg.bus or {}).get("channel", ""))
         self._ctx = foxglove.Context()
+        _quiet_viewers_leaving()
         if host not in LOOPBACK:
             logger.warning("Foxglove server on %s: anyone who reaches this host on port %d "
                            "sees the robot's data", host, port)
@@ -305,8 +341,9 @@ def foxglove_address(text: str) -> str:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     if importlib.util.find_spec("foxglove") is None:
-        raise argparse.ArgumentTypeError("needs the Foxglove SDK: pip install "
-                                         "'omnican[foxglove]'")
+        from omnican.extras import install_hint
+
+        raise argparse.ArgumentTypeError(f"needs the Foxglove SDK: {install_hint('foxglove')}")
     return text
 
 

@@ -63,8 +63,10 @@ class McapRecorder(can.Listener):
         try:
             from mcap.writer import CompressionType, Writer
         except ImportError:
+            from omnican.extras import install_hint
+
             raise ConfigError(f"recording to {path} needs the MCAP packages: "
-                              "pip install 'omnican[mcap]'") from None
+                              f"{install_hint('mcap')}") from None
         rosmsg.typestore()  # import errors surface here, not on the writer thread
         self.path = Path(path)
         try:

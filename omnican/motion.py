@@ -278,8 +278,10 @@ class Base(Protocol):
 
 @dataclass(frozen=True)
 class MotionResult:
-    """``twist``: the measured body twist at the end of the last leg (before the final
-    stop); ``elapsed_s``: seconds from the first command to the end of the last leg."""
+    """``twist``: the measured body twist at the end of the last leg: a timed leg's just
+    before the final stop, a goal leg's once the base stopped on its goal (a twist read
+    while it brakes into the goal says nothing); ``elapsed_s``: seconds from the first
+    command to the end of the last leg."""
 
     twist: Twist
     elapsed_s: float
@@ -342,9 +344,8 @@ def run(base: Base, plan: Sequence[Leg], progress: ProgressCallback | None = Non
                 clock.sleep(period_s)
             else:
                 logger.warning("%s: goal not reached within %.1f s", leg.label, leg.timeout_s)
-            if attempt == 0:
-                measured = base.twist
             settle(base)  # stop on the goal, so one leg does not run into the next
+            measured = base.twist
             if clock.now() >= end or goal_command(
                     leg, reference, base.pose, limits.max_accel, limits.max_angular_accel,
                     correcting=True) is None:

@@ -495,7 +495,9 @@ def _read_mcap(p: Path) -> tuple[list[Any], str | None]:
         from omnican.mcap_record import read_recording as read_mcap
         read = read_mcap(p)
     except ImportError:
-        raise RecordingError(f"{p}: reading MCAP needs pip install 'omnican[mcap]'") from None
+        from omnican.extras import install_hint
+
+        raise RecordingError(f"{p}: reading MCAP needs {install_hint('mcap')}") from None
     except OSError as exc:
         raise RecordingError(f"cannot read recording {p}: {exc.strerror or exc}") from None
     if not read.frames:

@@ -227,9 +227,10 @@ class TrafficCounter(can.Listener):
 
 
 @contextlib.contextmanager
-def listening(bus_kwargs: Mapping[str, Any], listener: can.Listener) -> Iterator[can.BusABC]:
-    """A bus of our own (``can.Bus(**bus_kwargs)``) on which ``listener`` hears every
-    frame; closed on exit. A bus that does not open is a BusError."""
+def listening(bus_kwargs: Mapping[str, Any], listener: can.Listener,
+              *more: can.Listener) -> Iterator[can.BusABC]:
+    """A bus of our own (``can.Bus(**bus_kwargs)``) on which ``listener`` (and ``more``)
+    hear every frame; closed on exit. A bus that does not open is a BusError."""
     try:
         bus = can.Bus(**bus_kwargs)
     except Exception as exc:  # python-can raises many kinds for a bad interface/channel
@@ -237,7 +238,7 @@ def listening(bus_kwargs: Mapping[str, Any], listener: can.Listener) -> Iterator
             "python-can's configuration"
         raise BusError(f"cannot open CAN bus ({where}): {exc}") from None
     try:
-        notifier = can.Notifier(bus, [listener], timeout=0.1)
+        notifier = can.Notifier(bus, [listener, *more], timeout=0.1)
         try:
             yield bus
         finally:

@@ -29,7 +29,7 @@ settings.load_profile("omnican")
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
-VENDOR_EDS = Path(__file__).resolve().parent / "vendor_eds"
+VENDOR_EDS = Path(__file__).resolve().parents[1] / "examples" / "eds"  # shipped as examples
 
 
 @pytest.fixture

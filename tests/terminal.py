@@ -49,6 +49,26 @@ class Pty:
                 self.screen += chunk
         return ANSI.sub("", self.screen)
 
+    def frame(self) -> list[str]:
+        """The lines of the last whole screen a full-screen program drew (rich's Live
+        starts each frame with the cursor home, ESC [ H); [] before the first one."""
+        frames = self.screen.split("\x1b[H")
+        if len(frames) < 3:  # what precedes the first frame, then one maybe cut short
+            return []
+        return ANSI.sub("", frames[-2]).replace("\r", "").split("\n")
+
+    def wait_for_frame(self, text: str, timeout: float = 15.0) -> list[str]:
+        """The first whole frame with ``text`` in it (the newest as it is read)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self.read(0.1)
+            lines = self.frame()
+            if any(text in line for line in lines):
+                return lines
+            if self.proc.poll() is not None:
+                break
+        raise AssertionError(f"{text!r} not in the last frame:\n" + "\n".join(self.frame()))
+
     def wait_for(self, text: str, timeout: float = 15.0) -> str:
         end = time.monotonic() + timeout
         while time.monotonic() < end:

@@ -225,7 +225,7 @@ def test_scan_flags_a_missing_node(tmp_path: Path, capsys: pytest.CaptureFixture
     monkeypatch.setattr(scan_cli, "scan", without_node_4)
     assert main(["scan", "--sim", "--config", str(cfg), "--listen", "0.2"]) == 1
     out = capsys.readouterr().out
-    assert "MISSING (configured, no answer)" in out
+    assert re.search(r"│ 4 +│ no answer .*│ MISSING \(configured\) +│", out), out
     assert "3 node(s) found; 1 configured node(s) missing" in out
 
 

@@ -174,7 +174,8 @@ def test_scripted_measurements_on_a_bus(tmp_path: Path, channel: str,
     assert result["scale_factor"] == pytest.approx(scale, rel=1e-12)
     assert result["radius_factor"] == pytest.approx(odo_angle / scale / math.radians(88),
                                                     rel=1e-12)
-    assert result["base_radius"] == pytest.approx([0.19, 0.19 * result["radius_factor"]])
+    # As written: to the 3 digits a tape and a floor mark resolve over 0.19 m and 88 deg.
+    assert result["base_radius"] == [0.19, float(f"{0.19 * result['radius_factor']:.3g}")]
     assert [row["factor"] for row in result["wheels"]] == pytest.approx([scale] * 3)
 
 
@@ -322,10 +323,10 @@ def test_fit_two_recordings_recovers_each_wheel_and_the_radius(
     assert max(abs(v) for row in result["residual_after"] for v in row) < 1e-3
     assert max(abs(v) for row in result["residual_before"] for v in row) > 0.02
     assert result["recordings"] == ["forward.log", "left.log"]
-    cfg = load_config(written)
-    assert cfg.chassis.base_radius == pytest.approx(0.19 * (1 + TRUE_RADIUS), rel=1e-3)
+    cfg = load_config(written)  # to the 3 digits hand-measured short runs resolve
+    assert cfg.chassis.base_radius == pytest.approx(0.19 * (1 + TRUE_RADIUS), rel=4e-3)
     assert [w.position_scale for w in cfg.wheels] == pytest.approx(
-        [208607.567 * (1 + e) for e in TRUE_SCALE], rel=1e-3)
+        [208607.567 * (1 + e) for e in TRUE_SCALE], rel=4e-3)
 
 
 def test_fit_one_recording_says_what_it_fits(recordings: Recordings,
@@ -340,7 +341,8 @@ def test_fit_one_recording_says_what_it_fits(recordings: Recordings,
     assert residual is not None, out[2]
     assert abs(float(residual.group(3))) < 0.05  # heading and x fit; y keeps what one scale
     assert out[3].startswith("wheel scale factor ")  # cannot explain
-    assert out[-1].startswith("base_radius 0.19 -> ")
+    assert out[-2].startswith("base_radius 0.19 -> ")
+    assert out[-1].startswith("nothing written: add --write OUT.toml")
 
 
 def test_fit_cannot_write_onto_a_directory(recordings: Recordings, tmp_path: Path,

@@ -163,7 +163,7 @@ def test_a_vendor_config_gets_its_own_frames(tmp_path: Path) -> None:
     from omnican import load_config
     from omnican.dbcgen import build_database
 
-    zlac = REPO / "tests" / "vendor_eds" / "zlac8015d.eds"
+    zlac = REPO / "examples" / "eds" / "zlac8015d.eds"
     cfg = tmp_path / "zlac.toml"
     cfg.write_text("[chassis]\nlayout = \"b21\"\nbase_radius = 0.2\n" + "".join(
         f'[[wheel]]\nnode_id = {n}\naxis = {a}\neds = "{zlac}"\nvelocity_scale = 100.0\n'

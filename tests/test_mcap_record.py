@@ -159,7 +159,10 @@ def test_recorder_drops_instead_of_blocking(tmp_path: Path) -> None:
 
 
 def test_unwritable_record_path_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["drive", "--sim", "--vx", "0.1", "--record", "/nonexistent/dir/run.mcap"]) == 2
+    with pytest.raises(SystemExit) as info:  # refused as the arguments are parsed
+        raise SystemExit(main(["drive", "--sim", "--vx", "0.1", "--record",
+                               "/nonexistent/dir/run.mcap"]))
+    assert info.value.code == 2
     assert "cannot record to /nonexistent/dir/run.mcap" in one_error_line(
         capsys.readouterr().err)
 

@@ -1,91 +1,130 @@
-"""The ``omnican`` command: one module per subcommand, each with ``add_subparser()``
-and ``run(args)`` (after cantools' layout). A subcommand whose optional dependency
-is missing still appears and says what to install; the others keep working."""
+"""The ``omnican`` command: one module per subcommand, each with ``add_subparser()`` and
+``run(args)`` (after cantools' layout).
+
+Only the subcommand named on the command line is imported (with what it needs); the
+others are listed from :data:`COMMANDS`, so ``omnican --help`` and ``--version`` load
+neither numpy nor python-can, canopen or any optional extra. A subcommand whose extra
+is missing still shows its help; running it says what to install (exit 2)."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
-import importlib.metadata
-import re
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from typing import Any
 
 from omnican import __version__
 from omnican.cli.common import (
     EXIT_FAILURE,
-    EXIT_INTERRUPTED,
     EXIT_USAGE,
     Parser,
+    Terminated,
     UsageError,
     fail,
+    interrupted_exit,
     setup_logging,
 )
-from omnican.errors import ConfigError, OmnicanError
+from omnican.extras import needs
 
-SUBCOMMANDS = ("teleop", "drive", "sim", "scan", "monitor", "calibrate", "plot", "check_config",
-               "ros2")
-
-
-def install_hint(module: str) -> str:
-    """How to install a missing optional dependency: the omnican extra that carries it
-    (read from the installed package's metadata), else the module itself."""
-    try:
-        requires = importlib.metadata.requires("omnican") or []
-    except importlib.metadata.PackageNotFoundError:
-        requires = []
-    wanted = _normalise(module.split(".", maxsplit=1)[0])
-    for requirement in requires:
-        m = _EXTRA_REQUIREMENT.match(requirement)
-        if m and _normalise(m["name"]) == wanted and m["extra"] not in ("test", "dev"):
-            return f"pip install 'omnican[{m['extra']}]'"
-    return f"pip install {module.split('.', maxsplit=1)[0]}"
+# Command -> (module under omnican.cli, one-line help, the extra it needs).
+COMMANDS: dict[str, tuple[str, str, str | None]] = {
+    "teleop": ("teleop", "drive the base from the keyboard (live dashboard)", None),
+    "drive": ("drive", "drive a scripted motion and print the pose", None),
+    "sim": ("sim", "serve simulated drives to another process", None),
+    "scan": ("scan", "find nodes on the bus and check them against the config", None),
+    "monitor": ("monitor", "live decode of the bus: per-id rates, signals, bus load", None),
+    "calibrate": ("calibrate", "calibrate the wheel scales and the base radius", None),
+    "plot": ("plot", "plot a recording: trajectory, wheel speeds, drive states", "plot"),
+    "check-config": ("check_config", "validate config files and their EDS files offline", None),
+    "ros2": ("ros2", "run the base as a ROS 2 node (DDS; no ROS install)", "ros2"),
+}
+#: The modules of the subcommands, in the order ``--help`` lists them.
+SUBCOMMANDS = tuple(module for module, _, _ in COMMANDS.values())
 
 
-_EXTRA_REQUIREMENT = re.compile(
-    r"^\s*(?P<name>[A-Za-z0-9][A-Za-z0-9._-]*).*;.*\bextra\s*==\s*['\"](?P<extra>[^'\"]+)['\"]")
+def unavailable(command: str) -> str | None:
+    """Why ``command`` cannot run here (its extra is missing, with how to install it)."""
+    extra = COMMANDS[command][2]
+    return None if extra is None else needs(extra, f"'{command}'")
 
 
-def _normalise(name: str) -> str:
-    return re.sub(r"[-_.]+", "-", name).lower()
-
-
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; ``command``'s subparser in full (importing its module), the others
+    as names with their help (all in full when ``command`` is None)."""
     parser = Parser(prog="omnican",
                     description="Drive a three-omni-wheel base of CANopen CiA 402 drives.")
     parser.add_argument("--version", action="version", version=f"omnican {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="more log output (-v info, -vv debug)")
+                        help="more log output (-v info, -vv debug); also after the command")
     sub = parser.add_subparsers(title="commands", metavar="COMMAND", parser_class=Parser)
-    unavailable: dict[str, str] = {}
-    for name in SUBCOMMANDS:
-        command = name.replace("_", "-")
-        try:
-            module = importlib.import_module(f"omnican.cli.{name}")
-        except ImportError as exc:  # an optional dependency is missing
-            missing = exc.name or str(exc)
-            reason = f"'{command}' needs {missing}: {install_hint(missing)}"
-            unavailable[command] = reason
-            sub.add_parser(command, help=f"(unavailable: needs {missing}: "
-                                         f"{install_hint(missing)})")
+    for name, (module, help_text, _) in COMMANDS.items():
+        if command is None or name == command:
+            importlib.import_module(f"omnican.cli.{module}").add_subparser(sub)
             continue
-        module.add_subparser(sub)
-    parser.set_defaults(unavailable=unavailable)
+        why = unavailable(name)
+        sub.add_parser(name, help=help_text if why is None else f"{help_text} "
+                       f"(unavailable: {why.split(' ', 1)[1]})")
+    for choice in sub.choices.values():  # -v after the command too (its own count)
+        if not any("-v" in a.option_strings for a in choice._actions):
+            choice.add_argument("-v", "--verbose", action="count", default=0,
+                                dest="command_verbose", help=argparse.SUPPRESS)
     return parser
 
 
+def _command_word(words: Sequence[str]) -> str | None:
+    for word in words:
+        if word == "--":
+            return None
+        if not word.startswith("-"):
+            return word
+    return None
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """SIGTERM (``timeout``, ``kill``, systemd) raises :class:`Terminated` in the main
+    thread, so a command ends as on Ctrl-C: the drives stop and are disabled, and it
+    says where the base stopped (exit 143)."""
+    def handle(signum: int, frame: Any) -> None:
+        raise Terminated(signum)
+
+    try:
+        old = signal.signal(signal.SIGTERM, handle)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    unavailable: dict[str, str] = parser.get_default("unavailable")
-    words = list(sys.argv[1:] if argv is None else argv)
-    command = next((w for w in words if not w.startswith("-")), None)
-    if command in unavailable:  # whatever its arguments: they are the missing module's
-        return fail(unavailable[command], EXIT_USAGE)
+    try:
+        with _sigterm_unwinds():
+            return _main(list(sys.argv[1:] if argv is None else argv))
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM before a command could say more
+        print(f"omnican: {'terminated' if isinstance(exc, Terminated) else 'interrupted'}",
+              file=sys.stderr)
+        return interrupted_exit(exc)
+
+
+def _main(words: list[str]) -> int:
+    command = _command_word(words)
+    parser = build_parser(command if command in COMMANDS else "")
     args = parser.parse_args(words)
     if not hasattr(args, "func"):
         parser.print_help(sys.stderr)
         return EXIT_USAGE
-    setup_logging(args.verbose)
+    setup_logging(args.verbose + getattr(args, "command_verbose", 0))
+    why = unavailable(command) if command in COMMANDS else None
+    if why is not None:  # its help shows; running it needs the extra
+        return fail(why, EXIT_USAGE)
+    from omnican.errors import ConfigError, OmnicanError
+
     try:
         code: int = args.func(args)
         return code
@@ -93,10 +132,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(str(exc), EXIT_USAGE)
     except OmnicanError as exc:
         return fail(str(exc), EXIT_FAILURE)
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into head & co.
         return 0
+
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -31,7 +31,7 @@ import math
 import os
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,7 @@ from omnican.cli.common import (
     EXIT_OK,
     UsageError,
     add_bus_arguments,
+    add_record_argument,
     add_sim_time_arguments,
     bus_overrides,
     finite_float,
@@ -80,9 +81,7 @@ def add_subparser(sub: Any) -> None:
                        help="the turns the base really spun")
     angle.add_argument("--measured-angle-deg", type=finite_float, metavar="DEG",
                        help="the angle the base really spun, degrees")
-    run_g.add_argument("--record", metavar="FILE",
-                       help="record the run to FILE (.log, .asc, .blf, .mcap), e.g. for --fit "
-                            "later")
+    add_record_argument(run_g, "record the run to FILE (e.g. for --fit later)")
     sim_g = p.add_argument_group("simulated base (--sim)")
     sim_g.add_argument("--sim-scale-error", type=finite_float, metavar="F",
                        help="the simulated wheels turn 1+F times the configured counts per m "
@@ -290,6 +289,19 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
                              distance_source, angle_source)
 
 
+def _digits(cfg: ChassisConfig, m: Measurements) -> int:
+    """Significant digits the measurements support: a tape's millimetre and a floor
+    mark's degree; for the simulator's truth, one encoder count (what the odometry
+    resolves)."""
+    per_count = 1.0 / min(abs(w.position_scale) for w in cfg.wheels)  # m of rim travel
+    by_hand = {"distance": m.distance_source != TRUTH, "angle": m.angle_source != TRUTH}
+    return calibration.measured_digits(
+        m.distance_measured, m.angle_measured,
+        calibration.DISTANCE_RESOLUTION_M if by_hand["distance"] else per_count,
+        calibration.ANGLE_RESOLUTION_RAD if by_hand["angle"] else
+        per_count / max(cfg.kinematics().base_radius))
+
+
 class _RunError(Exception):
     """The calibration run could not finish (exit 1)."""
 
@@ -301,13 +313,18 @@ def _pct(factor: float) -> str:
     return f"{(factor - 1.0) * 100:+.2f} %"
 
 
-def _changes(cfg: ChassisConfig, corrected: ChassisConfig) -> list[dict[str, Any]]:
+def _changes(cfg: ChassisConfig, c: Correction) -> list[dict[str, Any]]:
+    corrected = c.apply(cfg)
+
+    def written(value: float) -> float:
+        return float(calibration.format_number(value, c.digits))
+
     out = []
     for i, (a, b) in enumerate(zip(cfg.wheels, corrected.wheels, strict=True)):
         out.append({"wheel": i, "node_id": a.node_id, "axis": a.axis,
                     "factor": b.position_scale / a.position_scale,
-                    "velocity_scale": [a.velocity_scale, b.velocity_scale],
-                    "position_scale": [a.position_scale, b.position_scale]})
+                    "velocity_scale": [a.velocity_scale, written(b.velocity_scale)],
+                    "position_scale": [a.position_scale, written(b.position_scale)]})
     return out
 
 
@@ -326,18 +343,21 @@ def _edits(cfg: ChassisConfig, c: Correction) -> list[calibration.ConfigEdit]:
     for i, (a, b) in enumerate(zip(cfg.wheels, corrected.wheels, strict=True)):
         for key in ("velocity_scale", "position_scale"):
             edits.append(calibration.ConfigEdit(
-                i, key, getattr(a, key), float(calibration.format_number(getattr(b, key)))))
+                i, key, getattr(a, key),
+                float(calibration.format_number(getattr(b, key), c.digits))))
     edits.append(calibration.ConfigEdit(None, "base_radius", cfg.chassis.base_radius, float(
-        calibration.format_number(corrected.chassis.base_radius))))
+        calibration.format_number(corrected.chassis.base_radius, c.digits))))
     return edits
 
 
-def _print_correction(cfg: ChassisConfig, c: Correction) -> None:
+def _print_correction(cfg: ChassisConfig, c: Correction,
+                      edits: list[calibration.ConfigEdit]) -> None:
+    """Old -> new of every number --write changes (``edits``: read from the config as it
+    was, before any --write replaced it)."""
     common = len(set(c.wheel_factors)) == 1
     if common:
         print(f"wheel scale factor {c.wheel_factors[0]:.5f} ({_pct(c.wheel_factors[0])}): "
               "true counts per metre / configured")
-    edits = _edits(cfg, c)
     for i, (w, s) in enumerate(zip(cfg.wheels, c.wheel_factors, strict=True)):
         name = f"wheel {i} (node {w.node_id}" + (f" axis {w.axis})" if w.axis else ")")
         factor = "" if common else f" factor {s:.5f} ({_pct(s)}):"
@@ -369,8 +389,9 @@ def write_config(path: str, cfg: ChassisConfig, c: Correction) -> None:
     else:
         new = calibration.render_config(
             corrected, "omnican config written by 'omnican calibrate' for the built-in demo "
-            "base\n(three bundled drives, nodes 1-3), with the calibrated scales and radius.")
-    calibration.check_edited(new, corrected, str(out))
+            "base\n(three bundled drives, nodes 1-3), with the calibrated scales and radius.",
+            c.digits)
+    calibration.check_edited(new, corrected, str(out), rel_tol=10.0 ** (1 - c.digits))
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
         with os.fdopen(fd, "w", encoding="utf-8") as f:
@@ -404,17 +425,23 @@ def _run_fit(args: argparse.Namespace) -> int:
         result = calibration.fit(runs, cfg, args.model)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    # The end poses were measured by hand: the corrected numbers carry what a tape and a
+    # floor mark resolve over the longest run and the largest turn.
+    digits = calibration.measured_digits(
+        max(math.hypot(r.measured[0], r.measured[1]) for r in runs),
+        max(abs(r.measured[2]) for r in runs))
+    result = replace(result, correction=result.correction.with_digits(digits))
     names = [r.name for r in runs]
+    edits = _edits(cfg, result.correction)  # before --write may replace the --config file
     if args.write:
         write_config(args.write, cfg, result.correction)
     if args.json:
-        corrected = result.correction.apply(cfg)
         print(json.dumps({
             "model": result.model,
             "wheel_factors": list(result.correction.wheel_factors),
             "radius_factor": result.correction.radius_factor,
-            "wheels": _changes(cfg, corrected),
-            "base_radius": [cfg.chassis.base_radius, corrected.chassis.base_radius],
+            "wheels": _changes(cfg, result.correction),
+            "base_radius": [cfg.chassis.base_radius, _radius(edits)],
             "residual_before": result.residual_before.tolist(),
             "residual_after": result.residual_after.tolist(),
             "recordings": names,
@@ -422,10 +449,21 @@ def _run_fit(args: argparse.Namespace) -> int:
         }))
         return EXIT_OK
     _print_fit(result, names)
-    _print_correction(cfg, result.correction)
-    if args.write:
-        print(f"wrote the corrected config to {args.write}")
+    _print_correction(cfg, result.correction, edits)
+    _print_written(args.write)
     return EXIT_OK
+
+
+def _radius(edits: list[calibration.ConfigEdit]) -> float | None:
+    return next((e.new for e in edits if e.wheel is None and e.key == "base_radius"), None)
+
+
+def _print_written(path: str | None) -> None:
+    if path:
+        print(f"wrote the corrected config to {path}")
+    else:
+        print("nothing written: add --write OUT.toml to save the corrected config (OUT may "
+              "be the --config file)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -443,18 +481,19 @@ def run(args: argparse.Namespace) -> int:
                                                    m.angle_measured)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    correction = correction.with_digits(_digits(cfg, m))
+    edits = _edits(cfg, correction)  # before --write may replace the --config file
     if args.write:
         write_config(args.write, cfg, correction)
     if args.json:
-        corrected = correction.apply(cfg)
         print(json.dumps({
             "source": {"distance": m.distance_source, "angle": m.angle_source},
             "distance": {"odometry": m.distance_odometry, "measured": m.distance_measured},
             "angle_rad": {"odometry": m.angle_odometry, "measured": m.angle_measured},
             "scale_factor": correction.wheel_factors[0],
             "radius_factor": correction.radius_factor,
-            "wheels": _changes(cfg, corrected),
-            "base_radius": [cfg.chassis.base_radius, corrected.chassis.base_radius],
+            "wheels": _changes(cfg, correction),
+            "base_radius": [cfg.chassis.base_radius, _radius(edits)],
             "written": args.write,
         }))
         return EXIT_OK
@@ -462,12 +501,11 @@ def run(args: argparse.Namespace) -> int:
           f"{m.distance_measured:.4f} m ({m.distance_source})")
     print(f"spin:     odometry {math.degrees(m.angle_odometry):.2f} deg, measured "
           f"{math.degrees(m.angle_measured):.2f} deg ({m.angle_source})")
-    _print_correction(cfg, correction)
+    _print_correction(cfg, correction, edits)
     if args.sim:
         se = DEFAULT_SIM_SCALE_ERROR if args.sim_scale_error is None else args.sim_scale_error
         re_ = DEFAULT_SIM_RADIUS_ERROR if args.sim_radius_error is None else args.sim_radius_error
         print(f"simulator truth: scale factor {1 + se:.5f}, base_radius "
               f"{cfg.chassis.base_radius * (1 + re_):.6g} m")
-    if args.write:
-        print(f"wrote the corrected config to {args.write}")
+    _print_written(args.write)
     return EXIT_OK

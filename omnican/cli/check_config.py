@@ -1,29 +1,34 @@
-"""omnican check-config: validate a config and its EDS files offline.
+"""omnican check-config: validate config files and their EDS files offline.
 
-Prints the PDO plan of every node and the bus load at the configured rate and
-bitrate, or one line per problem (exit 2). Objects moved by SDO every cycle (and,
-where the plan maps objects the EDS marks not PDO-mappable, the SDO fallback if the
-drive refuses) get their own load and the highest rate that fits. Touches no bus.
+For each file: every table, as the commands that read it check it ([gamepad] and
+[ros2] included); each wheel's velocity and position scales (derived ones too) and the
+drive target of a slow jog; the PDO plan of every node and the bus load at the
+configured rate and bitrate. A file with a problem gets one line naming it; the exit
+status is 2 if any file has one. Objects moved by SDO every cycle (and, where the plan
+maps objects the EDS marks not PDO-mappable, the SDO fallback if the drive refuses)
+get their own load and the highest rate that fits. Touches no bus.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail, positive_int
 from omnican.config import ChassisConfig, load_config, reference_rows
 from omnican.errors import ConfigError
-from omnican.layout import NodeLayout, cycle_bits, heartbeat_bits_per_s, max_rate_hz
-from omnican.pdoplan import frame_bits
+
+if TYPE_CHECKING:
+    from omnican.layout import NodeLayout
 
 
 def add_subparser(sub: Any) -> None:
-    p = sub.add_parser("check-config", help="validate a config and its EDS files offline",
+    p = sub.add_parser("check-config", help="validate config files and their EDS files offline",
                        description=__doc__, epilog=key_reference(),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("config", metavar="TOML", help="the robot config to check")
+    p.add_argument("config", metavar="TOML", nargs="+",
+                   help="the robot config(s) to check, e.g. examples/*.toml")
     p.add_argument("--bitrate", type=positive_int, metavar="BIT/S",
                    help="bitrate for the bus load when the config's [bus] has none")
     p.set_defaults(func=run)
@@ -39,6 +44,8 @@ def key_reference() -> str:
 
 
 def layouts_or_problems(cfg: ChassisConfig) -> tuple[list[NodeLayout], list[str]]:
+    from omnican.layout import NodeLayout
+
     layouts, problems = [], []
     for node_id, wheels in cfg.nodes().items():
         try:
@@ -49,9 +56,33 @@ def layouts_or_problems(cfg: ChassisConfig) -> tuple[list[NodeLayout], list[str]
     return layouts, problems
 
 
+JOG_SPEED = 0.05  # m/s: the first motion README's power-on checklist asks for
+
+
 def run(args: argparse.Namespace) -> int:
+    codes = [check_file(path, args.bitrate) for path in args.config]
+    return max(codes)
+
+
+def scale_lines(cfg: ChassisConfig) -> list[str]:
+    """Each wheel's scales, and what a slow jog asks of its drive."""
+    kin = cfg.kinematics()
+    lines = []
+    for i, w in enumerate(cfg.wheels):
+        derived = " (derived)" if w.wheel_radius is not None else ""
+        lines.append(f"  wheel {i} ({w.name}, at {kin.angles_deg[i]:g} deg): velocity_scale "
+                     f"{w.velocity_scale:.6g} per m/s, position_scale {w.position_scale:.6g} "
+                     f"per m{derived}; {JOG_SPEED:g} m/s = target "
+                     f"{round(JOG_SPEED * w.velocity_scale)}")
+    return lines
+
+
+def check_file(path: str, bitrate_arg: int | None) -> int:
+    """Check one file and print its result; the exit status it earns."""
+    from omnican.layout import cycle_bits, heartbeat_bits_per_s
+    from omnican.pdoplan import frame_bits
     try:
-        cfg = load_config(args.config)
+        cfg = load_config(path)
     except ConfigError as exc:
         return fail(str(exc), EXIT_USAGE)
     layouts, problems = layouts_or_problems(cfg)
@@ -65,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  base: {len(cfg.wheels)} wheels at {list(kin.angles_deg)} deg, radius "
           f"{', '.join(f'{r:g}' for r in sorted(set(kin.base_radius)))} m; loop {c.rate_hz:g} Hz, "
           f"watchdog {c.cmd_timeout_s:g} s")
+    for line in scale_lines(cfg):
+        print(line)
     for layout in layouts:
         wheels = ", ".join(f"wheel {a.wheel_index} (axis {a.wheel.axis})" for a in layout.axes)
         print(f"  node {layout.node_id}: {layout.eds.name}, mode {layout.mode.short}, {wheels}")
@@ -79,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"    if the drive refuses: {transfer.describe()}")
     bits = cycle_bits(layout.plan for layout in layouts)
     hb = heartbeat_bits_per_s(cfg)
-    bitrate = args.bitrate or (cfg.bus or {}).get("bitrate")
+    bitrate = bitrate_arg or (cfg.bus or {}).get("bitrate")
     per_s = bits * c.rate_hz + hb
     print(f"  bus: {bits} worst-case bits per cycle ({len(layouts)} nodes + SYNC "
           f"{frame_bits(0)}), {per_s / 1000:.1f} kbit/s at {c.rate_hz:g} Hz with heartbeats")
@@ -107,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _fits(bits: int, hb_bits_per_s: float, rate_hz: float, bitrates: list[int]) -> str:
     """Bus load at ``rate_hz`` and the highest rate within 80 %, per bitrate."""
+    from omnican.layout import max_rate_hz
     return "; ".join(
         f"bus load {(bits * rate_hz + hb_bits_per_s) / b:.0%} at {b // 1000} kbit/s, highest "
         f"rate within 80 %: {math.floor(max_rate_hz(bits, hb_bits_per_s, b, 0.8))} Hz"

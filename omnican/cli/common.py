@@ -6,25 +6,48 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
+import importlib.util
 import logging
 import math
 import select
+import signal
 import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, NoReturn
-
-import can.cli
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from omnican.clock import REAL_TIME, Clock, SimClock
-from omnican.config import ChassisConfig, default_config, load_config
 from omnican.errors import ConfigError
-from omnican.odometry import Pose2D
+
+if TYPE_CHECKING:
+    from omnican.config import ChassisConfig
+    from omnican.odometry import Pose2D
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
+EXIT_TERMINATED = 128 + signal.SIGTERM  # 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread (see omnican.cli.main): a command unwinds as on
+    Ctrl-C (the drives stop and are disabled, the pose is printed), then exits 143."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def interrupted_exit(exc: BaseException) -> int:
+    """The exit status for a Ctrl-C (130) or a SIGTERM (143)."""
+    return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+
+
+def interrupted_word(exc: BaseException) -> str:
+    return "terminated" if isinstance(exc, Terminated) else "interrupted"
 
 _BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "timing")
 
@@ -69,6 +92,54 @@ def positive_int(text: str) -> int:
     return value
 
 
+def recording_suffixes() -> dict[str, str]:
+    """Suffix -> what it is, for every format omnican both records and reads back
+    (plot, calibrate --fit, replay): python-can's log formats that have a reader as
+    well as a writer, and MCAP."""
+    from can.io.logger import MESSAGE_WRITERS
+    from can.io.player import MESSAGE_READERS
+
+    names = {".log": "candump", ".asc": "Vector ASC", ".blf": "Vector BLF", ".csv": "CSV",
+             ".db": "SQLite", ".trc": "PEAK trace", ".mf4": "ASAM MDF4"}
+    out = {s: names.get(s, s[1:]) for s in sorted(set(MESSAGE_WRITERS) & set(MESSAGE_READERS))}
+    if ".mf4" in out and importlib.util.find_spec("asammdf") is None:
+        del out[".mf4"]  # python-can's MF4 support needs asammdf
+    out.pop(".db", None)  # its writer loses the last frames of a run: not read back whole
+    out[".mcap"] = "MCAP"
+    return out
+
+
+def record_path(text: str) -> str:
+    """argparse type for ``--record FILE``: a format omnican can read back (python-can
+    also writes .txt, as text that no reader reads); ``.gz`` compresses a text log."""
+    path = Path(text)
+    suffixes = recording_suffixes()
+    suffix = path.suffix.lower()
+    inner = Path(path.stem).suffix.lower() if suffix == ".gz" else suffix
+    if suffix == ".gz" and inner in (".mcap", ".blf", ".db", ".mf4"):
+        inner = ""  # binary formats compress themselves, or not at all
+    if inner not in suffixes:
+        known = ", ".join(f"{s} ({what})" for s, what in suffixes.items())
+        why = (" (python-can writes .txt as printed text, which nothing reads back)"
+               if inner == ".txt" else "")
+        raise argparse.ArgumentTypeError(
+            f"cannot record to {text}{why}: give a file ending in one of {known}")
+    if not (path.parent if str(path.parent) else Path(".")).is_dir():
+        raise argparse.ArgumentTypeError(f"cannot record to {text}: no such directory "
+                                         f"{path.parent}")
+    return text
+
+
+def add_record_argument(parser: Any, what: str = "record the bus to FILE") -> None:
+    """--record FILE, refusing at parse time a format omnican cannot read back."""
+    from omnican.extras import install_hint
+
+    parser.add_argument("--record", metavar="FILE", type=record_path,
+                        help=f"{what}; format by extension: .log (candump), .asc, .blf, .csv, "
+                             ".trc; .mcap: frames plus the robot's state as ROS 2 messages "
+                             f"({install_hint('mcap')})")
+
+
 def add_config_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="TOML",
                         help="robot config (default: the demo base of three bundled drives, "
@@ -81,6 +152,8 @@ def add_bus_arguments(parser: argparse.ArgumentParser, sim_help: str | None = No
     parser.add_argument("--sim", action="store_true",
                         help=sim_help or "run against simulated drives in this process "
                         "(a virtual bus; no hardware)")
+    import can.cli
+
     can.cli.add_bus_arguments(parser, group_title="bus arguments (override [bus] of the config)")
 
 
@@ -104,8 +177,53 @@ def bus_overrides(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def check_bus(bus: Any) -> None:
+    """What python-can needs to build the bus (``bus``: the ``can.Bus`` arguments, None for
+    python-can's own configuration) is there: an interface, and every argument that
+    interface's bus requires (kvaser, pcan & co. want a channel). A missing one is a
+    usage error saying what to give, before anything opens (python-can would fail with a
+    TypeError in its own words)."""
+    import inspect
+
+    import can
+    import can.util
+
+    try:
+        resolved = can.util.load_config(config=dict(bus or {}))
+    except can.CanInterfaceNotImplementedError:
+        raise UsageError("no CAN interface: give -i INTERFACE (e.g. -i socketcan -c can0), "
+                         "interface in the config's [bus] table, or python-can's config "
+                         "file; --sim runs without hardware") from None
+    interface = resolved.get("interface")
+    backend = can.interfaces.BACKENDS.get(str(interface))
+    if backend is None:
+        raise UsageError(f"unknown CAN interface {interface!r} (known: "
+                         f"{', '.join(sorted(can.interfaces.VALID_INTERFACES))})")
+    logger = logging.getLogger("can")
+    level = logger.level
+    logger.setLevel(logging.ERROR)  # importing a driver whose library is absent warns
+    try:
+        bus_class = getattr(importlib.import_module(backend[0]), backend[1])
+        params = inspect.signature(bus_class.__init__).parameters
+    except Exception:  # the driver does not even import: opening it will say why
+        return
+    finally:
+        logger.setLevel(level)
+    for name, param in list(params.items())[1:]:
+        if param.default is not inspect.Parameter.empty or param.kind in (
+                inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD):
+            continue
+        if resolved.get(name) is None:
+            flag = {"channel": "-c CHANNEL", "bitrate": "-b BITRATE"}.get(name)
+            how = f"{flag}, or {name}" if flag else name
+            raise UsageError(f"the {interface} interface needs a {name}: give {how} in the "
+                             "config's [bus] table")
+
+
 def load(args: argparse.Namespace) -> ChassisConfig:
     """The config named by --config (or the demo base), with bus arguments applied."""
+    from omnican.config import default_config, load_config
+
     path = getattr(args, "config", None)
     cfg = load_config(path) if path else default_config()
     overrides = bus_overrides(args)
@@ -135,6 +253,7 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
         if fast or speed is not None:
             raise UsageError("--fast and --sim-speed run simulated drives in simulated time: "
                              "add --sim")
+        check_bus(cfg.bus)
         yield Session(cfg)
         return
     if bus_overrides(args):

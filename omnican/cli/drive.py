@@ -19,13 +19,15 @@ from omnican import motion
 from omnican.chassis import Chassis
 from omnican.cli.common import (
     EXIT_FAILURE,
-    EXIT_INTERRUPTED,
     EXIT_OK,
     UsageError,
     add_bus_arguments,
+    add_record_argument,
     add_sim_time_arguments,
     finite_float,
     fixed,
+    interrupted_exit,
+    interrupted_word,
     pose_dict,
     pose_line,
     positive_float,
@@ -37,8 +39,10 @@ from omnican.errors import ConfigError, OmnicanError
 from omnican.kinematics import Twist
 from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
 from omnican.motion import Leg
+from omnican.odometry import Pose2D
 
 DEFAULT_DURATION_S = 1.0
+SQUARE_SPEED, SQUARE_OMEGA = 0.3, 1.0  # m/s, rad/s
 
 
 def add_subparser(sub: Any) -> None:
@@ -46,16 +50,21 @@ def add_subparser(sub: Any) -> None:
                        description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     motion = p.add_argument_group("motion (pick one form)")
-    motion.add_argument("--vx", type=finite_float, help="forward speed, m/s")
-    motion.add_argument("--vy", type=finite_float, help="leftward speed, m/s")
-    motion.add_argument("--wz", type=finite_float, help="turn rate, rad/s (CCW positive)")
-    motion.add_argument("--speed", type=finite_float,
-                        help="polar form: speed along --heading-deg, m/s (square: leg speed, "
-                             "default 0.3)")
-    motion.add_argument("--heading-deg", type=finite_float,
-                        help="polar form: direction of travel, degrees from forward, CCW")
-    motion.add_argument("--omega", type=finite_float,
-                        help="polar form: turn rate, rad/s (square: turn rate, default 1.0)")
+    motion.add_argument("--vx", type=finite_float, metavar="M/S",
+                        help="forward speed (default 0)")
+    motion.add_argument("--vy", type=finite_float, metavar="M/S",
+                        help="leftward speed (default 0)")
+    motion.add_argument("--wz", type=finite_float, metavar="RAD/S",
+                        help="turn rate, counter-clockwise positive (default 0)")
+    motion.add_argument("--speed", type=finite_float, metavar="M/S",
+                        help="polar form: speed along --heading-deg (default 0; square: the "
+                             f"speed along the sides, default {SQUARE_SPEED:g})")
+    motion.add_argument("--heading-deg", type=finite_float, metavar="DEG",
+                        help="polar form: direction of travel, degrees from forward, "
+                             "counter-clockwise (default 0)")
+    motion.add_argument("--omega", type=finite_float, metavar="RAD/S",
+                        help="polar form: turn rate (default 0; square: the turn rate at the "
+                             f"corners, default {SQUARE_OMEGA:g})")
     motion.add_argument("--square", type=positive_float, metavar="SIDE",
                         help="drive a square with sides of SIDE m, turning 90 deg left in place")
     p.add_argument("--duration", type=positive_float, metavar="S",
@@ -64,9 +73,7 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--json", action="store_true",
                    help='print {"pose", "twist", "duration_s"} (+ "true_pose" under --sim); '
                         'a run-time failure prints {"error", "pose", ...} and exits 1')
-    p.add_argument("--record", metavar="FILE",
-                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf; "
-                        ".mcap: frames plus the robot's state as ROS 2 messages)")
+    add_record_argument(p)
     p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
                    metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
     add_bus_arguments(p)
@@ -84,8 +91,8 @@ def legs(args: argparse.Namespace) -> list[Leg]:
         if args.duration is not None:
             raise UsageError("--duration is not used with --square (it drives until the "
                              "square is done)")
-        speed = args.speed if args.speed is not None else 0.3
-        omega = args.omega if args.omega is not None else 1.0
+        speed = args.speed if args.speed is not None else SQUARE_SPEED
+        omega = args.omega if args.omega is not None else SQUARE_OMEGA
         if speed <= 0 or omega <= 0:
             raise UsageError("--square needs a positive --speed and --omega")
         return motion.square(args.square, speed, omega)
@@ -128,6 +135,16 @@ def run(args: argparse.Namespace) -> int:
             raise
         _fail_json(str(exc), seen)
         raise
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM before the motion, or after it
+        word = interrupted_word(exc)
+        when = ("after the run" if "duration_s" in seen else
+                "during bring-up: nothing moved; every drive is disabled")
+        print(f"omnican: {word} {when}", file=sys.stderr)
+        if args.json:
+            _fail_json(word, seen)
+        elif "pose" in seen:
+            print(pose_line(Pose2D(**seen["pose"])))
+        return interrupted_exit(exc)
 
 
 def _fail_json(error: str, seen: dict[str, Any]) -> None:
@@ -161,16 +178,19 @@ def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int
                 else:
                     print(pose_line(base.pose))
                 return EXIT_FAILURE
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (timeout, kill)
                 base.stop()
                 motion.settle(base)
-                print("omnican: interrupted: the base stopped here", file=sys.stderr)
+                word = interrupted_word(exc)
+                print(f"omnican: {word}: the base stopped here", file=sys.stderr)
                 if args.json:
                     seen["pose"] = pose_dict(base.pose)
-                    _fail_json("interrupted", seen)
+                    if s.sim is not None:
+                        seen["true_pose"] = pose_dict(s.sim.true_pose)
+                    _fail_json(word, seen)
                 else:
                     print(pose_line(base.pose))
-                return EXIT_INTERRUPTED
+                return interrupted_exit(exc)
             pose = base.pose
             seen["pose"] = pose_dict(pose)
             seen["duration_s"] = round(result.elapsed_s, 3)
@@ -185,7 +205,8 @@ def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int
         print(json.dumps(out))
     else:
         t = result.twist
-        print(f"drove {result.elapsed_s:.2f} s; measured twist vx={fixed(t.vx, 3)} "
+        when = "once stopped on the goal" if plan[-1].is_goal else "before the stop"
+        print(f"drove {result.elapsed_s:.2f} s; measured twist {when}: vx={fixed(t.vx, 3)} "
               f"vy={fixed(t.vy, 3)} wz={fixed(t.wz, 3)}")
         if "true_pose" in out:
             print(pose_line(s.sim.true_pose).replace("pose", "true pose", 1) + " (simulated)")

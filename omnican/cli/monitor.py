@@ -1,16 +1,18 @@
 """omnican monitor: live decode of the bus through a DBC file (cantools).
 
 One row per CAN id seen: frame count, rate (frames/s over the last second), and the
-last frame's signals, decoded with the DBC (default: the bundled omnican.dbc,
-which describes the demo base, nodes 1-3) or shown as raw hex for ids it does not
-describe. Below the table, the bus load: worst-case bits per second (bit stuffing
-included) and, when the bitrate is known ([bus] bitrate or -b), its share of it.
+last frame's signals, decoded with the DBC (--dbc; default: one built from --config
+for that robot's drives, else the bundled omnican.dbc, which describes the demo base,
+nodes 1-3) or shown as raw hex for ids it does not describe. Below the table, the
+bus load: worst-case bits per second (bit stuffing included) and, when the bitrate
+is known ([bus] bitrate or -b), its share of it.
 
 The monitor only listens. Under --sim nothing else would be on the virtual bus,
 so it also opens the simulated base and drives it slowly in a circle, to have
 traffic to show. In a terminal the table updates in place; otherwise (pipe, file)
 a plain-text table is printed every --interval seconds and a summary at the end.
-Ctrl-C ends it (exit 0).
+--record FILE keeps every frame it hears (plot and calibrate --fit read it).
+Ctrl-C or SIGTERM ends it (exit 0).
 """
 
 from __future__ import annotations
@@ -24,7 +26,14 @@ import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from omnican.cli.common import EXIT_OK, add_bus_arguments, load, positive_float, session
+from omnican.cli.common import (
+    EXIT_OK,
+    add_bus_arguments,
+    add_record_argument,
+    load,
+    positive_float,
+    session,
+)
 from omnican.traffic import DEFAULT_DBC, TrafficCounter, TrafficSnapshot, listening, load_dbc
 
 logger = logging.getLogger(__name__)
@@ -47,6 +56,7 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--interval", type=positive_float, default=1.0, metavar="S",
                    help="when stdout is not a terminal: print the table every S seconds "
                         "(default 1.0)")
+    add_record_argument(p, "record every frame heard to FILE")
     add_bus_arguments(p, sim_help="monitor a simulated base in this process, driven slowly "
                                   "in a circle (a virtual bus; no hardware)")
     p.set_defaults(func=run)
@@ -211,7 +221,18 @@ def _run(args: argparse.Namespace) -> int:
         display = _Display(_bus_name(bus_kwargs, s.sim is not None), args.interval,
                            sys.stdout.isatty(), no_bitrate)
         deadline = None if args.duration is None else monitor.start + args.duration
-        with listening(bus_kwargs, monitor), display.opened():
+        with contextlib.ExitStack() as stack:
+            more = []
+            if args.record:  # the bus's own recorder, on the monitor's bus
+                from pathlib import Path
+
+                from omnican.bus import recorder_for
+
+                recorder = recorder_for(Path(args.record))
+                stack.callback(recorder.close)
+                more.append(recorder)
+            stack.enter_context(listening(bus_kwargs, monitor, *more))
+            stack.enter_context(display.opened())
             try:
                 _loop(s, monitor, display, deadline)
             except KeyboardInterrupt:

@@ -4,18 +4,17 @@ target vs actual rim speed over time, and the drives' CiA 402 states over time.
     omnican plot RECORDING -o OUT.png [--config TOML]
     omnican plot --sim -o OUT.png     # drive a square on the simulator, then plot it
 
-RECORDING is any python-can log (omnican drive ... --record FILE; .log, .asc,
-.blf); --config must describe the base it was recorded on (default: the demo base).
-Under --sim the simulator's ground-truth path is drawn over the odometry.
-The output format follows OUT's extension (png, svg, pdf). Needs matplotlib
-(pip install 'omnican[plot]').
+RECORDING is a recording of omnican (omnican drive ... --record FILE; .log, .asc,
+.blf, .csv, .trc, .mcap); --config must describe the base it was recorded on (default:
+the demo base). Under --sim the simulator's ground-truth path is drawn over the
+odometry; --fast or --sim-speed N run the demo in simulated time. The output format
+follows OUT's extension (png, svg, pdf). Needs matplotlib (the plot extra).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import math
 import sys
 import tempfile
@@ -30,6 +29,8 @@ from omnican.cli.common import (
     EXIT_OK,
     UsageError,
     add_config_argument,
+    add_record_argument,
+    add_sim_time_arguments,
     finite_float,
     load,
     pose_line,
@@ -42,10 +43,9 @@ from omnican.odometry import Pose2D
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-# matplotlib is an optional extra (omnican[plot]): without it the command is listed as
-# unavailable (see omnican.cli); with it, it loads only when a plot is drawn.
-if importlib.util.find_spec("matplotlib") is None:
-    raise ImportError("matplotlib is not installed", name="matplotlib")
+# matplotlib is an optional extra (omnican[plot]): without it the command still shows
+# its help, and running it says what to install (see omnican.cli); with it, it loads
+# only when a plot is drawn.
 
 STATE_COLOURS: dict[State, str] = {
     State.UNKNOWN: "#ffffff",
@@ -84,15 +84,13 @@ def add_subparser(sub: Any) -> None:
                       help="speed along the sides (default 0.3)")
     demo.add_argument("--omega", type=positive_float, default=1.0, metavar="RAD/S",
                       help="turn rate at the corners (default 1.0)")
-    demo.add_argument("--fast", action="store_true",
-                      help="run the demo in simulated time, as fast as the CPU allows")
-    demo.add_argument("--record", metavar="FILE",
-                      help="keep the demo's recording in FILE (.log, .asc, .blf, .mcap)")
+    add_record_argument(demo, "keep the demo's recording in FILE")
     demo.add_argument("--sim-scale-error", type=finite_float, default=0.0, metavar="F",
                       help="the simulated wheels turn 1+F times the configured counts per "
                            "metre (default 0: odometry matches the truth)")
     demo.add_argument("--sim-radius-error", type=finite_float, default=0.0, metavar="F",
                       help="the simulated base radius is 1+F times the configured one")
+    add_sim_time_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -148,11 +146,16 @@ def build_figure(rep: replay.Replay, title: str,
         ty = [p[1] for p in truth]
         # Over the odometry (dashes), so both show where they coincide.
         ax.plot(tx, ty, "--", color="C1", lw=2.0, label="simulator ground truth", zorder=3)
-        ax.plot(tx[-1], ty[-1], "s", color="C1", ms=7, mfc="none", zorder=3)
+        ax.plot(tx[-1], ty[-1], "s", color="C1", ms=11, mfc="none", mew=1.5, zorder=3,
+                label="ground truth end", ls="none")
     if len(poses):
         ax.plot(poses[:, 0], poses[:, 1], "-", color="C0", lw=1.5, label="odometry")
-        ax.plot(poses[0, 0], poses[0, 1], "o", color="green", ms=9, label="start")
-        ax.plot(poses[-1, 0], poses[-1, 1], "s", color="red", ms=8, label="end")
+        # On a closed path the start and the end coincide: the end is a small filled
+        # square, the start a larger ring drawn over it, so both show.
+        ax.plot(poses[-1, 0], poses[-1, 1], "s", color="red", ms=6, label="end", zorder=4,
+                ls="none")
+        ax.plot(poses[0, 0], poses[0, 1], "o", color="green", ms=13, mfc="none", mew=2.0,
+                label="start", zorder=5, ls="none")
         span = max(float(poses[:, 0].max() - poses[:, 0].min()),
                    float(poses[:, 1].max() - poses[:, 1].min()), 0.05)
         arrow = 0.08 * span  # heading arrows at the start and the end
@@ -160,6 +163,8 @@ def build_figure(rep: replay.Replay, title: str,
             x, y, th = poses[k]
             ax.annotate("", xy=(x + arrow * math.cos(th), y + arrow * math.sin(th)), xytext=(x, y),
                         arrowprops={"arrowstyle": "->", "color": colour, "lw": 1.5})
+        ax.plot([], [], marker=r"$\rightarrow$", ms=12, color="grey", ls="none",
+                label="heading at the start and the end")
     else:
         ax.text(0.5, 0.5, "no complete position samples", transform=ax.transAxes,
                 ha="center", va="center")
@@ -199,15 +204,17 @@ def build_figure(rep: replay.Replay, title: str,
         for t, _node in rep.reboots:
             wax.axvline(t, color="purple", ls=":", lw=1.0)
 
-    # Drive states.
+    # Drive states. The last state lasts to the end of the axis: the drives are disabled
+    # by the recording's last frames, and that state must show, not a sliver of no width.
+    end = time_axis_end(rep.duration)
     sax = fig.add_subplot(grid[n, 1], sharex=first)
     seen: dict[State, None] = {}
     for row, track in enumerate(rep.stages):
-        for start, width, state in _spans(track, rep.duration):
+        for start, width, state in _spans(track, end):
             seen[state] = None
             sax.broken_barh([(start, width)], (row - 0.4, 0.8),
                             facecolors=STATE_COLOURS[state], edgecolor="none")
-            if width > 0.12 * rep.duration:  # name the state where there is room
+            if width > 0.12 * end:  # name the state where there is room
                 dark = state in (State.SWITCHED_ON, State.FAULT, State.FAULT_REACTION_ACTIVE)
                 sax.text(start + width / 2, row, str(state), ha="center", va="center",
                          fontsize=8, color="white" if dark else "black", clip_on=True)
@@ -228,8 +235,14 @@ def build_figure(rep: replay.Replay, title: str,
         sax.legend([Patch(facecolor=STATE_COLOURS[s]) for s in order], [str(s) for s in order],
                    loc="upper center", bbox_to_anchor=(0.5, -0.45), ncols=min(len(order), 4),
                    fontsize=8, frameon=False)
-    sax.set_xlim(0.0, max(rep.duration, 1e-3))
+    sax.set_xlim(0.0, end)
     return fig
+
+
+def time_axis_end(duration: float) -> float:
+    """Where the time axes end: a little after the last frame (2 %, at least 0.05 s), so
+    the state a recording ends in is drawn."""
+    return max(duration, 1e-3) + max(0.02 * duration, 0.05)
 
 
 def summary(rep: replay.Replay) -> str:

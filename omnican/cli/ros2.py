@@ -2,7 +2,7 @@
 
 Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped); publishes odom
 (nav_msgs/Odometry), tf (odom -> base_link), joint_states and diagnostics; an
-std_msgs/Empty on ~/recover clears a latched stop. Needs pip install 'omnican[ros2]'.
+std_msgs/Empty on ~/recover clears a latched stop. Needs cyclonedds (the ros2 extra).
 
 Lines on stdin while it runs:
 
@@ -26,6 +26,7 @@ from omnican.cli.common import (
     EXIT_OK,
     UsageError,
     add_bus_arguments,
+    add_record_argument,
     load,
     positive_float,
     serve_lines,
@@ -52,12 +53,16 @@ def add_subparser(sub: Any) -> None:
                       help="cmd_vel carries geometry_msgs/TwistStamped")
     node.add_argument("--cmd-vel-timeout", type=positive_float, metavar="S",
                       help="stop when no cmd_vel arrives for S seconds")
-    node.add_argument("--odom-frame", metavar="FRAME")
-    node.add_argument("--base-frame", metavar="FRAME")
+    node.add_argument("--odom-frame", metavar="FRAME",
+                      help="frame of the odometry pose (default odom)")
+    node.add_argument("--base-frame", metavar="FRAME",
+                      help="frame of the base, the odometry's child frame (default base_link)")
     node.add_argument("--odom-rate", type=positive_float, metavar="HZ",
                       help="odom and tf rate (default 50)")
-    node.add_argument("--joint-states-rate", type=positive_float, metavar="HZ")
-    node.add_argument("--diagnostics-rate", type=positive_float, metavar="HZ")
+    node.add_argument("--joint-states-rate", type=positive_float, metavar="HZ",
+                      help="joint_states rate (default 50)")
+    node.add_argument("--diagnostics-rate", type=positive_float, metavar="HZ",
+                      help="diagnostics rate, and at once on a change (default 1)")
     node.add_argument("--no-tf", action="store_true", help="do not publish odom -> base_link")
     node.add_argument("--wheel-radius", type=positive_float, metavar="M",
                       help="wheel radius for joint angles (default: from the config)")
@@ -75,6 +80,7 @@ def add_subparser(sub: Any) -> None:
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
     p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
                    metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    add_record_argument(p)
     add_bus_arguments(p, sim_help="run against simulated drives in this process; DDS stays "
                       "on loopback unless --dds-interface or --dds-peer says otherwise")
     p.set_defaults(func=run)
@@ -131,7 +137,9 @@ def run(args: argparse.Namespace) -> int:
 
         from omnican.ros2.bridge import Bridge, DdsTransport
     except ImportError:
-        raise UsageError("'ros2' needs cyclonedds: pip install 'omnican[ros2]'") from None
+        from omnican.extras import install_hint
+
+        raise UsageError(f"'ros2' needs cyclonedds: {install_hint('ros2')}") from None
     from omnican.chassis import Chassis
     from omnican.ros2.settings import describe_network
 
@@ -147,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         if args.foxglove is not None:
             prepare(run_cfg)  # its slow set-up before the control loop runs
         try:
-            with Chassis.open(run_cfg) as base, \
+            with Chassis.open(run_cfg, record=args.record) as base, \
                     Bridge(base, settings, transport, sim=sess.sim) as bridge, \
                     watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True),
                           frames=Frames(settings.odom_frame, settings.base_frame)):

@@ -54,15 +54,48 @@ def _nmt_notes(found: tuple[FoundNode, ...]) -> list[str]:
     return notes
 
 
+_LEFT = ("node", "NMT", "device type")
+_IDENTITY = ("vendor", "product", "revision", "serial")
+_RIGHT = ("modes (6502h)", "check")
+
+
+def _table(title: str, columns: tuple[str, ...], check_width: int = 0) -> Table:
+    table = Table(title=title, title_justify="left")
+    for col in columns:
+        # Short values never wrap; the modes and the check text wrap within their cells,
+        # the modes first (a check text is read at once, a list of modes can wait).
+        short_check = col == "check" and 0 < check_width <= 30
+        table.add_column(col, no_wrap=col not in _RIGHT or short_check)
+    return table
+
+
+def _tables(rows: list[tuple[list[str], list[str], list[str], str | None]],
+            width: int) -> list[Table]:
+    """One table when it fits ``width`` columns; else the identity (1018h) apart."""
+    whole = _table("CANopen nodes", _LEFT + _IDENTITY + _RIGHT)
+    for left, ident, right, style in rows:
+        whole.add_row(*left, *ident, *right, style=style)
+    cells = [[*left, *ident] for left, ident, _, _ in rows]
+    fixed = 1 + sum(3 + max([len(title)] + [len(row[i]) for row in cells])
+                    for i, title in enumerate(_LEFT + _IDENTITY))  # text, padding, rule
+    if fixed + 2 * 18 <= width:  # room for the modes and the check beside them
+        return [whole]
+    check_width = max((len(right[1]) for _, _, right, _ in rows), default=0)
+    main = _table("CANopen nodes", _LEFT + _RIGHT, check_width)
+    identity = _table("identity (1018h)", ("node", *_IDENTITY))
+    for left, ident, right, style in rows:
+        main.add_row(*left, *right, style=style)
+        identity.add_row(left[0], *ident, style=style)
+    return [main, identity]
+
+
 def run(args: argparse.Namespace) -> int:
     with session(args) as s:
         layouts = node_layouts(s.cfg)
         found = scan(s.cfg, args.listen, args.sdo_timeout)
     report = check(found, layouts)
-    table = Table(title="CANopen nodes", title_justify="left")
-    for col in ("node", "NMT", "device type", "vendor", "product", "revision", "serial",
-                "modes (6502h)", "check"):
-        table.add_column(col)
+    console = Console()  # the terminal's width (80 when it is no terminal)
+    rows = []
     for f in report.found:
         dt = "-" if f.device_type is None else f"0x{f.device_type:08X}"
         ident = ["-" if v is None else f"0x{v:08X}" for v in f.identity]
@@ -70,13 +103,14 @@ def run(args: argparse.Namespace) -> int:
             MODE_NAMES.get(m, str(m)) for m in sorted(f.supported_modes))
         check_text = "; ".join(f.flags) if f.flags else "ok"
         nmt = f.nmt or ("no heartbeat" if f.heartbeat_ms == 0 else "not heard")
-        table.add_row(str(f.node_id), nmt, dt, *ident, modes, check_text,
-                      style="red" if f.flags else None)
+        rows.append(([str(f.node_id), nmt, dt], ident, [modes, check_text],
+                     "red" if f.flags else None))
     for n in report.missing:
-        table.add_row(str(n), "-", "-", "-", "-", "-", "-", "-",
-                      "MISSING (configured, no answer)", style="bold red")
-    Console(width=160).print(table)
+        rows.append(([str(n), "no answer", "-"], ["-"] * 4, ["-", "MISSING (configured)"],
+                     "bold red"))
+    for table in _tables(rows, console.width):
+        console.print(table)
     for line in _nmt_notes(report.found):
-        print(line)
+        console.print(line, markup=False, highlight=False)  # wrapped at the terminal's width
     print(f"{len(report.found)} node(s) found; {len(report.missing)} configured node(s) missing")
     return EXIT_OK if report.ok else EXIT_FAILURE

@@ -22,6 +22,7 @@ from omnican.cli.common import (
     UsageError,
     add_config_argument,
     bus_overrides,
+    check_bus,
     finite_float,
     load,
     pose_line,
@@ -182,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
     options = {"encoder_noise": args.encoder_noise, "frame_loss": args.frame_loss}
     hub = None
     if on_bus:
+        check_bus(cfg.bus)
         where = ", ".join(f"{k}={v}" for k, v in (cfg.bus or {}).items())
         connect = f"omnican teleop {' '.join(_bus_flags(cfg.bus or {}))}"
     else:

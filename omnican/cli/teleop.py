@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import collections
 import contextlib
+import io
 import logging
 import math
 import os
@@ -35,6 +36,7 @@ from omnican.cia402 import State
 from omnican.cli.common import (
     UsageError,
     add_bus_arguments,
+    add_record_argument,
     fixed,
     pose_line,
     positive_float,
@@ -61,9 +63,7 @@ def add_subparser(sub: Any) -> None:
                    help="initial turn rate (default 1.0)")
     p.add_argument("--key-timeout", type=float, default=0.6, metavar="S",
                    help="stop when no key arrives for this long (default 0.6; 0: never)")
-    p.add_argument("--record", metavar="FILE",
-                   help="record the bus to FILE; format by extension (.log candump, .asc, .blf; "
-                        ".mcap: frames plus the robot's state as ROS 2 messages)")
+    add_record_argument(p)
     p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
                    metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
     p.add_argument("--gamepad", nargs="?", const="", metavar="DEVICE",
@@ -72,6 +72,20 @@ def add_subparser(sub: Any) -> None:
                         "moves, right stick turns; the [gamepad] table of --config maps it")
     add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
     p.set_defaults(func=run)
+
+
+def beyond_limits(speed: float, turn: float, keys: TeleopModel) -> list[str]:
+    """What --speed and --turn asked beyond what the base reaches (as drive warns)."""
+    out = []
+    if speed > keys.max_speed + 1e-9:
+        out.append(f"--speed {speed:g} m/s is beyond the base's limits (it reaches "
+                   f"{keys.max_speed:.2f} m/s: chassis.max_speed, max_wheel_speed): starting at "
+                   f"{keys.speed:.2f} m/s")
+    if turn > keys.max_turn + 1e-9:
+        out.append(f"--turn {turn:g} rad/s is beyond the base's limits (it reaches "
+                   f"{keys.max_turn:.2f} rad/s: chassis.max_angular_speed, max_wheel_speed): "
+                   f"starting at {keys.turn:.2f} rad/s")
+    return out
 
 
 def read_keys(fd: int, timeout: float) -> list[str]:
@@ -162,8 +176,39 @@ def wrap_phrases(phrases: Sequence[str], width: int, gap: int = 4) -> str:
     return "\n".join(lines)
 
 
+# Below this width the fault text leaves the wheel table for lines of its own under it,
+# so that no row wraps (a wrapped row pushes the newest events off an 80x24 screen).
+FAULT_COLUMN_MIN_WIDTH = 110
+
+
+def bus_back_after_down(status: Any) -> bool:
+    """The base is held stopped because the bus went down, and the bus is up again:
+    the user's move (r), not a wait."""
+    return bool(status.bus_up and (status.stopped_reason or "").startswith("CAN bus down"))
+
+
+def stop_line(status: Any) -> Text:
+    """What the status line says of a latched stop."""
+    reason = status.stopped_reason
+    if bus_back_after_down(status):
+        why = reason[len("CAN bus down"):].strip(" ()")
+        return Text(f"STOPPED: the CAN bus is back up - press r to recover (it was down"
+                    f"{': ' + why if why else ''})", style="bold yellow", no_wrap=True,
+                    overflow="ellipsis")
+    return Text(f"STOPPED: {reason} - press r to recover", style="bold red")
+
+
+def _height(body: Sequence[RenderableType], width: int) -> int:
+    """Lines ``body`` takes at ``width`` columns."""
+    console = Console(width=width, file=io.StringIO(), color_system=None)
+    return len(console.render_lines(Group(*body), console.options, pad=False))
+
+
 def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
-              events: _Events, note: str, width: int = 120) -> Group:
+              events: _Events, note: str, width: int = 120,
+              height: int | None = None) -> Group:
+    """The screen: header, pose and twist, wheels, status, keys, events (as many of the
+    newest as fit ``height`` lines)."""
     st = base.status
     pose, twist, applied = base.pose, base.twist, base.command
     bitrate = base.bus.bitrate
@@ -193,20 +238,33 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
                    "-" if unknown else fixed(c, 3, sign=True))
 
     wheels = Table(box=None, padding=(0, 1))
-    for col in ("wheel", "node", "state", "target m/s", "actual m/s", "travel m", "fault"):
-        wheels.add_column(col, justify="right" if "m" in col or col == "node" else "left")
+    fault_column = width >= FAULT_COLUMN_MIN_WIDTH
+    columns = ("wheel", "node", "state", "target m/s", "actual m/s", "travel m")
+    for col in (*columns, "fault") if fault_column else columns:
+        wheels.add_column(col, justify="right" if "m" in col or col == "node" else "left",
+                          no_wrap=col != "fault")
+    faults = []
     for w in base.wheels:
         node = f"{w.node_id}" + (f".{w.axis}" if w.axis else "")
         state = Text(str(w.state), style=STATE_STYLE.get(w.state, ""))
         if not w.online:
             state = Text("OFFLINE", style="bold red")
-        wheels.add_row(str(w.index), node, state, fixed(w.target_speed, 3, sign=True),
-                       "-" if w.stale else fixed(w.actual_speed, 3, sign=True),
-                       fixed(w.travel, 3, sign=True),
-                       Text(w.fault or w.error or "", style="red"))
+        trouble = w.fault or w.error or ""
+        cells: list[Any] = [str(w.index), node, state, fixed(w.target_speed, 3, sign=True),
+                            "-" if w.stale else fixed(w.actual_speed, 3, sign=True),
+                            fixed(w.travel, 3, sign=True)]
+        if fault_column:
+            cells.append(Text(trouble, style="red"))
+        elif trouble:
+            faults.append(f"wheel {w.index}: {trouble}")
+        wheels.add_row(*cells)
+    wheel_panel: RenderableType = wheels
+    if faults:  # under the table, cut to a line each rather than wrapped
+        wheel_panel = Group(wheels, *(Text(f, style="red", no_wrap=True, overflow="ellipsis")
+                                      for f in faults))
 
     if st.stopped_reason:
-        status = Text(f"STOPPED: {st.stopped_reason} - press r to recover", style="bold red")
+        status = stop_line(st)
     elif st.enabled:
         status = Text("RUNNING", style="bold green")
     else:
@@ -220,12 +278,18 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     grid = Table.grid(padding=(0, 2))
     grid.add_row(Panel(pose_t, title="pose", title_align="left"),
                  Panel(tw, title="twist", title_align="left"))
-    body: list[RenderableType] = [header, grid, Panel(wheels, title="wheels", title_align="left"),
+    body: list[RenderableType] = [header, grid,
+                                  Panel(wheel_panel, title="wheels", title_align="left"),
                                   status, settings, help_text]
     if st.warnings:
         body.append(Text("\n".join(st.warnings), style="yellow"))
     if events.lines:
-        body.append(Panel(Text("\n".join(events.lines)), title="events", title_align="left"))
+        lines = list(events.lines)
+        if height is not None:  # the newest events that fit below the rest (2: the frame)
+            room = max(1, height - _height(body, width) - 2)
+            lines = lines[-room:]
+        body.append(Panel(Text("\n".join(lines), no_wrap=True, overflow="ellipsis"),
+                          title="events", title_align="left"))
     return Group(*body)
 
 
@@ -240,7 +304,7 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
         if keys.take_recover():
             note = "recovering..."
             live.update(dashboard(base, keys, Twist(), title, events, note,
-                                  live.console.width), refresh=True)
+                                  live.console.width, live.console.height), refresh=True)
             try:
                 base.recover()
                 note = ""
@@ -253,8 +317,8 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             command = keys.command(time.monotonic())
             base.set_velocity(command.vx, command.vy, command.wz)
             shown = note
-        live.update(dashboard(base, keys, command, title, events, shown, live.console.width),
-                    refresh=True)
+        live.update(dashboard(base, keys, command, title, events, shown, live.console.width,
+                              live.console.height), refresh=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -275,6 +339,9 @@ def run(args: argparse.Namespace) -> int:
             keys = teleop_model_for(s.cfg, pad.mapping)
         else:
             keys = TeleopModel.for_config(s.cfg, args.speed, args.turn, args.key_timeout)
+            for line in beyond_limits(args.speed, args.turn, keys):
+                print(f"omnican: warning: {line}", file=sys.stderr, flush=True)
+                events.lines.append(f"{time.strftime('%H:%M:%S')} warning: {line}")
         where = "simulated base" if s.sim else "base"
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"
