@@ -791,7 +791,7 @@ class Chassis:
                 offline.add(nid)
                 if not self._recovering:  # recover() waits for it, and says if it never came
                     self._latch(f"node {nid} heartbeat lost")
-            elif nid in offline and (self._latched is None or self._recovering):
+            elif nid in offline:  # its heartbeat is back: online again (a stop stays)
                 offline.discard(nid)
             latched = self._latched is not None and not self._recovering
             for stage in node.stages:

@@ -309,8 +309,6 @@ def test_teleop_says_the_bus_is_back_and_r_recovers(sim_port: int) -> None:
         sim.kill()
 
 
-@pytest.mark.xfail(strict=False, reason="a wheel whose heartbeat is back reads online only "
-                   "with the chassis change the lead makes (omnican/chassis.py)")
 def test_teleop_wheel_reads_online_when_its_heartbeat_is_back(sim_port: int) -> None:
     from .test_faults_process import SimProcess
 
