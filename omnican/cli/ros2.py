@@ -34,7 +34,6 @@ from omnican.cli.common import (
 )
 from omnican.errors import ConfigError
 from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
-from omnican.telemetry import Frames
 
 
 def add_subparser(sub: Any) -> None:
@@ -131,6 +130,11 @@ def settings_from(args: argparse.Namespace, table: dict[str, Any] | None, origin
     return validate(s, origin)
 
 
+#: [ros2] keys the base's telemetry reads (omnican.telemetry.settings), for every front end.
+TELEMETRY_KEYS = ("odom_frame", "base_frame", "joint_names", "wheel_radius", "odom_slip",
+                  "node_name", "odom_rate_hz", "joint_states_rate_hz", "diagnostics_rate_hz")
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         import cyclonedds.domain  # noqa: F401  (the ros2 extra)
@@ -147,7 +151,10 @@ def run(args: argparse.Namespace) -> int:
     origin = str(cfg.source) if cfg.source else "command line"
     settings = settings_from(args, dict(cfg.ros2) if cfg.ros2 else None, origin)
     with session(args) as sess:
-        run_cfg = sess.cfg
+        # What every front end says alike (frames, joints, rates) is read from [ros2] by
+        # the base's telemetry: the command line's values go there too.
+        run_cfg = replace(sess.cfg, ros2={**(sess.cfg.ros2 or {}), **{
+            key: getattr(settings, key) for key in TELEMETRY_KEYS}})
         if settings.cmd_vel_timeout_s is not None:
             run_cfg = replace(run_cfg, chassis=replace(run_cfg.chassis,
                                                        cmd_timeout_s=settings.cmd_vel_timeout_s))
@@ -157,8 +164,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             with Chassis.open(run_cfg, record=args.record) as base, \
                     Bridge(base, settings, transport, sim=sess.sim) as bridge, \
-                    watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True),
-                          frames=Frames(settings.odom_frame, settings.base_frame)):
+                    watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True)):
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
                     serve_lines(lambda line: command(bridge, line), args.duration)
