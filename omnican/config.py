@@ -252,9 +252,18 @@ class ChassisSettings:
     pdo_mapping: str = _CHASSIS["pdo_mapping"]  # see pdoplan.MAPPING_POLICIES
 
     def __post_init__(self) -> None:
-        for name, (of, factor) in _SCALED.items():
-            if math.isnan(getattr(self, name)):
-                object.__setattr__(self, name, factor * getattr(self, of))
+        for key in _SCALED:
+            if math.isnan(getattr(self, key)):
+                object.__setattr__(self, key, self.default_of(key))
+
+    def default_of(self, key: str) -> Any:
+        """What ``key`` defaults to, the other settings as they are here: SCHEMA's default
+        (DEMO_CHASSIS's for a key a config must give), for a scaled key its factor times
+        the key it scales."""
+        if key in _SCALED:
+            of, factor = _SCALED[key]
+            return factor * getattr(self, of)
+        return _CHASSIS[key]
 
 
 @dataclass(frozen=True)
