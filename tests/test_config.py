@@ -309,3 +309,25 @@ def test_a_parsed_chassis_table_is_the_settings_made_in_code(table: dict[str, An
             if spec.scaled is not None:
                 of, factor = spec.scaled
                 assert getattr(parsed, key) == factor * getattr(parsed, of), key
+
+
+def test_ros2_settings_defaults_are_the_schemas(tmp_path: Path) -> None:
+    """Ros2Settings' defaults are the [ros2] schema's (where it has none: not given), so
+    a config without a [ros2] table runs omnican ros2 as one with an empty table."""
+    from dataclasses import fields
+
+    from omnican.config import SCHEMA
+    from omnican.ros2.settings import Ros2Settings, from_table
+
+    assert {f.name for f in fields(Ros2Settings)} == set(SCHEMA["ros2"])
+    not_given: tuple[object, ...] = (None, (), 0)  # 0: domain_id, ROS_DOMAIN_ID's fallback
+    for f in fields(Ros2Settings):
+        spec = SCHEMA["ros2"][f.name]
+        if spec.default is None:
+            assert f.default in not_given, f.name
+        else:
+            assert f.default == spec.default, f.name
+            assert type(f.default) is type(spec.default), f.name
+    cfg = load_config(write(tmp_path, GOOD + "\n[ros2]\n"))
+    assert cfg.ros2 is not None
+    assert from_table(cfg.ros2) == from_table({})
