@@ -42,6 +42,7 @@ BUTTON_CODES: dict[str, int] = {
 }
 
 DEFAULT_DEADZONE = 0.05  # ROS joy's default
+DEFAULT_REQUIRE_DEADMAN = True
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,7 @@ class PadMapping:
     deadman: int
     turbo: int | None
     deadzone: float = DEFAULT_DEADZONE
-    require_deadman: bool = True
+    require_deadman: bool = DEFAULT_REQUIRE_DEADMAN
 
 
 def _pad(name: str, right_x: int, deadman: int, turbo: int | None) -> PadMapping:
@@ -174,10 +175,11 @@ _AXES = ("vx", "vy", "wz")
 #: Keys of the config's ``[gamepad]`` table and their meaning (README lists them).
 TABLE_KEYS: dict[str, str] = {
     "preset": "xbox, ps (PS4/PS5), f710 (X mode) or f710-d; default: from the device name",
-    "deadzone": "stick deadzone, fraction of full deflection (default 0.05)",
+    "deadzone": f"stick deadzone, fraction of full deflection (default {DEFAULT_DEADZONE:g})",
     "deadman_button": "button to hold for any motion, e.g. \"BTN_TL\" (default LB / L1)",
     "turbo_button": "button for the turbo scales, e.g. \"BTN_TR\"; \"\" for none",
-    "require_deadman": "false: move without holding the deadman (default true)",
+    "require_deadman": "false: move without holding the deadman (default "
+                       f"{str(DEFAULT_REQUIRE_DEADMAN).lower()})",
     **{f"axis_{a}": f"axis for {a}, e.g. \"ABS_Y\"" for a in _AXES},
     **{f"scale_{a}": f"{a} at full deflection ({'rad/s' if a == 'wz' else 'm/s'}; "
                      "negative flips it)" for a in _AXES},
