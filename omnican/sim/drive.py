@@ -1,9 +1,10 @@
 """A simulated CiA 402 wheel drive on a canopen network.
 
-Three parts, each in a module of its own, put together here:
+Three parts, each in modules of its own, put together here:
 
-- :mod:`omnican.sim.node`: the CiA 301 side (NMT, the SDO server, PDOs, SYNC,
-  heartbeat producer and consumer, EMCY), on :class:`canopen.LocalNode`;
+- :mod:`omnican.sim.node`: the CiA 301 side on :class:`canopen.LocalNode` (NMT, the
+  SDO server, SYNC, EMCY), with the PDOs at run time in
+  :mod:`omnican.sim.process_data` and the heartbeats in :mod:`omnican.sim.heartbeat`;
 - :mod:`omnican.sim.stage`: the CiA 402 power stage of each controlword, pure;
 - :mod:`omnican.sim.axis`: the motors (modes, ramps, counters), advanced lazily.
 
@@ -269,7 +270,7 @@ class SimulatedDrive:
             self.comm.frozen = False
             self.comm.heartbeat.last_sent = -1e9
 
-    # ------------------------------------------- what the node side calls
+    # ------------------------- what the node side calls (node.Application)
 
     @property
     def last_advance(self) -> float:
