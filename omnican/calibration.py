@@ -439,7 +439,7 @@ def render_config(cfg: ChassisConfig, comment: str = "", digits: int = 7) -> str
     lines = [f"# {line}" for line in comment.splitlines()] if comment else []
     lines += ["# [bus] is not written: use --interface/--channel or python-can's configuration.",
               "", "[chassis]"]
-    c, default = cfg.chassis, ChassisSettings()
+    c = cfg.chassis
     if c.layout is not None:
         lines.append(f'layout = "{c.layout}"')
     lines.append(f"base_radius = {format_number(c.base_radius, digits)}")
@@ -447,11 +447,7 @@ def render_config(cfg: ChassisConfig, comment: str = "", digits: int = 7) -> str
         if f.name in ("layout", "base_radius"):
             continue
         value = getattr(c, f.name)
-        if f.name == "stop_decel" and value == 2.0 * c.max_accel:
-            continue
-        if f.name == "stop_angular_decel" and value == 2.0 * c.max_angular_accel:
-            continue
-        if value == getattr(default, f.name) or value is None or value == math.inf:
+        if value == c.default_of(f.name) or value is None or value == math.inf:
             continue
         if f.name == "mode":
             lines.append(f'mode = "{value.short}"')

@@ -44,12 +44,21 @@ VELOCITY_UNITS: dict[str, float] = {
 
 @dataclass(frozen=True)
 class Key:
-    """One configuration key: its TOML type(s), default (None = required) and meaning."""
+    """One configuration key: its TOML type(s), default (None: none, or see ``required``
+    and ``scaled``) and meaning. The one place a default is written: the dataclasses the
+    tables parse into take theirs from here (:func:`schema_defaults`)."""
 
     types: tuple[type, ...]
     default: Any
     doc: str
     required: bool = False
+    #: (other key, factor): left out, the key is ``factor`` x the other key's value.
+    scaled: tuple[str, float] | None = None
+
+
+def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float) -> Key:
+    """A key whose default is ``factor`` x key ``of`` of the same table (said in its doc)."""
+    return Key(types, None, f"{doc}; default {factor:g} x {of}", scaled=(of, factor))
 
 
 _NUM = (int, float)
@@ -74,8 +83,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "max_angular_speed": Key(_NUM, math.inf, "rad/s, body angular speed"),
         "max_accel": Key(_NUM, 1.0, "m/s^2, body linear acceleration"),
         "max_angular_accel": Key(_NUM, 3.0, "rad/s^2, body angular acceleration"),
-        "stop_decel": Key(_NUM, None, "m/s^2 for a stop command; default 2 x max_accel"),
-        "stop_angular_decel": Key(_NUM, None, "rad/s^2 for a stop; default 2 x max_angular_accel"),
+        "stop_decel": _scaled(_NUM, "m/s^2 for a stop command", "max_accel", 2.0),
+        "stop_angular_decel": _scaled(_NUM, "rad/s^2 for a stop", "max_angular_accel", 2.0),
         "mode": Key((str,), None, "\"pv\", \"csv\" or \"vl\"; default: pv, or what 6502h offers"),
         "host_node_id": Key((int,), 127, "node id of this host's heartbeat (0x700 + id)"),
         "heartbeat_ms": Key((int,), 100, "heartbeat period of host and drives, ms"),
@@ -145,6 +154,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
 }
 
 
+def schema_defaults(section: str) -> dict[str, Any]:
+    """Key -> default of every key of a :data:`SCHEMA` section (None: required, scaled or
+    no value)."""
+    return {name: spec.default for name, spec in SCHEMA[section].items()}
+
+
 def reference_rows() -> list[tuple[str, str, str]]:
     """(key, default, meaning) for every key of :data:`SCHEMA`: README's reference table."""
     rows = []
@@ -171,50 +186,88 @@ def reference_rows() -> list[tuple[str, str, str]]:
     return rows
 
 
+def _field_defaults(section: str, **overrides: Any) -> dict[str, Any]:
+    """A section's defaults as the values of its dataclass's fields (a mode named is a
+    :class:`Mode`), ``overrides`` applied."""
+    out = {**schema_defaults(section), **overrides}
+    if out.get("mode") is not None:
+        out["mode"] = Mode.from_name(out["mode"])
+    return out
+
+
+_WHEEL = _field_defaults("wheel")
+
+
 @dataclass(frozen=True)
 class WheelConfig:
-    """One wheel: an axis of a CANopen node and its unit conversions."""
+    """One wheel: an axis of a CANopen node and its unit conversions. Optional fields
+    default as :data:`SCHEMA` says for the ``[[wheel]]`` key of the same name."""
 
     node_id: int
     axis: int
     eds: Path
     velocity_scale: float  # drive velocity units per m/s at the rim
     position_scale: float  # encoder units per m of rim travel
-    angle_deg: float | None = None
-    drive_angle_deg: float | None = None
-    base_radius: float | None = None
-    mode: Mode | None = None
+    angle_deg: float | None = _WHEEL["angle_deg"]
+    drive_angle_deg: float | None = _WHEEL["drive_angle_deg"]
+    base_radius: float | None = _WHEEL["base_radius"]
+    mode: Mode | None = _WHEEL["mode"]
     # m, when the config gave it (omnican ros2's joint angles need it). Not part of equality:
     # the scales define the wheel; a config rewritten with scales only is the same wheel.
-    wheel_radius: float | None = field(default=None, compare=False)
+    wheel_radius: float | None = field(default=_WHEEL["wheel_radius"], compare=False)
 
     @property
     def name(self) -> str:
         return f"node {self.node_id}" + (f" axis {self.axis}" if self.axis else "")
 
 
+#: What a ``[chassis]`` table must give (or may leave to the wheels' angle_deg), for a
+#: ChassisSettings made in code: the demo base's (:func:`default_config`).
+DEMO_CHASSIS: dict[str, Any] = {"layout": "b21", "base_radius": 0.19}
+_CHASSIS = _field_defaults("chassis", **DEMO_CHASSIS)
+_SCALED = {name: spec.scaled for name, spec in SCHEMA["chassis"].items() if spec.scaled}
+
+
 @dataclass(frozen=True)
 class ChassisSettings:
-    layout: str | None = "b21"
-    base_radius: float = 0.19
-    rate_hz: float = 100.0
-    cmd_timeout_s: float = 0.5
-    max_wheel_speed: float = 1.0
-    max_speed: float = math.inf
-    max_angular_speed: float = math.inf
-    max_accel: float = 1.0
-    max_angular_accel: float = 3.0
-    stop_decel: float = 2.0
-    stop_angular_decel: float = 6.0
-    mode: Mode | None = None
-    host_node_id: int = 127
-    heartbeat_ms: int = 100
-    heartbeat_timeout_factor: float = 3.0
-    sdo_timeout_s: float = 0.3
-    sdo_retries: int = 3
-    boot_timeout_s: float = 2.0
-    enable_timeout_s: float = 1.0
-    pdo_mapping: str = "try"  # see pdoplan.MAPPING_POLICIES
+    """The ``[chassis]`` table. Defaults are :data:`SCHEMA`'s, but for the keys a config
+    must give (:data:`DEMO_CHASSIS`); a stop deceleration not given (NaN) is derived from
+    the acceleration as SCHEMA says (``Key.scaled``)."""
+
+    layout: str | None = _CHASSIS["layout"]
+    base_radius: float = _CHASSIS["base_radius"]
+    rate_hz: float = _CHASSIS["rate_hz"]
+    cmd_timeout_s: float = _CHASSIS["cmd_timeout_s"]
+    max_wheel_speed: float = _CHASSIS["max_wheel_speed"]
+    max_speed: float = _CHASSIS["max_speed"]
+    max_angular_speed: float = _CHASSIS["max_angular_speed"]
+    max_accel: float = _CHASSIS["max_accel"]
+    max_angular_accel: float = _CHASSIS["max_angular_accel"]
+    stop_decel: float = math.nan  # not given: scaled from max_accel
+    stop_angular_decel: float = math.nan  # not given: scaled from max_angular_accel
+    mode: Mode | None = _CHASSIS["mode"]
+    host_node_id: int = _CHASSIS["host_node_id"]
+    heartbeat_ms: int = _CHASSIS["heartbeat_ms"]
+    heartbeat_timeout_factor: float = _CHASSIS["heartbeat_timeout_factor"]
+    sdo_timeout_s: float = _CHASSIS["sdo_timeout_s"]
+    sdo_retries: int = _CHASSIS["sdo_retries"]
+    boot_timeout_s: float = _CHASSIS["boot_timeout_s"]
+    enable_timeout_s: float = _CHASSIS["enable_timeout_s"]
+    pdo_mapping: str = _CHASSIS["pdo_mapping"]  # see pdoplan.MAPPING_POLICIES
+
+    def __post_init__(self) -> None:
+        for key in _SCALED:
+            if math.isnan(getattr(self, key)):
+                object.__setattr__(self, key, self.default_of(key))
+
+    def default_of(self, key: str) -> Any:
+        """What ``key`` defaults to, the other settings as they are here: SCHEMA's default
+        (DEMO_CHASSIS's for a key a config must give), for a scaled key its factor times
+        the key it scales."""
+        if key in _SCALED:
+            of, factor = _SCALED[key]
+            return factor * getattr(self, of)
+        return _CHASSIS[key]
 
 
 @dataclass(frozen=True)
@@ -270,8 +323,8 @@ def derive_scales(
     gear_ratio: float,
     encoder_cpr: float,
     wheel_radius: float,
-    velocity_unit: str = "counts/s",
-    invert: bool = False,
+    velocity_unit: str = _WHEEL["velocity_unit"],
+    invert: bool = _WHEEL["invert"],
 ) -> tuple[float, float]:
     """(velocity_scale, position_scale) from a drive's physical parameters.
 
@@ -296,7 +349,7 @@ _DEMO_SCALES = derive_scales(16.0, 4096.0, _DEMO_WHEEL_RADIUS)
 
 def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
     """The demo base that ``--sim`` runs without a config: three bundled drives,
-    node ids 1-3, layout b21, base radius 0.19 m."""
+    node ids 1-3, the :data:`SCHEMA` defaults and :data:`DEMO_CHASSIS`."""
     vs, ps = _DEMO_SCALES
     wheels = tuple(
         WheelConfig(node_id=n, axis=0, eds=WHEEL_EDS, velocity_scale=vs, position_scale=ps,
@@ -364,6 +417,18 @@ def _parse_mode(reader: _Reader, where: str, value: str | None) -> Mode | None:
         raise reader.fail(where, str(exc)) from None
 
 
+def _chassis_settings(table: Mapping[str, Any]) -> ChassisSettings:
+    """The settings of a checked ``[chassis]`` table but its mode: numbers as floats
+    (TOML's 100 is an int); a scaled key not given is left to ChassisSettings to derive."""
+    values: dict[str, Any] = {}
+    for key, spec in SCHEMA["chassis"].items():
+        value = table[key]
+        if key == "mode" or (value is None and spec.scaled is not None):
+            continue
+        values[key] = float(value) if spec.types == _NUM and value is not None else value
+    return ChassisSettings(**values)
+
+
 def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path | None = None,
                  check_eds: bool = True) -> ChassisConfig:
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
@@ -379,7 +444,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         raise r.fail("chassis", "missing section")
     c = r.table("chassis", data["chassis"], "chassis")
 
-    base_radius = r.positive("chassis.base_radius", c["base_radius"])
+    r.positive("chassis.base_radius", c["base_radius"])
     rate = r.positive("chassis.rate_hz", c["rate_hz"])
     if rate > 5000:
         raise r.fail("chassis.rate_hz", f"must be at most 5000 Hz, got {rate}")
@@ -389,11 +454,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         r.positive(f"chassis.{key}", c[key])
     for key in ("max_speed", "max_angular_speed"):
         r.positive(f"chassis.{key}", c[key], allow_inf=True)
-    stop_decel = c["stop_decel"] if c["stop_decel"] is not None else 2.0 * c["max_accel"]
-    stop_ang = (c["stop_angular_decel"] if c["stop_angular_decel"] is not None
-                else 2.0 * c["max_angular_accel"])
-    r.positive("chassis.stop_decel", stop_decel)
-    r.positive("chassis.stop_angular_decel", stop_ang)
+    settings = _chassis_settings(c)  # its mode once the rest is checked
+    for key in _SCALED:
+        r.positive(f"chassis.{key}", getattr(settings, key))
     if not 1 <= c["host_node_id"] <= 127:
         raise r.fail("chassis.host_node_id", f"must be 1-127, got {c['host_node_id']}")
     if not 1 <= c["heartbeat_ms"] <= 65535:
@@ -410,28 +473,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     layout = c["layout"]
     if layout is not None and layout not in LAYOUTS:
         raise r.fail("chassis.layout", f"unknown layout {layout!r} (known: {', '.join(LAYOUTS)})")
-    settings = ChassisSettings(
-        layout=layout,
-        base_radius=base_radius,
-        rate_hz=rate,
-        cmd_timeout_s=float(c["cmd_timeout_s"]),
-        max_wheel_speed=float(c["max_wheel_speed"]),
-        max_speed=float(c["max_speed"]),
-        max_angular_speed=float(c["max_angular_speed"]),
-        max_accel=float(c["max_accel"]),
-        max_angular_accel=float(c["max_angular_accel"]),
-        stop_decel=float(stop_decel),
-        stop_angular_decel=float(stop_ang),
-        mode=_parse_mode(r, "chassis.mode", c["mode"]),
-        host_node_id=c["host_node_id"],
-        heartbeat_ms=c["heartbeat_ms"],
-        heartbeat_timeout_factor=float(c["heartbeat_timeout_factor"]),
-        sdo_timeout_s=float(c["sdo_timeout_s"]),
-        sdo_retries=c["sdo_retries"],
-        boot_timeout_s=float(c["boot_timeout_s"]),
-        enable_timeout_s=float(c["enable_timeout_s"]),
-        pdo_mapping=c["pdo_mapping"],
-    )
+    settings = replace(settings, mode=_parse_mode(r, "chassis.mode", c["mode"]))
 
     raw_wheels = data.get("wheel")
     if raw_wheels is None:

@@ -1,7 +1,8 @@
 """DBC databases of a base's CAN frames, derived from its config and EDS files.
 
 Every PDO of each node's plan (``omnican.layout``) becomes a message with one
-little-endian signal per mapped object, plus NMT, SYNC, EMCY and heartbeats. The
+little-endian signal per mapped object, placed, sized and signed as the control loop's
+codec (:class:`omnican.wire.PdoCodec`) packs it, plus NMT, SYNC, EMCY and heartbeats. The
 bundled ``dbc/omnican.dbc`` is this for the demo base (``tools/gen_dbc.py`` writes it,
 ``tests/test_dbc.py`` keeps it in step); ``omnican monitor --config`` builds one for
 any robot so vendor drives decode under their own names.
@@ -32,6 +33,7 @@ from omnican.config import ChassisConfig, default_config
 from omnican.layout import NodeLayout, node_layouts
 from omnican.odmap import Entry, Obj
 from omnican.pdoplan import PlannedPdo
+from omnican.wire import PdoCodec, value_range
 
 HOST = "Host"
 
@@ -88,14 +90,10 @@ def _conversion(choices: dict[int, str] | None) -> BaseConversion:
     return BaseConversion.factory(scale=1, offset=0, choices=table)
 
 
-def _range(bits: int, signed: bool) -> tuple[int, int]:
-    return (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
-
-
 def _signal(name: str, start: int, bits: int, signed: bool, receivers: list[str],
             unit: str | None = None, comment: str | None = None,
             choices: dict[int, str] | None = None) -> Signal:
-    lo, hi = _range(bits, signed)
+    lo, hi = value_range(bits, signed)
     return Signal(name=name, start=start, length=bits, byte_order="little_endian",
                   is_signed=signed, conversion=_conversion(choices), minimum=lo, maximum=hi,
                   unit=unit, comment=comment, receivers=receivers)
@@ -106,23 +104,23 @@ def pdo_message(layout: NodeLayout, pdo: PlannedPdo, tx: bool, rate_hz: float) -
     kind = "TPDO" if tx else "RPDO"
     node = node_name(layout.node_id)
     sender, receiver = (node, HOST) if tx else (HOST, node)
+    codec = PdoCodec(pdo)
     signals: list[Signal] = []
-    start = 0
-    for entry in pdo.entries:
+    for f in codec.fields:
+        entry = f.entry
         name = signal_name(entry)
         if any(s.name == name for s in signals):  # e.g. two axes of one drive
             name = f"{name}_{entry.index:04X}sub{entry.subindex}"
         obj = entry.obj
         signals.append(_signal(
-            name, start, entry.bits, entry.signed, [receiver],
+            name, f.start_bit, f.bits, f.signed, [receiver],
             unit=UNITS.get(obj) if obj is not None else None,
             comment=f"{entry.name} ({entry.address})",
             choices=CHOICES.get(obj) if obj is not None else None))
-        start += entry.bits
     return Message(
-        frame_id=pdo.cob_id,
+        frame_id=codec.cob_id,
         name=f"{kind}{pdo.number}_node{layout.node_id}",
-        length=pdo.data_bytes,
+        length=codec.length,
         signals=signals,
         comment=f"node {layout.node_id}: {pdo.describe(kind)}",
         senders=[sender],

@@ -42,6 +42,7 @@ BUTTON_CODES: dict[str, int] = {
 }
 
 DEFAULT_DEADZONE = 0.05  # ROS joy's default
+DEFAULT_REQUIRE_DEADMAN = True
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,7 @@ class PadMapping:
     deadman: int
     turbo: int | None
     deadzone: float = DEFAULT_DEADZONE
-    require_deadman: bool = True
+    require_deadman: bool = DEFAULT_REQUIRE_DEADMAN
 
 
 def _pad(name: str, right_x: int, deadman: int, turbo: int | None) -> PadMapping:
@@ -187,7 +188,8 @@ TABLE_KEYS: dict[str, str] = {
     **{f"turbo_scale_{a}": f"{a} at full deflection with turbo held" for a in _AXES},
 }
 #: Defaults of the ``[gamepad]`` keys that do not depend on the preset (README's reference).
-TABLE_DEFAULTS: dict[str, str] = {"deadzone": f"{DEFAULT_DEADZONE:g}", "require_deadman": "true"}
+TABLE_DEFAULTS: dict[str, str] = {"deadzone": f"{DEFAULT_DEADZONE:g}",
+                                  "require_deadman": str(DEFAULT_REQUIRE_DEADMAN).lower()}
 for _a in _AXES:
     _axis: AxisMap = getattr(PRESETS["xbox"], _a)  # every preset has the same scales
     TABLE_DEFAULTS[f"scale_{_a}"] = f"{_axis.scale:g}"

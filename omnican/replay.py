@@ -2,8 +2,9 @@
 
 What is on the wire is worked out from the config alone (:func:`omnican.layout.node_layouts`):
 the cyclic RPDOs carry each wheel's target velocity, the SYNC TPDOs each wheel's
-position, the event TPDOs each state machine's statusword. :func:`decode` follows the
-frames in time order and applies the chassis' rules:
+position, the event TPDOs each state machine's statusword, each PDO unpacked by its
+:class:`omnican.wire.PdoCodec` as the control loop unpacks it. :func:`decode` follows
+the frames in time order and applies the chassis' rules:
 
 * position samples belong to the latest SYNC before them; odometry integrates only
   complete sets (every wheel answered that SYNC), as :class:`omnican.chassis.Chassis`;
@@ -43,6 +44,7 @@ from omnican.errors import ConfigError
 from omnican.layout import NodeLayout, node_layouts
 from omnican.odmap import Entry
 from omnican.odometry import Odometry
+from omnican.wire import PdoCodec
 
 logger = logging.getLogger(__name__)
 
@@ -135,8 +137,7 @@ class Replay:
 
 @dataclass
 class _Slot:
-    offset: int
-    entry: Entry
+    field: int  # position among the PDO's fields (its codec's)
     role: str  # "target", "position", "statusword"
     index: int  # wheel index, or stage number
 
@@ -148,11 +149,15 @@ class _Stage:
     changes: list[StateChange] = field(default_factory=list)
 
 
-def _slots(layouts: Sequence[NodeLayout], first_stage: list[int]) -> dict[int, list[_Slot]]:
-    """COB-ID -> what each of its PDOs carries, from the planned mapping."""
-    out: dict[int, list[_Slot]] = {}
+def _slots(layouts: Sequence[NodeLayout],
+           first_stage: list[int]) -> dict[int, tuple[PdoCodec, list[_Slot]]]:
+    """COB-ID -> the PDO's codec (the control loop's) and what of its fields replay reads,
+    from the planned mapping."""
+    out: dict[int, tuple[PdoCodec, list[_Slot]]] = {}
     for layout, base in zip(layouts, first_stage, strict=True):
         plan = layout.plan
+        codecs = {tx: [PdoCodec(p) for p in (plan.tpdos if tx else plan.rpdos)]
+                  for tx in (False, True)}
         wanted: list[tuple[Entry, bool, str, int]] = []
         for axis in layout.axes:
             wanted.append((axis.target, False, "target", axis.wheel_index))
@@ -160,15 +165,12 @@ def _slots(layouts: Sequence[NodeLayout], first_stage: list[int]) -> dict[int, l
         for k, stage in enumerate(layout.stages):
             wanted.append((stage.statusword, True, "statusword", base + k))
         for entry, tx, role, index in wanted:
-            found = plan.find(entry, tx)
-            if found is not None:
-                pdo, offset = found
-                out.setdefault(pdo.cob_id, []).append(_Slot(offset, entry, role, index))
+            for codec in codecs[tx]:
+                i = codec.index_of(entry)
+                if i is not None:
+                    out.setdefault(codec.cob_id, (codec, []))[1].append(_Slot(i, role, index))
+                    break
     return out
-
-
-def _pdo_lengths(layouts: Sequence[NodeLayout]) -> dict[int, int]:
-    return {p.cob_id: p.data_bytes for n in layouts for p in (*n.plan.rpdos, *n.plan.tpdos)}
 
 
 def window_speeds(t: FloatArray, travel: FloatArray,
@@ -211,7 +213,6 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
             stages.append(_Stage(layout.node_id,
                                  [a.wheel_index for a in layout.axes if a.stage == k]))
     slots = _slots(layouts, first_stage)
-    lengths = _pdo_lengths(layouts)
     node_ids = {layout.node_id for layout in layouts}
     vscale = [w.velocity_scale for w in cfg.wheels]
     pscale = [w.position_scale for w in cfg.wheels]
@@ -262,10 +263,12 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
             continue
         if cob in slots:
             node_frames += 1
-            if len(data) < lengths[cob]:
+            codec, read = slots[cob]
+            values = codec.unpack(data)
+            if values is None:
                 continue  # not the planned PDO (or a broken frame), as the chassis ignores it
-            for slot in slots[cob]:
-                value = slot.entry.decode(data[slot.offset:slot.offset + slot.entry.bits // 8])
+            for slot in read:
+                value = values[slot.field]
                 if slot.role == "target":
                     target_t[slot.index].append(t)
                     target_v[slot.index].append(value / vscale[slot.index])

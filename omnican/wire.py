@@ -3,7 +3,8 @@ and how to pack or unpack all of them in one call.
 
 The control loop packs its RPDOs and unpacks its TPDOs through :class:`PdoCodec` (one
 precompiled ``struct.Struct`` per PDO instead of slicing and converting object by
-object); replay and the DBC generator read the same offsets, so the three always agree.
+object); replay unpacks recorded PDOs with it and the DBC generator places, sizes and
+signs its signals by its fields, so the three always agree.
 
 Pure module: no I/O, no CAN imports.
 """
@@ -20,6 +21,11 @@ from omnican.pdoplan import PlannedPdo
 _CODES = {8: "b", 16: "h", 32: "i", 64: "q"}
 
 
+def value_range(bits: int, signed: bool) -> tuple[int, int]:
+    """(lowest, highest) integer a field of ``bits`` holds (two's complement if signed)."""
+    return (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+
+
 @dataclass(frozen=True)
 class WireField:
     """One mapped object of a PDO: ``offset`` in bytes from the start of the frame."""
@@ -32,18 +38,25 @@ class WireField:
         return self.offset * 8
 
     @property
+    def bits(self) -> int:
+        return self.entry.bits
+
+    @property
     def size(self) -> int:
         return self.entry.bits // 8
 
     @property
+    def signed(self) -> bool:
+        """Read as signed: a signed quantity, whatever the EDS declares (``Entry.signed``)."""
+        return self.entry.signed
+
+    @property
     def lo(self) -> int:
-        e = self.entry
-        return -(1 << (e.bits - 1)) if e.signed else 0
+        return value_range(self.bits, self.signed)[0]
 
     @property
     def hi(self) -> int:
-        e = self.entry
-        return (1 << (e.bits - 1)) - 1 if e.signed else (1 << e.bits) - 1
+        return value_range(self.bits, self.signed)[1]
 
 
 class PdoCodec:
@@ -63,12 +76,12 @@ class PdoCodec:
             offset += entry.bits // 8
         self.fields: tuple[WireField, ...] = tuple(fields)
         self.length = offset
-        codes = [_CODES.get(f.entry.bits) for f in fields]
+        codes = [_CODES.get(f.bits) for f in fields]
         # Objects of 24, 40, 48 or 56 bits have no struct code: those PDOs go slowly.
         self._struct: struct.Struct | None = None
         if all(codes):
             self._struct = struct.Struct("<" + "".join(
-                c if f.entry.signed else c.upper()
+                c if f.signed else c.upper()
                 for c, f in zip(codes, fields, strict=True) if c))
         self._ranges = tuple((f.lo, f.hi) for f in fields)
 

@@ -5,8 +5,11 @@ from __future__ import annotations
 import math
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from omnican import WHEEL_EDS, ConfigError, load_config
 from omnican.cia402 import Mode
@@ -210,3 +213,122 @@ def test_bundled_data_found_from_the_installed_package(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, text=True,
                          capture_output=True, check=True).stdout
     assert out.split() == ["True", "True", "True"]
+
+
+# ---------------------------------------------------------------- defaults: written once
+
+
+def test_dataclass_defaults_are_the_schemas() -> None:
+    """Every field of ChassisSettings and WheelConfig named after a schema key defaults to
+    that key's default: the demo base's values where a config must give one, NaN (derived
+    when made) where the schema scales the key from another."""
+    from dataclasses import MISSING, fields
+
+    from omnican.config import DEMO_CHASSIS, SCHEMA, ChassisSettings, WheelConfig
+
+    assert {f.name for f in fields(ChassisSettings)} == set(SCHEMA["chassis"])
+    checked = 0
+    for cls, section in ((ChassisSettings, "chassis"), (WheelConfig, "wheel")):
+        for f in fields(cls):
+            spec = SCHEMA[section].get(f.name)
+            if spec is None or f.default is MISSING:
+                continue
+            where = f"{cls.__name__}.{f.name}"
+            if cls is ChassisSettings and f.name in DEMO_CHASSIS:
+                assert spec.required or spec.default is None, where
+                assert f.default == DEMO_CHASSIS[f.name], where
+            elif spec.scaled is not None:
+                assert math.isnan(f.default), where
+            elif f.name == "mode":
+                assert f.default == (spec.default and Mode.from_name(spec.default)), where
+            else:
+                assert f.default == spec.default, where
+                assert type(f.default) is type(spec.default), where
+            checked += 1
+    assert checked == len(SCHEMA["chassis"]) + 5  # and the wheel's optional fields
+
+
+def test_a_config_that_gives_only_what_it_must_is_the_code_default(tmp_path: Path) -> None:
+    """ChassisSettings() is what a [chassis] table with the demo base's required keys
+    parses to, and a wheel given only its id and scales is WheelConfig's defaults."""
+    from omnican.config import DEMO_CHASSIS, ChassisSettings, WheelConfig
+
+    chassis = "".join(f"{key} = {value!r}\n".replace("'", '"')
+                      for key, value in DEMO_CHASSIS.items())
+    wheels = "".join(f"[[wheel]]\nnode_id = {n}\nvelocity_scale = 1.0\nposition_scale = 2.0\n"
+                     for n in (1, 2, 3))
+    cfg = load_config(write(tmp_path, f"[chassis]\n{chassis}\n{wheels}"))
+    assert cfg.chassis == ChassisSettings()
+    assert cfg.wheels[1] == WheelConfig(node_id=2, axis=0, eds=WHEEL_EDS, velocity_scale=1.0,
+                                        position_scale=2.0)
+    assert default_config().chassis == ChassisSettings()
+
+
+def test_derive_scales_defaults_are_the_wheel_keys() -> None:
+    import inspect
+
+    from omnican.config import SCHEMA
+
+    params = inspect.signature(derive_scales).parameters
+    for key in ("velocity_unit", "invert"):
+        assert params[key].default == SCHEMA["wheel"][key].default, key
+
+
+_POSITIVE = st.one_of(st.integers(1, 100), st.floats(1e-3, 1e3))
+_CHASSIS_VALUES = {
+    "rate_hz": st.floats(60.0, 5000.0),
+    "heartbeat_ms": st.integers(20, 65535),
+    **{key: _POSITIVE for key in ("cmd_timeout_s", "max_wheel_speed", "max_accel",
+                                  "max_angular_accel", "stop_decel", "stop_angular_decel",
+                                  "heartbeat_timeout_factor", "sdo_timeout_s",
+                                  "boot_timeout_s", "enable_timeout_s")},
+    **{key: st.one_of(_POSITIVE, st.just(math.inf)) for key in ("max_speed",
+                                                                "max_angular_speed")},
+    "host_node_id": st.integers(4, 127),
+    "sdo_retries": st.integers(0, 20),
+    "pdo_mapping": st.sampled_from(["try", "eds", "sdo"]),
+    "mode": st.sampled_from(["pv", "csv", "vl"]),
+}
+
+
+@given(table=st.fixed_dictionaries({"base_radius": st.floats(0.05, 2.0)},
+                                   optional=_CHASSIS_VALUES))
+def test_a_parsed_chassis_table_is_the_settings_made_in_code(table: dict[str, Any]) -> None:
+    """Whatever a [chassis] table leaves out, parsing it gives what ChassisSettings made
+    with the same keys gives; a stop deceleration left out scales as the schema says."""
+    from omnican.config import SCHEMA, ChassisSettings, parse_config
+
+    wheels = [{"node_id": n, "velocity_scale": 1.0, "position_scale": 2.0} for n in (1, 2, 3)]
+    data = {"chassis": {"layout": "b21", **table}, "wheel": wheels}
+    parsed = parse_config(data, check_eds=False).chassis
+    mode = table.get("mode")
+    made = ChassisSettings(**{**table, "mode": mode and Mode.from_name(mode)})
+    assert parsed == made
+    for key, spec in SCHEMA["chassis"].items():
+        if key not in table and key != "layout":
+            assert getattr(parsed, key) == parsed.default_of(key), key
+            if spec.scaled is not None:
+                of, factor = spec.scaled
+                assert getattr(parsed, key) == factor * getattr(parsed, of), key
+
+
+def test_ros2_settings_defaults_are_the_schemas(tmp_path: Path) -> None:
+    """Ros2Settings' defaults are the [ros2] schema's (where it has none: not given), so
+    a config without a [ros2] table runs omnican ros2 as one with an empty table."""
+    from dataclasses import fields
+
+    from omnican.config import SCHEMA
+    from omnican.ros2.settings import Ros2Settings, from_table
+
+    assert {f.name for f in fields(Ros2Settings)} == set(SCHEMA["ros2"])
+    not_given: tuple[object, ...] = (None, (), 0)  # 0: domain_id, ROS_DOMAIN_ID's fallback
+    for f in fields(Ros2Settings):
+        spec = SCHEMA["ros2"][f.name]
+        if spec.default is None:
+            assert f.default in not_given, f.name
+        else:
+            assert f.default == spec.default, f.name
+            assert type(f.default) is type(spec.default), f.name
+    cfg = load_config(write(tmp_path, GOOD + "\n[ros2]\n"))
+    assert cfg.ros2 is not None
+    assert from_table(cfg.ros2) == from_table({})

@@ -3,6 +3,7 @@ tools/gen_dbc.py, and usable by ``cantools decode`` on a ``drive --record`` log.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import re
 import subprocess
@@ -13,12 +14,18 @@ from typing import Any
 
 import cantools
 import pytest
+from hypothesis import given, reject, settings
+from hypothesis import strategies as st
 
-from omnican import default_config
+from omnican import ConfigError, default_config
+from omnican.cia402 import Mode
 from omnican.cli import main
 from omnican.layout import NodeLayout, node_layouts
 from omnican.odmap import Obj
-from omnican.pdoplan import PlannedPdo
+from omnican.pdoplan import MAPPING_POLICIES, PlannedPdo
+from omnican.wire import PdoCodec
+
+from .helpers import vendor_config
 
 REPO = Path(__file__).resolve().parent.parent
 DBC = REPO / "dbc" / "omnican.dbc"
@@ -206,3 +213,76 @@ def test_cantools_decode_reads_a_drive_recording(tmp_path: Path, capsys: pytest.
     assert any(":: NMT(Command: " in line for line in decoded)
     # SDO frames are not in the DBC: cantools says so and goes on
     assert any(re.search(r" 601#\S+ T :: Unknown frame id 1537", line) for line in decoded)
+
+
+def _check_message_is_the_codec(message: Any, codec: PdoCodec, values: list[int]) -> None:
+    assert message.length == codec.length
+    assert len(message.signals) == len(codec.fields)
+    for signal, f in zip(message.signals, codec.fields, strict=True):
+        where = f"{message.name}.{signal.name}"
+        assert (signal.start, signal.length, signal.is_signed) == \
+            (f.start_bit, f.bits, f.signed), where
+        assert (signal.minimum, signal.maximum) == (f.lo, f.hi), where
+        assert signal.byte_order == "little_endian", where
+    packed = codec.pack(values)
+    by_name = {s.name: v for s, v in zip(message.signals, values, strict=True)}
+    assert message.encode(by_name, scaling=False) == packed
+    assert message.decode(packed, decode_choices=False, scaling=False) == by_name
+
+
+@functools.cache
+def _vendor_database(kind: str, mapping: str, mode: str) -> tuple[list[NodeLayout], Any]:
+    from dataclasses import replace
+
+    from omnican.config import check_eds_files
+    from omnican.dbcgen import build_database
+
+    cfg = vendor_config("unused", kind, pdo_mapping=mapping)
+    cfg = replace(cfg, wheels=tuple(replace(w, mode=Mode.from_name(mode)) for w in cfg.wheels))
+    check_eds_files(cfg)  # ConfigError: the drive lacks that mode's objects
+    return node_layouts(cfg), build_database(cfg)
+
+
+@settings(max_examples=60, deadline=None)
+@given(kind=st.sampled_from(["bundled", "zlac", "roboteq", "epos4"]),
+       mapping=st.sampled_from(MAPPING_POLICIES), mode=st.sampled_from(["pv", "csv", "vl"]),
+       data=st.data())
+def test_dbc_signals_are_the_codecs_fields(kind: str, mapping: str, mode: str,
+                                            data: st.DataObject) -> None:
+    """For the bundled and the vendor drives' plans, every PDO's DBC message has the
+    codec's length and one signal per field at its place, size, sign and range; cantools
+    encodes what the codec packs and decodes it back to the same values."""
+    try:
+        layouts, db = _vendor_database(kind, mapping, mode)
+    except ConfigError:
+        reject()  # a drive without that mode
+    pdos = [pdo for layout in layouts for pdo in (*layout.plan.rpdos, *layout.plan.tpdos)]
+    assert {m.frame_id for m in db.messages if 0x180 <= m.frame_id < 0x580} == \
+        {pdo.cob_id for pdo in pdos}
+    for pdo in pdos:
+        codec = PdoCodec(pdo)
+        _check_message_is_the_codec(db.get_message_by_frame_id(codec.cob_id), codec,
+                                    [data.draw(st.integers(lo, hi)) for lo, hi in codec.ranges])
+
+
+@given(fields=st.lists(st.tuples(st.sampled_from([8, 16, 24, 32]), st.booleans(), st.booleans()),
+                       min_size=1, max_size=4).filter(lambda fs: sum(b for b, _, _ in fs) <= 64),
+       tx=st.booleans(), data=st.data())
+def test_any_pdos_message_is_its_codec(fields: list[tuple[int, bool, bool]], tx: bool,
+                                       data: st.DataObject) -> None:
+    """Any mapping, objects of 24 bits and signed quantities the EDS declares unsigned
+    included: the message is laid out and signed as the codec packs."""
+    from types import SimpleNamespace
+
+    from omnican.dbcgen import pdo_message
+    from omnican.odmap import Entry
+
+    entries = tuple(Entry(obj=None, index=0x2000 + i, subindex=0, bits=bits, signed=signed,
+                          declared_signed=declared, shared=False, pdo_mappable=True,
+                          writable=True, name=f"Field {i}")
+                    for i, (bits, signed, declared) in enumerate(fields))
+    pdo = PlannedPdo(number=1, cob_id=0x181 if tx else 0x201, trans_type=1, entries=entries)
+    codec = PdoCodec(pdo)
+    message = pdo_message(SimpleNamespace(node_id=1), pdo, tx, 100.0)  # type: ignore[arg-type]
+    _check_message_is_the_codec(message, codec,
+                                [data.draw(st.integers(lo, hi)) for lo, hi in codec.ranges])

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import pytest
 from hypothesis import given
@@ -17,6 +19,7 @@ from omnican.gamepad_model import (
     EV_SYN,
     PRESETS,
     SYN_DROPPED,
+    TABLE_KEYS,
     PadState,
     apply_deadzone,
     mapping_from_table,
@@ -134,6 +137,25 @@ def test_table_overrides() -> None:
                             "require_deadman": True})
     assert (m.name, m.deadzone, m.deadman, m.turbo) == ("ps", 0.2, 0x130, None)
     assert (m.wz.code, m.vx.scale) == (ABS_CODES["ABS_Z"], -0.5)
+
+
+@pytest.mark.parametrize("preset", list(PRESETS))
+def test_the_table_reference_gives_the_defaults(preset: str) -> None:
+    m = mapping_from_table({"preset": preset})
+    assert f"(default {m.deadzone:g})" in TABLE_KEYS["deadzone"]
+    assert f"(default {str(m.require_deadman).lower()})" in TABLE_KEYS["require_deadman"]
+
+
+def test_readmes_gamepad_table_is_the_ps_preset_as_it_is() -> None:
+    """README's [gamepad] example writes the defaults out: they are the preset's."""
+    from omnican.config import tomllib
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = re.search(r"```toml\n(\[gamepad\]\n.*?)```", readme, re.S)
+    assert block is not None
+    table = tomllib.loads(block.group(1))["gamepad"]
+    assert table["preset"] == "ps"
+    assert mapping_from_table(table) == PRESETS["ps"]
 
 
 @pytest.mark.parametrize(("table", "message"), [

@@ -17,6 +17,7 @@ from typing import Any
 from xml.etree import ElementTree
 from xml.sax.saxutils import quoteattr
 
+from omnican.config import schema_defaults
 from omnican.errors import ConfigError
 
 #: eProsima's RTPS vendor id (Fast DDS, the default ROS 2 middleware). Fast DDS 3 (ROS 2
@@ -38,33 +39,37 @@ _NAME_TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _NET_WORD = re.compile(r"^[!-+\--~]+$")
 
 
+# The [ros2] defaults are written once, in omnican.config.SCHEMA (None there: not given).
+_D = schema_defaults("ros2")
+
+
 @dataclass(frozen=True)
 class Ros2Settings:
     """Everything ``[ros2]`` configures; see the README's configuration reference."""
 
-    namespace: str = ""
-    node_name: str = "omnican"
+    namespace: str = _D["namespace"]
+    node_name: str = _D["node_name"]
     domain_id: int = 0
-    cmd_vel_topic: str = "cmd_vel"
-    cmd_vel_stamped: bool = False
+    cmd_vel_topic: str = _D["cmd_vel_topic"]
+    cmd_vel_stamped: bool = _D["cmd_vel_stamped"]
     cmd_vel_timeout_s: float | None = None  # None: the chassis' cmd_timeout_s
-    odom_topic: str = "odom"
-    odom_frame: str = "odom"
-    base_frame: str = "base_link"
-    odom_rate_hz: float = 50.0
-    publish_tf: bool = True
-    tf_topic: str = "/tf"
-    joint_states_topic: str = "joint_states"
-    joint_states_rate_hz: float = 50.0
+    odom_topic: str = _D["odom_topic"]
+    odom_frame: str = _D["odom_frame"]
+    base_frame: str = _D["base_frame"]
+    odom_rate_hz: float = _D["odom_rate_hz"]
+    publish_tf: bool = _D["publish_tf"]
+    tf_topic: str = _D["tf_topic"]
+    joint_states_topic: str = _D["joint_states_topic"]
+    joint_states_rate_hz: float = _D["joint_states_rate_hz"]
     joint_names: tuple[str, ...] = ()  # empty: wheel_0_joint, wheel_1_joint, ...
     wheel_radius: float | None = None
-    diagnostics_topic: str = "/diagnostics"
-    diagnostics_rate_hz: float = 1.0
-    recover_topic: str = "~/recover"
-    odom_slip: float = 0.02
+    diagnostics_topic: str = _D["diagnostics_topic"]
+    diagnostics_rate_hz: float = _D["diagnostics_rate_hz"]
+    recover_topic: str = _D["recover_topic"]
+    odom_slip: float = _D["odom_slip"]
     interface: str | None = None
     peers: tuple[str, ...] = ()
-    multicast: bool = True
+    multicast: bool = _D["multicast"]
 
     # ------------------------------------------------------------ names
 

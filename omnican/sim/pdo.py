@@ -74,7 +74,9 @@ class PdoConfig:
 Getter = Callable[[int, int], bytes]
 
 
-def _u(getter: Getter, index: int, sub: int, fmt: str, default: int = 0) -> int:
+def read_uint(getter: Getter, index: int, sub: int, fmt: str, default: int = 0) -> int:
+    """An unsigned object as ``fmt`` (a struct format) decodes it; ``default`` when the
+    dictionary has no value for it."""
     try:
         raw = getter(index, sub)
     except (SdoAbortedError, KeyError):
@@ -91,13 +93,13 @@ def read_pdos(dictionary: od.ObjectDictionary, getter: Getter, comm_base: int,
         comm = comm_base + n
         if comm not in dictionary or map_base + n not in dictionary:
             continue
-        cob = _u(getter, comm, 1, "<I")
+        cob = read_uint(getter, comm, 1, "<I")
         if cob & COB_ID_INVALID:
             continue
-        count = _u(getter, map_base + n, 0, "<B")
+        count = read_uint(getter, map_base + n, 0, "<B")
         entries = []
         for sub in range(1, count + 1):
-            raw = _u(getter, map_base + n, sub, "<I")
+            raw = read_uint(getter, map_base + n, sub, "<I")
             index, subindex, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
             if index and bits:
                 entries.append(MappedObject(index, subindex, bits))
@@ -107,9 +109,9 @@ def read_pdos(dictionary: od.ObjectDictionary, getter: Getter, comm_base: int,
             PdoConfig(
                 number=n + 1,
                 cob_id=cob & COB_ID_MASK,
-                trans_type=_u(getter, comm, 2, "<B", TRANS_EVENT),
-                inhibit_s=(_u(getter, comm, 3, "<H") if 3 in has else 0) * 100e-6,
-                event_s=(_u(getter, comm, 5, "<H") if 5 in has else 0) * 1e-3,
+                trans_type=read_uint(getter, comm, 2, "<B", TRANS_EVENT),
+                inhibit_s=(read_uint(getter, comm, 3, "<H") if 3 in has else 0) * 100e-6,
+                event_s=(read_uint(getter, comm, 5, "<H") if 5 in has else 0) * 1e-3,
                 entries=tuple(entries),
             )
         )
@@ -153,7 +155,7 @@ def check_mapping_write(
             raise SdoAbortedError(SDO_ABORT_PDO_LENGTH)
         bits = 0
         for sub in range(1, count + 1):
-            bits += _u(getter, index, sub, "<I") & 0xFF
+            bits += read_uint(getter, index, sub, "<I") & 0xFF
         if bits > 64:
             raise SdoAbortedError(SDO_ABORT_PDO_LENGTH)
         return

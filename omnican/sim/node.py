@@ -1,0 +1,391 @@
+"""The CiA 301 side of a simulated drive: NMT, the SDO server, PDOs, SYNC, heartbeats
+and EMCY.
+
+Built on :class:`canopen.LocalNode` (object dictionary from an EDS, SDO server) and
+adding what it lacks (canopen #555, #558): NMT states with boot-up frames and both
+resets, TPDOs answering SYNC and RPDOs applied to the dictionary, as the master
+configured them (taken from 14xxh-1Axxh on entering OPERATIONAL); event-driven TPDOs
+with inhibit and event times; a heartbeat producer (1017h) and consumer (1016h);
+silence when frozen, and random frame loss.
+
+What the device does with its objects is the :class:`Application`'s (the CiA 402
+drive, :mod:`omnican.sim.drive`): it provides the dynamic objects' readers and hears
+about writes, NMT resets and a lost master. Frame handlers run on the network's
+Notifier thread (or the sender's, in lock-step) under the drive's lock.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import struct
+import threading
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
+
+import can
+import canopen
+from canopen import objectdictionary as od
+from canopen.sdo.exceptions import SdoAbortedError
+
+from omnican.cia301 import (
+    COB_ID_MASK,
+    COMMUNICATION_PROFILE,
+    CONSUMER_HEARTBEAT_TIME,
+    EMCY_BASE,
+    EMCY_HEARTBEAT,
+    EMCY_PDO_LENGTH,
+    ERROR_REGISTER_COMMUNICATION,
+    ERROR_REGISTER_GENERIC,
+    HEARTBEAT_BASE,
+    IDENTITY,
+    MAX_PDOS,
+    NMT_COB_ID,
+    NMT_STATE_NAMES,
+    PRODUCER_HEARTBEAT_TIME,
+    RPDO_MAP,
+    SDO_ABORT_READ_ONLY,
+    SYNC_COB_ID,
+    SYNC_COB_ID_OBJECT,
+    TPDO_MAP,
+    NmtCommand,
+    NmtState,
+)
+from omnican.clock import Clock
+from omnican.sim.heartbeat import Heartbeat
+from omnican.sim.pdo import check_mapping_write, read_uint
+from omnican.sim.process_data import ProcessData
+
+logger = logging.getLogger(__name__)
+
+SEND_WARNING_EVERY_S = 5.0  # a refused send is logged at most this often
+
+Key = tuple[int, int]
+Reader = Callable[[], int]
+
+
+class Application(Protocol):
+    """What the node side needs from the device behind it."""
+
+    @property
+    def last_advance(self) -> float:
+        """The time the device's state was last brought up to (s)."""
+        ...
+
+    def advance(self, now: float) -> None:
+        """Bring the device up to ``now`` (before a frame acts on it)."""
+
+    def writing(self, index: int, subindex: int, var: od.ODVariable, data: bytes,
+                changed: bool) -> None:
+        """An object is about to be written; raise :class:`SdoAbortedError` to refuse."""
+
+    def written(self, index: int, subindex: int) -> None:
+        """An object was written with a new value (stored by now)."""
+
+    def booted(self, reset_node: bool) -> None:
+        """The node booted: ``reset_node`` a power-on or NMT reset node (application
+        objects at their defaults), else a reset communication."""
+
+    def abort_connection(self) -> None:
+        """The master is gone (its heartbeat timed out, an NMT stop or reset)."""
+
+    def connection_restored(self) -> None:
+        """A lost master's heartbeat is back."""
+
+
+class SimNode:
+    """The communication side of one simulated drive on a connected network.
+
+    Args:
+        network: the connected network the node answers on.
+        local: the LocalNode holding the object dictionary and the SDO server.
+        app: the device behind it.
+        readers: dynamic objects, (index, subindex) -> raw value, read instead of the
+            stored value (by SDO uploads and TPDOs alike).
+        defaults: values for objects the EDS gives none (besides the identity).
+        lock: the drive's lock, taken by every frame handler.
+        clock: the drive's clock.
+        rng: random source of frame loss.
+        frame_loss: probability that a PDO or heartbeat frame is lost (either way).
+        max_mapping_entries, remappable, accept_unmappable: see
+            :class:`~omnican.sim.SimulatedDrive`.
+    """
+
+    def __init__(self, network: canopen.Network, local: canopen.LocalNode, app: Application,
+                 *, readers: Mapping[Key, Reader], defaults: Mapping[Key, int],
+                 lock: threading.RLock, clock: Clock, rng: random.Random,
+                 frame_loss: float = 0.0, max_mapping_entries: int | None = None,
+                 remappable: bool = True, accept_unmappable: bool = False) -> None:
+        self.network = network
+        self.local = local
+        if local.id is None:
+            raise ValueError("the LocalNode has no node id")
+        self.node_id: int = local.id
+        self.dictionary: od.ObjectDictionary = local.object_dictionary
+        self.app = app
+        self.readers = dict(readers)
+        self._defaults = dict(defaults)
+        self.lock = lock
+        self.clock = clock
+        self._rng = rng
+        self.frame_loss = frame_loss
+        self.max_mapping_entries = max_mapping_entries
+        self.remappable = remappable
+        self.accept_unmappable = accept_unmappable
+
+        self.nmt = NmtState.BOOT_UP
+        self.frozen = False
+        self.closed = False
+        self.heartbeat = Heartbeat()
+        self._subscribed_hb: set[int] = set()
+        self.pdos = ProcessData(local, self.readers, self._send)
+        self._send_failures = 0
+        self._send_warned_at = -math.inf
+
+        # LocalNode produces its heartbeat from a 1017h write callback; we do it ourselves.
+        local._write_callbacks.remove(local.nmt.on_write)
+        local.add_read_callback(self._on_read)
+        local.add_write_callback(self._on_write)
+        network.add_node(local)
+        # Replace LocalNode's NMT and SDO handlers with ones that honour freeze/NMT state.
+        network.unsubscribe(NMT_COB_ID, local.nmt.on_command)
+        network.unsubscribe(local.sdo.rx_cobid, local.sdo.on_request)
+        network.subscribe(NMT_COB_ID, self._on_nmt)
+        network.subscribe(local.sdo.rx_cobid, self._on_sdo)
+        self._sync_cob = self._uint(SYNC_COB_ID_OBJECT, 0, "<I", SYNC_COB_ID) & COB_ID_MASK
+        network.subscribe(self._sync_cob, self._on_sync)
+
+    @property
+    def nmt_state(self) -> str:
+        return NMT_STATE_NAMES.get(self.nmt, hex(self.nmt))
+
+    def prefill_defaults(self) -> None:
+        """Give every numeric object without a default a value, as a drive would: its
+        identity from the EDS's [DeviceInfo], the given defaults, else 0."""
+        store = self.local.data_store
+        info = self.dictionary.device_information
+        known = {
+            (IDENTITY, 1): info.vendor_number or 0,
+            (IDENTITY, 2): info.product_number or 0,
+            (IDENTITY, 3): info.revision_number or 0,
+            **self._defaults,
+        }
+        for obj in self.dictionary.values():
+            variables = [obj] if isinstance(obj, od.ODVariable) else list(obj.values())
+            for var in variables:
+                if var.value is None and var.default is None and var.data_type in od.NUMBER_TYPES:
+                    value = known.get((var.index, var.subindex), 0)
+                    if var.min is not None and var.min > value:
+                        value = var.min
+                    store.setdefault(var.index, {})[var.subindex] = var.encode_raw(value)
+
+    # ---------------------------------------------------------------- NMT
+
+    def boot(self, reset_node: bool) -> None:
+        """Boot-up frame and PRE-OPERATIONAL; ``reset_node``: every object back to its
+        default, else the communication objects only."""
+        self.nmt = NmtState.BOOT_UP
+        self.pdos.stop()
+        store = self.local.data_store
+        if reset_node:
+            store.clear()
+        else:
+            for index in [i for i in store if i in COMMUNICATION_PROFILE]:
+                del store[index]
+        self.prefill_defaults()
+        self.app.booted(reset_node)
+        self.heartbeat.enabled = True
+        self._send(HEARTBEAT_BASE + self.node_id, bytes([NmtState.BOOT_UP]), droppable=False)
+        self.nmt = NmtState.PRE_OPERATIONAL
+        self.heartbeat.restart()
+        self._load_heartbeat_config()
+        self.heartbeat.last_sent = self.clock.now()
+
+    def _load_heartbeat_config(self) -> None:
+        for producer in self.heartbeat.load(self.dictionary, self.local.get_data):
+            if producer not in self._subscribed_hb:
+                self.network.subscribe(HEARTBEAT_BASE + producer, self._on_heartbeat)
+                self._subscribed_hb.add(producer)
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) < 2 or data[1] not in (0, self.node_id):
+            return
+        with self.lock:
+            if self.frozen:
+                return
+            cmd = data[0]
+            now = self.clock.now()
+            self.app.advance(now)
+            if cmd == NmtCommand.START:
+                self._enter_operational()
+            elif cmd == NmtCommand.STOP:
+                self.app.abort_connection()
+                self.nmt = NmtState.STOPPED
+                self.pdos.stop()
+            elif cmd == NmtCommand.ENTER_PRE_OPERATIONAL:
+                self.nmt = NmtState.PRE_OPERATIONAL
+                self.pdos.stop()
+            elif cmd == NmtCommand.RESET_NODE:
+                self.boot(reset_node=True)
+            elif cmd == NmtCommand.RESET_COMMUNICATION:
+                self.app.abort_connection()
+                self.boot(reset_node=False)
+            self._send_heartbeat(now)  # heartbeats show a new state at once
+
+    def _enter_operational(self) -> None:
+        for cob in self.pdos.start():
+            self.network.subscribe(cob, self._on_rpdo)
+        self.nmt = NmtState.OPERATIONAL
+
+    # ------------------------------------------------------ SDO and objects
+
+    def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            if self.frozen or self.nmt in (NmtState.STOPPED, NmtState.BOOT_UP):
+                return
+            self.app.advance(self.clock.now())
+            self.local.sdo.on_request(can_id, data, timestamp)
+
+    def _on_read(self, index: int, subindex: int, od: od.ODVariable) -> int | None:
+        reader = self.readers.get((index, subindex))
+        return None if reader is None else reader()
+
+    def _on_write(self, index: int, subindex: int, od: od.ODVariable, data: bytes) -> None:
+        if RPDO_MAP <= index < RPDO_MAP + MAX_PDOS or TPDO_MAP <= index < TPDO_MAP + MAX_PDOS:
+            if not self.remappable:
+                raise SdoAbortedError(SDO_ABORT_READ_ONLY)
+            check_mapping_write(self.dictionary, self.local.get_data, index, subindex, data,
+                                self.max_mapping_entries, self.accept_unmappable)
+            return
+        store = self.local.data_store.setdefault(index, {})
+        data = bytes(data)
+        changed = store.get(subindex) != data
+        self.app.writing(index, subindex, od, data, changed)  # a refusal stores nothing
+        # Store now (LocalNode stores again after us) so what follows reads the new value.
+        store[subindex] = data
+        if not changed:
+            return  # the same value again (a cyclic controlword): nothing to recompute
+        self.app.written(index, subindex)
+        if index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME):
+            self._load_heartbeat_config()
+
+    def _uint(self, index: int, sub: int, fmt: str, default: int = 0) -> int:
+        return read_uint(self.local.get_data, index, sub, fmt, default)
+
+    # ------------------------------------------------------------- PDOs
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            if self.frozen or self.nmt != NmtState.OPERATIONAL or self._lost():
+                return
+            now = self._frame_time(timestamp)
+            self.app.advance(now)
+            self.pdos.sync(now)
+
+    def _frame_time(self, timestamp: float) -> float:
+        """When a frame reached the bus, on the monotonic clock: every drive acts on a
+        SYNC at the instant it was sent, not when its handler got to run."""
+        clock = self.clock
+        if clock.lockstep:
+            return clock.now()  # delivered the instant it was sent
+        age = clock.wall() - timestamp if timestamp else 0.0
+        return max(self.app.last_advance, clock.now() - min(max(age, 0.0), 0.05))
+
+    def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            rpdo = self.pdos.rpdos.get(can_id)
+            if rpdo is None or self.frozen or self.nmt != NmtState.OPERATIONAL or self._lost():
+                return
+            if len(data) < rpdo.length:
+                self.emcy(EMCY_PDO_LENGTH, ERROR_REGISTER_COMMUNICATION)
+                return
+            if rpdo.synchronous:
+                self.pdos.hold(can_id, bytes(data))
+            else:
+                now = self._frame_time(timestamp)
+                self.app.advance(now)
+                self.pdos.apply(rpdo, bytes(data))
+                self.event_tpdos(now)
+
+    def event_tpdos(self, now: float) -> None:
+        """Send the event-driven TPDOs that are due (in OPERATIONAL)."""
+        if self.nmt == NmtState.OPERATIONAL:
+            self.pdos.events(now)
+
+    # ------------------------------------------------------ heartbeat, EMCY
+
+    def tick(self, now: float) -> None:
+        """Time-driven work: the heartbeat, the consumer timeouts, event TPDOs (under
+        the lock, the device brought up to ``now``)."""
+        if self.frozen:
+            return
+        if self.heartbeat.due(now):
+            self._send_heartbeat(now)
+        for producer in self.heartbeat.expired(now):
+            logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
+                        producer)
+            self.emcy(EMCY_HEARTBEAT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
+            self.app.abort_connection()
+        self.event_tpdos(now)
+
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        producer = can_id - HEARTBEAT_BASE
+        with self.lock:
+            if self.frozen or producer not in self.heartbeat.timeouts:
+                return
+            if self.heartbeat.heard(producer, self.clock.now()):
+                self.app.connection_restored()
+
+    def _send_heartbeat(self, now: float) -> None:
+        heartbeat = self.heartbeat
+        if heartbeat.enabled and heartbeat.period_s > 0:
+            heartbeat.last_sent = now
+            self._send(HEARTBEAT_BASE + self.node_id, bytes([self.nmt]))
+
+    def emcy(self, code: int, register: int) -> None:
+        """Send an EMCY frame (never lost to frame loss)."""
+        self._send(EMCY_BASE + self.node_id, struct.pack("<HB5s", code, register, b""),
+                   droppable=False)
+
+    def _lost(self) -> bool:
+        return self.frame_loss > 0 and self._rng.random() < self.frame_loss
+
+    def _send(self, cob_id: int, data: bytes, droppable: bool = True) -> None:
+        if self.frozen or self.closed or (droppable and self._lost()):
+            return
+        bus = self.network.bus
+        if bus is None:
+            return
+        try:
+            with self.network.send_lock:
+                bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+        except (can.CanError, OSError, RuntimeError) as exc:
+            # A link that is down refuses every frame: say so once, then now and then.
+            self._send_failures += 1
+            now = self.clock.now()
+            if now - self._send_warned_at >= SEND_WARNING_EVERY_S:
+                self._send_warned_at = now
+                logger.warning("simulated node %d could not send 0x%03X (%d frames refused "
+                               "so far): %s", self.node_id, cob_id, self._send_failures, exc)
+
+    # ------------------------------------------------------------ lifecycle
+
+    def detach(self) -> None:
+        """Leave the network: every handler subscribed, the node registered."""
+        net = self.network
+        for cob, handler in [(NMT_COB_ID, self._on_nmt), (self.local.sdo.rx_cobid, self._on_sdo),
+                             (self._sync_cob, self._on_sync)]:
+            _unsubscribe(net, cob, handler)
+        for cob in list(self.pdos.rpdos):
+            _unsubscribe(net, cob, self._on_rpdo)
+        for producer in self._subscribed_hb:
+            _unsubscribe(net, HEARTBEAT_BASE + producer, self._on_heartbeat)
+        if self.node_id in net.nodes and net.nodes[self.node_id] is self.local:
+            # LocalNode.remove_network would unsubscribe handlers we already replaced.
+            del net.nodes[self.node_id]
+
+
+def _unsubscribe(net: canopen.Network, cob: int, handler: Any) -> None:
+    if handler in net.subscribers.get(cob, []):
+        net.unsubscribe(cob, handler)
