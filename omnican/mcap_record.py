@@ -31,11 +31,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
-
-import can
 
 from omnican import rosmsg, telemetry
 from omnican.config import ChassisConfig
@@ -45,7 +42,6 @@ from omnican.telemetry.model import Message
 logger = logging.getLogger(__name__)
 
 FLUSH_EVERY_S = 1.0  # the longest a message waits in the open chunk: what a crash loses
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 class McapRecorder:
@@ -155,86 +151,3 @@ class McapRecorder:
                 logger.error("finishing %s failed: %s", self.path, exc)
             finally:
                 self._file.close()
-
-
-@dataclass(frozen=True)
-class RecordingRead:
-    """What :func:`read_recording` could read of a file: ``frames`` in file order, and
-    ``unreadable`` bytes at its end (damaged, or cut off mid-record). ``closed``: the
-    file ends with its footer (a recording that was closed, not cut short)."""
-
-    frames: list[can.Message]
-    size: int
-    unreadable: int
-    closed: bool
-    problem: str  # what the reader met where it stopped; "" when the file is whole
-
-    @property
-    def whole(self) -> bool:
-        return self.closed and not self.problem
-
-
-def read_recording(path: str | Path) -> RecordingRead:
-    """The CAN frames of an MCAP recording (``/from_can_bus`` and ``/to_can_bus``), read
-    record by record up to the first damage (a chunk whose CRC or compression fails, a
-    record cut short, bytes that are no record). Raises ImportError without the mcap
-    package, OSError if the file cannot be read."""
-    from mcap.exceptions import UnsupportedCompressionError
-    from mcap.records import Channel, Footer, Message, Schema
-    from mcap.stream_reader import StreamReader
-
-    p = Path(path)
-    size = p.stat().st_size
-    out: list[can.Message] = []
-    topics: dict[int, str] = {}  # channel id -> topic, for the CAN frame channels
-    frame_schemas: set[int] = set()
-    good_end, closed, problem = 0, False, ""
-    with p.open("rb") as f:
-        # A length beyond the file is damage, not a reason to allocate it.
-        reader = StreamReader(f, validate_crcs=True, record_size_limit=size)
-        try:
-            for record in reader.records:
-                if isinstance(record, Message):
-                    topic = topics.get(record.channel_id)
-                    if topic is not None:
-                        out.append(_frame(record.data, topic))
-                elif isinstance(record, Schema) and record.name == telemetry.CAN_FRAME:
-                    frame_schemas.add(record.id)
-                elif isinstance(record, Channel) and record.schema_id in frame_schemas and \
-                        record.topic in (telemetry.CAN_RX, telemetry.CAN_TX):
-                    topics[record.id] = record.topic
-                elif isinstance(record, Footer):
-                    closed = True
-                good_end = f.tell()  # the records of a chunk come after the whole chunk
-        except UnsupportedCompressionError as exc:
-            raise ImportError(str(exc)) from None
-        except Exception as exc:  # the reader and the decoders raise many kinds
-            problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        else:
-            good_end = f.tell()
-    if good_end == 0:
-        with p.open("rb") as f:
-            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-                problem = "not an MCAP file (it does not start with MCAP's magic bytes)"
-    return RecordingRead(out, size, size - good_end, closed, problem)
-
-
-def _frame(data: bytes, topic: str) -> can.Message:
-    ns, can_id, payload, name, extended, remote, error = rosmsg.decode_can_frame(data)
-    return can.Message(timestamp=ns / 1e9, arbitration_id=can_id, data=payload,
-                       is_extended_id=extended, is_remote_frame=remote, is_error_frame=error,
-                       channel=name or None, is_rx=topic == telemetry.CAN_RX, check=False)
-
-
-def read_frames(path: str | Path) -> list[can.Message]:
-    """The CAN frames of an MCAP recording, in file order; of a damaged or cut-off one,
-    those before the damage, with one warning saying how much could not be read. Raises
-    ImportError without the mcap package; ValueError if no frame can be read."""
-    read = read_recording(path)
-    if not read.frames and read.problem:
-        raise ValueError(read.problem)
-    if not read.whole and read.frames:
-        from omnican.replay import cut_note
-
-        logger.warning("%s: %s", path, cut_note(read.frames, read.unreadable))
-    return read.frames

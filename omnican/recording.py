@@ -15,7 +15,8 @@ import importlib
 import logging
 import struct
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,7 @@ import can
 from omnican.cia301 import COB_ID_MASK
 from omnican.config import ChassisConfig
 from omnican.errors import ConfigError
+from omnican.telemetry.messages import CAN_FRAME, CAN_RX, CAN_TX
 
 logger = logging.getLogger("omnican.bus")
 
@@ -244,3 +246,114 @@ def log_line(log: can.CanutilsLogWriter, item: can.Message | SentFrame) -> str |
         channel = f"can{channel}"
     ident = f"{can_id:08X}" if extended else f"{can_id:03X}"
     return f"({timestamp:f}) {channel} {ident}#{data.hex().upper()}{' R' if rx else ' T'}\n"
+
+
+# ------------------------------------------------------------------ reading back
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def size_text(n: int) -> str:
+    """A byte count as people read it: 812 bytes, 12 KB, 3.4 MB."""
+    return f"{n} bytes" if n < 1024 else f"{n / 1024:.0f} KB" if n < 1024 * 1024 else \
+        f"{n / 1024 / 1024:.1f} MB"
+
+
+def cut_note(frames: Sequence[Any], unreadable: int | None, lines: int | None = None) -> str:
+    """What to say of a recording that could not be read whole (after its name):
+    ``read 5.1 s of frames; the rest (12 KB) is damaged or cut off`` (``unreadable``
+    bytes; None: unknown). ``lines``: the damaged lines a text log left out
+    (``unreadable`` bytes of them)."""
+    stamps = [f.timestamp for f in frames]
+    read = f"read {max(stamps) - min(stamps) if stamps else 0.0:.1f} s of frames"
+    if lines is not None:
+        return (f"{read}; {lines} damaged or cut-off line{'s' if lines != 1 else ''} "
+                f"({size_text(unreadable or 0)}) left out")
+    if unreadable is None:
+        return f"{read}; the rest is damaged or cut off"
+    if unreadable == 0:
+        return f"{read}; the file ends there, cut off (never closed)"
+    return f"{read}; the rest ({size_text(unreadable)}) is damaged or cut off"
+
+
+@dataclass(frozen=True)
+class RecordingRead:
+    """What :func:`read_recording` could read of a file: ``frames`` in file order, and
+    ``unreadable`` bytes at its end (damaged, or cut off mid-record). ``closed``: the
+    file ends with its footer (a recording that was closed, not cut short)."""
+
+    frames: list[can.Message]
+    size: int
+    unreadable: int
+    closed: bool
+    problem: str  # what the reader met where it stopped; "" when the file is whole
+
+    @property
+    def whole(self) -> bool:
+        return self.closed and not self.problem
+
+
+def read_mcap(path: str | Path) -> RecordingRead:
+    """The CAN frames of an MCAP recording (``/from_can_bus`` and ``/to_can_bus``), read
+    record by record up to the first damage (a chunk whose CRC or compression fails, a
+    record cut short, bytes that are no record). Raises ImportError without the mcap
+    package, OSError if the file cannot be read."""
+    from mcap.exceptions import UnsupportedCompressionError
+    from mcap.records import Channel, Footer, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    p = Path(path)
+    size = p.stat().st_size
+    out: list[can.Message] = []
+    topics: dict[int, str] = {}  # channel id -> topic, for the CAN frame channels
+    frame_schemas: set[int] = set()
+    good_end, closed, problem = 0, False, ""
+    with p.open("rb") as f:
+        # A length beyond the file is damage, not a reason to allocate it.
+        reader = StreamReader(f, validate_crcs=True, record_size_limit=size)
+        try:
+            for record in reader.records:
+                if isinstance(record, Message):
+                    topic = topics.get(record.channel_id)
+                    if topic is not None:
+                        out.append(_frame(record.data, topic))
+                elif isinstance(record, Schema) and record.name == CAN_FRAME:
+                    frame_schemas.add(record.id)
+                elif isinstance(record, Channel) and record.schema_id in frame_schemas and \
+                        record.topic in (CAN_RX, CAN_TX):
+                    topics[record.id] = record.topic
+                elif isinstance(record, Footer):
+                    closed = True
+                good_end = f.tell()  # the records of a chunk come after the whole chunk
+        except UnsupportedCompressionError as exc:
+            raise ImportError(str(exc)) from None
+        except Exception as exc:  # the reader and the decoders raise many kinds
+            problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        else:
+            good_end = f.tell()
+    if good_end == 0:
+        with p.open("rb") as f:
+            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                problem = "not an MCAP file (it does not start with MCAP's magic bytes)"
+    return RecordingRead(out, size, size - good_end, closed, problem)
+
+
+def _frame(data: bytes, topic: str) -> can.Message:
+    from omnican import rosmsg
+
+    ns, can_id, payload, name, extended, remote, error = rosmsg.decode_can_frame(data)
+    return can.Message(timestamp=ns / 1e9, arbitration_id=can_id, data=payload,
+                       is_extended_id=extended, is_remote_frame=remote, is_error_frame=error,
+                       channel=name or None, is_rx=topic == CAN_RX, check=False)
+
+
+def mcap_frames(path: str | Path) -> list[can.Message]:
+    """The CAN frames of an MCAP recording, in file order; of a damaged or cut-off one,
+    those before the damage, with one warning saying how much could not be read. Raises
+    ImportError without the mcap package; ValueError if no frame can be read."""
+    read = read_mcap(path)
+    if not read.frames and read.problem:
+        raise ValueError(read.problem)
+    if not read.whole and read.frames:
+        logger.warning("%s: %s", path, cut_note(read.frames, read.unreadable))
+    return read.frames

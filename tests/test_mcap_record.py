@@ -16,7 +16,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 from omnican import Chassis, Pose2D, default_config, replay
 from omnican.cli import main
-from omnican.mcap_record import McapRecorder, read_frames
+from omnican.mcap_record import McapRecorder
+from omnican.recording import mcap_frames as read_frames
 from omnican.sim import SimulatedBase
 
 from .helpers import drive_for, one_error_line

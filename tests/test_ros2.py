@@ -477,3 +477,21 @@ def test_settings_from_flags_and_env(monkeypatch: pytest.MonkeyPatch) -> None:
     away = settings_from(parser.parse_args(["ros2", "--sim", "--dds-interface", "eth0"]), None,
                          "test", env={})
     assert not away.loopback_only and away.interface == "eth0"
+
+
+def test_ros2_sim_console_is_the_simulators_with_recover(channel: str) -> None:
+    """omnican ros2 --sim takes every command omnican sim takes (freeze and thaw too)."""
+    import types
+
+    from omnican.cli.ros2 import command
+
+    with SimulatedBase.from_config(sim_config(channel)) as sim:
+        recovered: list[bool] = []
+        bridge = types.SimpleNamespace(sim=sim, recover_note=None,
+                                       recover=lambda: recovered.append(True) or True)
+        assert command(bridge, "freeze 2") == "node 2: frozen" and sim.drives[1].frozen
+        assert command(bridge, "thaw 2") == "node 2: thawed" and not sim.drives[1].frozen
+        assert "freeze NODE" in (command(bridge, "help") or "")
+        assert command(bridge, "recover") == "recovered" and recovered
+        assert (command(bridge, "bogus") or "").startswith("error:")
+        assert command(bridge, "quit") is None

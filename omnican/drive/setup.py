@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 from collections.abc import Iterator
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import can
 import canopen
@@ -36,12 +37,39 @@ from omnican.cia301 import (
     abort_text,
 )
 from omnican.cia402 import Command, Mode, State
+from omnican.clock import Clock
+from omnican.config import ChassisSettings
+from omnican.drive.cyclic import AxisIO
+from omnican.drive.stage import StageDriver
 from omnican.errors import DriveError
+from omnican.layout import NodeLayout
 from omnican.odmap import Entry, Obj, entry_at, obj_name
 from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer
 
-if TYPE_CHECKING:
-    from omnican.drive.node import DriveNode
+
+class Node(Protocol):
+    """What the configuration needs of a node (:class:`omnican.drive.DriveNode`)."""
+
+    node_id: int
+    network: canopen.Network
+    remote: canopen.RemoteNode
+    settings: ChassisSettings
+    layout: NodeLayout
+    dictionary: Any
+    eds_name: str
+    mode: Mode
+    has_consumer: bool
+    clock: Clock
+    stages: list[StageDriver]
+    axes: list[AxisIO]
+    nmt_state: int | None
+    seen_operational: bool
+    twins: bool
+    boot_count: int
+    configured_boot: int
+    _boot_seen: threading.Condition
+
+    def use_plan(self, plan: NodePlan) -> None: ...
 
 logger = logging.getLogger("omnican.drive")
 
@@ -53,7 +81,7 @@ BOOT_RESETS = 4  # NMT resets sent (within boot_timeout_s) before a node counts 
 class NodeSetup:
     """The SDO side of one node: its configuration and its way out."""
 
-    def __init__(self, node: DriveNode) -> None:
+    def __init__(self, node: Node) -> None:
         self.node = node
         self._refusal: str | None = None  # why the drive refused the plan (then: its own)
 
