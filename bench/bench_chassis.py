@@ -27,6 +27,7 @@ import canopen
 import numpy as np
 
 from omnican import Chassis, default_config
+from omnican.chassis.runner import ThreadRunner
 from omnican.config import ChassisConfig
 from omnican.sim import SimulatedBase
 
@@ -39,6 +40,13 @@ def config(rate_hz: float) -> ChassisConfig:
     cfg = default_config(bus={"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"})
     return replace(cfg, chassis=replace(cfg.chassis, rate_hz=rate_hz, max_accel=2.0,
                                          max_angular_accel=6.0))
+
+
+def loop_thread(base: Chassis) -> threading.Thread:
+    """The real-time loop thread of ``base``."""
+    runner = base._runner
+    assert isinstance(runner, ThreadRunner), "a real-time base"
+    return runner.thread
 
 
 def thread_cpu(thread: threading.Thread) -> float:
@@ -77,12 +85,12 @@ def bench_rate(rate_hz: float, seconds: float) -> None:
     with SimulatedBase.from_config(cfg), Chassis.open(cfg) as base:
         spy = can.Bus(**cfg.bus)
         notifier = can.Notifier(spy, [listener], timeout=0.1)
-        loop_thread = base._thread
+        thread = loop_thread(base)
         notif = notifier_threads(base.bus.network)
         time.sleep(0.2)
         cycles0 = base.status.cycles
-        late0 = base._late
-        loop0 = thread_cpu(loop_thread)
+        late0 = base._runner.late
+        loop0 = thread_cpu(thread)
         cpu0 = loop0 + sum(thread_cpu(t) for t in notif)
         t0 = time.monotonic()
         listener.sync_times.clear()
@@ -92,9 +100,9 @@ def bench_rate(rate_hz: float, seconds: float) -> None:
             time.sleep(0.01)
         elapsed = time.monotonic() - t0
         cycles = base.status.cycles - cycles0
-        loop_cpu = thread_cpu(loop_thread) - loop0
-        cpu = thread_cpu(loop_thread) + sum(thread_cpu(t) for t in notif) - cpu0
-        late = base._late - late0
+        loop_cpu = thread_cpu(thread) - loop0
+        cpu = thread_cpu(thread) + sum(thread_cpu(t) for t in notif) - cpu0
+        late = base._runner.late - late0
         periods = np.diff(np.array(listener.sync_times))
         jitter = np.abs(periods - 1.0 / rate_hz) * 1e6
         bits = base.cycle_bits()

@@ -163,7 +163,7 @@ def omnican_loop(rate_hz: float, seconds: float, record: str | None) -> None:
             time.sleep(0.3)
             threads = host_threads(base, sim.network)
             cpu0 = {t: thread_cpu(t) for t in threads}
-            cycles0, late0 = base.status.cycles, base._late
+            cycles0, late0 = base.status.cycles, base._runner.late
             stamps.clear()
             t0 = time.monotonic()
             end = t0 + seconds
@@ -172,7 +172,7 @@ def omnican_loop(rate_hz: float, seconds: float, record: str | None) -> None:
                 time.sleep(0.01)
             elapsed = time.monotonic() - t0
             cycles = base.status.cycles - cycles0
-            late = base._late - late0
+            late = base._runner.late - late0
             cpu = sum(thread_cpu(t) - c for t, c in cpu0.items() if t.is_alive())
             names = sorted({t.name.split(" for ")[0] for t in threads})
             sync = list(stamps)
@@ -412,13 +412,13 @@ def lockstep_cycle(rate_hz: float, seconds: float) -> None:
         host_bus.set_receiver(acct.wrap("host", host_bus._receiver))
         ticks = sim.scheduler._ticks
         ticks[:] = [acct.wrap("sim", tick) for tick in ticks]
-        cycle = acct.wrap("host", base._cycle)
+        cycle = acct.wrap("host", base._runner.cycle)
 
         def counted(now: float) -> None:
             cycle(now)
             host_at_cycle_end.append(acct.seconds["host"])
 
-        base._cycle = counted  # type: ignore[method-assign]
+        base._runner.cycle = counted
         cycles0 = base.status.cycles
         t0 = time.perf_counter()
         for k in range(int(seconds / 0.01)):

@@ -97,7 +97,7 @@ def child(rate_hz: float, cycles: int) -> None:
         host_bus.set_receiver(wrap("host", host_bus._receiver))  # type: ignore[union-attr]
         ticks = sim.scheduler._ticks
         ticks[:] = [wrap("sim", tick) for tick in ticks]
-        base._cycle = wrap("host", base._cycle)  # type: ignore[method-assign]
+        base._runner.cycle = wrap("host", base._runner.cycle)
         cycles0 = base.status.cycles
         cgtoggle.zero()
         for k in range(max(cycles // 10, 1)):

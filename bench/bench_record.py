@@ -5,8 +5,9 @@ frames plus state), the simulated base drives for a while and this reports the c
 loop's own CPU per cycle (its thread's CPU clock), its achieved rate and late cycles,
 and, for the recorders, their writer thread's CPU per second, frames written and dropped;
 last, the same with a Foxglove live view whose client subscribed to every topic.
-Both writers run on a thread of their own; the loop's share is one queue append per
-frame it sends or receives.
+The .log writer runs on a thread of its own, an MCAP recording on the telemetry's
+thread (it is a front end of the telemetry, as the live view is); the loop's share is
+one queue append per frame it sends or receives.
 
 Run: ``python bench/bench_record.py`` (about a minute; ``--quick`` for a shorter run).
 """
@@ -21,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_chassis import config, emit, notifier_threads, thread_cpu
+from bench_chassis import config, emit, loop_thread, notifier_threads, thread_cpu
 
 from omnican import Chassis
 from omnican.sim import SimulatedBase
@@ -29,7 +30,7 @@ from omnican.sim import SimulatedBase
 
 def writer_thread(suffix: str | None) -> threading.Thread | None:
     """The recorder's writer thread: MCAP's, or the python-can log formats'."""
-    name = {".mcap": "omnican-mcap", None: None}.get(suffix, "omnican-recorder")
+    name = {".mcap": "omnican-telemetry", None: None}.get(suffix, "omnican-recorder")
     return next((t for t in threading.enumerate() if t.name == name), None)
 
 
@@ -40,8 +41,8 @@ def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None
         writer = writer_thread(suffix)
         notif = notifier_threads(base.bus.network)
         time.sleep(0.3)
-        cycles0, late0 = base.status.cycles, base._late
-        loop0 = thread_cpu(base._thread)
+        cycles0, late0 = base.status.cycles, base._runner.late
+        loop0 = thread_cpu(loop_thread(base))
         notif0 = sum(thread_cpu(t) for t in notif)
         writer0 = thread_cpu(writer) if writer else 0.0
         t0 = time.monotonic()
@@ -50,11 +51,13 @@ def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None
             time.sleep(0.01)
         elapsed = time.monotonic() - t0
         cycles = base.status.cycles - cycles0
-        loop_cpu = thread_cpu(base._thread) - loop0
+        loop_cpu = thread_cpu(loop_thread(base)) - loop0
         notif_cpu = sum(thread_cpu(t) for t in notif) - notif0
         writer_cpu = (thread_cpu(writer) - writer0) if writer else None
-        late = base._late - late0
-        recorder = base.bus.recorder
+        late = base._runner.late - late0
+        recorder = base._own_sinks[0] if base._own_sinks else base.bus.recorder
+        dropped = base.telemetry.frames.dropped if base._own_sinks else getattr(
+            recorder, "dropped", None)
     fields = dict(bench="record.loop", rate_hz=rate_hz, recording=suffix or "none",
                   seconds=round(elapsed, 2), achieved_hz=round(cycles / elapsed, 1),
                   late_cycle_fraction=round(late / max(cycles, 1), 4),
@@ -63,7 +66,7 @@ def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None
     if writer_cpu is not None:
         fields["writer_cpu_ms_per_s"] = round(writer_cpu / elapsed * 1e3, 1)
         fields["frames_written"] = getattr(recorder, "frames", None)  # MCAP counts them
-        fields["frames_dropped"] = getattr(recorder, "dropped", None)
+        fields["frames_dropped"] = dropped
     if record is not None and record.exists():
         fields["file_kib"] = round(record.stat().st_size / 1024, 1)
     emit(**fields)
@@ -75,22 +78,36 @@ def bench_sent_frame(tmp: Path) -> None:
     noise in it)."""
     import uuid
 
+    from omnican import default_config
     from omnican.bus import CanBus
+    from omnican.clock import REAL_TIME
+    from omnican.mcap_record import McapRecorder
+    from omnican.recording import LogRecorder
+    from omnican.telemetry import Feed, TelemetrySettings
 
     n = 20_000
     for suffix in (None, ".log", ".mcap"):
         record = tmp / f"sent{suffix}" if suffix else None
-        with CanBus({"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"},
-                    record=record) as bus:
+        cfg = default_config(bus={"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"})
+        log = LogRecorder(record) if suffix == ".log" and record else None
+        with CanBus(cfg.bus, recorder=log) as bus:
+            feed = None
+            if suffix == ".mcap" and record:
+                feed = Feed(TelemetrySettings.from_config(cfg), cfg.kinematics(), REAL_TIME,
+                            has_base=False)
+                mcap = McapRecorder(record, cfg)
+                feed.add(mcap)
+                bus.add_listener(feed.frames, sent=True)
             t0 = time.thread_time()
             for i in range(n):
                 bus._sent(0x301, i.to_bytes(4, "little"))
             cost = (time.thread_time() - t0) / n * 1e6
-            recorder = bus.recorder
-            time.sleep(0.05)  # the MCAP writer drains its queue meanwhile
+            dropped = log.dropped if log is not None else feed.frames.dropped if feed else None
+            if feed is not None:
+                feed.close()
+                mcap.close()
         emit(bench="record.sent_frame", recording=suffix or "none",
-             loop_thread_cpu_us_per_frame=round(cost, 2),
-             dropped=getattr(recorder, "dropped", None))
+             loop_thread_cpu_us_per_frame=round(cost, 2), dropped=dropped)
 
 
 class _Watcher(threading.Thread):
@@ -127,17 +144,18 @@ class _Watcher(threading.Thread):
 
 def bench_live(rate_hz: float, seconds: float) -> None:
     """The loop with a Foxglove live view that a client watches on every topic."""
-    from omnican.live import LiveView
+    from omnican.live import watch
 
     cfg = config(rate_hz)
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
-            LiveView(base, sim, port=0) as view:
+            watch(base, sim, "127.0.0.1:0") as view:
+        assert view is not None
         watcher = _Watcher(view.url)
         watcher.start()
-        publisher = next(t for t in threading.enumerate() if t.name == "omnican-foxglove")
+        publisher = next(t for t in threading.enumerate() if t.name == "omnican-telemetry")
         time.sleep(1.0)
-        cycles0, late0 = base.status.cycles, base._late
-        loop0, pub0, msgs0 = thread_cpu(base._thread), thread_cpu(publisher), watcher.messages
+        cycles0, late0 = base.status.cycles, base._runner.late
+        loop0, pub0, msgs0 = thread_cpu(loop_thread(base)), thread_cpu(publisher), watcher.messages
         t0 = time.monotonic()
         while time.monotonic() - t0 < seconds:
             base.set_velocity(0.3 * math.sin(time.monotonic()), 0.1, 0.2)
@@ -146,8 +164,8 @@ def bench_live(rate_hz: float, seconds: float) -> None:
         cycles = base.status.cycles - cycles0
         fields = dict(bench="record.loop", rate_hz=rate_hz, recording="foxglove live view",
                       seconds=round(elapsed, 2), achieved_hz=round(cycles / elapsed, 1),
-                      late_cycle_fraction=round((base._late - late0) / max(cycles, 1), 4),
-                      loop_cpu_us_per_cycle=round((thread_cpu(base._thread) - loop0)
+                      late_cycle_fraction=round((base._runner.late - late0) / max(cycles, 1), 4),
+                      loop_cpu_us_per_cycle=round((thread_cpu(loop_thread(base)) - loop0)
                                                   / max(cycles, 1) * 1e6, 1),
                       publisher_cpu_ms_per_s=round((thread_cpu(publisher) - pub0)
                                                    / elapsed * 1e3, 1),

@@ -1,27 +1,25 @@
 """The one owner of the CAN bus: one ``can.Bus``, one ``canopen.Network``, one Notifier.
 
-Also counts traffic (frames and worst-case bits, for the bus load) and records every
-frame, received and sent, to a python-can log file when asked (format by extension:
-``.log`` candump text, ``.asc``, ``.blf``, ``.csv``...).
+Also counts traffic (frames and worst-case bits, for the bus load), hands every frame,
+received and sent, to a recorder when given one (:mod:`omnican.recording`) and to the
+listeners added while it runs (a telemetry tap), watches whether the bus works
+(:class:`BusWatch`) and reopens it when it does not, on a thread of its own.
 """
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import errno
 import logging
-import struct
 import threading
 import time
 from collections.abc import Mapping
-from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import can
 import canopen
 
-from omnican.cia301 import COB_ID_MASK, SDO_RX_BASE, SYNC_COB_ID
+from omnican.cia301 import SDO_RX_BASE, SYNC_COB_ID
 from omnican.clock import REAL_TIME, Clock
 from omnican.errors import BusError, ConfigError
 from omnican.lockstep import LockstepBus
@@ -31,192 +29,23 @@ from omnican.pdoplan import frame_bits
 logger = logging.getLogger(__name__)
 
 RECONNECT_EVERY_S = 1.0  # between attempts to reopen a bus that went down
+BUS_DOWN_AFTER_S = 0.05  # sends or receives failing for this long: the bus is down
+BUS_UP_AFTER_S = 0.2  # and working again for this long: it is back up
+WENT_DOWN, CAME_BACK = "went down", "came back"  # what BusWatch.check reports
 NOTIFIER_STOP_S = 0.5
 RX_ERROR_PAUSE_S = 0.05
 _FRAME_BITS = tuple(frame_bits(n) for n in range(65))  # worst case, by data length
 
 
-class _Recorder(can.Listener):
-    """Writes frames to a python-can log file on a thread of its own; survives Notifier
-    restarts (reconnects).
+class Recorder(Protocol):
+    """What records a bus: every received frame, every sent one (as plain values, on
+    the sending thread: queue and return), then closed with the bus."""
 
-    The threads that see frames (the control loop, the Notifier) only append them to a
-    bounded queue: a slow disk (an SD card) must never stall the loop. When the queue
-    is full, frames are dropped and counted (:attr:`dropped`)."""
+    def on_message_received(self, msg: can.Message) -> None: ...
 
-    QUEUE_FRAMES = 100_000  # about 20 s of a busy 1 Mbit/s bus
-    # The writer wakes for a batch this big, or this often: each wake-up of a thread is
-    # a few tens of microseconds on a small computer (or a VM), per cycle if it wakes
-    # for every few frames.
-    BATCH_FRAMES = 1024
-    WRITE_EVERY_S = 0.2
+    def record_sent(self, timestamp: float, can_id: int, data: bytes, channel: Any) -> None: ...
 
-    def __init__(self, path: Path) -> None:
-        try:
-            self._writer: can.Listener | None = can.Logger(str(path))
-        except (ValueError, OSError) as exc:  # unknown suffix, unwritable place
-            raise ConfigError(f"cannot record to {path}: {exc}") from None
-        self.path = path
-        self.dropped = 0
-        self._queue: collections.deque[can.Message | SentFrame] = collections.deque()
-        self._wake = threading.Event()
-        self._closing = False
-        self._thread = threading.Thread(target=self._write_loop, name="omnican-recorder",
-                                        daemon=True)
-        self._thread.start()
-
-    def on_message_received(self, msg: can.Message) -> None:
-        self._put(msg)
-
-    def record_sent(self, timestamp: float, can_id: int, data: bytes, channel: Any) -> None:
-        """A frame this host sent: queued as plain values, made into a message (or a log
-        line) on the writer thread, not on the control loop."""
-        self._put((timestamp, can_id, data, channel))
-
-    def _put(self, item: can.Message | SentFrame) -> None:
-        queue = self._queue
-        if len(queue) >= self.QUEUE_FRAMES:
-            self.dropped += 1
-            return
-        queue.append(item)  # deque.append is atomic: no lock on the sending threads
-        if len(queue) >= self.BATCH_FRAMES and not self._wake.is_set():
-            self._wake.set()
-
-    def _write_loop(self) -> None:
-        while True:
-            self._wake.wait(self.WRITE_EVERY_S)
-            self._wake.clear()
-            self._drain()
-            if self._closing:
-                self._drain()
-                return
-
-    def _drain(self) -> None:
-        queue = self._queue
-        writer = self._writer
-        # candump's .log, the default: lines made here and written a batch at a time
-        # (python-can's writer makes the same line, one write per frame).
-        log = writer if type(writer) is can.CanutilsLogWriter else None
-        lines: list[str] = []
-        while queue:
-            item = queue.popleft()
-            if self._writer is None:
-                continue
-            if log is not None:
-                line = log_line(log, item)
-                if line is not None:
-                    lines.append(line)
-                    continue
-                self._write_lines(log, lines)  # keep the order around a frame it writes
-                lines = []
-            self._write(item if isinstance(item, can.Message) else sent_message(item))
-        if lines and log is not None:
-            self._write_lines(log, lines)
-
-    def _write_lines(self, log: can.CanutilsLogWriter, lines: list[str]) -> None:
-        if not lines or self._writer is None:
-            return
-        try:
-            log.file.write("".join(lines))
-            log.file.flush()  # whole lines to the OS each batch: a crash loses only the queue
-        except Exception as exc:  # a full disk must not take the bus down with it
-            logger.error("recording to %s stopped: %s", self.path, exc)
-            self._writer = None
-
-    def _write(self, msg: can.Message) -> None:
-        writer = self._writer
-        if writer is None:
-            return
-        try:
-            writer.on_message_received(msg)
-        except (struct.error, ValueError, OverflowError):
-            # BLF stores the channel as a 16-bit number taken from the trailing digits
-            # of its name ("omnican-sim-95857398" overflows): write it without one.
-            try:
-                writer.on_message_received(can.Message(
-                    timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
-                    is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
-                    is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=msg.data,
-                    is_rx=msg.is_rx, channel=None))
-            except Exception as exc:  # a broken log must not take the bus down with it
-                logger.error("recording to %s stopped: %s", self.path, exc)
-                self._writer = None
-        except Exception as exc:
-            logger.error("recording to %s stopped: %s", self.path, exc)
-            self._writer = None
-
-    def stop(self) -> None:
-        """Called by the Notifier when it stops: keep writing after a reconnect."""
-
-    def close(self) -> None:
-        """Write what is queued, then close the file (idempotent)."""
-        if self._closing:
-            return
-        self._closing = True
-        self._wake.set()
-        self._thread.join(timeout=10.0)
-        if self._writer is not None:
-            self._writer.stop()
-            self._writer = None
-        if self.dropped:
-            logger.warning("recording to %s dropped %d frames (the disk did not keep up)",
-                           self.path, self.dropped)
-
-
-SentFrame = tuple[float, int, bytes, Any]  # timestamp, COB-ID, data, channel
-
-
-def sent_message(frame: SentFrame) -> can.Message:
-    """The message of a frame this host sent."""
-    timestamp, can_id, data, channel = frame
-    return can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > COB_ID_MASK,
-                       timestamp=timestamp, is_rx=False, channel=channel)
-
-
-FrameFields = tuple[float, int, "bytes | bytearray", Any, bool, bool, bool, bool]
-
-
-def frame_fields(item: can.Message | SentFrame) -> FrameFields:
-    """(timestamp, COB-ID, data, channel, extended, remote, error, received) of a frame
-    a recorder queued: a received message, or a frame this host sent (plain values)."""
-    if isinstance(item, tuple):
-        timestamp, can_id, data, channel = item
-        return timestamp, can_id, data, channel, can_id > COB_ID_MASK, False, False, False
-    return (item.timestamp, item.arbitration_id, item.data, item.channel, item.is_extended_id,
-            item.is_remote_frame, item.is_error_frame, item.is_rx)
-
-
-def log_line(log: can.CanutilsLogWriter, item: can.Message | SentFrame) -> str | None:
-    """The line python-can's candump writer ``log`` writes for ``item`` (and the same
-    time-keeping), or None for a frame it formats otherwise (error, remote, CAN FD)."""
-    if not isinstance(item, tuple) and item.is_fd:
-        return None
-    timestamp, can_id, data, channel, extended, remote, error, rx = frame_fields(item)
-    if remote or error:
-        return None
-    if log.last_timestamp is None:  # python-can keeps the first frame's time as its floor
-        log.last_timestamp = timestamp or 0.0
-    if timestamp is None or timestamp < log.last_timestamp:
-        timestamp = log.last_timestamp
-    if channel is None:
-        channel = log.channel
-    if isinstance(channel, int) or (isinstance(channel, str) and channel.isdigit()):
-        channel = f"can{channel}"
-    ident = f"{can_id:08X}" if extended else f"{can_id:03X}"
-    return f"({timestamp:f}) {channel} {ident}#{data.hex().upper()}{' R' if rx else ' T'}\n"
-
-
-def _recorder_for(path: Path) -> _Recorder | Any:
-    """The recorder for ``path``'s format: MCAP (raw frames plus the robot's state, see
-    :mod:`omnican.mcap_record`) or any python-can log format."""
-    if path.suffix.lower() == ".mcap":
-        from omnican.mcap_record import McapRecorder
-
-        return McapRecorder(path)
-    return _Recorder(path)
-
-
-recorder_for = _recorder_for  # for a front end that records a bus of its own (monitor)
+    def close(self) -> None: ...
 
 
 class _Taps(can.Listener):
@@ -350,13 +179,14 @@ class CanBus:
 
     A context manager; :meth:`close` is idempotent."""
 
-    def __init__(self, bus: Mapping[str, Any] | None = None, record: str | Path | None = None,
+    def __init__(self, bus: Mapping[str, Any] | None = None, recorder: Recorder | None = None,
                  notifier_cycle_s: float = 0.1, clock: Clock = REAL_TIME) -> None:
         self.bus_kwargs: dict[str, Any] = dict(bus or {})
         self.clock = clock
         self.lockstep = clock.lockstep
         self.traffic = _Traffic(self)
-        self.recorder = _recorder_for(Path(record)) if record is not None else None
+        #: gets every frame, received and sent, until the bus closes; closed with it
+        self.recorder = recorder
         self._taps = _Taps()
         self.network = _Network(self)
         self.network.NOTIFIER_CYCLE = notifier_cycle_s
@@ -364,8 +194,8 @@ class CanBus:
         listeners: list[can.Listener] = self.network.listeners  # type: ignore[assignment]
         listeners.append(self.traffic)
         listeners.append(self._taps)
-        if self.recorder is not None:
-            listeners.append(self.recorder)
+        if recorder is not None:
+            listeners.append(recorder)  # type: ignore[arg-type]  # a listener by protocol
         self.sync_epoch = 0
         self.sync_time = 0.0
         self._sync_msg = prepared_message(SYNC_COB_ID, b"")
@@ -546,15 +376,14 @@ class CanBus:
         frame = (self.clock.wall(), can_id, bytes(data), self.bus_kwargs.get("channel"))
         if recorder is not None:
             recorder.record_sent(*frame)  # made into a message on its writer thread
-        if taps:
-            msg = sent_message(frame)
-            for tap in taps:
-                tap.on_message_received(msg)
+        for tap in taps:
+            tap.record_sent(*frame)  # type: ignore[attr-defined]  # see add_listener
 
     def add_listener(self, listener: can.Listener, sent: bool = False) -> None:
         """Hand every received frame to ``listener`` from now on, across reconnects (on the
-        Notifier thread, so it must not block); ``sent``: also the frames this host sends
-        (on the sending thread, the control loop's: append to a queue and return)."""
+        Notifier thread, so it must not block); ``sent``: also the frames this host sends,
+        as plain values to its ``record_sent(timestamp, can_id, data, channel)`` (on the
+        sending thread, the control loop's: append to a queue and return)."""
         self._taps.add(listener, sent)
 
     def remove_listener(self, listener: can.Listener) -> None:
@@ -625,12 +454,13 @@ class CanBus:
                 self._reconnect_thread.start()
 
     def _reconnect_loop(self) -> None:
+        """The one place reopening is paced: an attempt, then ``RECONNECT_EVERY_S`` to
+        see whether the bus works (sends and receives through it), and again while not."""
         while not self._closed:
             if self.failing is None and not self._force_reopen:
-                break  # it works again as it is (the link came back up)
-            if self._reopen():
-                self._reconnect_wanted.clear()
-                return
+                break  # it works again (reopened, or the link came back up as it was)
+            self._force_reopen = False
+            self._reopen()
             deadline = time.monotonic() + RECONNECT_EVERY_S
             while not self._closed and time.monotonic() < deadline:
                 time.sleep(0.05)
@@ -707,6 +537,54 @@ class CanBus:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class BusWatch:
+    """Whether the bus works, as the control loop sees it, debounced: down once sends or
+    receives have failed for ``BUS_DOWN_AFTER_S``, back once they have worked again for
+    ``BUS_UP_AFTER_S`` (one frame through a filling queue is not a bus that works).
+    While it is down the bus is being reopened, on a thread of its own."""
+
+    __slots__ = ("_bus", "_fail_since", "_ok_since", "down", "failing")
+
+    def __init__(self, bus: CanBus) -> None:
+        self._bus = bus
+        self.down = False
+        self.failing: str | None = None  # the bus's trouble as of the last check
+        self._fail_since: float | None = None
+        self._ok_since: float | None = None
+
+    def check(self, now: float) -> str | None:
+        """Look at the bus (once a cycle): ``WENT_DOWN`` or ``CAME_BACK`` when that just
+        happened, else None."""
+        failing = self.failing = self._bus.failing
+        if not self.down:
+            if failing is None:
+                self._fail_since = None
+                return None
+            if self._fail_since is None:
+                self._fail_since = now
+            if now - self._fail_since < BUS_DOWN_AFTER_S:
+                return None
+            self.down, self._ok_since = True, None
+            self._bus.request_reconnect()
+            return WENT_DOWN
+        if failing is not None:
+            self._ok_since = None
+            self._bus.request_reconnect()  # a no-op while it is being reopened
+            return None
+        if self._ok_since is None:
+            self._ok_since = now
+        if now - self._ok_since < BUS_UP_AFTER_S:
+            return None
+        self.down = False
+        self._fail_since = self._ok_since = None
+        return CAME_BACK
+
+    @property
+    def error(self) -> str | None:
+        """What the status shows: the failure, or while down why it went down."""
+        return self.failing or (self._bus.reconnect_error if self.down else None)
 
 
 def prepared_message(can_id: int, data: bytes) -> can.Message:

@@ -489,10 +489,6 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         for key in ("joint_names", "peers"):
             if ros2[key] is not None and not all(isinstance(v, str) for v in ros2[key]):
                 raise r.fail(f"ros2.{key}", "must be an array of strings")
-    if ros2 is not None:  # the values as omnican ros2 checks them (0-232 for domain_id ...)
-        from omnican.ros2.settings import from_table
-
-        from_table(ros2, origin)
     if "gamepad" in data:
         _check_gamepad(r, data["gamepad"])
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2)

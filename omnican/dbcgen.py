@@ -202,3 +202,17 @@ def dbc_text(cfg: ChassisConfig | None = None) -> str:
     # Signals in PDO order; LF line ends (cantools mixes in CRLF).
     text: str = db.as_dbc_string(sort_signals=None).replace("\r\n", "\n")
     return text.replace("\nCM_ ", f'\nCM_ "{header}";\nCM_ ', 1)
+
+
+_built: list[tuple[ChassisConfig, Any]] = []  # the last config's database, kept
+
+
+def database_for(cfg: ChassisConfig) -> Any:
+    """:func:`build_database` of ``cfg``, built once (about a second of CPU): a front
+    end asks for it before the control loop runs, the telemetry when it decodes."""
+    for known, db in _built:
+        if known is cfg:
+            return db
+    db = build_database(cfg)
+    _built[:] = [(cfg, db)]
+    return db

@@ -44,6 +44,7 @@ from omnican.errors import ConfigError
 from omnican.layout import NodeLayout, node_layouts
 from omnican.odmap import Entry
 from omnican.odometry import Odometry
+from omnican.recording import cut_note, size_text
 from omnican.wire import PdoCodec
 
 logger = logging.getLogger(__name__)
@@ -349,28 +350,6 @@ _FORMATS = {
 }
 
 
-def _size(n: int) -> str:
-    return f"{n} bytes" if n < 1024 else f"{n / 1024:.0f} KB" if n < 1024 * 1024 else \
-        f"{n / 1024 / 1024:.1f} MB"
-
-
-def cut_note(frames: Sequence[Frame], unreadable: int | None, lines: int | None = None) -> str:
-    """What to say of a recording that could not be read whole (after its name):
-    ``read 5.1 s of frames; the rest (12 KB) is damaged or cut off`` (``unreadable``
-    bytes; None: unknown). ``lines``: the damaged lines a text log left out
-    (``unreadable`` bytes of them)."""
-    stamps = [f.timestamp for f in frames]
-    read = f"read {max(stamps) - min(stamps) if stamps else 0.0:.1f} s of frames"
-    if lines is not None:
-        return (f"{read}; {lines} damaged or cut-off line{'s' if lines != 1 else ''} "
-                f"({_size(unreadable or 0)}) left out")
-    if unreadable is None:
-        return f"{read}; the rest is damaged or cut off"
-    if unreadable == 0:
-        return f"{read}; the file ends there, cut off (never closed)"
-    return f"{read}; the rest ({_size(unreadable)}) is damaged or cut off"
-
-
 def read_frames(path: str | Path) -> list[Any]:
     """Every frame of a recording (format by extension: .log, .asc, .blf, ..., .mcap);
     of one cut short or damaged, what could be read, with one warning (:func:`cut_note`).
@@ -495,7 +474,7 @@ def _read_candump(p: Path) -> tuple[list[Any], int, int]:
 def _read_mcap(p: Path) -> tuple[list[Any], str | None]:
     """The CAN frames of an MCAP recording (``--record run.mcap``)."""
     try:
-        from omnican.mcap_record import read_recording as read_mcap
+        from omnican.recording import read_mcap
         read = read_mcap(p)
     except ImportError:
         from omnican.extras import install_hint
@@ -509,7 +488,7 @@ def _read_mcap(p: Path) -> tuple[list[Any], str | None]:
         if not read.whole:
             raise RecordingError(
                 f"{p}: no CAN frames in the recording: it is cut off or damaged before the "
-                f"first ones ({_size(read.size - read.unreadable)} of {_size(read.size)} "
+                f"first ones ({size_text(read.size - read.unreadable)} of {size_text(read.size)} "
                 "readable)")
         raise RecordingError(f"{p}: no CAN frames in the recording (no /from_can_bus or "
                              "/to_can_bus messages)")

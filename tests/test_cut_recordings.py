@@ -21,7 +21,7 @@ import pytest
 
 from omnican import default_config, replay
 from omnican.cli import main
-from omnican.mcap_record import read_frames as read_mcap_frames
+from omnican.recording import mcap_frames as read_mcap_frames
 
 from .helpers import wait_for
 

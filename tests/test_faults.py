@@ -196,7 +196,7 @@ def test_a_reboot_during_reconfiguration_is_not_lost(
     sim, base = flaky
     node = base.nodes[0]
     drive = sim.drives[0]
-    original = node._configure_ramps
+    original = node._setup._configure_ramps
     rebooted_again = threading.Event()
 
     def ramps_then_reboot(*args: Any) -> None:
@@ -205,10 +205,10 @@ def test_a_reboot_during_reconfiguration_is_not_lost(
             rebooted_again.set()
             drive.reboot()  # mode and ramps written so far are gone
 
-    node._configure_ramps = ramps_then_reboot  # type: ignore[method-assign]
+    node._setup._configure_ramps = ramps_then_reboot  # type: ignore[method-assign]
     drive.reboot()
     assert wait_for(rebooted_again.is_set, 3.0)
-    assert wait_for(lambda: node.node_id not in base._configuring and not node.rebooted, 5.0)
+    assert wait_for(lambda: node.node_id not in base._supervisor.configuring and not node.rebooted, 5.0)
     base.recover()
     assert base.status.enabled
     mode = int.from_bytes(drive.read(0x6060), "little", signed=True)
@@ -222,21 +222,21 @@ def test_a_reboot_during_startup_configuration_is_not_lost(
         channel: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """Node 2 reboots in the middle of its first configuration: what was written before
     is gone, so it must be configured again before the base reports itself enabled."""
-    from omnican.drive import DriveNode
+    from omnican.drive.setup import NodeSetup
 
     cfg = sim_config(channel)
-    original = DriveNode._configure_ramps
+    original = NodeSetup._configure_ramps
     rebooted = threading.Event()
     with SimulatedBase.from_config(cfg) as sim:
         drive = sim.drives[1]
 
-        def ramps_then_reboot(self: DriveNode) -> None:
+        def ramps_then_reboot(self: NodeSetup) -> None:
             original(self)
-            if self.node_id == 2 and not rebooted.is_set():
+            if self.node.node_id == 2 and not rebooted.is_set():
                 rebooted.set()
                 drive.reboot()
 
-        monkeypatch.setattr(DriveNode, "_configure_ramps", ramps_then_reboot)
+        monkeypatch.setattr(NodeSetup, "_configure_ramps", ramps_then_reboot)
         with Chassis.open(cfg) as base:
             assert rebooted.is_set()
             node = base.nodes[1]

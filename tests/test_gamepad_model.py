@@ -19,6 +19,7 @@ from omnican.gamepad_model import (
     EV_SYN,
     PRESETS,
     SYN_DROPPED,
+    TABLE_DEFAULTS,
     TABLE_KEYS,
     PadState,
     apply_deadzone,
@@ -142,8 +143,9 @@ def test_table_overrides() -> None:
 @pytest.mark.parametrize("preset", list(PRESETS))
 def test_the_table_reference_gives_the_defaults(preset: str) -> None:
     m = mapping_from_table({"preset": preset})
-    assert f"(default {m.deadzone:g})" in TABLE_KEYS["deadzone"]
-    assert f"(default {str(m.require_deadman).lower()})" in TABLE_KEYS["require_deadman"]
+    assert TABLE_DEFAULTS["deadzone"] == f"{m.deadzone:g}"
+    assert TABLE_DEFAULTS["require_deadman"] == str(m.require_deadman).lower()
+    assert set(TABLE_DEFAULTS) <= set(TABLE_KEYS)
 
 
 def test_readmes_gamepad_table_is_the_ps_preset_as_it_is() -> None:

@@ -20,7 +20,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from omnican import Chassis, default_config
 from omnican.cli import main
-from omnican.live import LiveView
+from omnican.live import watch
 from omnican.sim import SimulatedBase
 
 from .foxglove_client import FoxgloveClient
@@ -131,7 +131,7 @@ def test_drive_under_foxglove_publishes_odometry_matching_the_truth() -> None:
 def test_fault_shows_in_diagnostics_and_wheels(channel: str) -> None:
     cfg = default_config(bus={"interface": "virtual", "channel": channel})
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
-            LiveView(base, sim, port=0) as view:
+            watch(base, sim, "127.0.0.1:0") as view:
         assert listening_on(view.port) == {"0100007F"}
         client = FoxgloveClient(view.url)
         try:
@@ -145,8 +145,9 @@ def test_fault_shows_in_diagnostics_and_wheels(channel: str) -> None:
             wheel_faults: list[str] = []
 
             def seen_all() -> bool:
-                return ("omnican: wheel 1 (node 2): 0x2310 continuous over-current" in texts
-                        and any(t.startswith("omnican: base: stopped: node 2 fault: 0x2310")
+                return ("omnican: wheel 1 (wheel_1_joint): fault: 0x2310 continuous "
+                        "over-current" in texts
+                        and any(t.startswith("omnican: chassis: stopped: node 2 fault: 0x2310")
                                 for t in texts)
                         and "0x2310 continuous over-current" in wheel_faults)
 
@@ -252,6 +253,10 @@ def test_bus_listeners_added_late_see_both_directions_across_a_reconnect(channel
 
         def on_message_received(self, msg: can.Message) -> None:
             self.frames.append((msg.arbitration_id, bool(msg.is_rx)))
+
+        def record_sent(self, timestamp: float, can_id: int, data: bytes, channel: object
+                        ) -> None:
+            self.frames.append((can_id, False))
 
     seen = Seen()
     with CanBus({"interface": "virtual", "channel": channel}) as bus, \

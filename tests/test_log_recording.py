@@ -11,7 +11,8 @@ import can
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from omnican.bus import SentFrame, _Recorder, sent_message
+from omnican.recording import LogRecorder as _Recorder
+from omnican.recording import SentFrame, sent_message
 
 timestamps = st.one_of(st.none(), st.just(0.0),
                        st.floats(min_value=1.0e9, max_value=2.0e9, allow_nan=False))

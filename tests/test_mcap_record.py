@@ -14,9 +14,10 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from omnican import Chassis, default_config, replay
+from omnican import Chassis, Pose2D, default_config, replay
 from omnican.cli import main
-from omnican.mcap_record import McapRecorder, read_frames
+from omnican.mcap_record import McapRecorder
+from omnican.recording import mcap_frames as read_frames
 from omnican.sim import SimulatedBase
 
 from .helpers import drive_for, one_error_line
@@ -74,9 +75,10 @@ def test_drive_records_frames_and_ros2_state(tmp_path: Path,
     assert list(js.position) == pytest.approx([w["travel"] / 0.05 for w in wheels["wheels"]],
                                               abs=0.05)
     _, diag = topics["/diagnostics#"][-1]
-    assert [s.name for s in diag.status] == ["omnican: wheel 0 (node 1)",
-                                             "omnican: wheel 1 (node 2)",
-                                             "omnican: wheel 2 (node 3)", "omnican: base"]
+    assert [s.name for s in diag.status] == ["omnican: chassis", "omnican: CAN bus",
+                                             "omnican: wheel 0 (wheel_0_joint)",
+                                             "omnican: wheel 1 (wheel_1_joint)",
+                                             "omnican: wheel 2 (wheel_2_joint)"]
     # Frames both ways, decodable with the DBC that came along.
     db = cantools.database.load_string(attachments["omnican.dbc"].data.decode(), "dbc")
     tx = {f.id for _, f in topics["/to_can_bus#"]}
@@ -144,15 +146,46 @@ def test_unreadable_mcap_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert "bad.mcap: not a readable .mcap recording" in one_error_line(capsys.readouterr().err)
 
 
-def test_recorder_drops_instead_of_blocking(tmp_path: Path) -> None:
-    """A full queue drops (and counts) frames at once; the writer never holds up a sender."""
+def test_a_recording_drops_instead_of_blocking(tmp_path: Path) -> None:
+    """Frames go into a bounded tap that drops (and counts) when full; samples queue for a
+    front end that is slow and the oldest go: offering never waits for it."""
+    import threading
+
     import can
 
-    rec = McapRecorder(tmp_path / "q.mcap", queue_frames=0)
+    from omnican.clock import REAL_TIME
+    from omnican.telemetry import Feed, TelemetrySettings
+    from omnican.telemetry.feed import QUEUE_SAMPLES
+    from omnican.telemetry.frames import FrameTap
+
+    tap = FrameTap(size=0)
     for i in range(100):
-        rec.on_message_received(can.Message(arbitration_id=0x181, data=bytes([i])))
-    rec.close()
-    assert rec.dropped == 100
+        tap.on_message_received(can.Message(arbitration_id=0x181, data=bytes([i])))
+    assert tap.dropped == 100 and not tap.queue
+
+    cfg = default_config()
+    feed = Feed(TelemetrySettings.from_config(cfg), cfg.kinematics(), REAL_TIME,
+                has_base=False)
+    release = threading.Event()
+
+    class Stuck:
+        def wants(self, topic: str) -> bool:
+            return True
+
+        def publish(self, messages: list) -> None:  # type: ignore[type-arg]
+            release.wait(10)
+
+    feed.truth = type("Truth", (), {"true_pose": Pose2D(), "true_twist": None})()
+    feed.add(Stuck())
+    try:
+        for _ in range(QUEUE_SAMPLES + 50):
+            feed.offer(None)  # returns at once, the front end stuck or not
+        assert feed.dropped >= 49
+    finally:
+        release.set()
+        feed.close()
+    rec = McapRecorder(tmp_path / "q.mcap")
+    rec.close(dropped_frames=tap.dropped)
     with (tmp_path / "q.mcap").open("rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert meta["omnican"]["dropped_frames"] == "100"

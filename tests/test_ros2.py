@@ -23,7 +23,7 @@ from omnican import Chassis, Pose2D, default_config, load_config
 from omnican.cia402 import State
 from omnican.cli import main
 from omnican.errors import ConfigError
-from omnican.ros2 import model
+from omnican.ros2.bridge import twist_from_msg
 from omnican.ros2.settings import (
     EPROSIMA_VENDOR_ID,
     Ros2Settings,
@@ -36,6 +36,8 @@ from omnican.ros2.settings import (
     validate,
 )
 from omnican.sim import SimulatedBase
+from omnican.telemetry import messages as model
+from omnican.telemetry.covariance import UNOBSERVED_VARIANCE, OdomCovariance
 
 from .helpers import one_error_line, sim_config, wait_for
 
@@ -162,22 +164,22 @@ def test_validate_keeps_good_settings() -> None:
 @given(st.floats(-1e3, 1e3))
 def test_yaw_quaternion_round_trip(theta: float) -> None:
     q = model.yaw_quaternion(theta)
-    assert math.fsum(v * v for v in q) == pytest.approx(1.0)
-    back = model.quaternion_yaw(*q)
+    assert math.fsum(v * v for v in q.values()) == pytest.approx(1.0)
+    back = model.quaternion_yaw(q["x"], q["y"], q["z"], q["w"])
     assert math.remainder(back - theta, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
 
 
 @settings(deadline=None)  # wall-clock limits fail on a loaded machine
-@given(st.floats(0, 4e9))
-def test_ros_time(t: float) -> None:
-    sec, nanosec = model.ros_time(t)
-    assert 0 <= nanosec < 1_000_000_000
-    assert sec + nanosec * 1e-9 == pytest.approx(t, abs=1e-6)
+@given(st.integers(0, 4 * 10**18))
+def test_ros_time(ns: int) -> None:
+    t = model.stamp(ns)
+    assert 0 <= t["nanosec"] < 1_000_000_000
+    assert t["sec"] * 1_000_000_000 + t["nanosec"] == ns
 
 
-def _cov_model(slip: float = 0.02) -> model.OdomCovariance:
+def _cov_model(slip: float = 0.02) -> OdomCovariance:
     cfg = default_config()
-    return model.OdomCovariance(cfg.kinematics(), slip,
+    return OdomCovariance(cfg.kinematics(), slip,
                                 [w.position_scale for w in cfg.wheels], 0.1)
 
 
@@ -201,7 +203,7 @@ def test_pose_covariance_is_a_covariance_that_grows(moves: list[tuple[float, flo
         assert np.trace(c) >= last_trace - 1e-15
         last_trace = float(np.trace(c))
     full = np.array(cov.pose_covariance()).reshape(6, 6)
-    assert full[2, 2] == full[3, 3] == full[4, 4] == model.UNOBSERVED_VARIANCE
+    assert full[2, 2] == full[3, 3] == full[4, 4] == UNOBSERVED_VARIANCE
 
 
 def test_pose_variance_grows_with_distance_not_with_the_publish_rate() -> None:
@@ -236,20 +238,9 @@ def test_twist_covariance_has_an_encoder_floor_and_grows_with_speed() -> None:
 
 
 @settings(deadline=None)  # wall-clock limits fail on a loaded machine
-@given(st.lists(st.tuples(st.floats(-1e3, 1e3), st.floats(-10, 10), st.floats(0.01, 1)),
-                min_size=1, max_size=6))
-def test_joint_values_are_travel_over_radius(rows: list[tuple[float, float, float]]) -> None:
-    travel, speed, radius = (list(c) for c in zip(*rows, strict=True))
-    pos, vel = model.joint_values(travel, speed, radius)
-    for p, v, t, s, r in zip(pos, vel, travel, speed, radius, strict=True):
-        assert p * r == pytest.approx(t)
-        assert v * r == pytest.approx(s)
-
-
-@settings(deadline=None)  # wall-clock limits fail on a loaded machine
 @given(st.lists(st.floats(-5, 5), min_size=6, max_size=6))
 def test_twist_from_msg_keeps_the_planar_part(v: list[float]) -> None:
-    t = model.twist_from_msg(v[:3], v[3:])
+    t = twist_from_msg(v[:3], v[3:])
     assert (t.vx, t.vy, t.wz) == (v[0], v[1], v[5])
 
 
@@ -376,9 +367,15 @@ def _xyzw(q: Any) -> tuple[float, float, float, float]:
     return q.x, q.y, q.z, q.w
 
 
-def _status(t: MemoryTransport, hardware_id: str) -> Any:
+def _base_diagnostics(t: MemoryTransport) -> Any:
+    """The newest diagnostics: the base's statuses, and the bridge's after them."""
     last = t.last("/diagnostics")
-    return next(s for s in last.status if s.hardware_id == hardware_id)
+    assert last.status[-1].name == "omnican: ros2 bridge"
+    return last
+
+
+def _status(t: MemoryTransport, hardware_id: str) -> Any:
+    return next(s for s in _base_diagnostics(t).status if s.hardware_id == hardware_id)
 
 
 def _level(t: MemoryTransport, hardware_id: str) -> int:
@@ -386,8 +383,7 @@ def _level(t: MemoryTransport, hardware_id: str) -> int:
 
 
 def _chassis_level(t: MemoryTransport) -> int:
-    last = t.last("/diagnostics")
-    return int(next(s for s in last.status if s.name.endswith(": chassis")).level)
+    return int(next(s for s in _base_diagnostics(t).status if s.name.endswith(": chassis")).level)
 
 
 def test_stamped_cmd_vel_and_no_joint_states_without_a_radius(channel: str) -> None:
@@ -414,12 +410,15 @@ def test_wheel_status_levels() -> None:
     from omnican.chassis import WheelState
 
     w = WheelState(0, 1, 0, State.OPERATION_ENABLED, 0x637, 3, 0.1, 0.1, 1.0, True, None, None)
-    assert model.wheel_status("x", w, "j").level == model.OK
-    assert model.wheel_status("x", replace(w, state=State.SWITCHED_ON), "j").level == model.WARN
-    assert model.wheel_status("x", replace(w, online=False), "j").level == model.ERROR
-    faulted = model.wheel_status("x", replace(w, state=State.FAULT, fault="0x2310 x"), "j")
-    assert faulted.level == model.ERROR and "0x2310" in faulted.message
-    assert faulted.hardware_id == "canopen node 1"
+    assert model.wheel_status(w, "x", "j")["level"] == model.OK
+    assert model.wheel_status(replace(w, state=State.SWITCHED_ON), "x", "j")["level"] == model.WARN
+    assert model.wheel_status(replace(w, online=False), "x", "j")["level"] == model.ERROR
+    assert model.wheel_status(replace(w, stale=True), "x", "j")["level"] == model.WARN
+    assert model.wheel_status(replace(w, error="stuck"), "x", "j")["level"] == model.ERROR
+    faulted = model.wheel_status(replace(w, state=State.FAULT, fault="0x2310 x"), "x", "j")
+    assert faulted["level"] == model.ERROR and "0x2310" in faulted["message"]
+    assert faulted["hardware_id"] == "canopen node 1"
+    assert faulted["name"] == "x: wheel 0 (j)"
 
 
 # ------------------------------------------------------------ the command line
@@ -478,3 +477,21 @@ def test_settings_from_flags_and_env(monkeypatch: pytest.MonkeyPatch) -> None:
     away = settings_from(parser.parse_args(["ros2", "--sim", "--dds-interface", "eth0"]), None,
                          "test", env={})
     assert not away.loopback_only and away.interface == "eth0"
+
+
+def test_ros2_sim_console_is_the_simulators_with_recover(channel: str) -> None:
+    """omnican ros2 --sim takes every command omnican sim takes (freeze and thaw too)."""
+    import types
+
+    from omnican.cli.ros2 import command
+
+    with SimulatedBase.from_config(sim_config(channel)) as sim:
+        recovered: list[bool] = []
+        bridge = types.SimpleNamespace(sim=sim, recover_note=None,
+                                       recover=lambda: recovered.append(True) or True)
+        assert command(bridge, "freeze 2") == "node 2: frozen" and sim.drives[1].frozen
+        assert command(bridge, "thaw 2") == "node 2: thawed" and not sim.drives[1].frozen
+        assert "freeze NODE" in (command(bridge, "help") or "")
+        assert command(bridge, "recover") == "recovered" and recovered
+        assert (command(bridge, "bogus") or "").startswith("error:")
+        assert command(bridge, "quit") is None

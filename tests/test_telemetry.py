@@ -1,8 +1,10 @@
-"""The robot's state as messages (omnican.telemetry, pure) and their CDR bytes
-(omnican.rosmsg), checked against an independent decoder (mcap_ros2)."""
+"""The robot's state as messages (omnican.telemetry, pure: one builder for every front
+end) and their CDR bytes (omnican.rosmsg), checked against an independent decoder
+(mcap_ros2)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -11,11 +13,13 @@ from hypothesis import strategies as st
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 
-from omnican import rosmsg, telemetry
-from omnican.chassis import ChassisStatus, WheelState
+from omnican import default_config, rosmsg
 from omnican.cia402 import State
 from omnican.kinematics import Twist
 from omnican.odometry import Pose2D
+from omnican.state import ChassisStatus, WheelState
+from omnican.telemetry import Telemetry, TelemetrySettings
+from omnican.telemetry import messages as telemetry
 
 finite = st.floats(-1e3, 1e3, allow_nan=False)
 # The first encode builds rosbags' type store (a few hundred ms): no deadline here.
@@ -51,6 +55,10 @@ def sample(pose: Pose2D = ORIGIN, wheels: tuple[WheelState, ...] | None = None,
         status=status(**kw))
 
 
+CFG = default_config()
+SETTINGS = TelemetrySettings.from_config(CFG)
+
+
 def decoder(typename: str):  # type: ignore[no-untyped-def]
     schema = Schema(id=1, name=typename, encoding="ros2msg",
                     data=rosmsg.msgdef(typename).encode())
@@ -62,8 +70,10 @@ def decoder(typename: str):  # type: ignore[no-untyped-def]
 def test_odometry_pose_and_transform_agree_with_the_pose(x: float, y: float,
                                                          theta: float) -> None:
     s = sample(Pose2D(x, y, theta))
-    odo = decoder("nav_msgs/msg/Odometry")(rosmsg.encode("nav_msgs/msg/Odometry",
-                                                         telemetry.odometry(s)))
+    pose_cov = [float(i) for i in range(36)]
+    twist_cov = [float(-i) for i in range(36)]
+    odo = decoder("nav_msgs/msg/Odometry")(rosmsg.encode(
+        "nav_msgs/msg/Odometry", telemetry.odometry(s, SETTINGS, pose_cov, twist_cov)))
     q = odo.pose.pose.orientation
     yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y ** 2 + q.z ** 2))
     assert math.isclose(math.remainder(yaw - theta, math.tau), 0.0, abs_tol=1e-9)
@@ -72,15 +82,29 @@ def test_odometry_pose_and_transform_agree_with_the_pose(x: float, y: float,
     assert (odo.header.stamp.sec, odo.header.stamp.nanosec) == (1_700_000_000, 123_456_789)
     assert (odo.twist.twist.linear.x, odo.twist.twist.linear.y,
             odo.twist.twist.angular.z) == (0.1, 0.2, 0.3)
-    cov = list(odo.pose.covariance)
-    assert [cov[7 * i] for i in range(6)] == list(telemetry.POSE_VARIANCE)
+    assert list(odo.pose.covariance) == pose_cov
+    assert list(odo.twist.covariance) == twist_cov
     tf = decoder("tf2_msgs/msg/TFMessage")(rosmsg.encode("tf2_msgs/msg/TFMessage",
-                                                         telemetry.transforms(s)))
+                                                         telemetry.transforms(s, SETTINGS)))
     (t,) = tf.transforms
     assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
     assert (t.transform.translation.x, t.transform.translation.y) == (x, y)
     r = t.transform.rotation
     assert (r.x, r.y, r.z, r.w) == (q.x, q.y, q.z, q.w)
+
+
+def test_odom_covariance_is_the_propagated_one_and_grows_with_distance() -> None:
+    model = Telemetry(SETTINGS, CFG.kinematics())
+    variances = []
+    for i in range(20):
+        s = sample(Pose2D(0.05 * i, 0.0, 0.0))
+        (odom,) = [m for m in model.messages(s) if m.topic == "/odom"]
+        cov = odom.decoded()["pose"]["covariance"]
+        variances.append(cov[0])
+        assert cov[14] == cov[21] == cov[28] == 1e6  # z, roll, pitch: not observed
+    assert variances[0] == 0.0
+    assert all(b >= a for a, b in itertools.pairwise(variances))
+    assert variances[-1] > 0.0
 
 
 @codec
@@ -89,7 +113,8 @@ def test_odometry_pose_and_transform_agree_with_the_pose(x: float, y: float,
 def test_joint_states_are_wheel_angles(travel: list[float], radius: float) -> None:
     s = sample(wheels=tuple(wheel(i, travel=t, actual_speed=t / 10)
                             for i, t in enumerate(travel)))
-    js = telemetry.joint_states(s, [radius] * 3)
+    settings_ = TelemetrySettings.from_config(CFG, wheel_radius=radius)
+    js = telemetry.joint_states(s, settings_)
     assert js is not None
     msg = decoder("sensor_msgs/msg/JointState")(rosmsg.encode("sensor_msgs/msg/JointState", js))
     assert list(msg.name) == ["wheel_0_joint", "wheel_1_joint", "wheel_2_joint"]
@@ -97,21 +122,34 @@ def test_joint_states_are_wheel_angles(travel: list[float], radius: float) -> No
     assert list(msg.velocity) == pytest.approx([t / 10 / radius for t in travel])
 
 
-def test_joint_states_need_every_wheel_radius() -> None:
-    assert telemetry.joint_states(sample(), [0.05, None, 0.05]) is None
-    assert telemetry.joint_states(sample(), []) is None
+def test_joint_states_use_the_configured_names_and_need_every_wheel_radius() -> None:
+    from dataclasses import replace
+
+    named = replace(CFG, ros2={"joint_names": ["back", "right", "left"]})
+    js = telemetry.joint_states(sample(), TelemetrySettings.from_config(named))
+    assert js is not None and js["name"] == ["back", "right", "left"]
+    no_radius = replace(CFG, wheels=tuple(replace(w, wheel_radius=None) for w in CFG.wheels))
+    assert telemetry.joint_states(sample(), TelemetrySettings.from_config(no_radius)) is None
+    one_missing = replace(CFG, wheels=tuple(
+        replace(w, wheel_radius=None) if i == 1 else w for i, w in enumerate(CFG.wheels)))
+    assert telemetry.joint_states(sample(), TelemetrySettings.from_config(one_missing)) is None
+
+
+def _levels(s: telemetry.Sample) -> dict[str, tuple[int, str]]:
+    msg = decoder("diagnostic_msgs/msg/DiagnosticArray")(
+        rosmsg.encode("diagnostic_msgs/msg/DiagnosticArray", telemetry.diagnostics(s, SETTINGS)))
+    return {st.name: (ord(st.level) if isinstance(st.level, bytes) else st.level, st.message)
+            for st in msg.status}
 
 
 def test_diagnostics_stale_wheel_and_bus_down() -> None:
     s = sample(wheels=(wheel(0), wheel(1, stale=True, actual_speed=0.0), wheel(2)),
                bus_up=False, bus_error="send 0x080 failed: Network is down")
-    msg = decoder("diagnostic_msgs/msg/DiagnosticArray")(
-        rosmsg.encode("diagnostic_msgs/msg/DiagnosticArray", telemetry.diagnostics(s)))
-    levels = {st.name: (ord(st.level) if isinstance(st.level, bytes) else st.level, st.message)
-              for st in msg.status}
-    assert levels["omnican: wheel 1 (node 2)"][0] == telemetry.STALE
-    assert levels["omnican: base"] == (telemetry.ERROR,
-                                       "bus down: send 0x080 failed: Network is down")
+    levels = _levels(s)
+    assert levels["omnican: wheel 1 (wheel_1_joint)"] == (telemetry.WARN,
+                                                         "no fresh encoder sample")
+    assert levels["omnican: CAN bus"] == (telemetry.ERROR,
+                                          "bus down: send 0x080 failed: Network is down")
     assert telemetry.status(s)["bus_up"] is False
     assert [w["stale"] for w in telemetry.wheels(s)["wheels"]] == [False, True, False]
 
@@ -121,31 +159,46 @@ def test_diagnostics_levels_and_emcy_text() -> None:
               wheel(2, online=False))
     s = sample(wheels=wheels, stopped_reason="node 2 fault: 0x2310 continuous over-current",
                enabled=False)
-    msg = decoder("diagnostic_msgs/msg/DiagnosticArray")(
-        rosmsg.encode("diagnostic_msgs/msg/DiagnosticArray", telemetry.diagnostics(s)))
-    levels = {st.name: (ord(st.level) if isinstance(st.level, bytes) else st.level, st.message)
-              for st in msg.status}
-    assert levels["omnican: wheel 0 (node 1)"] == (telemetry.OK, "OPERATION ENABLED")
-    assert levels["omnican: wheel 1 (node 2)"] == (telemetry.ERROR,
-                                                  "0x2310 continuous over-current")
-    assert levels["omnican: wheel 2 (node 3)"] == (telemetry.ERROR, "offline (no heartbeat)")
-    assert levels["omnican: base"] == (
-        telemetry.ERROR, "stopped: node 2 fault: 0x2310 continuous over-current")
-    base = next(st for st in msg.status if st.name == "omnican: base")
-    assert {kv.key: kv.value for kv in base.values}["loop_hz"] == "100"
+    levels = _levels(s)
+    assert levels["omnican: wheel 0 (wheel_0_joint)"] == (telemetry.OK, "OPERATION ENABLED")
+    assert levels["omnican: wheel 1 (wheel_1_joint)"] == (
+        telemetry.ERROR, "fault: 0x2310 continuous over-current")
+    assert levels["omnican: wheel 2 (wheel_2_joint)"] == (telemetry.ERROR,
+                                                         "offline (no heartbeat)")
+    assert levels["omnican: chassis"] == (
+        telemetry.ERROR,
+        "stopped: node 2 fault: 0x2310 continuous over-current (recover to clear)")
+    chassis = next(st for st in telemetry.diagnostics(s, SETTINGS)["status"]
+                   if st["name"] == "omnican: chassis")
+    assert {kv["key"]: kv["value"] for kv in chassis["values"]}["loop_hz"] == "100"
+
+
+def test_diagnostics_once_a_period_and_at_once_on_a_change() -> None:
+    model = Telemetry(SETTINGS, CFG.kinematics())
+
+    def diag_at(ns: int, **kw: object) -> bool:
+        s = telemetry.Sample(**{**sample(**kw).__dict__, "stamp_ns": ns})
+        return any(m.topic == "/diagnostics" for m in model.messages(s))
+
+    assert diag_at(0)
+    assert not diag_at(20_000_000) and not diag_at(999_000_000)
+    assert diag_at(1_000_000_000)  # a second later
+    assert diag_at(1_020_000_000, stopped_reason="node 1 fault: x", enabled=False)  # a change
+    assert not diag_at(1_040_000_000, stopped_reason="node 1 fault: x", enabled=False)
 
 
 def test_every_state_topic_is_declared_and_encodes() -> None:
     s = telemetry.Sample(**{**sample().__dict__, "true_pose": Pose2D(1, 2, 3),
                             "true_twist": Twist(1, 0, 0)})
-    topics = dict(telemetry.messages(s, wheel_radius=[0.05] * 3))
+    topics = {m.topic: m for m in Telemetry(SETTINGS, CFG.kinematics()).messages(s)}
     assert set(topics) == set(telemetry.TOPICS)
     for topic, message in topics.items():
         schema, kind = telemetry.TOPICS[topic]
+        assert message.stamp_ns == s.stamp_ns
         if kind == telemetry.ROS2:
-            assert decoder(schema)(rosmsg.encode(schema, message)) is not None
+            assert decoder(schema)(message.payload()) is not None
         else:
-            assert set(message) <= set(telemetry.JSON_SCHEMAS[schema]["properties"])
+            assert set(message.decoded()) <= set(telemetry.JSON_SCHEMAS[schema]["properties"])
 
 
 @codec

@@ -57,7 +57,7 @@ def test_an_rpdos_one_call_fill_is_pack_of_its_values(
     from types import SimpleNamespace
 
     from omnican.bus import prepared_message
-    from omnican.drive import _RpdoIO
+    from omnican.drive.cyclic import _RpdoIO
     from omnican.pdoplan import frame_bits
 
     codec = codec_of(fields)

@@ -15,7 +15,7 @@ import argparse
 import math
 from typing import TYPE_CHECKING, Any
 
-from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail, positive_int
+from omnican.cli.common import EXIT_OK, EXIT_USAGE, check_front_ends, fail, positive_int
 from omnican.config import ChassisConfig, load_config, reference_rows
 from omnican.errors import ConfigError
 
@@ -82,7 +82,7 @@ def check_file(path: str, bitrate_arg: int | None) -> int:
     from omnican.layout import cycle_bits, heartbeat_bits_per_s
     from omnican.pdoplan import frame_bits
     try:
-        cfg = load_config(path)
+        cfg = check_front_ends(load_config(path))
     except ConfigError as exc:
         return fail(str(exc), EXIT_USAGE)
     layouts, problems = layouts_or_problems(cfg)

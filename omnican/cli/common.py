@@ -220,12 +220,23 @@ def check_bus(bus: Any) -> None:
                              "config's [bus] table")
 
 
+def check_front_ends(cfg: ChassisConfig) -> ChassisConfig:
+    """The tables front ends read, checked as they check them (so every command refuses
+    what ``omnican ros2`` would: ``[ros2] domain_id = 999``). The library checks only
+    their keys and types; ``[gamepad]``'s values it checks itself."""
+    if cfg.ros2 is not None:
+        from omnican.ros2.settings import from_table
+
+        from_table(cfg.ros2, str(cfg.source) if cfg.source else "config")
+    return cfg
+
+
 def load(args: argparse.Namespace) -> ChassisConfig:
     """The config named by --config (or the demo base), with bus arguments applied."""
     from omnican.config import default_config, load_config
 
     path = getattr(args, "config", None)
-    cfg = load_config(path) if path else default_config()
+    cfg = check_front_ends(load_config(path)) if path else default_config()
     overrides = bus_overrides(args)
     if overrides:
         cfg = cfg.with_bus(**{**(cfg.bus or {}), **overrides})

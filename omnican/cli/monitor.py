@@ -223,14 +223,10 @@ def _run(args: argparse.Namespace) -> int:
         deadline = None if args.duration is None else monitor.start + args.duration
         with contextlib.ExitStack() as stack:
             more = []
-            if args.record:  # the bus's own recorder, on the monitor's bus
-                from pathlib import Path
+            if args.record:  # what the monitor hears, recorded
+                from omnican.recording import recording_frames
 
-                from omnican.bus import recorder_for
-
-                recorder = recorder_for(Path(args.record))
-                stack.callback(recorder.close)
-                more.append(recorder)
+                more.append(stack.enter_context(recording_frames(args.record, s.cfg)))
             stack.enter_context(listening(bus_kwargs, monitor, *more))
             stack.enter_context(display.opened())
             try:

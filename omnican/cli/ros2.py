@@ -34,7 +34,6 @@ from omnican.cli.common import (
 )
 from omnican.errors import ConfigError
 from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
-from omnican.telemetry import Frames
 
 
 def add_subparser(sub: Any) -> None:
@@ -131,6 +130,11 @@ def settings_from(args: argparse.Namespace, table: dict[str, Any] | None, origin
     return validate(s, origin)
 
 
+#: [ros2] keys the base's telemetry reads (omnican.telemetry.settings), for every front end.
+TELEMETRY_KEYS = ("odom_frame", "base_frame", "joint_names", "wheel_radius", "odom_slip",
+                  "node_name", "odom_rate_hz", "joint_states_rate_hz", "diagnostics_rate_hz")
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         import cyclonedds.domain  # noqa: F401  (the ros2 extra)
@@ -147,7 +151,10 @@ def run(args: argparse.Namespace) -> int:
     origin = str(cfg.source) if cfg.source else "command line"
     settings = settings_from(args, dict(cfg.ros2) if cfg.ros2 else None, origin)
     with session(args) as sess:
-        run_cfg = sess.cfg
+        # What every front end says alike (frames, joints, rates) is read from [ros2] by
+        # the base's telemetry: the command line's values go there too.
+        run_cfg = replace(sess.cfg, ros2={**(sess.cfg.ros2 or {}), **{
+            key: getattr(settings, key) for key in TELEMETRY_KEYS}})
         if settings.cmd_vel_timeout_s is not None:
             run_cfg = replace(run_cfg, chassis=replace(run_cfg.chassis,
                                                        cmd_timeout_s=settings.cmd_vel_timeout_s))
@@ -157,8 +164,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             with Chassis.open(run_cfg, record=args.record) as base, \
                     Bridge(base, settings, transport, sim=sess.sim) as bridge, \
-                    watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True),
-                          frames=Frames(settings.odom_frame, settings.base_frame)):
+                    watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True)):
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
                     serve_lines(lambda line: command(bridge, line), args.duration)
@@ -191,8 +197,11 @@ def _print_startup(bridge: Any, network: str, timeout_s: float) -> None:
         print("  no joint_states: the config gives no wheel radius (set [ros2] wheel_radius "
               "or --wheel-radius)", flush=True)
     if bridge.sim is not None:
-        print(f"  sim: true pose on {bridge.true_pose_topic}; stdin: fault NODE [CODE], "
-              "reboot NODE, heartbeat NODE off|on, pose, recover, quit", flush=True)
+        from omnican.sim.console import COMMANDS
+
+        verbs = ", ".join(syntax for syntax, _ in COMMANDS if not syntax.startswith("quit"))
+        print(f"  sim: true pose on {bridge.true_pose_topic}; stdin: {verbs}, recover, quit",
+              flush=True)
     print("Ctrl-C to stop", flush=True)
 
 
@@ -208,40 +217,21 @@ def _print_summary(bridge: Any) -> None:
 
 
 def command(bridge: Any, line: str) -> str | None:
-    """One stdin line; returns the reply, or None to quit."""
+    """One stdin line; returns the reply, or None to quit. Under --sim, the simulator's
+    console (omnican sim's commands) with recover besides."""
+    def recover() -> str:
+        return "recovered" if bridge.recover() else f"recover {bridge.recover_note}"
+
+    if bridge.sim is not None:
+        from omnican.sim import console
+
+        return console.command(bridge.sim, line, more={"recover": recover})
     words = line.split()
     if not words:
         return ""
-    verb, rest = words[0].lower(), words[1:]
-    sim = bridge.sim
+    verb = words[0].lower()
     if verb in ("quit", "exit"):
         return None
     if verb == "recover":
-        return "recovered" if bridge.recover() else f"recover {bridge.recover_note}"
-    if sim is None:
-        return f"error: unknown command {verb!r} (recover, quit; more under --sim)"
-    if verb == "pose":
-        p = sim.true_pose
-        return f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f}"
-    if verb not in ("fault", "reboot", "heartbeat"):
-        return f"error: unknown command {verb!r} (fault, reboot, heartbeat, pose, recover, quit)"
-    try:
-        node = int(rest[0], 0)
-        drive = next(d for d in sim.drives if d.node_id == node)
-    except (IndexError, ValueError):
-        return f"error: {verb} needs a node id"
-    except StopIteration:
-        return f"error: no simulated node {rest[0]}"
-    if verb == "fault":
-        try:
-            code = int(rest[1], 0) if len(rest) > 1 else 0x2310
-        except ValueError:
-            return f"error: not an error code: {rest[1]!r}"
-        drive.inject_fault(code)
-        return f"node {node}: fault 0x{code:04X}"
-    if verb == "reboot":
-        drive.reboot()
-        return f"node {node}: rebooted"
-    on = len(rest) > 1 and rest[1].lower() == "on"
-    (drive.start_heartbeat if on else drive.stop_heartbeat)()
-    return f"node {node}: heartbeat {'on' if on else 'off'}"
+        return recover()
+    return f"error: unknown command {verb!r} (recover, quit; more under --sim)"

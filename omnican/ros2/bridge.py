@@ -1,9 +1,10 @@
 """The ROS 2 bridge: a running :class:`~omnican.chassis.Chassis` on DDS.
 
 ``cmd_vel`` goes straight into :meth:`Chassis.set_velocity`, so the chassis watchdog
-stops the base when commands stop. One publisher thread polls the chassis snapshot
-(pose, twist, wheels, status) at its own rates and publishes ``odom``, ``tf``,
-``joint_states`` and ``diagnostics``; it never adds work to the control loop.
+stops the base when commands stop. ``odom``, ``tf``, ``joint_states``, ``diagnostics`` and
+the simulator's true pose are the base's telemetry (:mod:`omnican.telemetry`), the same
+messages the live view and an MCAP recording carry, published at the configured rates;
+the bridge builds none of its own and adds no work to the control loop.
 
 The DDS side is a :class:`Transport`: :class:`DdsTransport` (Cyclone DDS) in use, an
 in-memory one in the unit tests.
@@ -12,6 +13,8 @@ in-memory one in the unit tests.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import functools
 import logging
 import math
 import os
@@ -19,19 +22,20 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+import typing
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from omnican.encoder import SPEED_WINDOW_S
 from omnican.errors import ConfigError, DriveError
-from omnican.ros2 import model
+from omnican.kinematics import Twist
 from omnican.ros2.settings import Ros2Settings, cyclone_config, dds_topic, resolve_name
+from omnican.telemetry import Message
 
 if TYPE_CHECKING:
     from cyclonedds.idl import IdlStruct
 
-    from omnican.chassis import Chassis, WheelState
+    from omnican.chassis import Chassis
     from omnican.sim import SimulatedBase
 
 logger = logging.getLogger(__name__)
@@ -213,35 +217,63 @@ class _Rate:
         return self.count / (now - self.start) if now > self.start else 0.0
 
 
-class Bridge:
-    """Publishes the base's state and takes its commands over a :class:`Transport`.
+@functools.cache
+def _plan(msg_type: type[Any]) -> tuple[tuple[str, str, type[Any] | None], ...]:
+    """How to make ``msg_type`` from a dict: (field, "struct" | "structs" | "plain", type)."""
+    out: list[tuple[str, str, type[Any] | None]] = []
+    for name, hint in typing.get_type_hints(msg_type, include_extras=True).items():
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            out.append((name, "struct", hint))
+            continue
+        origin = getattr(hint, "__origin__", None)
+        args = typing.get_args(origin) if origin is not None else ()
+        if args and isinstance(args[0], type) and dataclasses.is_dataclass(args[0]):
+            out.append((name, "structs", args[0]))
+        else:
+            out.append((name, "plain", None))
+    return tuple(out)
 
-    Use as a context manager (or :meth:`start` and :meth:`close`); it does not own the
-    chassis or the transport."""
+
+def to_idl(msg_type: type[M], data: dict[str, Any]) -> M:
+    """The DDS struct of a message that :mod:`omnican.telemetry.messages` built."""
+    kwargs: dict[str, Any] = {}
+    for name, kind, sub in _plan(msg_type):
+        value = data[name]
+        if kind == "struct":
+            kwargs[name] = to_idl(sub, value)  # type: ignore[arg-type]
+        elif kind == "structs":
+            kwargs[name] = [to_idl(sub, v) for v in value]  # type: ignore[arg-type]
+        else:
+            kwargs[name] = value
+    return msg_type(**kwargs)
+
+
+class Bridge:
+    """Publishes the base's telemetry over a :class:`Transport` and takes its commands.
+
+    A :class:`~omnican.telemetry.Sink` of ``base.telemetry``: the messages are the ones
+    the live view and an MCAP recording carry, published here at the configured rates
+    (every n-th sample). Use as a context manager (or :meth:`start` and :meth:`close`);
+    it does not own the chassis or the transport."""
 
     def __init__(self, base: Chassis, settings: Ros2Settings, transport: Transport, *,
-                 sim: SimulatedBase | None = None,
-                 clock: Callable[[], float] = time.time) -> None:
+                 sim: SimulatedBase | None = None) -> None:
         from omnican.ros2 import msgs
 
         self.base = base
         self.settings = settings
         self.sim = sim
-        self._clock = clock
-        cfg = base.cfg
-        n = len(cfg.wheels)
-        self.joint_names = settings.wheel_joint_names(n)
-        if len(self.joint_names) != n:
-            raise ConfigError(f"ros2.joint_names: {len(self.joint_names)} names for {n} wheels")
-        radii = [settings.wheel_radius or w.wheel_radius for w in cfg.wheels]
-        self.wheel_radii: list[float] | None = (
-            [float(r) for r in radii if r is not None] if all(r is not None for r in radii)
-            else None)
-        self._prefix = settings.node_name
-        self._covariance = model.OdomCovariance(
-            cfg.kinematics(), settings.odom_slip, [w.position_scale for w in cfg.wheels],
-            SPEED_WINDOW_S)
-        self._channel = str((cfg.bus or {}).get("channel", ""))
+        feed = base.telemetry
+        if sim is not None:
+            feed.truth = sim  # the simulator's ground truth goes along (~/sim/true_pose)
+        self.joint_names = feed.settings.joint_names
+        radii = feed.settings.wheel_radii
+        self.wheel_radii: list[float] | None = list(radii) if radii is not None else None
+        self._prefix = feed.settings.prefix
+        state_rate = feed.settings.state_rate_hz
+        self._every = {"odom": max(1, round(state_rate / settings.odom_rate_hz)),
+                       "joint_states": max(1, round(state_rate / settings.joint_states_rate_hz))}
+        self._seen = {"odom": 0, "joint_states": 0}
 
         default = TopicQos()
         self._pub_odom = transport.publisher(settings.topic("odom"), msgs.Odometry, default)
@@ -260,6 +292,13 @@ class Bridge:
         cmd_type: type[Any] = msgs.TwistStamped if settings.cmd_vel_stamped else msgs.Twist
         transport.subscribe(settings.topic("cmd_vel"), cmd_type, default, self._on_cmd_vel)
         transport.subscribe(settings.topic("recover"), msgs.Empty, default, self._on_recover)
+        self._wanted = {"/odom", "/diagnostics"}
+        if self._pub_tf is not None:
+            self._wanted.add("/tf")
+        if self._pub_joints is not None:
+            self._wanted.add("/joint_states")
+        if self._pub_truth is not None:
+            self._wanted.add("/sim/true_pose")
 
         self.cmd_vel_count = 0
         self.cmd_vel_rejected = 0
@@ -267,12 +306,8 @@ class Bridge:
         self.recover_note: str | None = None
         self._recover_thread: threading.Thread | None = None
         self._recover_lock = threading.Lock()
-        self._diag_now = threading.Event()
-        self._stop = threading.Event()
         now = time.monotonic()
         self.rates = {name: _Rate(now) for name in ("odom", "joint_states", "diagnostics")}
-        self._thread = threading.Thread(target=self._run, name="omnican-ros2-publish",
-                                        daemon=True)
         self._started = False
 
     # ------------------------------------------------------------ inputs
@@ -280,8 +315,8 @@ class Bridge:
     def _on_cmd_vel(self, msg: Any) -> None:
         twist = msg.twist if self.settings.cmd_vel_stamped else msg
         self.cmd_vel_count += 1
-        t = model.twist_from_msg((twist.linear.x, twist.linear.y, twist.linear.z),
-                                 (twist.angular.x, twist.angular.y, twist.angular.z))
+        t = twist_from_msg((twist.linear.x, twist.linear.y, twist.linear.z),
+                           (twist.angular.x, twist.angular.y, twist.angular.z))
         try:
             self.base.set_velocity(t.vx, t.vy, t.wz)
         except ValueError as exc:
@@ -314,138 +349,73 @@ class Bridge:
         stamp = time.strftime("%H:%M:%S")
         self.recover_note = f"{note} ({stamp})"
         (logger.info if ok else logger.warning)("recover %s", note)
-        self._diag_now.set()
         return ok
 
-    # ------------------------------------------------------------ outputs
+    # ------------------------------------------------------------ outputs (the sink)
 
-    def _header(self, stamp: tuple[int, int], frame: str) -> Any:
+    def wants(self, topic: str) -> bool:
+        return topic in self._wanted
+
+    def publish(self, messages: list[Message]) -> None:
         from omnican.ros2 import msgs
 
-        return msgs.Header(msgs.Time(*stamp), frame)
+        for message in messages:
+            topic, data = message.topic, message.decoded()
+            if topic == "/odom":
+                if self._due("odom"):
+                    self._pub_odom(to_idl(msgs.Odometry, data))
+                    self.rates["odom"].tick()
+                    self._odom_sent = True
+                else:
+                    self._odom_sent = False
+            elif topic == "/tf":
+                if self._pub_tf is not None and self._odom_sent:
+                    self._pub_tf(to_idl(msgs.TFMessage, data))
+            elif topic == "/sim/true_pose":
+                if self._pub_truth is not None and self._odom_sent:
+                    self._pub_truth(to_idl(msgs.PoseStamped, data))
+            elif topic == "/joint_states":
+                if self._pub_joints is not None and self._due("joint_states"):
+                    self._pub_joints(to_idl(msgs.JointState, data))
+                    self.rates["joint_states"].tick()
+            elif topic == "/diagnostics":
+                # The base's statuses as every front end has them, and the bridge's own
+                # after them (only the bridge knows it): one array, as a reader expects.
+                self._pub_diag(to_idl(msgs.DiagnosticArray, {
+                    "header": data["header"], "status": [*data["status"], self.bridge_status()]}))
+                self.rates["diagnostics"].tick()
 
-    def publish_odom(self, now: float) -> None:
-        from omnican.ros2 import msgs
+    _odom_sent = False
 
-        s = self.settings
-        pose, twist, wheels = self.base.pose, self.base.twist, self.base.wheels
-        self._covariance.update(pose)
-        stamp = model.ros_time(now)
-        qx, qy, qz, qw = model.yaw_quaternion(pose.theta)
-        speeds = [w.actual_speed for w in wheels]
-        odom = msgs.Odometry(
-            header=self._header(stamp, s.odom_frame),
-            child_frame_id=s.base_frame,
-            pose=msgs.PoseWithCovariance(
-                msgs.Pose(msgs.Point(pose.x, pose.y, 0.0), msgs.Quaternion(qx, qy, qz, qw)),
-                self._covariance.pose_covariance()),
-            twist=msgs.TwistWithCovariance(
-                msgs.Twist(msgs.Vector3(twist.vx, twist.vy, 0.0),
-                           msgs.Vector3(0.0, 0.0, twist.wz)),
-                self._covariance.twist_covariance(speeds)),
-        )
-        self._pub_odom(odom)
-        if self._pub_tf is not None:
-            tf = msgs.TransformStamped(
-                self._header(stamp, s.odom_frame), s.base_frame,
-                msgs.Transform(msgs.Vector3(pose.x, pose.y, 0.0),
-                               msgs.Quaternion(qx, qy, qz, qw)))
-            self._pub_tf(msgs.TFMessage([tf]))
-        if self._pub_truth is not None and self.sim is not None:
-            true = self.sim.true_pose
-            tx, ty, tz, tw = model.yaw_quaternion(true.theta)
-            self._pub_truth(msgs.PoseStamped(
-                self._header(stamp, s.odom_frame),
-                msgs.Pose(msgs.Point(true.x, true.y, 0.0), msgs.Quaternion(tx, ty, tz, tw))))
-        self.rates["odom"].tick()
+    def _due(self, stream: str) -> bool:
+        self._seen[stream] += 1
+        return (self._seen[stream] - 1) % self._every[stream] == 0
 
-    def publish_joint_states(self, now: float) -> None:
-        from omnican.ros2 import msgs
-
-        if self._pub_joints is None or self.wheel_radii is None:
-            return
-        wheels = self.base.wheels
-        pos, vel = model.joint_values([w.travel for w in wheels],
-                                      [w.actual_speed for w in wheels], self.wheel_radii)
-        self._pub_joints(msgs.JointState(self._header(model.ros_time(now), ""),
-                                         list(self.joint_names), pos, vel, []))
-        self.rates["joint_states"].tick()
-
-    def statuses(self, wheels: tuple[WheelState, ...] | None = None) -> list[model.Status]:
-        """The diagnostic statuses as of now."""
-        status = self.base.status
-        wheels = wheels if wheels is not None else self.base.wheels
+    def bridge_status(self) -> dict[str, Any]:
+        """The bridge itself, as a diagnostic status: publish rates, cmd_vel received,
+        the last recover (after the base's statuses in each diagnostics array)."""
         mono = time.monotonic()
-        rates = {name: r.sample(mono) for name, r in self.rates.items()}
-        out = [model.chassis_status(self._prefix, status, self.recover_note),
-               model.bus_status(self._prefix, status, self._channel)]
-        out += [model.wheel_status(self._prefix, w, self.joint_names[i])
-                for i, w in enumerate(wheels)]
-        out.append(model.bridge_status(self._prefix, rates, self.cmd_vel_count,
-                                       self.cmd_vel_rejected))
-        return out
-
-    def publish_diagnostics(self, now: float, wheels: tuple[WheelState, ...] | None = None
-                            ) -> None:
-        from omnican.ros2 import msgs
-
-        array = msgs.DiagnosticArray(self._header(model.ros_time(now), ""), [
-            msgs.DiagnosticStatus(st.level, st.name, st.message, st.hardware_id,
-                                  [msgs.KeyValue(k, v) for k, v in st.values])
-            for st in self.statuses(wheels)])
-        self._pub_diag(array)
-        self.rates["diagnostics"].tick()
-
-    def _signature(self, wheels: tuple[WheelState, ...]) -> tuple[Any, ...]:
-        """What changes the diagnostic levels: published at once when it changes."""
-        st = self.base.status
-        return (st.enabled, st.stopped_reason,
-                tuple((w.state, w.fault, w.online, w.error) for w in wheels))
-
-    # ------------------------------------------------------------ the thread
-
-    def _run(self) -> None:
-        s = self.settings
-        periods = {"odom": 1.0 / s.odom_rate_hz, "joint_states": 1.0 / s.joint_states_rate_hz,
-                   "diagnostics": 1.0 / s.diagnostics_rate_hz}
-        due = dict.fromkeys(periods, time.monotonic())
-        signature: tuple[Any, ...] | None = None
-        while not self._stop.is_set():
-            mono = time.monotonic()
-            try:
-                now = self._clock()
-                if mono >= due["odom"]:
-                    self.publish_odom(now)
-                if mono >= due["joint_states"]:
-                    self.publish_joint_states(now)
-                wheels = self.base.wheels
-                sig = self._signature(wheels)
-                if mono >= due["diagnostics"] or sig != signature or self._diag_now.is_set():
-                    self._diag_now.clear()
-                    signature = sig
-                    self.publish_diagnostics(now, wheels)
-                    due["diagnostics"] = mono  # a change restarts the period
-            except Exception:  # keep publishing whatever one message did
-                logger.exception("publishing failed")
-            for name, period in periods.items():
-                if mono >= due[name]:
-                    due[name] += period
-                    if due[name] < mono:  # fell behind: do not burst to catch up
-                        due[name] = mono + period
-            self._stop.wait(max(0.0, min(due.values()) - time.monotonic()))
+        values = [{"key": f"{name}_hz", "value": f"{r.sample(mono):.1f}"}
+                  for name, r in self.rates.items()]
+        values += [{"key": "cmd_vel_received", "value": str(self.cmd_vel_count)},
+                   {"key": "cmd_vel_rejected", "value": str(self.cmd_vel_rejected)},
+                   {"key": "last_recover", "value": self.recover_note or ""}]
+        return {"level": 0, "name": f"{self._prefix}: ros2 bridge", "message": "running",
+                "hardware_id": "", "values": values}
 
     # ------------------------------------------------------------ lifecycle
 
     def start(self) -> Bridge:
-        self._started = True
-        self._thread.start()
+        if not self._started:
+            self._started = True
+            self.base.telemetry.add(self)
         return self
 
     def close(self) -> None:
         """Stop publishing; wait for a recover under way. Idempotent."""
-        self._stop.set()
         if self._started:
-            self._thread.join(timeout=2.0)
+            self._started = False
+            self.base.telemetry.remove(self)
         worker = self._recover_thread
         if worker is not None:
             cfg = self.base.cfg.chassis
@@ -461,3 +431,8 @@ class Bridge:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def twist_from_msg(linear: Sequence[float], angular: Sequence[float]) -> Twist:
+    """The planar part of a geometry_msgs/Twist (x, y linear; z angular)."""
+    return Twist(float(linear[0]), float(linear[1]), float(angular[2]))

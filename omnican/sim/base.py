@@ -7,11 +7,12 @@ through the base's true kinematics.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import can
 import canopen
@@ -27,6 +28,9 @@ from omnican.network import Network
 from omnican.odometry import Odometry, Pose2D
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.scheduler import SimScheduler
+
+if TYPE_CHECKING:
+    from omnican.telemetry import Feed
 
 logger = logging.getLogger(__name__)
 
@@ -212,6 +216,39 @@ class SimulatedBase:
     def wheel_drive(self, wheel: int) -> tuple[SimulatedDrive, int]:
         """(drive, axis) that simulates wheel number ``wheel`` of the config."""
         return self.wheel_axes[wheel]
+
+    @contextlib.contextmanager
+    def telemetry(self) -> Iterator[Feed]:
+        """The simulator's own telemetry, for a front end without a base (``omnican sim
+        --foxglove``): its ground truth at the state rate of its clock, and the frames
+        its drives hear."""
+        from omnican.dbcgen import database_for
+        from omnican.telemetry import Feed, TelemetrySettings
+
+        cfg = self.cfg
+        feed = Feed(TelemetrySettings.from_config(cfg), self.true_kinematics, self.clock,
+                    make_database=lambda: database_for(cfg), has_base=False)
+        feed.truth = self
+        every = max(1, round(1.0 / (self.scheduler.period_s * feed.settings.state_rate_hz)))
+        ticks = [0]
+
+        def tick(now: float) -> None:
+            ticks[0] += 1
+            if feed.active and not ticks[0] % every:
+                feed.offer(None)
+
+        self.scheduler.add(tick)
+        notifier = self.network.notifier
+        if notifier is not None:
+            notifier.add_listener(feed.frames)
+        try:
+            yield feed
+        finally:
+            self.scheduler.remove(tick)
+            if notifier is not None:
+                with contextlib.suppress(ValueError):
+                    notifier.remove_listener(feed.frames)
+            feed.close()
 
     # ------------------------------------------------------------ lifecycle
 

@@ -51,7 +51,7 @@ def snapshot(base: Chassis) -> dict[str, Any]:
         # For diagnosis when a test fails: which SYNC each wheel's last sample was
         # filed under, against the last SYNC sent (private; read-only).
         "sync_epoch": base.bus.sync_epoch,
-        "sample_epochs": [a.epoch for a in base._axes],
+        "sample_epochs": [a.epoch for a in base._loop.axes],
     }
 
 

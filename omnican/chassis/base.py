@@ -1,0 +1,348 @@
+"""The base: drives + kinematics + odometry + limits + watchdog + safety, behind one
+small API (:class:`Chassis`).
+
+Who does what: :class:`~omnican.chassis.cycle.ControlCycle` is the control cycle;
+:class:`~omnican.chassis.supervisor.NodeSupervisor` owns every node's lifecycle (startup,
+health, reconfiguration, recover, shutdown); a runner (a real-time thread or the
+simulated clock, :mod:`omnican.chassis.runner`) calls the cycle every period; the
+signal guard (:mod:`omnican.chassis.signals`) keeps a second Ctrl-C from cutting the
+stop short. This module wires them and is what users call.
+
+Safety: no command for ``cmd_timeout_s`` -> controlled stop; a drive fault, a lost
+heartbeat, a drive reboot, a drive leaving OPERATIONAL or a bus that stays down -> every
+wheel stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
+host's heartbeat, so they stop by themselves if this process dies; leaving the ``with``
+block, a failed open, Ctrl-C or SIGTERM stops the wheels and disables every drive.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import threading
+import weakref
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from omnican.bus import CanBus
+from omnican.chassis.cycle import ControlCycle
+from omnican.chassis.runner import LockstepRunner, ThreadRunner
+from omnican.chassis.signals import guard
+from omnican.chassis.supervisor import NodeSupervisor
+from omnican.clock import REAL_TIME, Clock
+from omnican.config import ChassisConfig
+from omnican.drive import DriveNode
+from omnican.errors import DriveError
+from omnican.kinematics import Twist
+from omnican.layout import node_layouts
+from omnican.odometry import Pose2D
+from omnican.recording import open_recording, records_state
+from omnican.state import ChassisStatus, WheelState
+from omnican.telemetry.feed import Feed
+
+logger = logging.getLogger("omnican.chassis")
+
+_open_chassis: weakref.WeakSet[Chassis] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_all() -> None:
+    for base in list(_open_chassis):
+        base.close()
+    guard.at_exit()
+
+
+class Chassis:
+    """A running base. Use :meth:`open` (a context manager)."""
+
+    def __init__(self, cfg: ChassisConfig, bus: CanBus, nodes: list[DriveNode],
+                 clock: Clock = REAL_TIME) -> None:
+        self.cfg = cfg
+        self.clock = clock
+        self._lockstep = clock.lockstep
+        self._bus = bus
+        self.nodes = nodes
+        self._period = 1.0 / cfg.chassis.rate_hz
+        self._supervisor = sup = NodeSupervisor(nodes, bus, clock, self._call_soon)
+        self._loop = loop = ControlCycle(cfg, bus, nodes, sup, clock)
+        self._runner: ThreadRunner | LockstepRunner = (
+            LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
+            if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed))
+        loop.runner = self._runner
+        self._own_sinks: list[Any] = []  # telemetry sinks open() made (a recording)
+        self._closed = False
+        self._close_lock = threading.Lock()
+        self._guards_signals = False
+
+    def _call_soon(self, fn: Any) -> None:
+        self._loop.call_soon(fn)
+
+    def _cycle_failed(self) -> None:
+        self._supervisor.latch("internal error in the control loop (see log)")
+
+    # ------------------------------------------------------------ opening
+
+    @classmethod
+    def open(
+        cls,
+        cfg: ChassisConfig,
+        *,
+        bus: Mapping[str, Any] | None = None,
+        record: str | Path | Any = None,
+        handle_signals: bool = True,
+        clock: Clock | None = None,
+    ) -> Chassis:
+        """Open the bus, configure and enable every drive, start the loop.
+
+        Args:
+            cfg: the robot config.
+            bus: ``can.Bus`` arguments overriding ``cfg.bus``.
+            record: record the bus to this file: a python-can log (.log/.asc/.blf: the
+                frames), or .mcap (the frames and the robot's state); or a recorder
+                (:mod:`omnican.recording`) or telemetry sink, closed with the base.
+            handle_signals: in the main thread, turn SIGTERM into SystemExit so the
+                ``with`` block unwinds and the drives are disabled, and keep a second
+                SIGINT/SIGTERM from cutting that stop short.
+            clock: :data:`omnican.clock.REAL_TIME` (default: a loop thread) or a
+                :class:`omnican.clock.SimClock` (lock-step against a
+                :class:`~omnican.sim.SimulatedBase` on the same clock: no threads; the
+                clock's ``sleep`` runs the control cycles).
+
+        Raises:
+            BusError: the bus cannot be opened.
+            DriveError: a drive did not come up (the message says which and why).
+        """
+        clock = clock if clock is not None else REAL_TIME
+        layouts = node_layouts(cfg)  # EDS problems surface before the bus is touched
+        recorder = open_recording(record, cfg) if isinstance(record, (str, Path)) else record
+        state_sink = recorder if records_state(recorder) else None
+        try:
+            can_bus = CanBus(bus if bus is not None else cfg.bus,
+                             recorder=None if state_sink is not None else recorder, clock=clock)
+        except BaseException:
+            if state_sink is not None:
+                state_sink.close()
+            raise
+        nodes: list[DriveNode] = []
+        try:
+            for layout in layouts:
+                nodes.append(DriveNode(can_bus.network, layout, can_bus, clock))
+            base = cls(cfg, can_bus, nodes, clock)
+        except BaseException:
+            for n in nodes:
+                n.detach()
+            can_bus.close()
+            if state_sink is not None:
+                state_sink.close()
+            raise
+        try:
+            if state_sink is not None:  # from the first frame on: the configuration too
+                base._own_sinks.append(state_sink)
+                base.telemetry.add(state_sink)
+            base._start(handle_signals)
+        except BaseException:
+            base.close(controlled=False)
+            raise
+        return base
+
+    def _start(self, handle_signals: bool) -> None:
+        self._supervisor.configure_all()
+        _open_chassis.add(self)
+        if handle_signals:
+            self._guards_signals = guard.acquire()
+        if not self._lockstep:
+            self._bus.start_polling()  # the loop reads the bus itself: one wake-up a cycle
+        self._runner.start()
+        self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
+        self._supervisor.started()
+
+    def _wait_enabled(self, timeout: float, what: str) -> None:
+        clock = self.clock
+        deadline = clock.now() + timeout
+        while clock.now() < deadline:
+            status = self._loop.snapshot.status
+            if status.enabled and status.cycles > 0:
+                return
+            if self._closed:
+                raise DriveError(f"{what}: the base was closed")
+            clock.sleep(self._period if self._lockstep else 0.002)
+        raise DriveError(f"{what}: drives not enabled within {timeout:.2g} s "
+                         f"({self._supervisor.not_enabled_why()})")
+
+    # ------------------------------------------------------------ public API
+
+    def set_velocity(self, vx: float, vy: float, wz: float) -> None:
+        """Command a body velocity (m/s, m/s, rad/s); it lapses after ``cmd_timeout_s``.
+
+        Raises ValueError for NaN/inf (nothing changes); DriveError if the base is closed."""
+        twist = Twist(float(vx), float(vy), float(wz))
+        if not twist.is_finite():
+            raise ValueError(f"velocity command must be finite, got {twist}")
+        if self._closed:
+            raise DriveError("the base is closed")
+        self._loop.command = (twist, self.clock.now())
+
+    def stop(self) -> None:
+        """Controlled stop now (at the stop deceleration); a new command moves again."""
+        self._loop.command = (Twist(), self.clock.now())
+
+    def recover(self, timeout_s: float | None = None) -> None:
+        """Clear a latched stop: reset faulted drives, re-enable every drive, and wait
+        (bounded) until all are enabled. The base stays still until the next command.
+
+        Raises DriveError naming what could not be recovered."""
+        if self._closed:
+            raise DriveError("the base is closed")
+        sup, loop = self._supervisor, self._loop
+        if loop.watch.down:
+            raise DriveError(f"{sup.latched or 'the CAN bus is down'}: recover once it is "
+                             "back (status.bus_up)")
+        timeout = timeout_s if timeout_s is not None else (
+            self.cfg.chassis.enable_timeout_s + self.cfg.chassis.boot_timeout_s)
+
+        def begin() -> None:
+            now = self.clock.now()
+            loop.command = (Twist(), now)
+            sup.begin_recover(now)
+
+        loop.call_soon(begin)
+        self.clock.sleep(2 * self._period)
+        try:
+            self._wait_enabled(timeout, "recover")
+            logger.info("recovered: every drive enabled")
+        finally:
+            loop.call_soon(sup.end_recover)
+        loop.command = (Twist(), self.clock.now())
+
+    def reset_pose(self, pose: Pose2D | None = None) -> None:
+        """Set the odometry pose (default: origin)."""
+        target = pose if pose is not None else Pose2D()
+        loop = self._loop
+        loop.call_soon(lambda: loop.odometry.reset(target))
+        deadline = self.clock.now() + 1.0
+        while loop.snapshot.pose != target and self.clock.now() < deadline:
+            if not self._runner.running:
+                loop.odometry.reset(target)
+                break
+            self.clock.sleep(self._period if self._lockstep else self._period / 2)
+
+    @property
+    def pose(self) -> Pose2D:
+        return self._loop.snapshot.pose
+
+    @property
+    def twist(self) -> Twist:
+        """Measured body velocity from the encoders, averaged over the last 0.1 s."""
+        return self._loop.snapshot.twist
+
+    @property
+    def command(self) -> Twist:
+        """The limited twist being applied this cycle."""
+        return self._loop.snapshot.command
+
+    @property
+    def wheels(self) -> tuple[WheelState, ...]:
+        return self._loop.snapshot.wheels
+
+    @property
+    def status(self) -> ChassisStatus:
+        return self._loop.snapshot.status
+
+    @property
+    def bus(self) -> CanBus:
+        return self._bus
+
+    @property
+    def telemetry(self) -> Feed:
+        """The one feed of what front ends publish: ``base.telemetry.add(sink)``."""
+        return self._loop.feed
+
+    @property
+    def warnings(self) -> list[str]:
+        """What the configuration warned of (an EDS that understates the drive, ...)."""
+        return self._supervisor.warnings
+
+    def cycle_bits(self) -> int:
+        """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
+        return self._loop.cycle_bits()
+
+    def step(self, now: float) -> None:
+        """One control cycle at ``now`` (lock-step: the clock calls this every period)."""
+        if not isinstance(self._runner, LockstepRunner):
+            raise RuntimeError("step() is for lock-step simulation: a real-time base runs "
+                               "its own loop thread")
+        self._runner.step(now)
+
+    @property
+    def loop_cpu_s(self) -> float:
+        """CPU seconds the loop thread has used, its wake-ups included (for benchmarks;
+        0.0 in lock-step, where there is no such thread)."""
+        return self._runner.cpu_s
+
+    # ------------------------------------------------------------ closing
+
+    def close(self, controlled: bool = True) -> None:
+        """Stop the wheels (controlled), disable every drive, release the bus. Idempotent.
+
+        ``controlled=False`` skips the deceleration only: every drive is disabled on
+        every way out, a failed open included."""
+        with self._close_lock:
+            if self._closed:
+                return
+            self._closed = True
+        _open_chassis.discard(self)
+        sup = self._supervisor
+        sup.closed = True  # nothing is started again from here on
+        with guard.closing():
+            try:
+                if self._runner.running:
+                    self._controlled_shutdown(decelerate=controlled)
+                    self._runner.stop()
+                self._bus.stop_polling()  # a Notifier again, for the SDOs of the stop
+                sup.join_workers(self.cfg.chassis.boot_timeout_s + 1.0)
+                sup.stop_nodes(bus_works=not self._loop.watch.down and
+                               self._bus.failing is None)
+            finally:
+                sup.detach()
+                feed = self._loop.feed
+                feed.close(self._loop.snapshot)  # the last sample, and the frames of the stop
+                for sink in self._own_sinks:  # a recording: it says what did not reach it
+                    sink.close(dropped_frames=feed.frames.dropped)
+                self._bus.close()
+                if self._guards_signals:
+                    self._guards_signals = False
+                    guard.release()
+        powered = sup.still_powered()
+        if powered:
+            logger.error("base closed; not confirmed disabled: %s", ", ".join(powered))
+        else:
+            logger.info("base closed; drives disabled")
+
+    def _controlled_shutdown(self, decelerate: bool = True) -> None:
+        loop, clock = self._loop, self.clock
+        loop.command = (Twist(), -float("inf"))
+        s = self.cfg.chassis
+        out = loop.limiter.output
+        speed = max(abs(out.linear_speed), abs(out.wz) * max(loop.kinematics.base_radius))
+        deadline = clock.now() + speed / s.stop_decel + 0.5
+        while decelerate and clock.now() < deadline:
+            if loop.speeds_settled:
+                break
+            clock.sleep(self._period)
+        loop.call_soon(self._supervisor.disable_all)
+        deadline = clock.now() + 0.5
+        while clock.now() < deadline:
+            if self._supervisor.all_disabled():
+                break
+            clock.sleep(self._period)
+
+    def __enter__(self) -> Chassis:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return (f"<Chassis {len(self._loop.axes)} wheels on nodes "
+                f"{[n.node_id for n in self.nodes]}>")

@@ -1,0 +1,309 @@
+"""One control cycle, what the loop does every period.
+
+Read what arrived; run what other threads asked for; check the drives' health (every
+few cycles above 250 Hz); integrate the encoder samples of the previous SYNC (all
+wheels, same SYNC, or none); limit the newest command and turn it into wheel targets;
+walk the CiA 402 state machines; send the cycle's RPDOs, then SYNC and the host
+heartbeat; watch the bus; publish an immutable snapshot that any thread may read.
+
+Every target is zero while the base is held stopped (a latched stop, a drive out of
+OPERATION ENABLED) or when no command came for ``cmd_timeout_s``.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import queue
+from collections.abc import Callable
+from typing import Any
+
+from omnican.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
+from omnican.chassis.supervisor import NodeSupervisor
+from omnican.cia301 import HEARTBEAT_BASE, NmtState
+from omnican.cia402 import State
+from omnican.clock import Clock
+from omnican.config import ChassisConfig
+from omnican.drive import AxisIO, DriveNode
+from omnican.encoder import SPEED_WINDOW_S
+from omnican.heartbeat import HeartbeatSchedule
+from omnican.kinematics import Twist
+from omnican.layout import cycle_bits
+from omnican.limits import VelocityLimiter
+from omnican.odometry import Odometry
+from omnican.state import Snapshot
+from omnican.telemetry.feed import Feed
+from omnican.telemetry.settings import TelemetrySettings
+
+STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
+HEALTH_CHECK_HZ = 250.0  # faster loops check the drives' health every few cycles (below)
+_ENABLED = State.OPERATION_ENABLED  # a plain name: State.X is a descriptor call on 3.11
+
+
+class ControlCycle:
+    """The control cycle of one base (see the module docstring). :meth:`run` is called
+    on the loop thread only; :attr:`snapshot` and :attr:`command` are read and written
+    whole from any thread."""
+
+    def __init__(self, cfg: ChassisConfig, bus: CanBus, nodes: list[DriveNode],
+                 supervisor: NodeSupervisor, clock: Clock) -> None:
+        c = cfg.chassis
+        self._bus = bus
+        self.nodes = nodes
+        self._sup = supervisor
+        self.kinematics = cfg.kinematics()
+        self.odometry = Odometry(self.kinematics)
+        self.limiter = VelocityLimiter(cfg.limits(), self.kinematics)
+        self.period_s = period = 1.0 / c.rate_hz
+        # Above HEALTH_CHECK_HZ the latches (fault, heartbeat, reboot, SDO aborts) are
+        # checked every few cycles: a drive leaving OPERATION ENABLED still zeroes every
+        # target in the cycle that sees it (``all_enabled`` below), the latch only makes
+        # that stop stick, a few ms later (4 ms at 1 kHz, 8 ms at most).
+        self._health_every = max(1, math.ceil(c.rate_hz / HEALTH_CHECK_HZ))
+        self._heartbeat = HeartbeatSchedule(c.heartbeat_ms / 1000.0, period)
+        self._heartbeat_cob = HEARTBEAT_BASE + c.host_node_id
+        self._heartbeat_data = bytes([NmtState.OPERATIONAL])
+        self._cmd_timeout = c.cmd_timeout_s
+        self._max_wheel_speed = c.max_wheel_speed
+        self.watch = BusWatch(bus)
+        node_of = {id(a): n for n in nodes for a in n.axes}
+        self.axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
+                                         key=lambda a: a.wheel_index)
+        self._axis_nodes = [(a, node_of[id(a)]) for a in self.axes]
+        self._all_ok_flags = ((True, False),) * len(self.axes)
+        # Per wheel, what never changes: index, node id, axis, position scale.
+        self._wheel_info = tuple((a.wheel_index, n.node_id, a.wheel.axis, a.wheel.position_scale)
+                                 for a, n in self._axis_nodes)
+        self._stages = supervisor.stages
+        self._configuring = supervisor.configuring  # the same sets, shared
+        self._offline = supervisor.offline
+        self._all_enabled = False  # every stage OPERATION ENABLED, as of the last cycle
+        #: the newest command and when it came (set whole by any thread)
+        self.command: tuple[Twist, float] = (Twist(), -math.inf)
+        self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        n = len(self.axes)
+        self._speeds = [0.0] * n  # measured rim speeds, m/s, by wheel index
+        self._targets = [0.0] * n  # commanded rim speeds, m/s, by wheel index
+        self._history: collections.deque[tuple[float, list[float]]] = collections.deque()
+        self._measured = (0.0, 0.0, 0.0)
+        self._stale: tuple[int, ...] = ()  # wheels (by index) without a fresh sample
+        self._stale_cycles = max(3, math.ceil(STALE_AFTER_S * c.rate_hz))
+        self._last_sync_time = 0.0
+        self.cycles = 0
+        self.runner: Any = None  # what calls run(): its count of late cycles is in the status
+        self._load_mark = (clock.now(), 0)
+        self._bus_bits_per_s = 0.0
+        self._rate_mark = (clock.now(), 0)
+        self._loop_hz = 0.0
+        self._warnings_list: list[str] = []
+        self._warnings: tuple[str, ...] = ()
+        self._bitrate = bus.bitrate
+        # The telemetry: every feed_every-th snapshot, while a front end listens (0: none).
+        self.feed = Feed(TelemetrySettings.from_config(cfg), self.kinematics, clock,
+                         make_database=lambda: _database(cfg))
+        self.feed.on_active = self._telemetry_active
+        self.feed_every = 0
+        self._feed_period = max(1, round(c.rate_hz / self.feed.settings.state_rate_hz))
+        self.snapshot = self._make_snapshot(clock.now())
+
+    def call_soon(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on the loop thread, at the start of the next cycle."""
+        self._requests.put(fn)
+
+    def _telemetry_active(self, active: bool) -> None:
+        """A first front end subscribed (the frames go to the feed too, and samples at
+        the state rate), or the last one left."""
+        if active:
+            self._bus.add_listener(self.feed.frames, sent=True)
+            self.feed_every = self._feed_period
+        else:
+            self.feed_every = 0
+            self._bus.remove_listener(self.feed.frames)
+
+    def cycle_bits(self) -> int:
+        """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
+        return cycle_bits(n.plan for n in self.nodes)  # the plans in use (maybe adopted)
+
+    # ------------------------------------------------------------ the cycle
+
+    def run(self, now: float) -> None:
+        """One cycle at ``now``."""
+        sup = self._sup
+        # Read what arrived, decide, then the RPDOs and SYNC, then the bookkeeping.
+        self._bus.poll()
+        requests = self._requests
+        while not requests.empty():
+            requests.get_nowait()()
+        if not self.cycles % self._health_every:
+            sup.check(now)
+        self._integrate_samples()
+        # Command -> limits -> wheel speeds.
+        cmd, t_cmd = self.command
+        all_enabled = True
+        for stage in self._stages:
+            if stage.state is not _ENABLED:
+                all_enabled = False
+                break
+        self._all_enabled = all_enabled
+        if sup.latched or not all_enabled or now - t_cmd > self._cmd_timeout:
+            vx = vy = wz = 0.0
+        else:
+            vx, vy, wz = cmd.vx, cmd.vy, cmd.wz
+        limiter = self.limiter
+        if not all_enabled:
+            limiter.reset()
+        dt = now - self._last_sync_time if self._last_sync_time else self.period_s
+        limited = limiter.step_xyz(vx, vy, wz, min(dt, 5 * self.period_s))
+        speeds = self.kinematics.wheel_speeds_of(*limited)
+        peak = max(map(abs, speeds))
+        if peak > self._max_wheel_speed:  # the limiter keeps this from happening
+            speeds = [v * self._max_wheel_speed / peak for v in speeds]
+        self._targets = speeds
+        # State machines, then the cycle's RPDOs, then SYNC.
+        bus = self._bus
+        send = bus.send_prepared
+        configuring, offline = self._configuring, self._offline
+        for node in self.nodes:
+            if node.node_id in configuring:
+                continue
+            if node.node_id not in offline:  # a silent node's statusword is stale
+                for stage in node.stages:
+                    if stage.step(now) is not None:
+                        frame = node.controlword_frame(stage)
+                        if frame is not None:
+                            send(*frame)
+            # Targets go to every node, a silent one too: it may still listen, and stop.
+            for msg, bits in node.cyclic_frames(speeds):
+                send(msg, bits)
+        bus.sync()
+        self._last_sync_time = bus.sync_time
+        heartbeat = self._heartbeat
+        if now >= heartbeat.send_at:  # on a fixed schedule: never a cycle late per period
+            heartbeat.sent(now)
+            bus.send(self._heartbeat_cob, self._heartbeat_data)
+        change = self.watch.check(now)
+        if change is not None:
+            if change is WENT_DOWN:
+                sup.bus_went_down(self.watch.failing or "?")
+            elif change is CAME_BACK:
+                sup.bus_came_back()
+        self.cycles += 1
+        self.snapshot = self._make_snapshot(now, limited)
+        every = self.feed_every
+        if every and not self.cycles % every:
+            self.feed.offer(self.snapshot)  # a queue append (real time)
+
+    def _integrate_samples(self) -> None:
+        epoch = self._bus.sync_epoch
+        axes = self.axes
+        raws: list[int] = []
+        for a in axes:
+            raw = a.raw
+            if raw is None or a.epoch != epoch:
+                raws = []
+                break
+            raws.append(raw)
+        if not raws:
+            # Not every wheel has answered the last SYNC: wait for a complete set. A wheel
+            # silent for STALE_AFTER_S has no known speed: report none rather than the
+            # last one (a drive gone offline must not look as if it were still turning).
+            self._mark_stale(epoch)
+            return
+        if self._stale:
+            self._stale = ()
+        travel = [a.travel_from_sample(raw) for a, raw in zip(axes, raws, strict=True)]
+        t = self._last_sync_time
+        history = self._history
+        odometry = self.odometry
+        if not odometry.seeded:
+            odometry.step(travel)
+            history.clear()
+            history.append((t, travel))
+            return
+        odometry.step(travel)
+        history.append((t, travel))
+        while len(history) > 2 and t - history[1][0] >= SPEED_WINDOW_S:
+            history.popleft()
+        t0, travel0 = history[0]
+        if t > t0:  # speeds over the window: SYNC timing jitter averages out
+            span = t - t0
+            self._speeds = [(a - b) / span for a, b in zip(travel, travel0, strict=True)]
+            x, y, w = self.kinematics.body_of_change(travel, travel0)
+            self._measured = (x / span, y / span, w / span)
+
+    def _mark_stale(self, epoch: int) -> None:
+        stale = tuple(i for i, a in enumerate(self.axes)
+                      if a.raw is None or epoch - a.epoch > self._stale_cycles)
+        if stale == self._stale:
+            return
+        self._stale = stale
+        if stale:
+            self._speeds = [0.0 if i in stale else v for i, v in enumerate(self._speeds)]
+            self._measured = (0.0, 0.0, 0.0)
+            self._history.clear()  # the speed window restarts with the next complete set
+
+    @property
+    def speeds_settled(self) -> bool:
+        """The limiter's output is zero and every wheel below 5 mm/s."""
+        return self.limiter.output.is_zero() and all(abs(v) < 0.005 for v in self._speeds)
+
+    # ------------------------------------------------------------ the snapshot
+
+    def _make_snapshot(self, now: float,
+                       command: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Snapshot:
+        mark_t, mark_bits = self._load_mark
+        if now - mark_t >= 0.5:
+            bits = self._bus.traffic.bits
+            self._bus_bits_per_s = (bits - mark_bits) / (now - mark_t)
+            self._load_mark = (now, bits)
+            rate_t, rate_n = self._rate_mark
+            self._loop_hz = (self.cycles - rate_n) / (now - rate_t)
+            self._rate_mark = (now, self.cycles)
+        sup = self._sup
+        offline, configuring, watch = self._offline, self._configuring, self.watch
+        bus_down = watch.down
+        stale_set = self._stale
+        axes = self._axis_nodes
+        if offline or configuring or bus_down or stale_set:
+            flags = []
+            for i, (_, node) in enumerate(axes):
+                online = node.node_id not in offline and node.node_id not in configuring
+                flags.append((online, bus_down or not online or i in stale_set))
+            wheel_flags = tuple(flags)
+        else:
+            wheel_flags = self._all_ok_flags
+        # What the wheels were this cycle, as plain values; WheelState is made on read.
+        wheels = (self._targets, self._speeds, wheel_flags,
+                  tuple([(ax.counts, ax.stage.statusword_value, ax.stage.mode_value,
+                          ax.stage.error_value, ax.stage.error, node.fault_text)
+                         for ax, node in axes]))
+        latched = sup.latched
+        enabled = (latched is None and not offline and not configuring and
+                   not bus_down and self._all_enabled)
+        bitrate = self._bitrate
+        cycles = self.cycles
+        if sup.warnings != self._warnings_list:
+            self._warnings_list, self._warnings = list(sup.warnings), tuple(sup.warnings)
+        status = (
+            enabled,
+            latched,
+            now - self.command[1],
+            self._loop_hz,
+            self.runner.late / cycles if cycles else 0.0,
+            cycles,
+            self._bus_bits_per_s / bitrate if bitrate else None,
+            self._bus_bits_per_s,
+            watch.failing or (self._bus.reconnect_error if bus_down else None),
+            self._warnings,
+            not bus_down,
+        )
+        unknown = offline or configuring or bus_down
+        return Snapshot(self.odometry.xyt, (0.0, 0.0, 0.0) if unknown else self._measured,
+                        command, wheels, status, self._wheel_info)
+
+
+def _database(cfg: ChassisConfig) -> Any:
+    """The base's DBC, for decoded frames (cantools: imported when a front end wants them)."""
+    from omnican.dbcgen import database_for
+
+    return database_for(cfg)

@@ -1,0 +1,118 @@
+"""What runs the control cycle: a real-time thread of its own, or the simulated clock.
+
+:class:`ThreadRunner` calls the cycle every period on a thread, sleeping between cycles
+and counting the cycles that start late; :class:`LockstepRunner` registers it with a
+:class:`~omnican.clock.SimClock`, whose ``sleep`` calls it on the caller's thread. Both
+keep the base stopping whatever a cycle raised: ``on_error`` is told, the next cycle
+runs.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+from omnican.clock import Clock
+
+logger = logging.getLogger("omnican.chassis")
+
+LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
+
+Cycle = Callable[[float], None]
+
+
+class ThreadRunner:
+    """The control cycle on a thread of its own, every ``period_s`` (real time)."""
+
+    def __init__(self, period_s: float, cycle: Cycle, on_error: Callable[[], None]) -> None:
+        self.period_s = period_s
+        self.cycle = cycle  # what it calls each period (a benchmark may wrap it)
+        self._on_error = on_error
+        self.late = 0  # cycles that started more than a fifth of a period late
+        self._stop = threading.Event()
+        self._cpu_at_end = 0.0
+        self.thread = threading.Thread(target=self._run, name="omnican-loop", daemon=True)
+
+    @property
+    def running(self) -> bool:
+        return self.thread.is_alive()
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._stop.set()
+        if self.thread.is_alive():
+            self.thread.join(timeout=timeout_s)
+
+    def _run(self) -> None:
+        period = self.period_s
+        on_error = self._on_error
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now - next_t > period * LATE_FRACTION_OF_PERIOD:
+                self.late += 1
+            try:
+                self.cycle(now)
+            except Exception:  # keep stopping the base whatever went wrong
+                logger.exception("control cycle failed")
+                on_error()
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < -period:
+                next_t = time.monotonic()  # fell far behind: do not burst to catch up
+                delay = 0.0
+            if delay > 0:
+                time.sleep(delay)  # finer than Event.wait's timed lock: fewer late cycles
+        self._cpu_at_end = time.thread_time()
+
+    @property
+    def cpu_s(self) -> float:
+        """CPU seconds the loop thread has used, its wake-ups included. Read from the
+        thread's own clock, so the loop pays nothing for it."""
+        thread = self.thread
+        ident = thread.ident
+        if ident is not None and thread.is_alive() and hasattr(time, "pthread_getcpuclockid"):
+            try:
+                return time.clock_gettime(time.pthread_getcpuclockid(ident))
+            except OSError:  # it ended meanwhile
+                pass
+        return self._cpu_at_end
+
+
+class LockstepRunner:
+    """The control cycle as a task of a lock-step clock: no thread; the clock's
+    ``sleep`` runs it every ``period_s`` of simulated time."""
+
+    late = 0  # simulated time is never late
+    cpu_s = 0.0  # no thread of its own
+
+    def __init__(self, clock: Clock, period_s: float, cycle: Cycle,
+                 on_error: Callable[[], None]) -> None:
+        self.clock = clock
+        self.period_s = period_s
+        self.cycle = cycle  # what it calls each period (a benchmark may wrap it)
+        self._on_error = on_error
+        self._task: object | None = None
+
+    @property
+    def running(self) -> bool:
+        return self._task is not None
+
+    def start(self) -> None:
+        self._task = self.clock.every(self.period_s, self.step, first_s=self.clock.now())
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        if self._task is not None:
+            self.clock.cancel(self._task)
+            self._task = None
+
+    def step(self, now: float) -> None:
+        try:
+            self.cycle(now)
+        except Exception:  # keep stopping the base whatever went wrong
+            logger.exception("control cycle failed")
+            self._on_error()

@@ -1,0 +1,402 @@
+"""The one owner of every node's lifecycle: configured at startup, watched every few
+cycles (faults, heartbeats, reboots, NMT state, another master, per-cycle SDO refusals),
+configured again after a reboot or when the bus comes back, recovered, and disabled on
+the way out.
+
+Read top to bottom: :meth:`NodeSupervisor.configure_all` (startup), :meth:`check` (each
+health check, on the loop thread), :meth:`bus_went_down` / :meth:`bus_came_back`,
+:meth:`begin_recover` / :meth:`end_recover`, :meth:`disable_all` and :meth:`stop_nodes`
+(shutdown). Everything but startup and the re-configuration workers runs on the loop
+thread; the workers hand their results back through ``call_soon``.
+
+A latched stop (:attr:`latched`, its reason) holds every target at zero until
+:meth:`begin_recover` clears it.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+from omnican import cia402
+from omnican.bus import CanBus
+from omnican.cia301 import NMT_COB_ID, NMT_COMMAND_NAMES, NmtCommand, NmtState, nmt_state_name
+from omnican.cia402 import Command, State, describe_emcy
+from omnican.clock import Clock
+from omnican.drive import DriveNode
+from omnican.errors import DriveError, OmnicanError
+from omnican.logthrottle import Throttle
+from omnican.sdocycle import SDO_REQUEST_BASE, download_request
+
+logger = logging.getLogger("omnican.chassis")
+
+NMT_RESTART_S = 0.5  # a started node not yet heard OPERATIONAL is started again this often
+RECONFIGURE_ATTEMPTS = 2  # a node configured again (reboot, bus back) that fails once
+STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being configured
+# Enum members as plain names: each State.X costs a descriptor call on Python 3.11.
+_ENABLED, _FAULT, _FAULT_REACTION, _UNKNOWN = (State.OPERATION_ENABLED, State.FAULT,
+                                               State.FAULT_REACTION_ACTIVE, State.UNKNOWN)
+_PRE_OPERATIONAL, _OPERATIONAL = NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL
+_OFF = (State.SWITCH_ON_DISABLED, State.FAULT, State.UNKNOWN)
+_NMT_LOG = Throttle(logger)
+
+
+class NodeSupervisor:
+    """Every node of one base, from configuration to shutdown (see the module docstring).
+
+    ``call_soon(fn)`` runs ``fn`` on the loop thread at its next cycle."""
+
+    def __init__(self, nodes: list[DriveNode], bus: CanBus, clock: Clock,
+                 call_soon: Callable[[Callable[[], None]], None]) -> None:
+        self.nodes = nodes
+        self._bus = bus
+        self.clock = clock
+        self._lockstep = clock.lockstep
+        self._call_soon = call_soon
+        self.stages = [s for n in nodes for s in n.stages]
+        self.latched: str | None = None  # why the base is held stopped
+        self.recovering = False  # recover() under way: a silent node may come back
+        self.configuring: set[int] = set()  # nodes being configured again (workers)
+        self.offline: set[int] = set()  # nodes whose heartbeat was lost
+        self.closed = False  # the base is closing: nothing is started again
+        self.warnings: list[str] = []  # for the user, from the configuration
+        self._config_failed: set[int] = set()  # nodes whose re-configuration failed
+        self._nmt_started: dict[int, float] = {}  # when NMT start was last sent, by node
+        self._sdo_stop_sent: dict[int, float] = {}  # a quick stop by SDO, by node
+        self._sdo_aborts: dict[int, int] = {}  # per-cycle SDO aborts seen, by node
+        self._workers: list[threading.Thread] = []
+        # NMT commands heard on the bus (receive thread appends, loop pops): never ours,
+        # since a bus does not hand a sender its own frames. Another master's.
+        self._foreign_nmt: collections.deque[tuple[int, int]] = collections.deque(maxlen=64)
+        self._node_ids = frozenset(n.node_id for n in nodes)
+        bus.network.subscribe(NMT_COB_ID, self._on_nmt)
+
+    # ------------------------------------------------------------ startup
+
+    def configure_all(self) -> None:
+        """Configure every node (in parallel in real time, in order in lock-step) and
+        let their stages walk to OPERATION ENABLED, resetting faults on the way. A node
+        that reboots while being configured is configured again."""
+        warnings: list[str] = []
+        pending = list(self.nodes)
+        for _attempt in range(STARTUP_ATTEMPTS):
+            self._configure(pending, warnings)
+            # A drive that booted again while it was being configured lost part of it.
+            pending = [n for n in self.nodes if n.rebooted]
+            if not pending:
+                break
+            logger.info("nodes %s rebooted during their configuration; configuring again",
+                        [n.node_id for n in pending])
+        else:
+            raise DriveError(f"nodes {[n.node_id for n in pending]} keep rebooting while "
+                             "being configured (power supply? a watchdog of their own?)")
+        for node in self.nodes:
+            _seed_statuswords(node)
+        for w in warnings:
+            logger.warning("%s", w)
+        self.warnings = warnings
+        for stage in self.stages:
+            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+
+    def started(self) -> None:
+        """Every drive is enabled: from now on a fault latches instead of being reset."""
+        for stage in self.stages:
+            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=False)
+
+    def _configure(self, nodes: list[DriveNode], warnings: list[str]) -> None:
+        errors: list[str] = []
+
+        def note(node: DriveNode, exc: Exception) -> None:
+            errors.append(str(exc) if isinstance(exc, OmnicanError) else
+                          f"node {node.node_id}: {exc}")
+
+        if self._lockstep:  # one thread, in order: deterministic
+            for node in nodes:
+                try:
+                    node.configure(warnings)
+                except Exception as exc:
+                    note(node, exc)
+        else:
+            with ThreadPoolExecutor(len(nodes), thread_name_prefix="omnican-cfg") as ex:
+                futures = {ex.submit(n.configure, warnings): n for n in nodes}
+                for fut, node in futures.items():
+                    try:
+                        fut.result()
+                    except Exception as exc:
+                        note(node, exc)
+        if errors:
+            raise DriveError(combine_node_errors(errors, len(self.nodes)))
+
+    def not_enabled_why(self) -> str:
+        """Why the drives are not (all) enabled, for an error message."""
+        problems = [f"node {nid} heartbeat lost" for nid in sorted(self.offline)]
+        problems += [s.error for s in self.stages if s.error]
+        states = ", ".join(f"node {s.node_id}: {s.state}" for s in self.stages
+                           if s.state is not State.OPERATION_ENABLED)
+        return self.latched or "; ".join(problems) or states or "not enabled"
+
+    # ------------------------------------------------------------ health (loop thread)
+
+    def latch(self, reason: str) -> None:
+        """Hold the base stopped, for ``reason``, until recover(); the first reason stays."""
+        if self.latched is None:
+            self.latched = reason
+            logger.warning("base stopped: %s", reason)
+
+    def check(self, now: float) -> None:
+        """One health check of every node not being configured."""
+        configuring, offline, sdo_aborts = self.configuring, self.offline, self._sdo_aborts
+        if self._foreign_nmt:
+            self._foreign_nmt_seen()
+        for node in self.nodes:
+            nid = node.node_id
+            if nid in configuring:
+                continue
+            if node.boot_count != node.configured_boot:  # node.rebooted
+                self.latch(f"node {nid} rebooted")
+                self.reconfigure(node, "its reboot")
+                continue
+            nmt = node.nmt_state
+            if nmt is not None and nmt != _OPERATIONAL and not self.closed:
+                if node.seen_operational:
+                    self._left_operational(node, nmt, now)
+                elif now - self._nmt_started.get(nid, -math.inf) >= NMT_RESTART_S:
+                    # Configured and started, yet its heartbeat has never said OPERATIONAL:
+                    # the start was lost. Start it.
+                    self._start_node(node, now)
+            aborts = node.sdo_counts.aborts
+            if aborts != sdo_aborts.get(nid, 0):
+                # A drive that refuses the target written by SDO each cycle keeps turning
+                # at the last one it took: stop the base.
+                sdo_aborts[nid] = aborts
+                if aborts:
+                    self.latch(f"node {nid} refuses its per-cycle SDO transfers "
+                               f"({node.sdo_counts.last_abort})")
+            if node.heartbeat_lost(now):
+                offline.add(nid)
+                if not self.recovering:  # recover() waits for it, and says if it never came
+                    self.latch(f"node {nid} heartbeat lost")
+            elif nid in offline:  # its heartbeat is back: online again (a stop stays)
+                offline.discard(nid)
+            latched = self.latched is not None and not self.recovering
+            for stage in node.stages:
+                state = stage.state
+                if state is _ENABLED or stage.allow_fault_reset:
+                    continue  # all is well, or the stage driver resets faults (starting up)
+                if latched and stage.goal is _ENABLED and state is not _UNKNOWN:
+                    # Stopped and out of OPERATION ENABLED (a quick stop, a fault): left
+                    # de-energised until recover(), not walked back up meanwhile.
+                    stage.set_goal(State.SWITCH_ON_DISABLED)
+                if state is _FAULT or state is _FAULT_REACTION:
+                    text = node.fault_text or (describe_emcy(stage.error_value)
+                                               if stage.error_value else "no EMCY")
+                    self.latch(f"node {nid} fault: {text}")
+                elif stage.goal is _ENABLED and state is not _UNKNOWN:
+                    self.latch(f"node {nid} left OPERATION ENABLED (now {state})")
+
+    def _left_operational(self, node: DriveNode, nmt: int, now: float) -> None:
+        """It ran and left OPERATIONAL (another master, the drive itself): it ignores
+        every PDO now, the zero targets of a stop included, and sends none (its statuswords
+        are no longer news). Nothing moves again without recover(); a drive in
+        PRE-OPERATIONAL still takes SDO, so it is told to quick-stop that way."""
+        nid = node.node_id
+        self.latch(f"node {nid} left OPERATIONAL (now {nmt_state_name(nmt)})")
+        for stage in node.stages:
+            stage.statusword_value = None
+        if nmt == _PRE_OPERATIONAL and now - self._sdo_stop_sent.get(nid, -math.inf) >= \
+                NMT_RESTART_S:
+            self._sdo_stop_sent[nid] = now
+            for stage in node.stages:
+                cw = stage.controlword
+                quick_stop = cia402.apply_command(stage.cw, Command.QUICK_STOP)
+                self._bus.send(SDO_REQUEST_BASE + nid,
+                               download_request(cw.index, cw.subindex, cw.encode(quick_stop)))
+
+    def _start_node(self, node: DriveNode, now: float) -> None:
+        self._nmt_started[node.node_id] = now
+        logger.info("node %d reports %s: starting it", node.node_id,
+                    nmt_state_name(node.nmt_state or 0))
+        self._bus.send(NMT_COB_ID, bytes([NmtCommand.START, node.node_id]))
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """An NMT command on the bus (receive thread): another master's."""
+        if len(data) >= 2 and (data[1] == 0 or data[1] in self._node_ids):
+            self._foreign_nmt.append((data[0], data[1]))
+
+    def _foreign_nmt_seen(self) -> None:
+        while self._foreign_nmt:
+            command, target = self._foreign_nmt.popleft()
+            name = NMT_COMMAND_NAMES.get(command, f"0x{command:02X}")
+            whom = "all nodes" if target == 0 else f"node {target}"
+            if command == NmtCommand.START:  # changes nothing for a node that runs
+                _NMT_LOG.warning(("start", target), "another master sent NMT %s to %s",
+                                 name, whom)
+                continue
+            self.latch(f"another master sent NMT {name} to {whom}")
+
+    # ------------------------------------------------------------ configured again
+
+    def reconfigure(self, node: DriveNode, why: str) -> None:
+        """Configure ``node`` again on a worker thread (the loop goes on meanwhile, and
+        leaves that node's state machine alone until it is done)."""
+        self.configuring.add(node.node_id)
+        for stage in node.stages:
+            stage.forget()
+            stage.set_goal(State.SWITCH_ON_DISABLED)
+        for ax in node.axes:
+            ax.reseed()
+        call_soon = self._call_soon
+
+        def work() -> None:
+            try:
+                for attempt in range(RECONFIGURE_ATTEMPTS):
+                    try:
+                        node.configure()
+                        break
+                    except DriveError as exc:  # a drive still booting, an SDO lost
+                        if attempt + 1 == RECONFIGURE_ATTEMPTS or self.closed:
+                            raise
+                        logger.info("re-configuring node %d: %s; trying again", node.node_id,
+                                    exc)
+                _seed_statuswords(node)
+                logger.info("node %d re-configured after %s", node.node_id, why)
+                call_soon(lambda: self._configured(node))
+            except Exception as exc:
+                logger.error("re-configuring node %d failed: %s", node.node_id, exc)
+                call_soon(lambda: self._config_failed.add(node.node_id))
+                # Not again until the drive boots once more (it announces that itself).
+                node.configured_boot = node.boot_count
+                reason = f"re-configuring node {node.node_id} failed: {exc}"
+                call_soon(lambda: self.latch(reason))
+            finally:
+                call_soon(lambda: self.configuring.discard(node.node_id))
+
+        if self._lockstep:  # the simulated drives answer at once: no thread, no waiting
+            work()
+            return
+        t = threading.Thread(target=work, name=f"omnican-reconfigure-{node.node_id}", daemon=True)
+        self._workers = [w for w in self._workers if w.is_alive()]
+        self._workers.append(t)
+        t.start()
+
+    def _configured(self, node: DriveNode) -> None:
+        """A re-configuration ended well (loop thread): a recover() waiting for it wants
+        the node enabled."""
+        self._config_failed.discard(node.node_id)
+        if self.recovering:
+            for stage in node.stages:
+                stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+
+    def bus_went_down(self, failing: str) -> None:
+        """The cause of the lost heartbeats & co. that follow: it replaces their latch."""
+        reason = f"CAN bus down ({failing})"
+        if self.latched is not None and not self.latched.startswith("CAN bus down"):
+            logger.warning("base stopped: %s", reason)
+            self.latched = reason
+        self.latch(reason)
+
+    def bus_came_back(self) -> None:
+        """The drives stopped (or rebooted) meanwhile: every one is configured anew, and
+        recover() starts them."""
+        logger.warning("CAN bus back up; configuring every drive again")
+        for node in self.nodes:
+            if node.node_id not in self.configuring:
+                self.reconfigure(node, "the bus came back")
+
+    # ------------------------------------------------------------ recover (loop thread)
+
+    def begin_recover(self, now: float) -> None:
+        """Clear the latch: failed configurations get another go, stopped nodes are
+        started, faults are reset on the way to OPERATION ENABLED."""
+        self.recovering = True  # a silent node may come back meanwhile
+        for node in self.nodes:  # a failed configuration gets another go
+            if node.node_id in self._config_failed and node.node_id not in self.configuring:
+                self.reconfigure(node, "recover()")
+        for node in self.nodes:
+            if node.node_id in self.offline and not node.heartbeat_lost(now):
+                self.offline.discard(node.node_id)
+            if (node.node_id not in self.configuring and node.nmt_state is not None
+                    and node.nmt_state != _OPERATIONAL):
+                node.seen_operational = False  # left OPERATIONAL: start it again
+                self._start_node(node, now)
+        for stage in self.stages:
+            stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+        self.latched = None
+
+    def end_recover(self) -> None:
+        """Faults latch again; a node still silent latches its lost heartbeat."""
+        self.recovering = False
+        for stage in self.stages:
+            stage.set_goal(stage.goal, allow_fault_reset=False)
+        for nid in sorted(self.offline):
+            self.latch(f"node {nid} heartbeat lost")
+
+    # ------------------------------------------------------------ shutdown
+
+    def disable_all(self) -> None:
+        """Every stage towards SWITCH ON DISABLED (loop thread)."""
+        for stage in self.stages:
+            stage.set_goal(State.SWITCH_ON_DISABLED)
+
+    def all_disabled(self) -> bool:
+        return all(s.state in _OFF for s in self.stages)
+
+    def join_workers(self, timeout_s: float) -> None:
+        for t in self._workers:
+            t.join(timeout=timeout_s)
+
+    def stop_nodes(self, bus_works: bool) -> None:
+        """Each reachable node: disabled by SDO where the loop could not, consumer off,
+        PRE-OPERATIONAL (the loop has stopped)."""
+        for node in self.nodes:
+            if node.node_id not in self.offline and bus_works:
+                node.stop()
+
+    def still_powered(self) -> list[str]:
+        """Drives not confirmed disabled, for the closing line."""
+        return [f"node {st.node_id} ({st.state})" for st in self.stages
+                if st.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)]
+
+    def detach(self) -> None:
+        self._bus.network.unsubscribe(NMT_COB_ID, self._on_nmt)
+        for node in self.nodes:
+            node.detach()
+
+
+def _seed_statuswords(node: DriveNode) -> None:
+    """Read each statusword once by SDO: a drive need not send its event TPDO at start."""
+    for stage in node.stages:
+        sw = stage.statusword
+        try:
+            raw = node.remote.sdo.upload(sw.index, sw.subindex)
+        except Exception as exc:  # the TPDO will tell; this is only a head start
+            logger.debug("node %d: statusword read failed: %s", node.node_id, exc)
+            continue
+        if stage.statusword_value is None:
+            stage.statusword_value = sw.decode(raw) & 0xFFFF
+
+
+def combine_node_errors(errors: list[str], nodes: int) -> str:
+    """``node 1: X; node 2: X`` as ``nodes 1, 2: X``: one reason said once; when no node
+    at all sent its boot-up, say there is no drive on the bus."""
+    groups: dict[str, list[str]] = {}
+    for error in errors:
+        head, sep, reason = error.partition(": ")
+        if sep and head.startswith("node ") and head[5:].isdigit():
+            groups.setdefault(reason, []).append(head[5:])
+        else:
+            groups.setdefault(error, [])
+    parts = []
+    for reason, ids in groups.items():
+        if len(ids) > 1:
+            parts.append(f"nodes {', '.join(ids)}: {reason}")
+        else:
+            parts.append(f"node {ids[0]}: {reason}" if ids else reason)
+    text = "; ".join(parts)
+    if len(groups) == 1 and len(errors) == nodes and "no boot-up" in text:
+        text = f"no drive answered on the bus: {text}"
+    return text

@@ -1,0 +1,161 @@
+"""One CANopen node driving one or more wheels (axes), on a live network: what it is
+made of and what it tells (heartbeats, boot-ups, EMCYs).
+
+A :class:`DriveNode` composes the CiA 402 stage drivers (:mod:`omnican.drive.stage`),
+its cyclic frames (:mod:`omnican.drive.cyclic`) and its SDO configuration
+(:mod:`omnican.drive.setup`). Frame handlers run on the receiving thread and only copy
+values; the control loop calls :attr:`DriveNode.cyclic_frames` and
+:attr:`DriveNode.controlword_frame` once a cycle.
+
+Units: m/s at the rim <-> drive velocity units (``velocity_scale``); encoder counts
+-> continuous metres of travel across counter wrap-around and drive reboots.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Sequence
+
+import can
+import canopen
+from canopen.emcy import EmcyError
+
+from omnican import cia402, heartbeat
+from omnican.cia301 import HEARTBEAT_BASE, NMT_STATE_MASK, NmtState
+from omnican.clock import REAL_TIME, Clock
+from omnican.drive.cyclic import AxisIO, CyclicIO, EpochSource, SdoCounts
+from omnican.drive.setup import NodeSetup
+from omnican.drive.stage import StageDriver
+from omnican.layout import NodeLayout
+from omnican.logthrottle import Throttle
+from omnican.pdoplan import NodePlan
+
+logger = logging.getLogger("omnican.drive")
+
+_EMCY_KEPT = 32  # EMCYs canopen keeps per node (its log and active list), newest last
+LOCKSTEP_SDO_WAIT_S = 0.001  # lock-step: an answer is in the queue when its request was sent
+
+
+class DriveNode:
+    """One node of the base, with the wheels (axes) it drives, on a live network."""
+
+    cyclic_frames: Callable[[Sequence[float]], list[tuple[can.Message, int]]]
+    controlword_frame: Callable[[StageDriver], tuple[can.Message, int] | None]
+
+    def __init__(self, network: canopen.Network, layout: NodeLayout,
+                 epoch_source: EpochSource, clock: Clock = REAL_TIME) -> None:
+        self.layout = layout
+        self.clock = clock
+        self.node_id = node_id = layout.node_id
+        self.settings = settings = layout.settings
+        self.network = network
+        self.dictionary = layout.dictionary
+        self.eds_name = layout.eds.name
+        self.mode = layout.mode
+        self.has_consumer = layout.has_consumer
+        self.plan = layout.plan
+        self.remote = canopen.RemoteNode(node_id, self.dictionary)
+        # canopen's MAX_RETRIES counts attempts, not retries. In lock-step an answer arrives
+        # inside its request's send, or never: nothing to wait for.
+        self.remote.sdo.RESPONSE_TIMEOUT = (LOCKSTEP_SDO_WAIT_S if clock.lockstep
+                                            else settings.sdo_timeout_s)
+        self.remote.sdo.MAX_RETRIES = settings.sdo_retries + 1
+        network.add_node(self.remote)
+        self.stages = [StageDriver(node_id, s.controlword, s.statusword, s.mode, s.mode_display,
+                                   s.error_code, settings.enable_timeout_s)
+                       for s in layout.stages]
+        self.axes = [AxisIO(a.wheel_index, a.wheel, a.objs, a.target, a.position,
+                            self.stages[a.stage]) for a in layout.axes]
+        self.io = CyclicIO(network, self.remote, node_id, self.axes, self.stages, epoch_source,
+                           settings, clock)
+        # The loop's two calls, bound once: no call of ours between it and the frames.
+        self.cyclic_frames = self.io.cyclic_frames
+        self.controlword_frame = self.io.controlword_frame
+        self.sdo_counts: SdoCounts = self.io.build(self.plan)
+        self._setup = NodeSetup(self)
+        # Liveness and events (Notifier thread writes; loop reads).
+        self.last_heartbeat: float | None = None
+        self.nmt_state: int | None = None
+        # Heard OPERATIONAL since its configuration: a node that then reports another
+        # state left OPERATIONAL (another master, its own doing); one that never did may
+        # only have missed its start.
+        self.seen_operational = False
+        self.twins = False  # two devices answer as this node: never configured, never talked to
+        # Boot-ups seen (only the Notifier thread writes it) and the one the present
+        # configuration followed (only the configuring thread writes it): a drive that
+        # booted since it was configured has lost its configuration.
+        self.boot_count = 0
+        self.configured_boot = 0
+        self._boot_seen = threading.Condition()
+        self.emcy: EmcyError | None = None
+        self._emcy_log = Throttle(logger, clock=clock.now)
+        self.fault_text: str | None = None
+        self._hb_timeout = heartbeat.timeout_s(settings.heartbeat_ms / 1000.0,
+                                               settings.heartbeat_timeout_factor)
+        network.subscribe(HEARTBEAT_BASE + node_id, self._on_heartbeat)
+        self.remote.emcy.add_callback(self._on_emcy)
+
+    def configure(self, warn: list[str] | None = None) -> None:
+        """Reset communication, configure in PRE-OPERATIONAL, start (see
+        :meth:`omnican.drive.setup.NodeSetup.configure`)."""
+        self._setup.configure(warn)
+
+    def use_plan(self, plan: NodePlan) -> None:
+        """The PDO plan the drive took (the planned one, or its own mapping)."""
+        self.plan = plan
+        self.sdo_counts = self.io.build(plan)
+
+    def stop(self) -> None:
+        """Disable any power stage not known to be off, stop watching the host (consumer
+        off) and leave OPERATIONAL; best effort."""
+        self._setup.stop()
+
+    # ------------------------------------------------------------ events
+
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if not data:
+            return
+        state = data[0] & NMT_STATE_MASK
+        self.last_heartbeat = self.clock.now()
+        self.nmt_state = state
+        if state == NmtState.OPERATIONAL:
+            self.seen_operational = True
+        if state == 0:
+            with self._boot_seen:
+                self.boot_count += 1
+                self._boot_seen.notify_all()
+
+    @property
+    def rebooted(self) -> bool:
+        """The drive booted since its configuration (so it lost that configuration)."""
+        return self.boot_count != self.configured_boot
+
+    def _on_emcy(self, error: EmcyError) -> None:
+        emcy = self.remote.emcy  # canopen keeps every EMCY: a storm would fill the memory
+        with emcy.emcy_received:
+            for kept in (emcy.log, emcy.active):
+                if len(kept) > _EMCY_KEPT:
+                    del kept[:-_EMCY_KEPT]
+        if error.code == 0:
+            self.fault_text = None
+        else:
+            self.emcy = error
+            self.fault_text = cia402.describe_emcy(error.code)
+            # A drive in an EMCY storm (or a device imitating one) gets a line every few
+            # seconds per code, with a count, not one per frame.
+            self._emcy_log.warning(error.code, "node %d EMCY %s", self.node_id, self.fault_text)
+
+    def heartbeat_lost(self, now: float) -> bool:
+        if self.last_heartbeat is None:
+            return False
+        return now - self.last_heartbeat > self._hb_timeout
+
+
+    def detach(self) -> None:
+        self._emcy_log.flush()
+        self.io.detach()
+        if self._on_heartbeat in self.network.subscribers.get(HEARTBEAT_BASE + self.node_id, []):
+            self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self._on_heartbeat)
+        if self.node_id in self.network.nodes:
+            del self.network[self.node_id]

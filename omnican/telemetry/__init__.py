@@ -1,0 +1,26 @@
+"""What the front ends publish about the base, built once for all of them.
+
+:mod:`~omnican.telemetry.messages` builds each message from a sample (pure);
+:mod:`~omnican.telemetry.covariance` is the odometry's uncertainty;
+:mod:`~omnican.telemetry.model` keeps what spans samples (:class:`Telemetry`);
+:mod:`~omnican.telemetry.frames` makes CAN frames into messages, raw and decoded;
+:mod:`~omnican.telemetry.feed` is the one feed front ends subscribe to (:class:`Feed`);
+:mod:`~omnican.telemetry.settings` reads from the config what they all say alike.
+"""
+
+from omnican.telemetry.feed import Feed, Sink
+from omnican.telemetry.messages import (
+           CAN_FRAME,
+           CAN_RX,
+           CAN_TX,
+           JSON,
+           JSON_SCHEMAS,
+           ROS2,
+           TOPICS,
+           Sample,
+)
+from omnican.telemetry.model import Message, Telemetry
+from omnican.telemetry.settings import TelemetrySettings
+
+__all__ = ["CAN_FRAME", "CAN_RX", "CAN_TX", "JSON", "JSON_SCHEMAS", "ROS2", "TOPICS", "Feed",
+           "Message", "Sample", "Sink", "Telemetry", "TelemetrySettings"]

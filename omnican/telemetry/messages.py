@@ -1,0 +1,337 @@
+"""Every message a front end publishes about the base, built from one :class:`Sample`.
+
+Pure: a sample in, plain values out. ROS 2 messages (``nav_msgs/msg/Odometry``,
+``tf2_msgs/msg/TFMessage``, ``sensor_msgs/msg/JointState``,
+``diagnostic_msgs/msg/DiagnosticArray``, ``geometry_msgs/msg/PoseStamped``,
+``can_msgs/msg/Frame``) are nested dicts with the message's field names; the rest are
+JSON objects with a JSON schema each (Foxglove's plot and state-transition panels read
+any field of them). The ROS 2 bridge, the live view and the MCAP recorder serialize
+these and build nothing of their own, so they say the same thing at the same moment.
+
+Frames follow REP-103/REP-105: ``odom`` is the fixed odometry frame, ``base_link`` the
+body; twists are in the body frame. SI units throughout. Stamps are the sample's: the
+time of the clock the base runs on (wall time in real time, the simulated clock's under
+``--fast``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from omnican.cia402 import State
+from omnican.kinematics import Twist
+from omnican.odometry import Pose2D
+from omnican.state import ChassisStatus, WheelState
+from omnican.telemetry.settings import TelemetrySettings
+
+# diagnostic_msgs/msg/DiagnosticStatus levels
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
+#: Bus load above this fraction of the bitrate is a warning.
+BUS_LOAD_WARN = 0.7
+
+
+@dataclass(frozen=True)
+class Sample:
+    """The base at one control cycle, stamped: what every message of it is made from.
+    ``stamp_ns``: ns since the epoch on the base's clock. Without a base (the simulator
+    alone) only the truth is set."""
+
+    stamp_ns: int
+    pose: Pose2D | None
+    twist: Twist | None  # measured, body frame
+    command: Twist | None  # applied this cycle (after the limits), body frame
+    wheels: tuple[WheelState, ...]
+    status: ChassisStatus | None
+    true_pose: Pose2D | None = None  # the simulator's ground truth
+    true_twist: Twist | None = None
+
+
+# ------------------------------------------------------------------ pieces
+
+
+def stamp(ns: int) -> dict[str, int]:
+    """builtin_interfaces/msg/Time of a time in ns since the epoch."""
+    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
+
+
+def json_time(ns: int) -> dict[str, int]:
+    """Foxglove's JSON time (sec, nsec)."""
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def yaw_quaternion(theta: float) -> dict[str, float]:
+    """A rotation of ``theta`` about z."""
+    half = 0.5 * theta
+    return {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)}
+
+
+def quaternion_yaw(x: float, y: float, z: float, w: float) -> float:
+    """The yaw (rotation about z) of a quaternion, in (-pi, pi]."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _vector(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> dict[str, float]:
+    return {"x": x, "y": y, "z": z}
+
+
+def _header(ns: int, frame: str) -> dict[str, Any]:
+    return {"stamp": stamp(ns), "frame_id": frame}
+
+
+def _pose(p: Pose2D) -> dict[str, Any]:
+    return {"position": _vector(p.x, p.y), "orientation": yaw_quaternion(p.theta)}
+
+
+# ------------------------------------------------------------------ ROS 2 messages
+
+
+def odometry(s: Sample, settings: TelemetrySettings, pose_covariance: Sequence[float],
+             twist_covariance: Sequence[float]) -> dict[str, Any]:
+    """nav_msgs/msg/Odometry: pose in the odom frame, twist in the body frame, with the
+    dead-reckoning covariances (:mod:`omnican.telemetry.covariance`)."""
+    assert s.pose is not None and s.twist is not None
+    t = s.twist
+    return {
+        "header": _header(s.stamp_ns, settings.odom_frame),
+        "child_frame_id": settings.base_frame,
+        "pose": {"pose": _pose(s.pose), "covariance": list(pose_covariance)},
+        "twist": {"twist": {"linear": _vector(t.vx, t.vy), "angular": _vector(z=t.wz)},
+                  "covariance": list(twist_covariance)},
+    }
+
+
+def transforms(s: Sample, settings: TelemetrySettings) -> dict[str, Any]:
+    """tf2_msgs/msg/TFMessage: the one transform odom -> base_link."""
+    assert s.pose is not None
+    p = s.pose
+    return {"transforms": [{
+        "header": _header(s.stamp_ns, settings.odom_frame),
+        "child_frame_id": settings.base_frame,
+        "transform": {"translation": _vector(p.x, p.y), "rotation": yaw_quaternion(p.theta)},
+    }]}
+
+
+def pose_stamped(ns: int, pose: Pose2D, frame: str) -> dict[str, Any]:
+    """geometry_msgs/msg/PoseStamped (the 3D panel draws it as an arrow)."""
+    return {"header": _header(ns, frame), "pose": _pose(pose)}
+
+
+def joint_states(s: Sample, settings: TelemetrySettings) -> dict[str, Any] | None:
+    """sensor_msgs/msg/JointState, one revolute joint per wheel (the configured names):
+    angle (rad) and angular speed (rad/s) from rim travel and rim speed, positive in the
+    wheel's drive direction. None when the wheel radius is unknown."""
+    radii = settings.wheel_radii
+    if radii is None or len(radii) != len(s.wheels):
+        return None
+    return {
+        "header": _header(s.stamp_ns, ""),
+        "name": [settings.joint_names[w.index] for w in s.wheels],
+        "position": [w.travel / r for w, r in zip(s.wheels, radii, strict=True)],
+        "velocity": [w.actual_speed / r for w, r in zip(s.wheels, radii, strict=True)],
+        "effort": [],
+    }
+
+
+def _text(value: Any, spec: str = ".6g") -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return format(value, spec)
+    return str(value)
+
+
+def _status(level: int, name: str, message: str, hardware_id: str,
+            values: Sequence[tuple[str, Any]]) -> dict[str, Any]:
+    return {"level": level, "name": name, "message": message, "hardware_id": hardware_id,
+            "values": [{"key": k, "value": _text(v)} for k, v in values]}
+
+
+def chassis_status(st: ChassisStatus, prefix: str) -> dict[str, Any]:
+    """The base as a whole: enabled, why it is held stopped, loop rate, command age."""
+    reason = st.stopped_reason
+    if reason:
+        level, message = ERROR, f"stopped: {reason} (recover to clear)"
+    elif not st.enabled:
+        level, message = WARN, "drives not enabled"
+    elif st.warnings:
+        level, message = WARN, "; ".join(st.warnings)
+    else:
+        level, message = OK, "enabled"
+    values: list[tuple[str, Any]] = [
+        ("enabled", st.enabled), ("stopped_reason", reason), ("loop_hz", st.loop_hz),
+        ("late_fraction", st.late_fraction), ("cycles", st.cycles),
+        ("command_age_s", min(st.command_age_s, 1e9))]
+    values += [(f"warning_{i}", w) for i, w in enumerate(st.warnings)]
+    return _status(level, f"{prefix}: chassis", message, "omnican", values)
+
+
+def bus_status(st: ChassisStatus, prefix: str, channel: str) -> dict[str, Any]:
+    """The CAN bus: up or down, load, bit rate, the last error."""
+    load, error = st.bus_load, st.bus_error
+    if not st.bus_up:
+        level, message = ERROR, f"bus down: {error or 'reopening'}"
+    elif load is not None and load > BUS_LOAD_WARN:
+        level, message = WARN, f"bus load {load:.0%}"
+    else:
+        level = OK
+        message = "bus load " + (f"{load:.0%}" if load is not None else "unknown (no bitrate)")
+    return _status(level, f"{prefix}: CAN bus", message, channel or "can",
+                   [("bus_up", st.bus_up), ("bus_load", load),
+                    ("bus_bits_per_s", st.bus_bits_per_s), ("bus_error", error)])
+
+
+def wheel_level(w: WheelState) -> tuple[int, str]:
+    """A wheel's diagnostic level and message."""
+    if w.fault or w.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+        return ERROR, f"fault: {w.fault or w.state}"
+    if not w.online:
+        return ERROR, "offline (no heartbeat)"
+    if w.error:
+        return ERROR, w.error
+    if w.state is not State.OPERATION_ENABLED:
+        return WARN, str(w.state)
+    if w.stale:
+        return WARN, "no fresh encoder sample"
+    return OK, str(w.state)
+
+
+def wheel_status(w: WheelState, prefix: str, joint: str) -> dict[str, Any]:
+    """One wheel's drive: CiA 402 state, faults (with the EMCY text), speeds, travel."""
+    level, message = wheel_level(w)
+    hardware = f"canopen node {w.node_id}" + (f" axis {w.axis}" if w.axis else "")
+    return _status(level, f"{prefix}: wheel {w.index} ({joint})", message, hardware, [
+        ("state", str(w.state)),
+        ("statusword", f"0x{w.statusword:04X}" if w.statusword is not None else None),
+        ("mode", w.mode), ("target_speed_m_s", w.target_speed),
+        ("actual_speed_m_s", w.actual_speed), ("travel_m", w.travel), ("online", w.online),
+        ("stale", w.stale), ("fault", w.fault), ("error", w.error)])
+
+
+def diagnostics(s: Sample, settings: TelemetrySettings) -> dict[str, Any]:
+    """diagnostic_msgs/msg/DiagnosticArray: the base, the CAN bus, one status per wheel."""
+    assert s.status is not None
+    prefix = settings.prefix
+    statuses = [chassis_status(s.status, prefix),
+                bus_status(s.status, prefix, settings.channel)]
+    statuses += [wheel_status(w, prefix, settings.joint_names[w.index]) for w in s.wheels]
+    return {"header": _header(s.stamp_ns, ""), "status": statuses}
+
+
+def diagnostics_signature(message: dict[str, Any]) -> tuple[tuple[int, str], ...]:
+    """What a change of is published at once: each status's level and message."""
+    return tuple((st["level"], st["message"]) for st in message["status"])
+
+
+# ------------------------------------------------------------------ JSON topics
+
+
+def _twist_json(t: Twist) -> dict[str, float]:
+    return {"vx": t.vx, "vy": t.vy, "wz": t.wz}
+
+
+def pose2d(ns: int, p: Pose2D) -> dict[str, Any]:
+    """The 2D pose as numbers to plot: theta continuous (rad), heading wrapped (deg)."""
+    return {"timestamp": json_time(ns), "x": p.x, "y": p.y, "theta": p.theta,
+            "heading_deg": math.degrees(p.heading)}
+
+
+def twist(s: Sample) -> dict[str, Any]:
+    """Commanded (applied after the limits) against measured body velocity."""
+    assert s.command is not None and s.twist is not None
+    out: dict[str, Any] = {"timestamp": json_time(s.stamp_ns), "command": _twist_json(s.command),
+                           "measured": _twist_json(s.twist)}
+    if s.true_twist is not None:
+        out["true"] = _twist_json(s.true_twist)
+    return out
+
+
+def wheels(s: Sample) -> dict[str, Any]:
+    return {"timestamp": json_time(s.stamp_ns), "wheels": [{
+        "index": w.index, "node_id": w.node_id, "axis": w.axis,
+        "state": "OFFLINE" if not w.online else str(w.state),
+        "statusword": w.statusword if w.statusword is not None else -1,
+        "target_speed": w.target_speed, "actual_speed": w.actual_speed, "travel": w.travel,
+        "online": w.online, "stale": w.stale,
+        "fault": w.fault or "", "error": w.error or "",
+    } for w in s.wheels]}
+
+
+def status(s: Sample) -> dict[str, Any]:
+    st = s.status
+    assert st is not None
+    return {"timestamp": json_time(s.stamp_ns), "enabled": st.enabled,
+            "state": "STOPPED" if st.stopped_reason else "RUNNING" if st.enabled else "STARTING",
+            "stopped_reason": st.stopped_reason or "", "loop_hz": st.loop_hz,
+            "late_fraction": st.late_fraction, "cycles": st.cycles,
+            "bus_load": st.bus_load if st.bus_load is not None else -1.0,
+            "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
+            "bus_up": st.bus_up,
+            "command_age_s": min(st.command_age_s, 1e9)}
+
+
+_NUM = {"type": "number"}
+_STR = {"type": "string"}
+_INT = {"type": "integer"}
+_BOOL = {"type": "boolean"}
+_TIME = {"type": "object", "properties": {"sec": _INT, "nsec": _INT}}
+_TWIST = {"type": "object", "properties": {"vx": _NUM, "vy": _NUM, "wz": _NUM}}
+
+
+def _object(title: str, **props: Any) -> dict[str, Any]:
+    return {"title": title, "type": "object", "properties": {"timestamp": _TIME, **props}}
+
+
+#: JSON schema of each JSON message kind (Foxglove wants one per channel).
+JSON_SCHEMAS: dict[str, dict[str, Any]] = {
+    "omnican.Pose2D": _object("omnican.Pose2D", x=_NUM, y=_NUM, theta=_NUM, heading_deg=_NUM),
+    "omnican.Twist": _object("omnican.Twist", command=_TWIST, measured=_TWIST, true=_TWIST),
+    "omnican.Wheels": _object("omnican.Wheels", wheels={"type": "array", "items": {
+        "type": "object", "properties": {
+            "index": _INT, "node_id": _INT, "axis": _INT, "state": _STR, "statusword": _INT,
+            "target_speed": _NUM, "actual_speed": _NUM, "travel": _NUM, "online": _BOOL,
+            "stale": _BOOL, "fault": _STR, "error": _STR}}}),
+    "omnican.Status": _object("omnican.Status", enabled=_BOOL, state=_STR, stopped_reason=_STR,
+                              loop_hz=_NUM, late_fraction=_NUM, cycles=_INT, bus_load=_NUM,
+                              bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL,
+                              command_age_s=_NUM),
+}
+
+
+# ------------------------------------------------------------------ the topics
+
+ROS2, JSON = "ros2", "json"
+
+#: topic -> (schema name, kind): the state topics every front end may carry.
+TOPICS: dict[str, tuple[str, str]] = {
+    "/odom": ("nav_msgs/msg/Odometry", ROS2),
+    "/tf": ("tf2_msgs/msg/TFMessage", ROS2),
+    "/joint_states": ("sensor_msgs/msg/JointState", ROS2),
+    "/diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", ROS2),
+    "/pose2d": ("omnican.Pose2D", JSON),
+    "/twist": ("omnican.Twist", JSON),
+    "/wheels": ("omnican.Wheels", JSON),
+    "/status": ("omnican.Status", JSON),
+    "/sim/true_pose": ("geometry_msgs/msg/PoseStamped", ROS2),
+    "/sim/pose2d": ("omnican.Pose2D", JSON),
+}
+#: raw CAN frames, named as ROS 2's socketcan bridge names them (received / sent by us)
+CAN_RX, CAN_TX = "/from_can_bus", "/to_can_bus"
+CAN_FRAME = "can_msgs/msg/Frame"
+#: each frame the base's DBC describes, decoded: /can/<message name>
+CAN_DECODED_PREFIX = "/can/"
+
+
+def can_frame(timestamp_s: float, can_id: int, data: bytes, *, extended: bool = False,
+              remote: bool = False, error: bool = False, channel: str = "") -> dict[str, Any]:
+    """can_msgs/msg/Frame (8 data bytes, zero-padded; ``dlc`` says how many count)."""
+    ns = round(timestamp_s * 1e9)
+    payload = bytes(data[:8])
+    return {"header": _header(ns, channel), "id": can_id, "is_rtr": remote,
+            "is_extended": extended, "is_error": error, "dlc": len(payload),
+            "data": list(payload.ljust(8, b"\0"))}
