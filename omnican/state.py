@@ -65,12 +65,13 @@ class ChassisStatus:
     can_error_frames: int = 0
     estop: bool = False  # an e-stop is pressed (the [estop] input)
     battery_v: float | None = None  # the base's DC link: the median of its drives'
+    battery: str | None = None  # "ok", "low" or "cutoff" ([power]); None: no [power] table
 
 
 #: The health part of a snapshot before anything was read: per wheel (current, torque,
 #: voltage, temperature, error register), then (CAN state, tx and rx counters, error
-#: frames, e-stop, battery, health warnings).
-NO_STATUS_HEALTH: tuple[Any, ...] = (None, None, None, 0, False, None, ())
+#: frames, e-stop, battery voltage and level, health warnings).
+NO_STATUS_HEALTH: tuple[Any, ...] = (None, None, None, 0, False, None, None, ())
 
 
 def no_health(wheels: int) -> tuple[tuple[tuple[Any, ...], ...], tuple[Any, ...]]:

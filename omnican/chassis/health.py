@@ -121,18 +121,20 @@ class HealthMonitor:
         volts = base_voltage(h.si(r, now) for h, r in self._voltages) if self._voltages else None
         warnings: tuple[str, ...] = ()
         battery = self.battery
+        level = None
         if battery is not None:
             if battery.update(now, volts) and not sup.closed:
                 sup.latch(battery.cutoff_reason())
             warning = battery.warning()
             if warning:
                 warnings = (warning,)
+            level = "cutoff" if battery.cut else "low" if battery.low else "ok"
         self._check_controller(sup)
         self._check_tracking(now, sup)
         can = self._bus.controller.state
         seen = can.error_frames > 0
         self.values = (wheel_values, (can.state if seen else None, can.tx_errors,
-                                      can.rx_errors, can.error_frames, pressed, volts,
+                                      can.rx_errors, can.error_frames, pressed, volts, level,
                                       warnings))
 
     # ------------------------------------------------------------ the checks
