@@ -191,6 +191,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                             "wheel_radius (no joint_states without one)"),
         "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
         "diagnostics_rate_hz": Key(_NUM, 1.0, "diagnostics rate (and at once on a change)"),
+        "battery_state_topic": Key((str,), "battery_state", "sensor_msgs/BatteryState out: the "
+                                   "drives' DC link (when they report one)"),
+        "battery_state_rate_hz": Key(_NUM, 1.0, "battery_state publish rate"),
         "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
         "odom_slip": Key(_NUM, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
                          "(covariances)"),
