@@ -299,9 +299,6 @@ class SimulatedBase:
         self.close()
 
 
-_STANDARD = frozenset({int(Obj.CURRENT_ACTUAL), int(Obj.TORQUE_ACTUAL), int(Obj.DC_LINK_VOLTAGE)})
-
-
 def _health_wiring(cfg: ChassisConfig, true_scale: Sequence[float]) -> dict[int, dict[str, Any]]:
     """Per node, what the drives need to report as ``cfg`` reads them: each axis's counts
     per metre (the motor current follows the wheel's motion), the vendor objects the
@@ -315,10 +312,12 @@ def _health_wiring(cfg: ChassisConfig, true_scale: Sequence[float]) -> dict[int,
         per_m = [0.0] * n_axes
         for a in layout.axes:
             per_m[a.wheel.axis] = a.wheel.position_scale * true_scale[a.wheel_index]
+        # A config's scale says the object's unit: the simulator serves it so (6078h and
+        # 6077h count per mille whatever: their scale is the rated current's).
         signals = {r.key: (r.quantity, axes[r.wheels[0]], r.scale)
                    for r in layout.health.reads
                    if r.quantity in QUANTITIES and r.scale is not None and
-                   r.entry.index not in _STANDARD}
+                   not (r.quantity == "torque" and r.entry.obj is Obj.TORQUE_ACTUAL)}
         options: dict[str, Any] = {"counts_per_m": per_m, "signals": signals}
         entry, estop = layout.estop_entry, layout.estop
         if estop is not None and entry is not None:
