@@ -34,7 +34,7 @@ ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b[()][A-Z0-9]|\x1b[=>]")
 def test_drive_json_under_sim(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["drive", "--sim", "--vx", "0.3", "--duration", "0.6", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"pose", "twist", "duration_s", "true_pose"}
+    assert set(out) == {"pose", "twist", "duration_s", "true_pose", "wheels"}
     assert out["pose"]["x"] > 0.1
     assert abs(out["pose"]["y"]) < 0.005
     assert out["pose"]["x"] == pytest.approx(out["true_pose"]["x"], abs=0.005)
@@ -222,9 +222,9 @@ def test_scan_flags_a_missing_node(tmp_path: Path, capsys: pytest.CaptureFixture
 
     real = scan_cli.scan
 
-    def without_node_4(cfg, listen_s, sdo_timeout):  # type: ignore[no-untyped-def]
+    def without_node_4(cfg, listen_s, sdo_timeout, layouts):  # type: ignore[no-untyped-def]
         sims[0].drives[3].freeze()  # powered off, as far as the bus can tell
-        return real(cfg, listen_s, sdo_timeout)
+        return real(cfg, listen_s, sdo_timeout, layouts)
 
     monkeypatch.setattr(scan_cli, "scan", without_node_4)
     assert main(["scan", "--sim", "--config", str(cfg), "--listen", "0.2"]) == 1
