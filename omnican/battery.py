@@ -12,7 +12,6 @@ moves nothing). Pure: no I/O, no clock.
 
 from __future__ import annotations
 
-import statistics
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -21,8 +20,11 @@ from omnican.config import PowerSettings
 
 def base_voltage(volts: Iterable[float | None]) -> float | None:
     """The median of the drives' DC link voltages that are known (None: none is)."""
-    known = [v for v in volts if v is not None]
-    return statistics.median(known) if known else None
+    known = sorted(v for v in volts if v is not None)
+    if not known:
+        return None
+    mid = len(known) // 2
+    return known[mid] if len(known) % 2 else 0.5 * (known[mid - 1] + known[mid])
 
 
 @dataclass

@@ -101,7 +101,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                            "and what that lacks goes by SDO every cycle), \"eds\" sends them by "
                            "SDO every cycle, \"sdo\" sends targets and positions by SDO every "
                            "cycle"),
-        "health_rate_hz": Key(_NUM, 10.0, "how often each drive's current, torque, voltage, "
+        "health_rate_hz": Key(_NUM, 5.0, "how often each drive's current, torque, voltage, "
                               "temperature, error register and e-stop input are read"),
         "tracking_error": Key(_NUM, 0.1, "m/s: a wheel whose measured speed stays this far "
                               "outside what its target was over the last tracking_lag_s "

@@ -84,13 +84,15 @@ class TrackingDetector:
             history.popleft()
         out = []
         since = self._since
-        for i in range(self.wheels):
+        error = self.error
+        # Each wheel's targets over the window, in one pass (a few entries, at the check rate).
+        columns = zip(*[t for _, t in history], strict=True)
+        for i, column in enumerate(columns):
             if not fresh[i]:
                 since[i] = None
                 continue
-            lo, hi = self.band(i)
             speed = measured[i]
-            if lo <= speed <= hi:
+            if min(column) - error <= speed <= max(column) + error:
                 since[i] = None
                 continue
             start = since[i]
@@ -98,6 +100,6 @@ class TrackingDetector:
                 since[i] = now
                 continue
             if now - start >= self.time_s:
-                zero = all(abs(t[i]) < ZERO_M_S for _, t in history)
+                zero = max(map(abs, column)) < ZERO_M_S
                 out.append(NotFollowing(i, targets[i], speed, now - start, zero))
         return out

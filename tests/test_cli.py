@@ -166,10 +166,10 @@ def test_check_config_prints_plan_and_load(capsys: pytest.CaptureFixture[str]) -
     assert "RPDO2 0x301 every SYNC, 4 bytes: Target velocity (0x60FF:00)" in out
     assert "TPDO2 0x283 every SYNC, 4 bytes: Position actual value (0x6064:00)" in out
     assert "625 worst-case bits per cycle" in out
-    # The health values every 10th SYNC: two 8- and 5-byte TPDOs per node at 10 Hz.
-    assert ("health TPDO3 0x381 every 10 SYNCs, 8 bytes: Current actual value (0x6078:00), "
+    # The health values every 20th SYNC: two 8- and 5-byte TPDOs per node at 5 Hz.
+    assert ("health TPDO3 0x381 every 20 SYNCs, 8 bytes: Current actual value (0x6078:00), "
             "Torque actual value (0x6077:00), DC link circuit voltage (0x6079:00)") in out
-    assert "health reads (10 Hz): 7.20 kbit/s of that, 1.44% of 500 kbit/s" in out
+    assert "health reads (5 Hz): 3.60 kbit/s of that, 0.72% of 500 kbit/s" in out
     assert "bus load at 500 kbit/s: 14%" in out
 
 

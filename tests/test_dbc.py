@@ -77,7 +77,7 @@ def test_every_planned_pdo_of_nodes_1_to_3_is_in_the_dbc(db: Any) -> None:
             assert signal.byte_order == "little_endian", what
             assert signal.scale == 1 and signal.offset == 0, what
             start += entry.bits
-        # 100 Hz SYNC: every SYNC 10 ms, the health TPDOs every 10th
+        # 100 Hz SYNC: every SYNC 10 ms, the health TPDOs every 20th
         assert message.cycle_time == (10 * pdo.trans_type if pdo.cyclic else None), where
 
 

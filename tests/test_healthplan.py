@@ -32,13 +32,13 @@ def test_the_demo_base_reads_its_health_in_two_tpdos_every_tenth_sync() -> None:
     for layout in node_layouts(default_config()):
         plan = layout.health
         assert [p.number for p in plan.pdos] == [3, 4]
-        assert all(p.trans_type == 10 for p in plan.pdos)  # 100 Hz loop, 10 Hz reads
+        assert all(p.trans_type == 20 for p in plan.pdos)  # 100 Hz loop, 5 Hz reads
         assert [e.index for e in plan.pdos[0].entries] == [0x6078, 0x6077, 0x6079]
         assert [e.index for e in plan.pdos[1].entries] == [0x2100, 0x1001, 0x60FD]
         assert plan.sdo == ()
         assert 3 not in layout.plan.unused_tpdos  # so they are not disabled
-        # Two frames of 8 and 7 bytes, 10 times a second.
-        assert plan.bits_per_s(100.0) == pytest.approx(10 * (135 + 125))
+        # Two frames of 8 and 7 bytes, 5 times a second.
+        assert plan.bits_per_s(100.0) == pytest.approx(5 * (135 + 125))
 
 
 @pytest.mark.parametrize("rate", [50.0, 100.0, 1000.0, 5000.0])
@@ -46,7 +46,7 @@ def test_the_health_tpdos_go_at_the_health_rate_whatever_the_loop_rate(rate: flo
     cfg = default_config()
     cfg = replace(cfg, chassis=replace(cfg.chassis, rate_hz=rate))
     plan = node_layouts(cfg)[0].health
-    assert all(p.trans_type == min(240, round(rate / 10.0)) for p in plan.pdos)
+    assert all(p.trans_type == min(240, round(rate / 5.0)) for p in plan.pdos)
 
 
 def test_objects_by_address_per_axis_and_by_name() -> None:
@@ -159,9 +159,9 @@ def test_check_config_prints_the_reads_the_estop_and_the_settings(
     out = capsys.readouterr().out
     assert ("wheel 0 reports: current 0x6077:01 x 0.1 A, voltage 0x2035:00 x 0.01 V, "
             "temperature 0x2032:01 x 0.1 degC") in out
-    assert ("health by expedited SDO, one every 33 ms round robin (10 Hz each): Left Motor "
+    assert ("health by expedited SDO, one every 67 ms round robin (5 Hz each): Left Motor "
             "Temperature (0x2032:01), Right Motor Temperature (0x2032:02), Error Register "
             "(0x1001:00)") in out
     assert "vendor setting in PRE-OPERATIONAL: Offline Communication Parameter (0x2000:00) = " \
            "500 (wheel[0].sdo[0])" in out
-    assert "health reads (10 Hz): 15.80 kbit/s of that, 3.16% of 500 kbit/s" in out
+    assert "health reads (5 Hz): 7.90 kbit/s of that, 1.58% of 500 kbit/s" in out

@@ -101,14 +101,14 @@ record(0x1018, "Identity object", [
 # PDO defaults = the plan omnican's host configures for the demo base (pv mode, 100 Hz):
 # RPDO1 controlword (on change), RPDO2 target velocity (SYNC), TPDO1 statusword +
 # mode display + error code (event, 2 ms inhibit, 100 ms event timer), TPDO2 position (SYNC),
-# TPDO3 and TPDO4 the health values every 10th SYNC (10 Hz): current, torque, DC link
+# TPDO3 and TPDO4 the health values every 20th SYNC (5 Hz): current, torque, DC link
 # voltage; temperature, error register, digital inputs (the e-stop).
 RPDOS = [(0x200, 255, ["0x60400010"]), (0x300, 1, ["0x60FF0020"]), (0x80000400, 255, []),
          (0x80000500, 255, [])]
 TPDOS = [(0x180, 255, ["0x60410010", "0x60610008", "0x603F0010"], 20, 100),
          (0x280, 1, ["0x60640020"], 0, 0),
-         (0x380, 10, ["0x60780010", "0x60770010", "0x60790020"], 0, 0),
-         (0x480, 10, ["0x21000010", "0x10010008", "0x60FD0020"], 0, 0)]
+         (0x380, 20, ["0x60780010", "0x60770010", "0x60790020"], 0, 0),
+         (0x480, 20, ["0x21000010", "0x10010008", "0x60FD0020"], 0, 0)]
 for n, (cob, trans, _) in enumerate(RPDOS):
     communication(0x1400 + n, f"RPDO{n + 1}", cob, trans, 0, 0)
 for n, (_, _, entries) in enumerate(RPDOS):

@@ -28,7 +28,6 @@ from omnican.cia402 import Mode, State
 from omnican.config import ChassisConfig
 from omnican.drive import DriveNode
 from omnican.drive.health import NodeHealth
-from omnican.healthplan import HealthRead
 from omnican.odmap import Obj
 from omnican.state import no_health
 from omnican.tracking import TrackingDetector
@@ -38,12 +37,13 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger("omnican.chassis")
 
-MONITOR_HZ = 50.0  # checks per second (at most the health-check rate)
+TRACKING_HZ = 10.0  # tracking checks per second (at most the loop rate)
 _ENABLED = State.OPERATION_ENABLED
 _SLIPPAGE_MODES = (int(Mode.PROFILE_VELOCITY), int(Mode.CYCLIC_SYNC_VELOCITY))
 #: (targets, measured speeds, wheels without a fresh sample, every drive enabled)
 Speeds = Callable[[], tuple[Sequence[float], Sequence[float], Sequence[int], bool]]
 _WHEEL_QUANTITIES = ("current", "torque", "voltage", "temperature", "error_register")
+Key = tuple[int, int]
 
 
 class _Estop:
@@ -79,19 +79,32 @@ class HealthMonitor:
         c = cfg.chassis
         self.nodes = nodes
         self._bus = bus
-        self.period_s = 1.0 / min(MONITOR_HZ, c.rate_hz)
+        # Tracking a few times within tracking_time_s; the values, e-stop and battery as
+        # often as the drives report them; the round-robin SDO reads as their plan says.
+        self._tracking_period = 1.0 / min(TRACKING_HZ, c.rate_hz)
+        self._values_period = 1.0 / c.health_rate_hz
+        self._next_tracking = self._next_values = -math.inf
         self.next_at = -math.inf  # the next check is due then (the supervisor looks)
         self.speeds: Speeds | None = None
         axes = sorted(((a, n) for n in nodes for a in n.axes), key=lambda an: an[0].wheel_index)
         self._wheels = [(a.wheel_index, n, a.wheel.axis) for a, n in axes]
+        self._stages = [(a.wheel_index, n, a.wheel.axis, a.stage) for a, n in axes]
+        self._all_fresh = [True] * len(axes)
         self.tracking = TrackingDetector(len(axes), c.tracking_error, c.tracking_time_s,
                                          c.tracking_lag_s)
-        self._wheel_reads: list[tuple[NodeHealth, tuple[HealthRead | None, ...]]] = []
+        # Per wheel: its node's values and, per quantity, (key, SI per unit; None: the
+        # scale found at startup; 0: the raw integer), or None where the drive has none.
+        self._wheel_reads: list[tuple[NodeHealth, tuple[tuple[Key, float | None] | None,
+                                                        ...]]] = []
         for a, n in axes:
             by_quantity = {r.quantity: r for r in n.health.plan.reads
                            if a.wheel_index in r.wheels}
-            self._wheel_reads.append((n.health, tuple(by_quantity.get(q)
-                                                      for q in _WHEEL_QUANTITIES)))
+            reads = []
+            for q in _WHEEL_QUANTITIES:
+                r = by_quantity.get(q)
+                reads.append(None if r is None else
+                             (r.key, 0.0 if q == "error_register" else r.scale))
+            self._wheel_reads.append((n.health, tuple(reads)))
         self._voltages = [(n.health, r) for n in nodes for r in n.health.plan.reads
                           if r.quantity == "voltage"]
         self.battery = BatteryMonitor(cfg.power) if cfg.power is not None else None
@@ -104,21 +117,46 @@ class HealthMonitor:
         self.values: tuple[tuple[tuple[Any, ...], ...], tuple[Any, ...]] = no_health(len(axes))
 
     def check(self, now: float, sup: NodeSupervisor) -> None:
-        """One check (loop thread, once ``next_at`` has come); ``sup`` latches what it
-        finds."""
-        self.next_at = max(self.next_at + self.period_s, now)
-        send = self._bus.send
-        busy = sup.configuring | sup.offline
+        """What is due at ``now`` (loop thread, once ``next_at`` has come); ``sup``
+        latches what it finds."""
+        next_at = math.inf
         for node in self.nodes:
-            if node.node_id not in busy:
-                node.health.poll(now, send)
-        wheel_values = tuple(
-            tuple(None if r is None else
-                  (health.raw(r.key, now) if r.quantity == "error_register" else
-                   health.si(r, now)) for r in reads)
-            for health, reads in self._wheel_reads)
+            health = node.health
+            if health.plan.sdo:
+                if node.node_id not in sup.configuring and node.node_id not in sup.offline:
+                    health.poll(now, self._bus.send)
+                next_at = min(next_at, health.next_poll_at)
+        if now >= self._next_tracking:
+            self._next_tracking = max(self._next_tracking + self._tracking_period, now)
+            self._check_controller(sup)
+            self._check_tracking(now, sup)
+        if now >= self._next_values:
+            self._next_values = max(self._next_values + self._values_period, now)
+            self._refresh(now, sup)
+        self.next_at = min(next_at, self._next_tracking, self._next_values)
+
+    def _refresh(self, now: float, sup: NodeSupervisor) -> None:
+        """The values each snapshot carries, the e-stop, the battery."""
+        wheel_values = []
+        for health, reads in self._wheel_reads:
+            values, scales, oldest = health.values, health.scales, now - health.stale_after_s
+            row: list[float | int | None] = []
+            for read in reads:
+                if read is None:
+                    row.append(None)
+                    continue
+                key, scale = read
+                got = values.get(key)
+                if got is None or got[1] < oldest:
+                    row.append(None)
+                    continue
+                if scale is None:
+                    scale = scales.get(key)
+                row.append(got[0] if scale == 0.0 else None if scale is None else got[0] * scale)
+            wheel_values.append(tuple(row))
         pressed = self._check_estop(now, sup)
-        volts = base_voltage(h.si(r, now) for h, r in self._voltages) if self._voltages else None
+        volts = base_voltage([h.si(r, now) for h, r in self._voltages]) if self._voltages \
+            else None
         warnings: tuple[str, ...] = ()
         battery = self.battery
         level = None
@@ -129,13 +167,11 @@ class HealthMonitor:
             if warning:
                 warnings = (warning,)
             level = "cutoff" if battery.cut else "low" if battery.low else "ok"
-        self._check_controller(sup)
-        self._check_tracking(now, sup)
         can = self._bus.controller.state
         seen = can.error_frames > 0
-        self.values = (wheel_values, (can.state if seen else None, can.tx_errors,
-                                      can.rx_errors, can.error_frames, pressed, volts, level,
-                                      warnings))
+        self.values = (tuple(wheel_values), (can.state if seen else None, can.tx_errors,
+                                             can.rx_errors, can.error_frames, pressed, volts,
+                                             level, warnings))
 
     # ------------------------------------------------------------ the checks
 
@@ -170,8 +206,7 @@ class HealthMonitor:
         targets, measured, stale, all_enabled = speeds()
         running = (all_enabled and sup.latched is None and not sup.recovering and
                    not sup.offline and not sup.configuring and not sup.closed)
-        n = len(self._wheels)
-        fresh = [i not in stale for i in range(n)]
+        fresh = [i not in stale for i in range(len(self._wheels))] if stale else self._all_fresh
         for finding in self.tracking.update(now, targets, measured, fresh, running):
             _, node, axis = self._wheels[finding.wheel]
             if finding.zero_target:  # it ignores a zero target: take its torque away
@@ -183,8 +218,7 @@ class HealthMonitor:
             self._check_following_error(now, sup)
 
     def _check_following_error(self, now: float, sup: NodeSupervisor) -> None:
-        for index, node, axis in self._wheels:
-            stage = next(a.stage for a in node.axes if a.wheel_index == index)
+        for index, node, axis, stage in self._stages:
             sw = stage.statusword_value
             if (sw is None or not sw & cia402.SW_OMS_13 or stage.state is not _ENABLED or
                     stage.mode_value not in (*_SLIPPAGE_MODES, None) or

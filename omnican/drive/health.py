@@ -50,8 +50,12 @@ class NodeHealth:
         self.use(plan)
 
     @property
-    def reads_by_sdo(self) -> bool:
-        return bool(self.plan.sdo)
+    def next_poll_at(self) -> float:
+        """When :meth:`poll` next has something to do (s)."""
+        pending = self._pending
+        if pending is not None:
+            return max(self._due, pending[1] + self._sdo_timeout_s)
+        return self._due
 
     def use(self, plan: HealthPlan) -> None:
         """Read as ``plan`` says from now on (configured, or fallen back to SDO)."""
