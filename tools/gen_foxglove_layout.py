@@ -58,6 +58,22 @@ def build() -> str:
                                              config=fl.DiagnosticsSummaryConfig(
                                                  topic_to_render="/diagnostics",
                                                  sort_by_level=True))
+    def per_wheel(title: str, field: str, *more: fl.PlotSeries) -> object:
+        return fl.PlotPanel(title=title, config=fl.PlotConfig(
+            paths=[fl.PlotSeries(value=f"/wheels.wheels[{i}].{field}") for i in range(WHEELS)]
+            + list(more), show_legend=True))
+
+    current = per_wheel("motor current (A)", "current_a")
+    voltage = per_wheel("DC link (V): each drive, and the battery", "voltage_v",
+                        fl.PlotSeries(value="/battery_state.voltage"))
+    temperature = per_wheel("temperature (°C)", "temperature_c")
+    alarms = fl.StateTransitionsPanel(title="e-stop and CAN controller",
+                                      config=fl.StateTransitionsConfig(paths=[
+                                          fl.StateTransitionsSeries(value="/status.estop",
+                                                                    label="e-stop"),
+                                          fl.StateTransitionsSeries(value="/status.can_state",
+                                                                    label="CAN controller")],
+                                          show_points=True))
     can = fl.RawMessagesPanel(title="CAN: node 1 position (decoded with the DBC)",
                               config=fl.RawMessagesConfig(topic_path="/can/TPDO2_node1"))
 
@@ -70,12 +86,15 @@ def build() -> str:
                  (1.0, split("column", (1.2, scene), (1.0, path))),
                  (1.3, split("column", (1.0, speeds), (1.0, twist), (0.8, states))),
                  (1.0, split("column", (1.0, diagnostics), (0.6, loop), (0.8, travel))))
+    drives = split("row", (1.0, split("column", (1.0, current), (1.0, voltage))),
+                   (1.0, split("column", (1.0, temperature), (0.6, alarms))))
     bus = split("row", (1.0, can),
                 (1.0, fl.RawMessagesPanel(title="CAN: frames received (can_msgs/Frame)",
                                           config=fl.RawMessagesConfig(
                                               topic_path="/from_can_bus"))))
     layout = fl.Layout(content=fl.TabContainer(selected_tab_index=0, tabs=[
         fl.TabItem(title="omnican", content=live),  # type: ignore[arg-type]
+        fl.TabItem(title="drives", content=drives),  # type: ignore[arg-type]
         fl.TabItem(title="CAN", content=bus),  # type: ignore[arg-type]
     ]))
     return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"
