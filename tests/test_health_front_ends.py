@@ -67,7 +67,7 @@ def test_the_dashboard_shows_the_controller_state_and_what_a_stop_needs(rig: Rig
     try:
         kernel.send(can.Message(arbitration_id=cs.ERR_CRTL | cs.ERR_CNT, is_error_frame=True,
                                 data=bytes([0, cs.CRTL_RX_WARNING, 0, 0, 0, 0, 12, 99])))
-        clock.sleep(0.1)
+        clock.sleep(0.3)  # the status has it at the next health period
         assert any("CAN error-warning (tx 12, rx 99)" in line for line in screen(base, 120))
     finally:
         kernel.shutdown()

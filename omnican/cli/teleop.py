@@ -226,19 +226,25 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     load = (f"{st.bus_load:.0%} of {bitrate // 1000} kbit/s"
             if st.bus_load is not None and bitrate else
             f"{st.bus_bits_per_s / 1000:.1f} kbit/s (bitrate unknown)")
-    header = Text(wrap_phrases([title, f"loop {st.loop_hz:.0f} Hz", f"bus {load}"], width, 3),
-                  style="dim")
-    header.stylize("bold not dim", 0, len(title))
-    if not st.bus_up:
-        header.append("   BUS DOWN", style="bold red")
+    # Phrases never broken across lines; the CAN controller's and the battery's in colour
+    # when they need attention.
+    phrases = [title, f"loop {st.loop_hz:.0f} Hz", f"bus {load}"]
+    marked: list[tuple[str, str]] = []
     if st.can_state is not None and st.can_state != "error-active":
         counters = (f" (tx {st.can_tx_errors}, rx {st.can_rx_errors})"
                     if st.can_tx_errors is not None and st.can_rx_errors is not None else "")
-        header.append(f"   CAN {st.can_state}{counters}",
-                      style="bold red" if st.can_state == "bus-off" else "bold yellow")
+        marked.append((f"CAN {st.can_state}{counters}",
+                       "bold red" if st.can_state == "bus-off" else "bold yellow"))
     if st.battery_v is not None:
-        header.append(f"   battery {st.battery_v:.1f} V",
-                      style="bold red" if st.battery in ("low", "cutoff") else "dim")
+        marked.append((f"battery {st.battery_v:.1f} V",
+                       "bold red" if st.battery in ("low", "cutoff") else "dim"))
+    header = Text(wrap_phrases(phrases + [text for text, _ in marked], width, 3), style="dim")
+    header.stylize("bold not dim", 0, len(title))
+    for text, style in marked:
+        at = header.plain.rfind(text)
+        header.stylize(f"not dim {style}", at, at + len(text))
+    if not st.bus_up:
+        header.append("   BUS DOWN", style="bold red")
 
     pose_t = Table.grid(padding=(0, 1))
     pose_t.add_row("x", f"{fixed(pose.x, 3, sign=True):>8} m")
