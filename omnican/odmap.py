@@ -82,7 +82,7 @@ NODE_WIDE = frozenset(
 RECORDS = frozenset({Obj.VL_ACCEL, Obj.VL_DECEL, Obj.VL_QUICK_STOP})
 
 # Objects that hold signed quantities even where an EDS declares them unsigned
-# (ZLAC8015D declares 606Ch as UNSIGNED32).
+# (ZLAC8015D declares 606Ch as UNSIGNED32, and its right motor's 6077h sub 2 too).
 SIGNED = frozenset(
     {Obj.POSITION_ACTUAL, Obj.VELOCITY_ACTUAL, Obj.TARGET_VELOCITY, Obj.VL_TARGET,
      Obj.VL_DEMAND, Obj.VL_ACTUAL, Obj.MODE, Obj.MODE_DISPLAY, Obj.TORQUE_ACTUAL,

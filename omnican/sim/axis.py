@@ -7,6 +7,10 @@ ramp, or a coast), and :mod:`omnican.sim.motor` integrates it exactly over any t
 step. Out come the counters (6064h, which wraps like an encoder and restarts at a
 reboot; 606Ch, 6043h, 6044h) and the mode-specific statusword bits (10-13).
 
+An axis can be held still (jammed: its drive's demand goes on, the wheel does not),
+turned from outside at a speed (pushed), or lifted off the ground (it turns, but its
+ground travel, what moves the simulated base, stops).
+
 Motion advances lazily, when something reads or changes it (a SYNC, an SDO, a
 public call), so its commands are cached per axis until an object that shapes them
 is written or a stage changes state (:meth:`Motion.invalidate`).

@@ -1,16 +1,21 @@
 """A simulated CiA 402 wheel drive on a canopen network.
 
-Three parts, each in modules of its own, put together here:
+Four parts, each in modules of its own, put together here:
 
 - :mod:`omnican.sim.node`: the CiA 301 side on :class:`canopen.LocalNode` (NMT, the
   SDO server, SYNC, EMCY), with the PDOs at run time in
   :mod:`omnican.sim.process_data` and the heartbeats in :mod:`omnican.sim.heartbeat`;
 - :mod:`omnican.sim.stage`: the CiA 402 power stage of each controlword, pure;
-- :mod:`omnican.sim.axis`: the motors (modes, ramps, counters), advanced lazily.
+- :mod:`omnican.sim.axis`: the motors (modes, ramps, counters), advanced lazily;
+- :mod:`omnican.sim.health`: what the drive reports of itself (current, torque, DC
+  link, temperature, following error, the e-stop input), from
+  :mod:`omnican.sim.electrical`.
 
 :class:`SimulatedDrive` wires them: it gives the node side the dynamic objects
 (statusword, counters, error code) and the writers of controlword and mode, turns the
-power stage's reactions into EMCY frames and motor commands, and adds fault injection.
+power stage's reactions into EMCY frames and motor commands, and adds fault injection
+(faults, silence, reboots; a jammed, pushed or lifted wheel, a following error, the
+supply voltage, the e-stop).
 
 Multi-axis drives work in both layouts omnican supports (see :mod:`omnican.odmap`):
 axes at 0x800 offsets have a power stage each; sub-indexed axes share one.
