@@ -58,7 +58,15 @@ def test_each_detection_across_processes(sim: tuple[SimProcess, int]) -> None:
         assert wait_for(lambda: all(w.voltage_v is not None for w in base.wheels), 2.0)
         w = base.wheels[1]
         assert w.voltage_v == pytest.approx(24.0, abs=0.3) and w.temperature_c is not None
-        assert abs(w.current_a or 0.0) > 0.3  # it drives
+        on_ground = abs(w.current_a or 0.0)
+        assert on_ground > 0.3  # it drives
+
+        # Off the ground: no stop (its drive keeps its speed), a fraction of the current.
+        assert process.command("lift 2").strip() == "node 2: off the ground"
+        drive_for(base, 1.0, vx=0.3)
+        assert base.status.stopped_reason is None
+        assert abs(base.wheels[1].current_a or 0.0) < 0.5 * on_ground
+        process.command("land 2")
 
         assert process.command("jam 2").strip() == "node 2: jammed"
         reason = keep_driving(base, "wheel 1 (node 2) not following its target", 5.0)
