@@ -41,13 +41,23 @@ def ramps(draw: st.DrawFn) -> list[float]:
     return out or [0.0]
 
 
-@given(targets=ramps(), delay=st.integers(0, round(LAG_S / DT) - 1),
-       window=st.integers(1, round(LAG_S / DT) - 1),
+LAG_STEPS = round(LAG_S / DT)
+
+
+@st.composite
+def lags(draw: st.DrawFn) -> tuple[int, int]:
+    """(delay, window) in checks, the oldest target averaged within the lag."""
+    delay = draw(st.integers(0, LAG_STEPS - 1))
+    return delay, draw(st.integers(1, LAG_STEPS - delay))
+
+
+@given(targets=ramps(), lag=lags(),
        noise=st.lists(st.floats(-0.9 * ERROR, 0.9 * ERROR), min_size=1))
 def test_a_wheel_that_follows_within_the_lag_never_trips(
-        targets: list[float], delay: int, window: int, noise: list[float]) -> None:
-    """However steep the ramp: a measurement that is the target delayed (by less than the
-    lag), averaged over a window within it, give or take less than the error, follows."""
+        targets: list[float], lag: tuple[int, int], noise: list[float]) -> None:
+    """However steep the ramp: a measurement that is the target delayed and averaged
+    over a window, all within the lag, give or take less than the error, follows."""
+    delay, window = lag
     measured = []
     for k in range(len(targets)):
         lo = max(0, k - delay - window + 1)
