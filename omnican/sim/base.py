@@ -130,7 +130,7 @@ class SimulatedBase:
             raise ConfigError(f"true_scale has {len(scales)} values for {len(cfg.wheels)} wheels")
         clock = clock if clock is not None else REAL_TIME
         network = Network()
-        network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the Notifier
+        network.NOTIFIER_CYCLE = 0.02  # bounds how long close() waits for the Notifier
         if clock.lockstep:
             channel = bus_kwargs.get("channel")
             if bus_kwargs.get("interface", "virtual") != "virtual" or not channel:
