@@ -108,10 +108,11 @@ class Recorded:
 
 @pytest.fixture(scope="module")
 def mcap_run(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
-    """A 4 s run recorded in real time: several chunks, each written as it closed."""
+    """A 4 s run in simulated time: several chunks (one a second of the messages' clock),
+    each written as it closed."""
     path = tmp_path_factory.mktemp("cut") / "run.mcap"
-    code, _, err = run_main(["drive", "--sim", "--vx", "0.1", "--duration", "4", "--record",
-                             str(path)])
+    code, _, err = run_main(["drive", "--sim", "--fast", "--vx", "0.1", "--duration", "4",
+                             "--record", str(path)])
     assert code == 0, err
     return Recorded(path, read_mcap_frames(path))
 
