@@ -201,8 +201,9 @@ class CanBus:
             listeners.append(recorder)  # type: ignore[arg-type]  # a listener by protocol
         # What poll() hands each frame to besides canopen's subscribers (the list is made
         # here, once: later listeners go through the taps).
+        # The taps are read in place (most of the time there are none: no call).
         self._extra_listeners: tuple[can.Listener, ...] = tuple(
-            x for x in listeners if x is not self.traffic and
+            x for x in listeners if x is not self.traffic and x is not self._taps and
             not isinstance(x, canopen.network.MessageListener))
         self.sync_epoch = 0
         self.sync_time = 0.0
@@ -318,6 +319,10 @@ class CanBus:
         traffic.loop_bits += _FRAME_BITS[len(data)]
         for listener in self._extra_listeners:
             listener.on_message_received(msg)
+        taps = self._taps.received
+        if taps:
+            for tap in taps:
+                tap.on_message_received(msg)
         if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
             return  # 29-bit frames are other devices', never CANopen
         callbacks = self.network.subscribers.get(msg.arbitration_id)
