@@ -147,6 +147,7 @@ class Chassis:
         return base
 
     def _start(self, handle_signals: bool) -> None:
+        started = self.clock.now()
         self._supervisor.configure_all()
         _open_chassis.add(self)
         if handle_signals:
@@ -156,6 +157,7 @@ class Chassis:
         self._runner.start()
         self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
         self._supervisor.started()
+        logger.info("every drive enabled, %.2f s after the bus opened", self.clock.now() - started)
 
     def _wait_enabled(self, timeout: float, what: str) -> None:
         clock = self.clock
