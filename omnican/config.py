@@ -537,7 +537,7 @@ def with_live_limits(settings: ChassisSettings, changes: Mapping[str, Any],
     :class:`ConfigError` naming the key and why, e.g. ``live: chassis.max_accel: must be a
     positive number, got -1``."""
     r = _Reader(origin)
-    values: dict[str, float] = {}
+    values: dict[str, Any] = {}
     for key, value in changes.items():
         where = f"chassis.{key}"
         if key not in LIVE_LIMITS:
