@@ -37,10 +37,11 @@ class CommandArbiter:
             self._holder, self._last = source, now
             return None
 
-    def release(self, source: str) -> bool:
-        """``source`` gives control up (it left); True if it held control."""
+    def release(self, source: str, now: float) -> bool:
+        """``source`` gives control up at ``now`` (it left); True if it held control then
+        (not if its hold had lapsed)."""
         with self._lock:
-            if self._holder != source:
+            if self._current(now) != source:
                 return False
             self._holder, self._last = None, -math.inf
             return True

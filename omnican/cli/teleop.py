@@ -309,7 +309,7 @@ def share_command(base: Chassis, arbiter: CommandArbiter, source: str, command: 
         return True, None
     if held:
         base.set_velocity(0.0, 0.0, 0.0)
-        arbiter.release(source)
+        arbiter.release(source, now)
     return False, None
 
 

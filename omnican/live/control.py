@@ -223,7 +223,7 @@ class Control:
         if gone is None or gone.topic != topic or still:
             return
         source = self.source(client.id)
-        if self.arbiter.release(source) and not self._closed:
+        if self.arbiter.release(source, self._now()) and not self._closed:
             self.base.stop()
             logger.warning("%s left while driving: the base stops", source)
             self._status("Warning", f"{source} left while driving: the base stopped; "

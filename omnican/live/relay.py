@@ -8,6 +8,9 @@ same JSON and binary messages), so this relay lets either in: it reads the clien
 opening request, offers the SDK ``foxglove.sdk.v1`` in its place, and gives the client
 back the name it asked for. After the handshake it copies bytes both ways untouched.
 
+A client offering neither name is answered 400 here, and a browser opening the address
+as a page (a phone accepting the certificate) gets one line saying what it is.
+
 It also terminates TLS (``wss://``) when given a certificate, so the SDK's server itself
 stays plain on loopback, where only this relay connects to it. One thread runs every
 connection (asyncio); it never touches the base.
@@ -68,6 +71,26 @@ def rewrite_protocol(head: bytes, protocol: str) -> bytes:
             continue
         kept.append(line)
     return b"\r\n".join(kept)
+
+
+def _header(head: bytes, name: bytes) -> str:
+    for line in head.split(b"\r\n")[1:]:
+        key, sep, value = line.partition(b":")
+        if sep and key.strip().lower() == name:
+            return value.decode("latin-1").strip()
+    return ""
+
+
+def _answer(status: str, text: str) -> bytes:
+    body = text.encode()
+    return (f"HTTP/1.1 {status}\r\nContent-Type: text/plain; charset=utf-8\r\n"
+            f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode() + body
+
+
+#: What a browser is told when it opens the address as a page (a phone accepting the
+#: certificate first, say): this is the live view, and how to reach it.
+PAGE = ("omnican's live view for Foxglove. In Foxglove: Open connection -> Foxglove "
+        "WebSocket -> this address with ws:// (or wss:// with TLS) instead of http(s)://.\n")
 
 
 async def _read_head(reader: asyncio.StreamReader) -> bytes:
@@ -147,8 +170,21 @@ class Relay:
             head = await _read_head(reader)
             offered = offered_subprotocols(head)
             answer = None
+            if _header(head, b"upgrade").lower() != "websocket":
+                writer.write(_answer("200 OK", PAGE))  # a browser, not Foxglove
+                await writer.drain()
+                return
             if SDK_SUBPROTOCOL not in offered and LEGACY_SUBPROTOCOL in offered:
                 head, answer = rewrite_protocol(head, SDK_SUBPROTOCOL), LEGACY_SUBPROTOCOL
+            elif SDK_SUBPROTOCOL not in offered:
+                logger.info("Foxglove connection from %s refused: it offers %s, not %s or %s",
+                            who, ", ".join(offered) or "no subprotocol", SDK_SUBPROTOCOL,
+                            LEGACY_SUBPROTOCOL)
+                writer.write(_answer("400 Bad Request", f"this is a Foxglove WebSocket "
+                                     f"server: offer the subprotocol {SDK_SUBPROTOCOL} or "
+                                     f"{LEGACY_SUBPROTOCOL}\n"))
+                await writer.drain()
+                return
             up_reader, up_writer = await asyncio.open_connection("127.0.0.1",
                                                                  self.upstream_port)
             for w in (writer, up_writer):
