@@ -4,7 +4,12 @@ A source (the terminal's keys, a gamepad, ROS 2 ``cmd_vel``, a Foxglove client) 
 before each command. The first to ask holds control until it releases it (it left, or
 its keys went idle) or sends nothing for ``timeout_s`` (the chassis watchdog's timeout:
 by then the base has stopped by itself). Until then every other source is refused and
-told who holds it. A stop is not a command: anyone may stop the base at any time.
+told who holds it.
+
+A stop is not a command: anyone may stop the base at any time. A stop by another source
+also takes control from the one driving, which is then refused until it lets go (sends
+nothing for ``timeout_s``): a Teleop button held down does not start the base again the
+moment after someone else stopped it.
 
 Pure: no I/O, no threads of its own; safe to call from any thread.
 """
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 
 
 class CommandArbiter:
@@ -26,16 +32,48 @@ class CommandArbiter:
         self._lock = threading.Lock()
         self._holder: str | None = None
         self._last = -math.inf
+        self._stopped: dict[str, tuple[str, float]] = {}  # source -> (by whom, last heard)
 
-    def claim(self, source: str, now: float) -> str | None:
+    def claim(self, source: str, now: float, send: Callable[[], None] | None = None
+              ) -> str | None:
         """``source`` wants to command at ``now``: None if it may (it holds control from
-        here on), else the name of the source that holds control."""
+        here on; ``send``, the command, runs before anyone can take control away), else
+        the name of the source that holds control (or that stopped this one)."""
         with self._lock:
+            stopped = self._stopped.get(source)
+            if stopped is not None:
+                if now - stopped[1] <= self.timeout_s:
+                    self._stopped[source] = (stopped[0], now)  # still pressing: still out
+                    return stopped[0]
+                del self._stopped[source]  # it let go
             holder = self._current(now)
             if holder is not None and holder != source:
                 return holder
             self._holder, self._last = source, now
+            if send is not None:
+                send()
             return None
+
+    def stop_by(self, source: str, now: float, stop: Callable[[], None] | None = None
+                ) -> str | None:
+        """``source`` stops the base at ``now`` (``stop`` runs with no command granted in
+        between): if another source drives, it loses control and is refused until it has
+        sent nothing for ``timeout_s``. Returns that source, if any."""
+        with self._lock:
+            if stop is not None:
+                stop()
+            holder = self._current(now)
+            if holder is None or holder == source:
+                return None
+            self._holder, self._last = None, -math.inf
+            self._stopped[holder] = (source, now)
+            return holder
+
+    def stopped_by(self, source: str, now: float) -> str | None:
+        """Who stopped ``source``, while it is still refused for that."""
+        with self._lock:
+            stopped = self._stopped.get(source)
+            return stopped[0] if stopped and now - stopped[1] <= self.timeout_s else None
 
     def release(self, source: str, now: float) -> bool:
         """``source`` gives control up at ``now`` (it left); True if it held control then

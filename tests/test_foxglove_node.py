@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import base64
 import socket
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -271,3 +272,50 @@ def test_a_watch_only_server_moves_nothing(modules: Path, sessions: list[Session
         assert true_x == 0.0  # not a micrometre
         assert not any(e["event"] == "parameterValues" for e in c.events)
         assert not any(e["event"] == "advertiseServices" for e in c.events)
+
+
+def test_a_stop_from_another_client_holds_until_the_driver_lets_go(
+        modules: Path, sessions: list[Session]) -> None:
+    """Anyone may call /omnican/stop. From a client that does not drive, it also takes
+    control from the driver: the driver's Twists (its Teleop button still held) are
+    refused, and it is told why, until it has sent nothing for the command timeout."""
+    s = start(sessions, modules, "drive", "--sim", "--foxglove-control", "--foxglove",
+              f"127.0.0.1:{free_port()}", "--json")
+    watcher = s.client(SDK)
+    watcher.send("subscribe", topic="/twist")
+    a = s.client(LEGACY)
+    a.send("advertise", encoding="json")
+    ch = a.wait("advertised")["channel"]
+    a.send("publish", channel=ch, twist=[0.2, 0.0, 0.0], rate_hz=10, seconds=5)
+
+    def commands(count: int = 1, where: Any = lambda t: True) -> list[tuple[float, ...]]:
+        """The next ``count`` commands the base applies, from the first that is ``where``."""
+        watcher.forget("message")
+        first = watcher.wait("message", lambda e: e["topic"] == "/twist"
+                             and where(twist_of(e, "command")))
+        out = [twist_of(first, "command")]
+        watcher.forget("message", drain=False)  # the ones skipped on the way came before
+        while len(out) < count:
+            e = watcher.wait("message", lambda e: e["topic"] == "/twist")
+            out.append(twist_of(e, "command"))
+        return out
+
+    commands(where=lambda t: t[0] == pytest.approx(0.2))
+    watcher.send("call", service="/omnican/stop")
+    reply = watcher.wait("response")["data"]
+    assert reply["success"] and "drives again once it has let go" in reply["message"]
+    # The base stops and stays stopped (25 samples: half a second) while a still sends.
+    stopped = commands(26, where=lambda t: t == (0.0, 0.0, 0.0))
+    assert stopped == [(0.0, 0.0, 0.0)] * 26
+    a._drain()
+    assert not any(e["event"] == "published" for e in a._unread), "a stopped sending early"
+    told = a.wait("status", lambda e: "stopped the base" in e["message"])["message"]
+    assert "commands are ignored until it sends none for 0.5 s" in told
+    a.wait("published", timeout=15)
+    time.sleep(1.0)  # a lets go: silent for longer than the 0.5 s timeout
+    a.send("publish", channel=ch, twist=[0.2, 0.0, 0.0], rate_hz=10, seconds=1)
+    commands(where=lambda t: t[0] == pytest.approx(0.2))  # and drives again
+    a.wait("published", timeout=10)
+    code, out = s.omnican.finish(timeout=40, interrupt=True)
+    assert code == 130, out
+    assert json_line(out)["true_pose"]["x"] > 0.1

@@ -60,6 +60,23 @@ def test_who_may_act_while_someone_drives() -> None:
     assert arb.may_act("b", 0.6) is None
 
 
+def test_a_stop_by_another_takes_control_until_the_driver_lets_go() -> None:
+    arb = CommandArbiter(0.5)
+    assert arb.stop_by("b", 0.0) is None  # no one drives: nothing to take
+    arb.claim("a", 0.0)
+    assert arb.stop_by("a", 0.1) is None  # its own stop: it keeps control
+    assert arb.holder(0.1) == "a"
+    assert arb.stop_by("b", 0.2) == "a"
+    assert arb.holder(0.2) is None
+    for t in (0.3, 0.6, 0.9):  # a keeps pressing: refused, told who stopped it
+        assert arb.claim("a", t) == "b"
+        assert arb.stopped_by("a", t) == "b"
+    assert arb.claim("c", 1.0) is None  # anyone else may drive meanwhile
+    arb.release("c", 1.0)
+    assert arb.claim("a", 1.41) is None  # a let go for more than 0.5 s: it drives again
+    assert arb.stopped_by("a", 1.41) is None
+
+
 @given(st.lists(st.tuples(st.sampled_from("abc"), st.floats(0.0, 1.0),
                           st.sampled_from(["claim", "release"])), max_size=60))
 def test_control_changes_hands_only_when_the_holder_is_silent_or_gone(
@@ -283,7 +300,14 @@ def test_while_one_drives_others_may_only_stop() -> None:
         reply = call(c, name, 2, body)
         assert reply["success"] is False
         assert reply["message"].startswith("Foxglove client 1 is driving")
-    assert call(c, "/omnican/stop", 2) == {"success": True, "message": "stopping"}
+    assert call(c, "/omnican/stop", 2) == {
+        "success": True, "message": "stopping; Foxglove client 1 drives again once it has "
+                                    "let go"}
+    c.on_message_data(client(1), 1, twist(0.2))  # still pressing: refused
+    assert [k for k, _ in base.calls] == ["velocity", "stop"]
+    base.time = 0.6  # let go for 0.6 s: it drives again
+    c.on_message_data(client(1), 1, twist(0.2))
+    assert [k for k, _ in base.calls] == ["velocity", "stop", "velocity"]
     before = base.cfg.chassis
     assert c.on_set_parameters(client(2), [SimpleNamespace(name="chassis.max_speed",
                                                            get_value=lambda: 0.1)])
@@ -294,8 +318,9 @@ def test_while_one_drives_others_may_only_stop() -> None:
     c.on_set_parameters(client(1), [SimpleNamespace(name="chassis.max_speed",
                                                     get_value=lambda: 0.1)])
     assert base.cfg.chassis.max_speed == 0.1
-    assert [k for k, _ in base.calls] == ["velocity", "stop", "reset_pose", "recover", "limits"]
-    assert base.calls[2] == ("reset_pose", Pose2D(1.0, 0.0, 0.5))
+    assert [k for k, _ in base.calls] == ["velocity", "stop", "velocity", "reset_pose",
+                                          "recover", "limits"]
+    assert base.calls[3] == ("reset_pose", Pose2D(1.0, 0.0, 0.5))
 
 
 def test_services_refuse_what_they_cannot_do_and_say_why() -> None:

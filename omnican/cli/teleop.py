@@ -302,10 +302,10 @@ def share_command(base: Chassis, arbiter: CommandArbiter, source: str, command: 
     it goes too (the keys let go: the base stops) and gives control up. Returns (whether
     ``source`` holds control, who refused it)."""
     if not command.is_zero():
-        holder = arbiter.claim(source, now)
+        holder = arbiter.claim(source, now, lambda: base.set_velocity(
+            command.vx, command.vy, command.wz))
         if holder is not None:
             return held, holder
-        base.set_velocity(command.vx, command.vy, command.wz)
         return True, None
     if held:
         base.set_velocity(0.0, 0.0, 0.0)
@@ -325,8 +325,13 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
     while not keys.quit_requested:
         now = time.monotonic()
         for key in read_keys(fd, LOOP_S if pad is None else LOOP_S / 2):
-            if keys.press(key, now).intent is Intent.STOP and arbiter is not None:
-                base.stop()
+            stop = keys.press(key, now).intent is Intent.STOP
+            if note.startswith("stopped "):
+                note = ""  # the next key after it
+            if stop and arbiter is not None:  # whoever drives; it drives again once it lets go
+                stopped = arbiter.stop_by(source, base.clock.now(), base.stop)
+                if stopped:
+                    note = f"stopped {stopped}: it drives again once it lets go"
         if keys.take_recover():
             driver = arbiter.may_act(source, base.clock.now()) if arbiter else None
             note = f"{driver} is driving: not recovering" if driver else "recovering..."

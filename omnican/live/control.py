@@ -10,7 +10,8 @@ is on (``--foxglove-control``).
   when the controlling client leaves. A Twist that cannot be read (NaN, a wrong type)
   moves nothing; from the controller it stops the base.
 - **Services** (JSON; Foxglove's Service Call panel): ``/omnican/stop`` (anyone, at any
-  time), ``/omnican/recover``, ``/omnican/reset_odometry`` (to zero, or ``{"x", "y",
+  time; from another client it also takes control from the driver until it lets go),
+  ``/omnican/recover``, ``/omnican/reset_odometry`` (to zero, or ``{"x", "y",
   "theta"}``), and under simulation ``/omnican/sim/console`` (the fault console's
   commands: ``{"command": "fault 2"}``). Each answers ``{"success", "message"}``.
 - **Parameters** named as the config's keys (``chassis.max_speed``, ...; the limits of
@@ -252,19 +253,26 @@ class Control:
                 self._status("Warning", f"{source}: {channel.topic}: {exc}: {what}",
                              _STATUS_REFUSED)
             return
-        holder = self.arbiter.claim(source, now)
+        holder = self.arbiter.claim(source, now, lambda: self.base.set_velocity(
+            twist.vx, twist.vy, twist.wz))
         if holder is not None:
             self.refused += 1
             with self._lock:
                 first = source not in self._told
                 self._told.add(source)
             if first:
-                logger.info("%s: %s is driving; its commands are ignored", source, holder)
-                self._status("Warning", f"{holder} is driving the base: {source}'s commands "
-                             "are ignored until it stops (for "
-                             f"{self.arbiter.timeout_s:g} s) or leaves", _STATUS_REFUSED)
+                wait = f"{self.arbiter.timeout_s:g} s"
+                if self.arbiter.stopped_by(source, now) == holder:
+                    logger.info("%s: stopped by %s; its commands are ignored until it lets "
+                                "go", source, holder)
+                    text = (f"{holder} stopped the base: {source}'s commands are ignored "
+                            f"until it sends none for {wait}")
+                else:
+                    logger.info("%s: %s is driving; its commands are ignored", source, holder)
+                    text = (f"{holder} is driving the base: {source}'s commands are ignored "
+                            f"until it stops (for {wait}) or leaves")
+                self._status("Warning", text, _STATUS_REFUSED)
             return
-        self.base.set_velocity(twist.vx, twist.vy, twist.wz)
         self.twists += 1
         with self._lock:
             changed, self._driver = self._driver != source, source
@@ -391,8 +399,13 @@ class Control:
                                             "(anyone may call /omnican/stop)")
 
     def _stop(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        self.base.stop()
-        return True, "stopping"
+        driver = self.arbiter.stop_by(source, self._now(), self.base.stop)
+        if driver is None:
+            return True, "stopping"
+        with self._lock:
+            self._told.discard(driver)  # it is told why, at its next command
+            self._driver = None
+        return True, f"stopping; {driver} drives again once it has let go"
 
     def _recover(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
         refused = self._refused(source)

@@ -53,12 +53,21 @@ _LEFT_WORDS = ("Connection reset", "closing handshake", "Broken pipe", "os error
                "os error 32")
 
 
+# What the SDK logs as an ERROR each time a client breaks the protocol (it tells the
+# client so in a status message): a debug line here, or one client floods the log.
+_CLIENT_MISTAKES = ("Received message for unknown channel",)
+
+
 class _ViewerLeft(logging.Filter):
     """Turns the SDK's ERROR "Error receiving from client ...: Connection reset ..." into
-    an INFO line that a viewer left; other records pass as they are."""
+    an INFO line that a viewer left, and a client's protocol mistakes into DEBUG lines;
+    other records pass as they are."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         text = record.getMessage()
+        if record.levelno >= logging.ERROR and text.startswith(_CLIENT_MISTAKES):
+            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+            return logging.getLogger(record.name).isEnabledFor(logging.DEBUG)
         if record.levelno >= logging.ERROR and "from client" in text and any(
                 w in text for w in _LEFT_WORDS):
             client = text.split("from client", 1)[1].split(":", 2)

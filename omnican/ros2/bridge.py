@@ -325,11 +325,12 @@ class Bridge:
                            (twist.angular.x, twist.angular.y, twist.angular.z))
         try:
             if self.arbiter is not None and t.is_finite():
-                holder = self.arbiter.claim(CMD_VEL_SOURCE, self.base.clock.now())
+                holder = self.arbiter.claim(CMD_VEL_SOURCE, self.base.clock.now(),
+                                            lambda: self.base.set_velocity(t.vx, t.vy, t.wz))
                 if holder is not None:  # someone else drives (a Foxglove client)
                     self.cmd_vel_refused += 1
                     self._log_refused(holder)
-                    return
+                return
             self.base.set_velocity(t.vx, t.vy, t.wz)
         except ValueError as exc:
             self.cmd_vel_rejected += 1

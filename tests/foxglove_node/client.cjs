@@ -133,7 +133,7 @@ const commands = {
   },
 };
 
-readline.createInterface({ input: process.stdin }).on("line", (line) => {
+function run(line) {
   if (!line.trim()) return;
   let cmd;
   try {
@@ -142,4 +142,16 @@ readline.createInterface({ input: process.stdin }).on("line", (line) => {
   } catch (err) {
     emit("error", { message: `${cmd ? cmd.op : line}: ${err.message}` });
   }
+}
+
+// Commands wait for the server's info (the connection is open and its capabilities known).
+let ready = false;
+const early = [];
+client.on("serverInfo", () => {
+  ready = true;
+  early.splice(0).forEach(run);
+});
+readline.createInterface({ input: process.stdin }).on("line", (line) => {
+  if (ready) run(line);
+  else early.push(line);
 });

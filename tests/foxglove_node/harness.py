@@ -196,9 +196,11 @@ class NodeClient:
             self.events.append(e)
             self._unread.append(e)
 
-    def forget(self, event: str) -> None:
-        """Drop the unread events of that kind: what comes next is newer."""
-        self._drain()
+    def forget(self, event: str, drain: bool = True) -> None:
+        """Drop the unread events of that kind (with ``drain``, also those read so far but
+        not yet looked at): what comes next is newer."""
+        if drain:
+            self._drain()
         self._unread = [e for e in self._unread if e["event"] != event]
 
     def vanish(self) -> None:
