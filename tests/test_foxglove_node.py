@@ -305,10 +305,14 @@ def test_a_stop_from_another_client_holds_until_the_driver_lets_go(
     reply = watcher.wait("response")["data"]
     assert reply["success"] and "drives again once it has let go" in reply["message"]
     # The base stops and stays stopped (25 samples: half a second) while a still sends.
+
+    def a_still_sends() -> bool:
+        a._drain()
+        return not any(e["event"] == "published" for e in a._unread)
+
     stopped = commands(26, where=lambda t: t == (0.0, 0.0, 0.0))
+    assert a_still_sends(), "the base stopped only once a stopped sending"
     assert stopped == [(0.0, 0.0, 0.0)] * 26
-    a._drain()
-    assert not any(e["event"] == "published" for e in a._unread), "a stopped sending early"
     told = a.wait("status", lambda e: "stopped the base" in e["message"])["message"]
     assert "commands are ignored until it sends none for 0.5 s" in told
     a.wait("published", timeout=15)
