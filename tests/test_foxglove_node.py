@@ -13,6 +13,7 @@ server binds to 127.0.0.1.
 from __future__ import annotations
 
 import base64
+import re
 import socket
 import time
 from collections.abc import Iterator
@@ -21,6 +22,7 @@ from typing import Any
 
 import pytest
 
+from . import terminal
 from .foxglove_node.harness import NodeClient, Omnican, json_line, node_modules
 
 LEGACY, SDK = "foxglove.websocket.v1", "foxglove.sdk.v1"
@@ -323,3 +325,40 @@ def test_a_stop_from_another_client_holds_until_the_driver_lets_go(
     code, out = s.omnican.finish(timeout=40, interrupt=True)
     assert code == 130, out
     assert json_line(out)["true_pose"]["x"] > 0.1
+
+
+def test_teleop_takes_the_teleop_panel_and_its_stop_key_holds(modules: Path) -> None:
+    """``omnican teleop --sim --foxglove-control`` in a terminal: a Foxglove client
+    drives while the keys are idle and the dashboard says so; a key that would move is
+    refused while the client drives; the stop key stops the base and the client, still
+    pressing, is told who stopped it; Esc quits and prints where the base went."""
+    port = free_port()
+    term = terminal.Pty("teleop", "--sim", "--foxglove-control", "--foxglove",
+                        f"127.0.0.1:{port}")
+    client = None
+    try:
+        term.wait_for("RUNNING")
+        client = NodeClient(modules, f"ws://127.0.0.1:{port}", LEGACY)
+        client.connected()
+        client.send("advertise", encoding="json")
+        ch = client.wait("advertised")["channel"]
+        client.send("publish", channel=ch, twist=[0.3, 0.0, 0.0], rate_hz=10, seconds=4)
+        term.wait_for_frame("Foxglove client 1 is driving")
+        term.keys("i")  # forward, from the keys: refused while the client drives
+        term.wait_for_frame("Foxglove client 1 is driving: space stops the base")
+        term.keys(" ")
+        term.wait_for_frame("stopped Foxglove client 1: it drives again once it lets go")
+        told = client.wait("status", lambda e: "stopped the base" in e["message"])["message"]
+        assert told.startswith("the terminal's keys stopped the base")
+        client.wait("published", timeout=10)
+        term.keys("\x1b")
+        assert term.exit_code() == 0
+        final = term.read(0.5).strip().splitlines()[-1]
+        match = re.fullmatch(r"pose x=(\S+) y=(\S+) theta=(\S+)", final.strip())
+        assert match is not None, final
+        assert float(match[1]) > 0.01  # the client drove it forward (until the stop)
+        assert abs(float(match[3])) < 0.01
+    finally:
+        if client is not None:
+            client.close()
+        term.close()
