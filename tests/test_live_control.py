@@ -525,3 +525,19 @@ def test_an_unknown_foxglove_key_is_refused_by_the_config(tmp_path: Path) -> Non
     with pytest.raises(ConfigError, match="foxglove.controll: unknown key 'controll' "
                                           r"\(did you mean 'control'\?\)"):
         load_config(robot)
+
+
+def test_control_needs_an_sdk_that_says_when_a_client_leaves(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """foxglove-sdk before 0.25.2 does not tell the server's listener when a client
+    disconnects, so the base could not stop when its driver leaves: control is refused
+    there (watching is not)."""
+    import importlib.metadata
+
+    monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.25.1")
+    with pytest.raises(ConfigError, match=r"--foxglove-control needs foxglove-sdk 0\.25\.2 or "
+                                          r"later .*; this is 0\.25\.1"):
+        resolve({"control": True}, None)
+    assert resolve({}, None).control is False  # watching only: no such need
+    monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.30.3")
+    assert resolve({"control": True}, None).control is True
