@@ -32,7 +32,7 @@ from omnican.chassis.runner import LockstepRunner, ThreadRunner
 from omnican.chassis.signals import guard
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
-from omnican.config import ChassisConfig, ChassisSettings
+from omnican.config import ChassisConfig, ChassisSettings, with_live_limits
 from omnican.drive import DriveNode
 from omnican.errors import ConfigError, DriveError
 from omnican.kinematics import Twist
@@ -227,8 +227,6 @@ class Chassis:
         ``base.cfg.chassis``).
 
         Raises ConfigError (a ValueError) naming the key and why; nothing changes then."""
-        from omnican.config import with_live_limits
-
         with self._limits_lock:
             if self._closed:
                 raise DriveError("the base is closed")
