@@ -195,7 +195,7 @@ def test_readme_reference_matches_the_schema() -> None:
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     rows = [line for line in readme.splitlines() if line.startswith("| `chassis.")
             or line.startswith("| `wheel.") or line.startswith("| `ros2.")
-            or line.startswith("| `gamepad.")]
+            or line.startswith("| `foxglove.") or line.startswith("| `gamepad.")]
     expected = [f"| `{key}` | {default} | {doc} |" for key, default, doc in reference_rows()]
     assert rows == expected
 
