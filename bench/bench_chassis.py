@@ -36,10 +36,17 @@ def emit(**fields: Any) -> None:
     print(json.dumps(fields), flush=True)
 
 
-def config(rate_hz: float) -> ChassisConfig:
+def config(rate_hz: float, wheels: int = 3) -> ChassisConfig:
+    """The demo base at ``rate_hz``; ``wheels`` other than 3: that many of its wheels,
+    one node each, spread evenly around the centre."""
     cfg = default_config(bus={"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"})
-    return replace(cfg, chassis=replace(cfg.chassis, rate_hz=rate_hz, max_accel=2.0,
-                                         max_angular_accel=6.0))
+    cfg = replace(cfg, chassis=replace(cfg.chassis, rate_hz=rate_hz, max_accel=2.0,
+                                        max_angular_accel=6.0))
+    if wheels == 3:
+        return cfg
+    one = cfg.wheels[0]
+    return replace(cfg, chassis=replace(cfg.chassis, layout=None), wheels=tuple(
+        replace(one, node_id=i + 1, angle_deg=360.0 * i / wheels) for i in range(wheels)))
 
 
 def loop_thread(base: Chassis) -> threading.Thread:

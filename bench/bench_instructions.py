@@ -1,5 +1,8 @@
 """Instructions omnican's host side executes per control cycle: the same number on every
-run, so the figure to compare two commits by (timings on a shared VM move by a third).
+run, so the figure to compare two commits by (timings on a shared VM move by a third);
+beside it the same count for bench_cycle's minimal hand-written loop (the floor) and its
+plain canopen loop, run unchanged on the same simulated clock and drives, for 3 wheels
+(and ``--wheels 3,6,12``), and what the simulated drives themselves cost per cycle.
 
 The base and three simulated drives run in lock-step on one thread (as bench_cycle's
 lock-step row) under ``valgrind --tool=callgrind``, which counts only while the host
@@ -18,6 +21,7 @@ Run: ``python bench/bench_instructions.py`` (about a minute per rate under valgr
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -26,8 +30,11 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+import can
 
 TOGGLE_C = r"""
 #define PY_SSIZE_T_CLEAN
@@ -61,62 +68,196 @@ def build_toggle(where: Path) -> str | None:
     return None
 
 
-def child(rate_hz: float, cycles: int) -> None:
-    """Runs under callgrind: drive the lock-step base, counting only the host side."""
+def _toggler() -> Any:
+    """``wrap(owner, fn)``: ``fn`` counted when ``owner`` is the side counted (the host,
+    or with OMNICAN_COUNT_SIDE=sim the simulated drives), however the calls nest (a host
+    send answered inside by the simulated drives)."""
     import cgtoggle  # type: ignore[import-not-found]  # built by the parent
+
+    side = os.environ.get("OMNICAN_COUNT_SIDE", "host")
+    owners: list[str] = []
+
+    def wrap(owner: str, fn: Any) -> Any:
+        def run(*args: Any, **kwargs: Any) -> Any:
+            before = bool(owners) and owners[-1] == side
+            owners.append(owner)
+            if (owner == side) != before:
+                cgtoggle.toggle()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                owners.pop()
+                after = bool(owners) and owners[-1] == side
+                if after != (owner == side):
+                    cgtoggle.toggle()
+        return run
+
+    return wrap
+
+
+def _counted(wrap: Any, clock: Any, sim: Any, rate_hz: float, cycles: int,
+             command: Any, count: Any) -> None:
+    """Run ``cycles`` cycles with the collection on for the host side only (``wrap``: the
+    one toggler the host's functions are wrapped with too); print them."""
+    import cgtoggle
+
+    sim_bus = sim.network.bus
+    sim_bus.set_receiver(wrap("sim", sim_bus._receiver))
+    ticks = sim.scheduler._ticks
+    ticks[:] = [wrap("sim", tick) for tick in ticks]
+    cycles0 = count()
+    cgtoggle.zero()
+    for k in range(max(cycles // 10, 1)):
+        command(k)
+        clock.sleep(10 / rate_hz)
+    cgtoggle.dump()
+    print(json.dumps({"cycles": count() - cycles0}))
+
+
+def child(rate_hz: float, cycles: int, kind: str, wheels: int) -> None:
+    """Runs under callgrind: one kind of loop against lock-step simulated drives,
+    counting only the host side."""
     from bench_chassis import config
 
     from omnican import Chassis
     from omnican.clock import SimClock
     from omnican.sim import SimulatedBase
 
-    owners: list[str] = []
-
-    def wrap(owner: str, fn: Any) -> Any:
-        def run(*args: Any, **kwargs: Any) -> Any:
-            before = bool(owners) and owners[-1] == "host"
-            owners.append(owner)
-            if (owner == "host") != before:
-                cgtoggle.toggle()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                owners.pop()
-                after = bool(owners) and owners[-1] == "host"
-                if after != (owner == "host"):
-                    cgtoggle.toggle()
-        return run
-
-    cfg = config(rate_hz)
+    cfg = config(rate_hz, wheels)
     clock = SimClock()
-    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
-            Chassis.open(cfg, clock=clock) as base:
-        clock.sleep(0.3)
-        sim_bus, host_bus = sim.network.bus, base.bus.network.bus
-        sim_bus.set_receiver(wrap("sim", sim_bus._receiver))  # type: ignore[union-attr]
-        host_bus.set_receiver(wrap("host", host_bus._receiver))  # type: ignore[union-attr]
-        ticks = sim.scheduler._ticks
-        ticks[:] = [wrap("sim", tick) for tick in ticks]
-        base._runner.cycle = wrap("host", base._runner.cycle)
-        cycles0 = base.status.cycles
-        cgtoggle.zero()
-        for k in range(max(cycles // 10, 1)):
-            base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.2)
-            clock.sleep(10 / rate_hz)
-        cgtoggle.dump()
-        print(json.dumps({"cycles": base.status.cycles - cycles0}))
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        if kind == "omnican":
+            with Chassis.open(cfg, clock=clock) as base:
+                clock.sleep(0.3)
+                wrap = _toggler()
+                host_bus = base.bus.network.bus
+                host_bus.set_receiver(wrap("host", host_bus._receiver))  # type: ignore[union-attr]
+                base._runner.cycle = wrap("host", base._runner.cycle)
+                _counted(wrap, clock, sim, rate_hz, cycles,
+                         lambda k: base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.2),
+                         lambda: base.status.cycles)
+            return
+        with _hand_loop(cfg, clock, kind) as (step, count):
+            wrap = _toggler()
+            task = clock.every(1.0 / rate_hz, wrap("host", step))
+            clock.sleep(0.3)
+            _counted(wrap, clock, sim, rate_hz, cycles, lambda k: None, count)
+            clock.cancel(task)
 
 
-def measure(rate_hz: float, cycles: int, toggle_dir: Path, out_dir: Path) -> dict[str, Any]:
+@contextlib.contextmanager
+def _hand_loop(cfg: Any, clock: Any, kind: str) -> Iterator[tuple[Any, Any]]:
+    """bench_cycle's hand-written loops ("minimal", "canopen"), unchanged in what a cycle
+    does, on the lock-step clock: (the cycle, a function giving the cycles run)."""
+    import struct
+
+    import canopen
+
+    from omnican.lockstep import LockstepBus, listeners_receiver
+
+    channel = str(cfg.bus["channel"])
+    net = canopen.Network()
+    bus = LockstepBus(channel, clock)
+    bus.set_receiver(listeners_receiver(net.listeners))
+    net.bus = bus
+    nodes = []
+    for w in cfg.wheels:
+        node = canopen.RemoteNode(w.node_id, str(w.eds))
+        net.add_node(node)
+        node.sdo.RESPONSE_TIMEOUT = 0.01  # answers come inside the request's send
+        node.sdo[0x6060].raw = 3
+        node.tpdo.read()
+        node.rpdo.read()
+        nodes.append(node)
+    net.nmt.state = "OPERATIONAL"
+    clock.sleep(0.05)
+    for cw in (6, 7, 15):
+        for node in nodes:
+            node.rpdo[1]["Controlword"].raw = cw
+            node.rpdo[1].transmit()
+        clock.sleep(0.01)
+    kin = cfg.kinematics()
+    counters = {"cycles": 0}
+    if kind == "canopen":
+        import numpy as np
+
+        last: list[Any] = [None]
+
+        def step(now: float) -> None:
+            speeds = kin.to_wheel_speeds_array(np.array([[0.2, 0.1, 0.3]]))[0]
+            for node, w, v in zip(nodes, cfg.wheels, speeds, strict=True):
+                node.rpdo[2]["Target velocity"].raw = round(v * w.velocity_scale)
+                node.rpdo[2].transmit()
+            net.sync.transmit()
+            pos = [node.tpdo[2]["Position actual value"].raw for node in nodes]
+            travel = np.array(pos) / cfg.wheels[0].position_scale
+            if last[0] is not None:
+                kin.to_twist(travel - last[0])
+            last[0] = travel
+            counters["cycles"] += 1
+    else:
+        bus.set_receiver(None)  # frames queue for recv(), read on the loop's thread
+        rows, fwd = kin.rows, kin.forward_rows
+        targets = []
+        slots: dict[int, tuple[int, int, float]] = {}
+        pack = struct.Struct("<i").pack
+        for i, (node, w) in enumerate(zip(nodes, cfg.wheels, strict=True)):
+            var = node.rpdo[2]["Target velocity"]
+            msg = can.Message(arbitration_id=node.rpdo[2].cob_id, is_extended_id=False,
+                              data=bytes(node.rpdo[2].data))
+            targets.append((msg, pack, var.offset // 8, w.velocity_scale,
+                            bytearray(node.rpdo[2].data)))
+            pos = node.tpdo[2]["Position actual value"]
+            slots[node.tpdo[2].cob_id] = (i, pos.offset // 8, w.position_scale)
+        unpack = struct.Struct("<i").unpack_from
+        sync_msg = can.Message(arbitration_id=0x80, is_extended_id=False, data=b"")
+        pose = [0.0, 0.0, 0.0]
+        travel = [0.0] * len(nodes)
+        previous: list[list[float] | None] = [None]
+        recv, send = bus.recv, bus.send
+
+        def step(now: float) -> None:
+            while (m := recv(0)) is not None:
+                slot = slots.get(m.arbitration_id)
+                if slot is not None:
+                    travel[slot[0]] = unpack(m.data, slot[1])[0] / slot[2]
+            last_ = previous[0]
+            if last_ is not None:
+                dx = dy = dw = 0.0
+                for k, (t, t0) in enumerate(zip(travel, last_, strict=True)):
+                    d = t - t0
+                    dx += fwd[0][k] * d
+                    dy += fwd[1][k] * d
+                    dw += fwd[2][k] * d
+                c, s_ = math.cos(pose[2]), math.sin(pose[2])
+                pose[0] += c * dx - s_ * dy
+                pose[1] += s_ * dx + c * dy
+                pose[2] += dw
+            previous[0] = list(travel)
+            for (msg, pack_, off, scale, buf), (a, b, c_) in zip(targets, rows, strict=True):
+                buf[off:off + 4] = pack_(round((a * 0.2 + b * 0.1 + c_ * 0.3) * scale))
+                msg.data = bytes(buf)  # type: ignore[assignment]  # copied for free
+                send(msg)
+            send(sync_msg)
+            counters["cycles"] += 1
+    try:
+        yield step, lambda: counters["cycles"]
+    finally:
+        bus.shutdown()
+
+
+def measure(rate_hz: float, cycles: int, toggle_dir: Path, out_dir: Path, kind: str = "omnican",
+            wheels: int = 3, side: str = "host") -> dict[str, Any]:
     env = dict(os.environ)
+    env["OMNICAN_COUNT_SIDE"] = side
     here = Path(__file__).resolve().parent
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(toggle_dir), str(here),
                                                       env.get("PYTHONPATH")]))
-    prefix = out_dir / f"cg-{int(rate_hz)}"
+    prefix = out_dir / f"cg-{kind}-{wheels}-{int(rate_hz)}-{side}"
     done = subprocess.run(
         ["valgrind", "--tool=callgrind", "--collect-atstart=no",
          f"--callgrind-out-file={prefix}.%p", sys.executable, str(Path(__file__).resolve()),
-         "--child", str(rate_hz), str(cycles)],
+         "--child", str(rate_hz), str(cycles), kind, str(wheels)],
         check=False, capture_output=True, text=True, env=env)
     if done.returncode != 0:
         raise SystemExit(f"bench_instructions: the run under valgrind failed:\n{done.stderr[-2000:]}")
@@ -127,8 +268,8 @@ def measure(rate_hz: float, cycles: int, toggle_dir: Path, out_dir: Path) -> dic
     for line in dumps[0].read_text().splitlines():
         if line.startswith("summary:"):
             total = int(line.split()[1])
-    return {"bench": "host_instructions", "rate_hz": rate_hz, "cycles": n,
-            "instructions_per_cycle": round(total / max(n, 1))}
+    return {"bench": f"{side}_instructions", "loop": kind, "wheels": wheels, "rate_hz": rate_hz,
+            "cycles": n, "instructions_per_cycle": round(total / max(n, 1))}
 
 
 def main() -> None:
@@ -136,18 +277,55 @@ def main() -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rates", default="100,1000", help="comma-separated rates in Hz")
     parser.add_argument("--cycles", type=int, default=1000, help="cycles counted per rate")
-    parser.add_argument("--child", nargs=2, metavar=("RATE", "CYCLES"), help=argparse.SUPPRESS)
+    parser.add_argument("--loops", default="omnican,minimal,canopen",
+                        help="which loops to count: omnican, minimal, canopen")
+    parser.add_argument("--wheels", default="3", help="comma-separated wheel counts (3,6,12)")
+    parser.add_argument("--child", nargs=4, metavar=("RATE", "CYCLES", "LOOP", "WHEELS"),
+                        help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        child(float(args.child[0]), int(args.child[1]))
+        child(float(args.child[0]), int(args.child[1]), args.child[2], int(args.child[3]))
         return
     with tempfile.TemporaryDirectory() as tmp:
         why = build_toggle(Path(tmp))
         if why is not None:
             print(f"bench_instructions: cannot count instructions here: {why}", file=sys.stderr)
             raise SystemExit(2)
-        for rate in (float(r) for r in args.rates.split(",")):
-            print(json.dumps(measure(rate, args.cycles, Path(tmp), Path(tmp))), flush=True)
+        counts: dict[tuple[str, int, float], int] = {}
+        for wheels in (int(w) for w in args.wheels.split(",")):
+            for rate in (float(r) for r in args.rates.split(",")):
+                for kind in args.loops.split(","):
+                    row = measure(rate, args.cycles, Path(tmp), Path(tmp), kind, wheels)
+                    counts[(kind, wheels, rate)] = row["instructions_per_cycle"]
+                    print(json.dumps(row), flush=True)
+        _summary(counts)
+        if "omnican" in args.loops.split(","):  # what the simulated drives cost per cycle
+            for rate in (float(r) for r in args.rates.split(",")):
+                row = measure(rate, args.cycles, Path(tmp), Path(tmp), "omnican", 3, "sim")
+                row["host"] = counts.get(("omnican", 3, rate))
+                print(json.dumps(row), flush=True)
+
+
+def _summary(counts: dict[tuple[str, int, float], int]) -> None:
+    """omnican against the minimal loop (the floor) and plain canopen, per rate and wheel
+    count; and what each wheel beyond three adds to each."""
+    for (kind, wheels, rate), n in sorted(counts.items()):
+        if kind != "omnican":
+            continue
+        row: dict[str, Any] = {"bench": "host_instructions.ratio", "wheels": wheels,
+                               "rate_hz": rate, "omnican": n}
+        for other in ("minimal", "canopen"):
+            m = counts.get((other, wheels, rate))
+            if m:
+                row[other] = m
+                row[f"omnican_per_{other}"] = round(n / m, 3)
+        base_o, base_m = counts.get(("omnican", 3, rate)), counts.get(("minimal", 3, rate))
+        if wheels != 3 and base_o and base_m and ("minimal", wheels, rate) in counts:
+            added_o = (n - base_o) / (wheels - 3)
+            added_m = (counts[("minimal", wheels, rate)] - base_m) / (wheels - 3)
+            row["added_per_wheel"] = {"omnican": round(added_o), "minimal": round(added_m),
+                                      "ratio": round(added_o / added_m, 2) if added_m else None}
+        print(json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":

@@ -153,9 +153,11 @@ def bench_live(rate_hz: float, seconds: float) -> None:
         watcher = _Watcher(view.url)
         watcher.start()
         publisher = next(t for t in threading.enumerate() if t.name == "omnican-telemetry")
+        relay = next(t for t in threading.enumerate() if t.name == "omnican-foxglove-relay")
         time.sleep(1.0)
         cycles0, late0 = base.status.cycles, base._runner.late
         loop0, pub0, msgs0 = thread_cpu(loop_thread(base)), thread_cpu(publisher), watcher.messages
+        relay0 = thread_cpu(relay)
         t0 = time.monotonic()
         while time.monotonic() - t0 < seconds:
             base.set_velocity(0.3 * math.sin(time.monotonic()), 0.1, 0.2)
@@ -169,6 +171,8 @@ def bench_live(rate_hz: float, seconds: float) -> None:
                                                   / max(cycles, 1) * 1e6, 1),
                       publisher_cpu_ms_per_s=round((thread_cpu(publisher) - pub0)
                                                    / elapsed * 1e3, 1),
+                      # the port the client connects to (omnican.live.relay): its copying
+                      relay_cpu_ms_per_s=round((thread_cpu(relay) - relay0) / elapsed * 1e3, 1),
                       messages_per_s=round((watcher.messages - msgs0) / elapsed))
         watcher.stop_event.set()
         watcher.join()

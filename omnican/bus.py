@@ -36,6 +36,9 @@ BUS_DOWN_AFTER_S = 0.05  # sends or receives failing for this long: the bus is d
 BUS_UP_AFTER_S = 0.2  # and working again for this long: it is back up
 WENT_DOWN, CAME_BACK = "went down", "came back"  # what BusWatch.check reports
 NOTIFIER_STOP_S = 0.5
+# How long the Notifier thread blocks in one receive: also how long handing reception to
+# the loop waits for it to end on a quiet bus (startup: 0.1 s here cost 0.1 s half the time).
+NOTIFIER_CYCLE_S = 0.02
 RX_ERROR_PAUSE_S = 0.05
 _FRAME_BITS = tuple(frame_bits(n) for n in range(65))  # worst case, by data length
 
@@ -185,7 +188,7 @@ class CanBus:
     A context manager; :meth:`close` is idempotent."""
 
     def __init__(self, bus: Mapping[str, Any] | None = None, recorder: Recorder | None = None,
-                 notifier_cycle_s: float = 0.1, clock: Clock = REAL_TIME) -> None:
+                 notifier_cycle_s: float = NOTIFIER_CYCLE_S, clock: Clock = REAL_TIME) -> None:
         self.bus_kwargs: dict[str, Any] = dict(bus or {})
         self.clock = clock
         self.lockstep = clock.lockstep
@@ -201,6 +204,12 @@ class CanBus:
         listeners.append(self._taps)
         if recorder is not None:
             listeners.append(recorder)  # type: ignore[arg-type]  # a listener by protocol
+        # What poll() hands each frame to besides canopen's subscribers (the list is made
+        # here, once: later listeners go through the taps).
+        # The taps are read in place (most of the time there are none: no call).
+        self._extra_listeners: tuple[can.Listener, ...] = tuple(
+            x for x in listeners if x is not self.traffic and x is not self._taps and
+            not isinstance(x, canopen.network.MessageListener))
         self.sync_epoch = 0
         self.sync_time = 0.0
         self._sync_msg = prepared_message(SYNC_COB_ID, b"")
@@ -217,9 +226,10 @@ class CanBus:
         self._reconnect_wanted = threading.Event()
         self._polling = False
         self._force_reopen = False
-        self._poll_cache: tuple[tuple[int, int], tuple[can.Listener, ...]] = ((0, -1), ())
         self._poll_bus: tuple[Any, Any, Any] = (None, None, None)  # bus, its recv, fast recv
         self._reconnect_thread: threading.Thread | None = None
+        if self.lockstep:
+            self.send_prepared = self._send_lockstep  # type: ignore[method-assign]
         self._connect()
 
     @property
@@ -288,55 +298,49 @@ class CanBus:
                 # bookkeeping around the interface's own receive, for every frame.
                 internal = bus._recv_internal
             self._poll_bus = (bus, recv, internal)
-        traffic = self.traffic
-        extra = self._poll_listeners()
-        # canopen's Network.notify, less its node scanner (omnican scan runs a network of
-        # its own): the subscribers by COB-ID, a copy-on-write dict of lists.
-        subscribers = self.network.subscribers
-        frame_bits = _FRAME_BITS
-        n = frames = bits = 0
-        try:
-            while n < limit:
-                try:
-                    msg = internal(0)[0] if internal is not None else recv(0)
-                except Exception as exc:  # an interface gone down: as the Notifier says
-                    self.rx_error = f"receive failed: {exc}"
-                    break
-                if msg is None:
-                    break
-                n += 1
-                data = msg.data
-                frames += 1
-                bits += frame_bits[len(data)]
-                for listener in extra:
-                    listener.on_message_received(msg)
-                if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
-                    if msg.is_error_frame:  # the controller's state (SocketCAN)
-                        self.controller.on_error_frame(msg.arbitration_id, data)
-                    continue  # 29-bit frames are other devices', never CANopen
-                callbacks = subscribers.get(msg.arbitration_id)
-                if callbacks:
-                    try:
-                        for callback in callbacks:
-                            callback(msg.arbitration_id, data, msg.timestamp)
-                    except Exception as exc:  # a callback's failure must not stop reception
-                        frame_error(msg.arbitration_id, exc)
-        finally:
-            traffic.loop_frames += frames
-            traffic.loop_bits += bits
+        dispatch = self._dispatch
+        n = 0
+        while n < limit:
+            try:
+                msg = internal(0)[0] if internal is not None else recv(0)
+            except Exception as exc:  # an interface gone down: as the Notifier says
+                self.rx_error = f"receive failed: {exc}"
+                break
+            if msg is None:
+                break
+            n += 1
+            dispatch(msg)
         if n and self.rx_error is not None:
             self.rx_error = None
         return n
 
-    def _poll_listeners(self) -> tuple[can.Listener, ...]:
-        """Listeners other than the ones poll() serves inline (traffic, canopen)."""
-        listeners: list[Any] = self.network.listeners
-        key = (id(listeners), len(listeners))  # the list only ever grows (appends)
-        if key != self._poll_cache[0]:
-            kept = tuple(x for x in listeners if x is not self.traffic and
-                         not isinstance(x, canopen.network.MessageListener))
-            self._poll_cache = (key, kept)
-        return self._poll_cache[1]
+    def _dispatch(self, msg: can.Message) -> None:
+        """One received frame, as the Notifier would hand it on: counted, to the
+        listeners, and (a standard data frame) to canopen's subscribers by COB-ID, a
+        copy-on-write dict of lists. canopen's Network.notify less its node scanner
+        (omnican scan runs a network of its own). The loop's poll calls this for each
+        frame, and the lock-step bus as each frame arrives."""
+        traffic = self.traffic
+        data = msg.data
+        traffic.loop_frames += 1
+        traffic.loop_bits += _FRAME_BITS[len(data)]
+        for listener in self._extra_listeners:
+            listener.on_message_received(msg)
+        taps = self._taps.received
+        if taps:
+            for tap in taps:
+                tap.on_message_received(msg)
+        if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+            if msg.is_error_frame:  # the controller's state (SocketCAN)
+                self.controller.on_error_frame(msg.arbitration_id, data)
+            return  # 29-bit frames are other devices', never CANopen
+        callbacks = self.network.subscribers.get(msg.arbitration_id)
+        if callbacks:
+            try:
+                for callback in callbacks:
+                    callback(msg.arbitration_id, data, msg.timestamp)
+            except Exception as exc:  # a callback's failure must not stop reception
+                frame_error(msg.arbitration_id, exc)
 
     def _connect(self) -> None:
         if self.lockstep:
@@ -364,13 +368,9 @@ class CanBus:
                               f"must be interface 'virtual' with a channel, not {interface!r}")
         lockstep = LockstepBus(str(channel), self.clock)
 
-        def receive(msg: can.Message) -> None:
-            # The real-time loop's own receive, for each frame as it arrives: lock-step
-            # runs exercise the same dispatch (subscribers, taps, traffic) as a robot.
-            lockstep.push(msg)
-            self.poll()
-
-        lockstep.set_receiver(receive)
+        # The real-time loop's own dispatch, for each frame as it arrives: lock-step runs
+        # exercise the same path (traffic, listeners, subscribers) as a robot.
+        lockstep.set_receiver(self._dispatch)
         self.network.bus = lockstep
 
     def _sent(self, can_id: int, data: bytes) -> None:
@@ -410,10 +410,9 @@ class CanBus:
         lock). A failure is counted and reported, not raised; a frame the bus refuses
         (interface down, transmit queue full) is dropped, never queued: what the drives
         need is this cycle's targets, not a backlog. Straight to the bus: canopen's
-        ``send_message`` adds a second message object and a Notifier check per frame."""
+        ``send_message`` adds a second message object and a Notifier check per frame.
+        (In lock-step this is :meth:`_send_lockstep`.)"""
         network = self.network
-        if self.lockstep:
-            self._record(msg.arbitration_id, msg.data)
         bus = None
         try:
             with network.send_lock:
@@ -422,23 +421,48 @@ class CanBus:
                     raise can.CanOperationError("bus is closed (reopening)")
                 bus.send(msg)
         except (can.CanError, OSError, RuntimeError, ValueError) as exc:
-            self.send_errors += 1
-            self.dropped_frames += 1
-            if bus is not None or self.last_error is None:
-                # While the bus is closed to be reopened, the error shown stays the one it
-                # went down for (the interface is down, say), not "closed".
-                self.last_error = describe_send_error(msg.arbitration_id, exc)
-            return False
+            return self._send_failed(msg, bus, exc)
         traffic = self.traffic
         traffic.loop_frames += 1
         traffic.loop_bits += bits
-        if (self.recorder is not None or self._taps.sent) and not self.lockstep:
+        if self.recorder is not None or self._taps.sent:
             self._record(msg.arbitration_id, msg.data)
         if self.send_errors:
-            logger.info("bus sends work again after %d errors", self.send_errors)
-            self.send_errors = 0
-            self.last_error = None
+            self._sends_work()
         return True
+
+    def _send_lockstep(self, msg: can.Message, bits: int) -> bool:
+        """:meth:`send_prepared` on a lock-step bus: one thread, so no lock; recorded
+        before the send, since the answers arrive inside it."""
+        if self.recorder is not None or self._taps.sent:
+            self._record(msg.arbitration_id, msg.data)
+        bus = self.network.bus
+        try:
+            if bus is None:
+                raise can.CanOperationError("bus is closed")
+            bus.send(msg)
+        except (can.CanError, OSError, RuntimeError, ValueError) as exc:
+            return self._send_failed(msg, bus, exc)
+        traffic = self.traffic
+        traffic.loop_frames += 1
+        traffic.loop_bits += bits
+        if self.send_errors:
+            self._sends_work()
+        return True
+
+    def _send_failed(self, msg: can.Message, bus: can.BusABC | None, exc: Exception) -> bool:
+        self.send_errors += 1
+        self.dropped_frames += 1
+        if bus is not None or self.last_error is None:
+            # While the bus is closed to be reopened, the error shown stays the one it
+            # went down for (the interface is down, say), not "closed".
+            self.last_error = describe_send_error(msg.arbitration_id, exc)
+        return False
+
+    def _sends_work(self) -> None:
+        logger.info("bus sends work again after %d errors", self.send_errors)
+        self.send_errors = 0
+        self.last_error = None
 
     def sync(self) -> bool:
         """Send a SYNC; samples the drives take for it carry the new epoch."""

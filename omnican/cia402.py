@@ -60,6 +60,16 @@ STATE_BITS: dict[State, tuple[int, int]] = {
 }
 
 
+#: (mask, value) of OPERATION ENABLED, for the control loop's one-comparison test: no
+#: earlier entry of STATE_BITS matches a statusword that this one matches.
+ENABLED_MASK, ENABLED_BITS = STATE_BITS[State.OPERATION_ENABLED]
+
+
+def is_operation_enabled(statusword: int | None) -> bool:
+    """``decode_state(statusword) is State.OPERATION_ENABLED``, in one comparison."""
+    return statusword is not None and statusword & ENABLED_MASK == ENABLED_BITS
+
+
 def decode_state(statusword: int | None) -> State:
     """State from a statusword; None (nothing received yet) -> UNKNOWN."""
     if statusword is None:

@@ -66,6 +66,13 @@ _NUM = (int, float)
 #: Values of chassis.pdo_mapping (what omnican.pdoplan does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
 
+#: [chassis] keys a running base takes while it runs (:meth:`omnican.Chassis.set_limits`,
+#: Foxglove's parameters): its velocity limiter's.
+LIVE_LIMITS = ("max_speed", "max_angular_speed", "max_accel", "max_angular_accel",
+               "stop_decel", "stop_angular_decel", "max_wheel_speed")
+_UNLIMITED_OK = ("max_speed", "max_angular_speed")  # inf: no such limit
+
+
 # Tables a front end reads and checks itself (the base ignores them): [gamepad] is
 # omnican.gamepad_model's.
 FRONT_END_SECTIONS = ("gamepad",)
@@ -200,6 +207,18 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "interface": Key((str,), None, "DDS network interface name or address; default all"),
         "peers": Key((list,), None, "unicast discovery peers (addresses or host names)"),
         "multicast": Key((bool,), True, "DDS multicast discovery"),
+    },
+    # Read by the live view (--foxglove; omnican/live/settings.py checks the values).
+    "foxglove": {
+        "control": Key((bool,), False, "drive from Foxglove (Teleop panel, services, "
+                       "parameters); --foxglove-control, off: the view only watches"),
+        "cmd_vel_topic": Key((str,), "/cmd_vel", "topic Foxglove's Teleop panel publishes "
+                             "geometry_msgs/Twist on"),
+        "allow_remote": Key((bool,), False, "control on a server that other hosts can reach "
+                            "(a host other than loopback); --foxglove-allow-remote"),
+        "tls_cert": Key((str,), None, "PEM certificate (relative to the config file): serve "
+                        "wss:// (a phone's browser needs it); with tls_key"),
+        "tls_key": Key((str,), None, "PEM private key of tls_cert"),
     },
 }
 
@@ -386,6 +405,7 @@ class ChassisConfig:
     ros2: Mapping[str, Any] | None = None  # the [ros2] table, schema-checked (omnican ros2)
     power: PowerSettings | None = None  # the [power] table
     estop: EstopSettings | None = None  # the [estop] table
+    foxglove: Mapping[str, Any] | None = None  # the [foxglove] table, schema-checked (--foxglove)
 
     def kinematics(self) -> OmniKinematics:
         c = self.chassis
@@ -555,7 +575,8 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        sections = ("bus", "chassis", "wheel", "power", "estop", "ros2", *FRONT_END_SECTIONS)
+        sections = ("bus", "chassis", "wheel", "power", "estop", "ros2", "foxglove",
+                    *FRONT_END_SECTIONS)
         if key not in sections:
             raise r.fail(key, f"unknown section {key!r}{_suggest(key, sections)}")
     bus = data.get("bus")
@@ -569,18 +590,20 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     rate = r.positive("chassis.rate_hz", c["rate_hz"])
     if rate > 5000:
         raise r.fail("chassis.rate_hz", f"must be at most 5000 Hz, got {rate}")
-    for key in ("cmd_timeout_s", "max_wheel_speed", "max_accel", "max_angular_accel",
-                "heartbeat_timeout_factor", "sdo_timeout_s", "boot_timeout_s",
-                "enable_timeout_s", "health_rate_hz", "tracking_time_s", "tracking_lag_s"):
+    for key in ("cmd_timeout_s", "heartbeat_timeout_factor", "sdo_timeout_s",
+                "boot_timeout_s", "enable_timeout_s", "health_rate_hz", "tracking_time_s",
+                "tracking_lag_s"):
         r.positive(f"chassis.{key}", c[key])
     if c["health_rate_hz"] > rate:
         raise r.fail("chassis.health_rate_hz", f"must be at most rate_hz ({rate:g}), got "
                      f"{c['health_rate_hz']}")
-    for key in ("max_speed", "max_angular_speed", "tracking_error"):
-        r.positive(f"chassis.{key}", c[key], allow_inf=True)
+    r.positive("chassis.tracking_error", c["tracking_error"], allow_inf=True)
+    for key in LIVE_LIMITS:
+        if key not in _SCALED:
+            _check_limit(r, key, c[key])
     settings = _chassis_settings(c)  # its mode once the rest is checked
     for key in _SCALED:
-        r.positive(f"chassis.{key}", getattr(settings, key))
+        _check_limit(r, key, getattr(settings, key))
     if not 1 <= c["host_node_id"] <= 127:
         raise r.fail("chassis.host_node_id", f"must be 1-127, got {c['host_node_id']}")
     if not 1 <= c["heartbeat_ms"] <= 65535:
@@ -617,8 +640,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         _check_gamepad(r, data["gamepad"])
     power = _parse_power(r, data["power"]) if "power" in data else None
     estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
+    foxglove = _foxglove_table(r, data["foxglove"], base_dir) if "foxglove" in data else None
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2, power=power,
-                        estop=estop)
+                        estop=estop, foxglove=foxglove)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -675,6 +699,46 @@ def _parse_settings(r: _Reader, where: str, raw: Any) -> tuple[VendorSetting, ..
             raise r.fail(f"{where}.sdo[{k}].value", f"must be finite, got {value!r}")
         out.append(VendorSetting(t["object"], value, kind))
     return tuple(out)
+
+
+def _check_limit(r: _Reader, key: str, value: Any) -> float:
+    """A limit's value as a config's [chassis] table must give it: a positive number,
+    inf only where the key allows it."""
+    return r.positive(f"chassis.{key}", value, allow_inf=key in _UNLIMITED_OK)
+
+
+def with_live_limits(settings: ChassisSettings, changes: Mapping[str, Any],
+                     origin: str = "live") -> ChassisSettings:
+    """``settings`` with ``changes`` (:data:`LIVE_LIMITS` keys -> values), each checked as
+    a config file's [chassis] key is checked (its type, then its range). Each key changes
+    only itself (a stop deceleration stays what it is when max_accel changes). Raises
+    :class:`ConfigError` naming the key and why, e.g. ``live: chassis.max_accel: must be a
+    positive number, got -1``."""
+    r = _Reader(origin)
+    values: dict[str, Any] = {}
+    for key, value in changes.items():
+        where = f"chassis.{key}"
+        if key not in LIVE_LIMITS:
+            what = ("unknown key" if key not in SCHEMA["chassis"] else
+                    "cannot change while the base runs")
+            raise r.fail(where, f"{what} (the limits that can: {', '.join(LIVE_LIMITS)})")
+        if isinstance(value, bool) or not isinstance(value, _NUM):
+            raise r.fail(where, f"must be a number, got {value!r}")
+        if isinstance(value, float) and math.isnan(value):
+            raise r.fail(where, "must be a number, got nan")
+        values[key] = _check_limit(r, key, value)
+    return replace(settings, **values)
+
+
+def _foxglove_table(r: _Reader, data: Any, base_dir: Path | None) -> dict[str, Any]:
+    """The ``[foxglove]`` table, its types checked; the TLS files' paths relative to the
+    config file made whole (omnican.live.settings checks the rest)."""
+    table = r.table("foxglove", data, "foxglove")
+    for key in ("tls_cert", "tls_key"):
+        if table[key] is not None:
+            p = Path(table[key]).expanduser()
+            table[key] = str(p if p.is_absolute() or base_dir is None else base_dir / p)
+    return table
 
 
 def _check_gamepad(r: _Reader, table: Any) -> None:

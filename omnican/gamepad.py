@@ -209,14 +209,19 @@ def apply(pad: Gamepad, model: TeleopModel, now: float) -> None:
     model.move((d[0] / biggest, d[1] / biggest, d[2] / biggest), now, label)
 
 
-def drive_step(base: Any, pad: Gamepad, model: TeleopModel, timeout: float) -> Twist:
-    """One step of gamepad teleop: read the pad for up to ``timeout`` s, pass it through
-    the teleop model, command the base (zero when the deadman is released or the pad is
-    gone). Returns the command."""
+def pad_command(pad: Gamepad, model: TeleopModel, timeout: float) -> Twist:
+    """Read the pad for up to ``timeout`` s and pass it through the teleop model: the
+    command it asks for (zero when the deadman is released or the pad is gone)."""
     pad.poll(timeout)
     now = time.monotonic()
     apply(pad, model, now)
-    command = model.command(now)
+    return model.command(now)
+
+
+def drive_step(base: Any, pad: Gamepad, model: TeleopModel, timeout: float) -> Twist:
+    """One step of gamepad teleop: :func:`pad_command`, sent to the base. Returns the
+    command."""
+    command = pad_command(pad, model, timeout)
     base.set_velocity(command.vx, command.vy, command.wz)
     return command
 

@@ -149,7 +149,7 @@ class OmniKinematics:
         self.forward_rows: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]] = (
             tuple(rx), tuple(ry), tuple(rw))
         # By wheel: what one wheel's value adds to (vx, vy, wz).
-        self._forward_cols: tuple[tuple[float, float, float], ...] = tuple(
+        self.forward_cols: tuple[tuple[float, float, float], ...] = tuple(
             zip(rx, ry, rw, strict=True))
 
     @staticmethod
@@ -201,7 +201,7 @@ class OmniKinematics:
         """:meth:`to_twist` on plain floats, unchecked: (vx, vy, wz) from wheel speeds,
         or a body displacement from wheel travel deltas."""
         x = y = w = 0.0
-        for (a, b, c), v in zip(self._forward_cols, wheel_values, strict=True):
+        for (a, b, c), v in zip(self.forward_cols, wheel_values, strict=True):
             x += a * v
             y += b * v
             w += c * v
@@ -212,7 +212,7 @@ class OmniKinematics:
         """``body_of(now - before)`` without the list: the body displacement between two
         sets of cumulative wheel travel (odometry's step, the measured speed's window)."""
         x = y = w = 0.0
-        for (a, b, c), v1, v0 in zip(self._forward_cols, now, before, strict=True):
+        for (a, b, c), v1, v0 in zip(self.forward_cols, now, before, strict=True):
             d = v1 - v0
             x += a * d
             y += b * d

@@ -105,6 +105,18 @@ class VelocityLimiter:
         self._kin = kinematics
         self._rows = kinematics.rows if kinematics is not None else ()
         self._last = (0.0, 0.0, 0.0)
+        # The last command and its feasible target (steps 1 and 2 depend on nothing else).
+        self._feasible: tuple[tuple[float, float, float], tuple[float, float, float]] | None = \
+            None
+
+    @property
+    def limits(self) -> VelocityLimits:
+        return self._limits
+
+    @limits.setter
+    def limits(self, limits: VelocityLimits) -> None:
+        self._limits = limits
+        self._feasible = None
 
     @property
     def output(self) -> Twist:
@@ -135,9 +147,24 @@ class VelocityLimiter:
     def step_xyz(self, vx: float, vy: float, wz: float,
                  dt: float) -> tuple[float, float, float]:
         """:meth:`step` on plain floats, unchecked (finite command, dt >= 0): the control
-        loop's form. Same three steps, no objects made."""
+        loop's form. Same three steps, no objects made. Returns the previous result (the
+        same tuple) while neither the command nor the output changes."""
+        command = (vx, vy, wz)
+        feasible = self._feasible
+        if feasible is not None and feasible[0] == command:
+            target = feasible[1]
+            last = self._last
+            if last == target:
+                return last  # holding the target: step 3 would return it unchanged
+            vx, vy, wz = target
+        else:
+            vx, vy, wz = self._steps_1_2(vx, vy, wz)
+            self._feasible = (command, (vx, vy, wz))
+        return self._step_3(vx, vy, wz, dt)
+
+    def _steps_1_2(self, vx: float, vy: float, wz: float) -> tuple[float, float, float]:
         # The factors are _ratio's, written out: this runs every cycle of the loop.
-        lim = self.limits
+        lim = self._limits
         # 1. speed limits, one factor
         lin, limit = math.hypot(vx, vy), lim.max_linear
         k = 1.0 if lin <= limit else limit / lin
@@ -156,7 +183,11 @@ class VelocityLimiter:
             if peak > limit:
                 k = limit / peak
                 vx, vy, wz = vx * k, vy * k, wz * k
+        return vx, vy, wz
+
+    def _step_3(self, vx: float, vy: float, wz: float, dt: float) -> tuple[float, float, float]:
         # 3. acceleration limits on the change, one factor
+        lim = self._limits
         cx, cy, cw = self._last
         stopping = vx == 0.0 and vy == 0.0 and wz == 0.0
         lin_a = lim.stop_linear_decel if stopping else lim.max_linear_accel

@@ -98,6 +98,7 @@ class Odometry:
     def __init__(self, kinematics: OmniKinematics, pose: Pose2D | None = None) -> None:
         self._kin = kinematics
         self._n = kinematics.num_wheels
+        self._cols = kinematics.forward_cols
         start = pose if pose is not None else Pose2D()
         # The pose as plain floats; Pose2D objects are made when asked for.
         self._x, self._y, self._th = start.x, start.y, start.theta
@@ -122,6 +123,11 @@ class Odometry:
     def delta(self) -> Twist:
         """Body displacement of the last step (m, m, rad), in the body frame at its start."""
         return Twist(*self._d)
+
+    @property
+    def last_step(self) -> tuple[float, float, float]:
+        """:attr:`delta` as plain floats (dx, dy, dtheta)."""
+        return self._d
 
     @property
     def twist(self) -> Twist:
@@ -168,10 +174,20 @@ class Odometry:
         self._last = travel
         if last is None:
             return
-        dx, dy, dw = self._kin.body_of_change(travel, last)
+        # kinematics.body_of_change and _sinc_terms, written out (each cycle).
+        dx = dy = dw = 0.0
+        for (ca, cb, cc), v1, v0 in zip(self._cols, travel, last, strict=True):
+            d = v1 - v0
+            dx += ca * d
+            dy += cb * d
+            dw += cc * d
         self._d, self._dt = (dx, dy, dw), dt_s
         # Compose the SE(2) exponential of the step onto the pose.
-        a, b = _sinc_terms(dw)
+        if -1e-4 < dw < 1e-4:
+            t2 = dw * dw
+            a, b = 1.0 - t2 / 6.0 + t2 * t2 / 120.0, dw / 2.0 - dw * t2 / 24.0
+        else:
+            a, b = math.sin(dw) / dw, (1.0 - math.cos(dw)) / dw
         lx, ly = a * dx - b * dy, b * dx + a * dy
         th = self._th
         c, s = math.cos(th), math.sin(th)

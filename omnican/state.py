@@ -133,7 +133,9 @@ class Snapshot:
     @property
     def wheels(self) -> tuple[WheelState, ...]:
         if self._wheels is None:
-            targets, speeds, flags, drives = self._wheel_values
+            # The measured rim speeds from the loop's speed window: (travel now, travel at
+            # the window's start, its span).
+            targets, (travel, travel0, span), flags, drives = self._wheel_values
             health = self._health[0]
             out = []
             for i, ((index, node_id, axis, scale), (online, stale),
@@ -145,7 +147,8 @@ class Snapshot:
                     fault = fault_text or (describe_emcy(error_value) if error_value
                                            else "fault")
                 out.append(WheelState(index, node_id, axis, state, statusword, mode, targets[i],
-                                      0.0 if stale else speeds[i], counts / scale, online,
+                                      0.0 if stale else (travel[i] - travel0[i]) / span,
+                                      counts / scale, online,
                                       fault, error, stale, *health[i]))
             self._wheels = tuple(out)
         return self._wheels

@@ -227,6 +227,48 @@ def test_reset_pose(rig: tuple[SimulatedBase, Chassis]) -> None:
     assert base.pose == Pose2D(1.0, 2.0, 0.5)
 
 
+def test_limits_change_live_from_the_next_cycle(rig: tuple[SimulatedBase, Chassis]) -> None:
+    """set_limits: a lower max_speed caps the motion from the next cycle on (the truth
+    says so, not the limiter), a higher one lets it go faster again, and the base keeps
+    running throughout."""
+    sim, base = rig
+    drive_for(base, 1.0, vx=0.4)
+    assert sim.true_twist.vx == pytest.approx(0.4, abs=0.02)
+    settings = base.set_limits(max_speed=0.15, max_accel=2.0)
+    assert (settings.max_speed, settings.max_accel) == (0.15, 2.0)
+    assert base.cfg.chassis is settings
+    drive_for(base, 0.6, vx=0.4)
+    assert sim.true_twist.vx == pytest.approx(0.15, abs=0.01)
+    assert base.command.vx == pytest.approx(0.15)
+    base.set_limits(max_speed=math.inf)
+    drive_for(base, 0.6, vx=0.4)
+    assert sim.true_twist.vx == pytest.approx(0.4, abs=0.02)
+    assert base.status.enabled and base.status.stopped_reason is None
+
+
+@pytest.mark.parametrize(("changes", "message"), [
+    ({"max_accel": -1.0}, "live: chassis.max_accel: must be a positive number, got -1.0"),
+    ({"max_speed": math.nan}, "live: chassis.max_speed: must be a number, got nan"),
+    ({"max_accel": math.inf}, "live: chassis.max_accel: must be a positive number, got inf"),
+    ({"stop_decel": True}, "live: chassis.stop_decel: must be a number, got True"),
+    ({"max_angular_speed": "fast"}, "chassis.max_angular_speed: must be a number, got 'fast'"),
+    ({"rate_hz": 50.0}, "live: chassis.rate_hz: cannot change while the base runs"),
+    ({"max_sped": 1.0}, "live: chassis.max_sped: unknown key"),
+    ({"max_wheel_speed": 1.5}, "chassis.max_wheel_speed: at most 1 m/s, the value the base "
+                               "was opened with"),
+])
+def test_a_refused_limit_says_why_and_changes_nothing(
+        rig: tuple[SimulatedBase, Chassis], changes: dict[str, Any], message: str) -> None:
+    sim, base = rig
+    before = base.cfg.chassis
+    with pytest.raises(ValueError) as info:
+        base.set_limits(**{"max_angular_accel": 1.0, **changes})  # a good one beside: not applied
+    assert message in str(info.value)
+    assert base.cfg.chassis is before
+    drive_for(base, 0.8, vx=0.3)
+    assert sim.true_twist.vx == pytest.approx(0.3, abs=0.02)
+
+
 @pytest.mark.parametrize("realtime", [False, True])
 def test_recording(channel: str, tmp_path: Path, realtime: bool) -> None:
     cfg = sim_config(channel)

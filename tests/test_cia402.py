@@ -19,6 +19,7 @@ from omnican.cia402 import (
     decode_state,
     describe_emcy,
     fault_reset_sequence,
+    is_operation_enabled,
     modes_to_bits,
     state_bits,
     supported_modes,
@@ -48,6 +49,13 @@ def test_decode_state(sw: int, state: State) -> None:
 
 def test_no_data_is_its_own_state() -> None:
     assert decode_state(None) is State.UNKNOWN
+
+
+def test_the_loops_enabled_test_agrees_with_the_table_for_every_statusword() -> None:
+    # The control loop tests OPERATION ENABLED with one mask; every 16-bit value checked.
+    for sw in range(0x10000):
+        assert is_operation_enabled(sw) == (decode_state(sw) is State.OPERATION_ENABLED), hex(sw)
+    assert not is_operation_enabled(None)
 
 
 @pytest.mark.parametrize("state", REAL_STATES)

@@ -233,9 +233,18 @@ def test_the_sim_banner_lists_the_commands() -> None:
 @pytest.mark.parametrize(("argv", "message"), [
     (["drive", "--square", "1", "--duration", "2"], "--duration is not used with --square"),
     (["drive", "--sim", "--heading-deg", "90"], "--heading-deg needs --speed"),
-    (["drive", "--sim"], "give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega or "
-                         "--square SIDE"),
+    (["drive", "--sim"], "give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega, "
+                         "--square SIDE, or --foxglove-control to take it from Foxglove"),
     (["drive", "--sim", "--duration", "2"], "give a motion"),
+    (["drive", "--sim", "--foxglove-control", "--vx", "0.1"],
+     "--foxglove-control takes the motion from Foxglove: give no motion, only --duration"),
+    (["drive", "--sim", "--foxglove-control", "--square", "1"], "takes the motion from Foxglove"),
+    (["drive", "--sim", "--fast", "--foxglove-control", "--duration", "1"],
+     "--foxglove-control drives in real time: drop --fast and --sim-speed"),
+    (["drive", "--sim", "--foxglove-control", "--foxglove", "0.0.0.0:0", "--duration", "1"],
+     "--foxglove-control on 0.0.0.0:0 lets anyone who reaches this host drive the robot: add "
+     "--foxglove-allow-remote"),
+    (["drive", "--sim", "--no-foxglove-control", "--foxglove", "127.0.0.1:0"], "give a motion"),
     (["sim", "--frame-loss", "2", "--duration", "0.1"], "--frame-loss must be 0-1, got 2"),
     (["sim", "--encoder-noise", "inf", "--duration", "0.1"], "--encoder-noise"),
     (["check-config", str(EXAMPLE), "--bitrate", "-5"], "argument --bitrate: must be a "

@@ -194,7 +194,8 @@ def test_readme_reference_matches_the_schema() -> None:
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     rows = [line for line in readme.splitlines() if line.startswith(
-        ("| `chassis.", "| `wheel.", "| `power.", "| `estop.", "| `ros2.", "| `gamepad."))]
+        ("| `chassis.", "| `wheel.", "| `power.", "| `estop.", "| `ros2.", "| `foxglove.",
+         "| `gamepad."))]
     expected = [f"| `{key}` | {default} | {doc} |" for key, default, doc in reference_rows()]
     assert rows == expected
 

@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 import pytest
 
 from omnican import Chassis, default_config
-from omnican.gamepad import Gamepad, drive_step, teleop_model_for
+from omnican.gamepad import Gamepad, drive_step, pad_command, teleop_model_for
 from omnican.sim import SimulatedBase
 from omnican.teleop_model import TeleopModel
 
@@ -200,11 +200,11 @@ def test_teleop_command_drives_with_the_gamepad(monkeypatch: pytest.MonkeyPatch,
     device = FakePad()
     driving = threading.Event()  # the command's loop runs (the drives are up)
 
-    def first_step(base: Chassis, pad: Gamepad, model: TeleopModel, timeout: float) -> Any:
+    def first_step(pad: Gamepad, model: TeleopModel, timeout: float) -> Any:
         driving.set()
-        return drive_step(base, pad, model, timeout)
+        return pad_command(pad, model, timeout)
 
-    monkeypatch.setattr(teleop_cli, "drive_step", first_step)
+    monkeypatch.setattr(teleop_cli, "pad_command", first_step)
     monkeypatch.setattr(Gamepad, "open", classmethod(
         lambda cls, path=None, table=None: Gamepad(device, table)))
     master, slave = os.openpty()

@@ -117,3 +117,24 @@ def test_loop_form_matches_the_three_steps(cmds: list[tuple[float, float, float]
         got = lim.step_xyz(vx, vy, wz, dt)
         assert got == pytest.approx((expected.vx, expected.vy, expected.wz), abs=1e-12)
         prev = expected
+
+
+@given(
+    cmds=st.lists(st.tuples(st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-10, 10)),
+                            st.integers(1, 40)), min_size=1, max_size=8),
+    dt=st.floats(0.0, 0.05),
+)
+def test_a_held_command_gives_what_a_fresh_computation_gives(
+        cmds: list[tuple[tuple[float, float, float], int]], dt: float) -> None:
+    """Commands held for many cycles (the loop's usual case: the limiter reuses its last
+    target and output) ramp, and then hold, exactly as the three steps say."""
+    from omnican.limits import limit_step
+
+    lim = VelocityLimiter(LIMITS, KIN)
+    prev = Twist()
+    for (vx, vy, wz), repeats in cmds:
+        for _ in range(repeats):
+            expected = limit_step(prev, lim.target(Twist(vx, vy, wz)), dt, LIMITS)
+            got = lim.step_xyz(vx, vy, wz, dt)
+            assert got == pytest.approx((expected.vx, expected.vy, expected.wz), abs=1e-12)
+            prev = Twist(*got)

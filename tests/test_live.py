@@ -215,12 +215,17 @@ _ = uuid, time
 
 
 def test_shipped_layout_is_current_and_names_our_topics() -> None:
-    """foxglove/omnican-layout.json is what tools/gen_foxglove_layout.py builds, and every
-    topic it shows is one the live view and MCAP recordings publish."""
+    """foxglove/omnican-layout.json is what tools/gen_foxglove_layout.py builds, in the
+    format the app's *Import from file* reads (every panel of the layout tree configured
+    in configById, and no other), and every topic and service it names is one the live
+    view (and an MCAP recording) offers; its Teleop panel drives the control topic often
+    enough for the command timeout."""
     import importlib.util
     import re
 
     from omnican import telemetry
+    from omnican.config import SCHEMA
+    from omnican.live.control import SERVICE_CONSOLE, SERVICE_RECOVER, SERVICE_RESET, SERVICE_STOP
 
     pytest.importorskip("foxglove.layouts", reason="this foxglove-sdk has no layout types "
                         "(the layout's generator needs a newer one)")
@@ -232,13 +237,33 @@ def test_shipped_layout_is_current_and_names_our_topics() -> None:
     spec.loader.exec_module(gen)
     text = (root / "foxglove" / "omnican-layout.json").read_text()
     assert text == gen.build(), "run python tools/gen_foxglove_layout.py"
+    layout = json.loads(text)
+    assert set(layout) == {"configById", "globalVariables", "userNodes", "playbackConfig",
+                           "layout"}
+    configs = layout["configById"]
+
+    def leaves(node: Any) -> list[str]:
+        if isinstance(node, str):
+            tabs = configs[node].get("tabs", []) if node.startswith("Tab!") else []
+            return [node] + [leaf for t in tabs for leaf in leaves(t["layout"])]
+        assert 0 < node["splitPercentage"] < 100 and node["direction"] in ("row", "column")
+        return leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(configs)
+    cmd_vel = SCHEMA["foxglove"]["cmd_vel_topic"].default
+    (teleop,) = [c for key, c in configs.items() if key.startswith("Teleop!")]
+    assert teleop["topic"] == cmd_vel
+    assert teleop["publishRate"] >= 2 / SCHEMA["chassis"]["cmd_timeout_s"].default
+    services = {c["serviceName"] for key, c in configs.items() if key.startswith("CallService!")}
+    assert services == {SERVICE_STOP, SERVICE_RECOVER, SERVICE_RESET, SERVICE_CONSOLE}
+    assert any(key.startswith("Parameters!") for key in configs)
     published = {*telemetry.TOPICS, telemetry.CAN_RX, telemetry.CAN_TX, "/can/TPDO2_node1"}
     used = set()
     for value in re.findall(r'"(/[A-Za-z0-9_/]+)', text):
         used.add(next(t for t in sorted(published, key=len, reverse=True)
                       if value == t or value.startswith(t + ".")) if any(
             value == t or value.startswith(t + ".") for t in published) else value)
-    assert used <= published, used - published
+    assert used <= published | services | {cmd_vel}, used - published - services
     assert {"/odom", "/wheels", "/twist", "/diagnostics", "/status"} <= used
 
 

@@ -406,6 +406,35 @@ def test_stamped_cmd_vel_and_no_joint_states_without_a_radius(channel: str) -> N
         assert sim.true_twist.vy == pytest.approx(0.2, abs=0.03)
 
 
+def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Chassis]) -> None:
+    """With a shared arbiter (``omnican ros2 --foxglove-control``), cmd_vel is one source
+    among others: ignored, and counted, while a Foxglove client drives; it drives once
+    that one has stopped for the command timeout."""
+    pytest.importorskip("cyclonedds")
+    from omnican.arbiter import CommandArbiter
+    from omnican.ros2.bridge import CMD_VEL_SOURCE, Bridge
+
+    sim, base = rig
+    arbiter = CommandArbiter(base.cfg.chassis.cmd_timeout_s)
+    t = MemoryTransport()
+    with Bridge(base, Ros2Settings(), t, arbiter=arbiter) as bridge:
+        assert arbiter.claim("Foxglove client 1", base.clock.now(),
+                             lambda: base.set_velocity(0.0, 0.0, 0.5)) is None
+        end = time.monotonic() + 0.3
+        while time.monotonic() < end:
+            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+            time.sleep(0.02)
+        assert bridge.cmd_vel_refused > 5
+        assert sim.true_twist.vx == pytest.approx(0.0, abs=0.01)
+        time.sleep(0.6)  # the Foxglove client sends nothing more: its hold lapses
+        end = time.monotonic() + 0.8
+        while time.monotonic() < end:
+            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+            time.sleep(0.02)
+        assert arbiter.holder(base.clock.now()) == CMD_VEL_SOURCE
+        assert sim.true_twist.vx == pytest.approx(0.3, abs=0.03)
+
+
 def test_wheel_status_levels() -> None:
     from omnican.chassis import WheelState
 

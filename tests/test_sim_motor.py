@@ -55,3 +55,24 @@ def test_ramp_then_hold() -> None:
 def test_bad_limits() -> None:
     with pytest.raises(ValueError):
         advance(MotorState(), 0.1, 1.0, 0.0, 1.0, 0.0)
+
+
+@given(st.floats(-1e6, 1e6), vel, rate, rate, tau, st.floats(1e-6, 10.0))
+def test_a_settled_motor_moves_exactly_as_the_general_formula_says(
+        position: float, velocity: float, accel: float, decel: float, tau: float,
+        dt: float) -> None:
+    """The settled fast path (demand and velocity at the target) is the general
+    closed form's result, bit for bit."""
+    from omnican.sim.motor import _ramp_segments
+
+    settled = MotorState(position, velocity, velocity)
+    fast = advance(settled, dt, velocity, accel, decel, tau)
+    ((duration, c0, c1),) = _ramp_segments(velocity, velocity, accel, decel, dt)
+    if tau <= 0.0:
+        p = position + (c0 * duration + 0.5 * c1 * duration * duration)
+    else:
+        e = math.exp(-duration / tau)
+        k = velocity - c0 + c1 * tau
+        p = position + (c0 * duration + 0.5 * c1 * duration * duration - c1 * tau * duration
+                        + k * tau * (1.0 - e))
+    assert fast == MotorState(p, velocity, velocity)

@@ -78,3 +78,10 @@ def test_an_rpdos_one_call_fill_is_pack_of_its_values(
     for s in (speeds, []):
         io.fill(s)
         assert bytes(io.msg.data) == codec.pack(io.values(s))
+    # The same list again (the loop's targets held), a controlword changed meanwhile.
+    io.fill(speeds)
+    for _, _, stage in io.sources:
+        if stage is not None:
+            stage.cw ^= 0x0F
+    io.fill(speeds)
+    assert bytes(io.msg.data) == codec.pack(io.values(speeds))

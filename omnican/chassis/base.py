@@ -22,6 +22,7 @@ import logging
 import threading
 import weakref
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +33,9 @@ from omnican.chassis.runner import LockstepRunner, ThreadRunner
 from omnican.chassis.signals import guard
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
-from omnican.config import ChassisConfig
+from omnican.config import ChassisConfig, ChassisSettings, with_live_limits
 from omnican.drive import DriveNode
-from omnican.errors import DriveError
+from omnican.errors import ConfigError, DriveError
 from omnican.kinematics import Twist
 from omnican.layout import node_layouts
 from omnican.odometry import Pose2D
@@ -74,6 +75,8 @@ class Chassis:
             if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed))
         loop.runner = self._runner
         self._own_sinks: list[Any] = []  # telemetry sinks open() made (a recording)
+        self._limits_lock = threading.Lock()
+        self._opened_wheel_speed = cfg.chassis.max_wheel_speed
         self._closed = False
         self._close_lock = threading.Lock()
         self._guards_signals = False
@@ -150,6 +153,7 @@ class Chassis:
         return base
 
     def _start(self, handle_signals: bool) -> None:
+        started = self.clock.now()
         self._supervisor.configure_all()
         _open_chassis.add(self)
         if handle_signals:
@@ -159,6 +163,7 @@ class Chassis:
         self._runner.start()
         self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
         self._supervisor.started()
+        logger.info("every drive enabled, %.2f s after the bus opened", self.clock.now() - started)
 
     def _wait_enabled(self, timeout: float, what: str) -> None:
         clock = self.clock
@@ -220,6 +225,34 @@ class Chassis:
         finally:
             loop.call_soon(sup.end_recover)
         loop.command = (Twist(), self.clock.now())
+
+    def set_limits(self, **changes: float) -> ChassisSettings:
+        """Change velocity limits while the base runs: the [chassis] keys of
+        :data:`omnican.config.LIVE_LIMITS` (``max_speed=0.3``, ``max_accel=0.5``, ...),
+        each checked as the config checks it. They take effect at the next control cycle;
+        ``max_wheel_speed`` may not go above what the base was opened with (the cycle
+        guards the wheels with that value). Returns the settings now in force (also
+        ``base.cfg.chassis``).
+
+        Raises ConfigError (a ValueError) naming the key and why; nothing changes then."""
+        with self._limits_lock:
+            if self._closed:
+                raise DriveError("the base is closed")
+            settings = with_live_limits(self.cfg.chassis, changes)
+            if settings.max_wheel_speed > self._opened_wheel_speed:
+                raise ConfigError(f"live: chassis.max_wheel_speed: at most "
+                                  f"{self._opened_wheel_speed:g} m/s, the value the base was "
+                                  f"opened with (raise it in the config), got "
+                                  f"{settings.max_wheel_speed:g}")
+            cfg = replace(self.cfg, chassis=settings)
+            limits, limiter = cfg.limits(), self._loop.limiter
+
+            def apply() -> None:
+                limiter.limits = limits
+
+            self._loop.call_soon(apply)
+            self.cfg = cfg
+        return settings
 
     def reset_pose(self, pose: Pose2D | None = None) -> None:
         """Set the odometry pose (default: origin)."""

@@ -21,7 +21,8 @@ from typing import Any
 from omnican.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.cia301 import HEARTBEAT_BASE, NmtState
-from omnican.cia402 import State
+from omnican.cia402 import ENABLED_BITS as _ENABLED_BITS
+from omnican.cia402 import ENABLED_MASK as _ENABLED_MASK
 from omnican.clock import Clock
 from omnican.config import ChassisConfig
 from omnican.drive import AxisIO, DriveNode
@@ -37,7 +38,6 @@ from omnican.telemetry.settings import TelemetrySettings
 
 STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
 HEALTH_CHECK_HZ = 250.0  # faster loops check the drives' health every few cycles (below)
-_ENABLED = State.OPERATION_ENABLED  # a plain name: State.X is a descriptor call on 3.11
 
 
 class ControlCycle:
@@ -70,6 +70,7 @@ class ControlCycle:
         self.axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
                                          key=lambda a: a.wheel_index)
         self._axis_nodes = [(a, node_of[id(a)]) for a in self.axes]
+        self._axis_parts = tuple((a, a.stage, node_of[id(a)]) for a in self.axes)
         self._all_ok_flags = ((True, False),) * len(self.axes)
         # Per wheel, what never changes: index, node id, axis, position scale.
         self._wheel_info = tuple((a.wheel_index, n.node_id, a.wheel.axis, a.wheel.position_scale)
@@ -82,9 +83,15 @@ class ControlCycle:
         self.command: tuple[Twist, float] = (Twist(), -math.inf)
         self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         n = len(self.axes)
-        self._speeds = [0.0] * n  # measured rim speeds, m/s, by wheel index
+        # The speed window: (travel now, travel at its start, its span); rim speeds are
+        # their difference over the span, made when read (SpeedWindow).
+        self._window: tuple[list[float], list[float], float] = ([0.0] * n, [0.0] * n, 1.0)
         self._targets = [0.0] * n  # commanded rim speeds, m/s, by wheel index
-        self._history: collections.deque[tuple[float, list[float]]] = collections.deque()
+        self._limited: tuple[float, float, float] | None = None  # what _targets were made of
+        # (SYNC time, travel, body displacement summed since seeding) of each complete set.
+        self._history: collections.deque[tuple[float, list[float], tuple[float, float, float]]] \
+            = collections.deque()
+        self._body_sum = (0.0, 0.0, 0.0)
         self._measured = (0.0, 0.0, 0.0)
         self._stale: tuple[int, ...] = ()  # wheels (by index) without a fresh sample
         self._stale_cycles = max(3, math.ceil(STALE_AFTER_S * c.rate_hz))
@@ -129,22 +136,21 @@ class ControlCycle:
     def run(self, now: float) -> None:
         """One cycle at ``now``."""
         sup = self._sup
+        bus = self._bus
         # Read what arrived, decide, then the RPDOs and SYNC, then the bookkeeping.
-        self._bus.poll()
+        bus.poll()
         requests = self._requests
         while not requests.empty():
             requests.get_nowait()()
+        all_enabled = self._every_stage_enabled()
         if not self.cycles % self._health_every:
-            sup.check(now)
+            sup.check(now, all_enabled)
+            if all_enabled and sup.latched is not None:
+                all_enabled = self._every_stage_enabled()  # a latch may have forgotten one
+        self._all_enabled = all_enabled
         self._integrate_samples()
         # Command -> limits -> wheel speeds.
         cmd, t_cmd = self.command
-        all_enabled = True
-        for stage in self._stages:
-            if stage.state is not _ENABLED:
-                all_enabled = False
-                break
-        self._all_enabled = all_enabled
         if sup.latched or not all_enabled or now - t_cmd > self._cmd_timeout:
             vx = vy = wz = 0.0
         else:
@@ -154,13 +160,15 @@ class ControlCycle:
             limiter.reset()
         dt = now - self._last_sync_time if self._last_sync_time else self.period_s
         limited = limiter.step_xyz(vx, vy, wz, min(dt, 5 * self.period_s))
-        speeds = self.kinematics.wheel_speeds_of(*limited)
-        peak = max(map(abs, speeds))
-        if peak > self._max_wheel_speed:  # the limiter keeps this from happening
-            speeds = [v * self._max_wheel_speed / peak for v in speeds]
-        self._targets = speeds
+        if limited is self._limited:  # the limiter held its output: the same targets
+            speeds = self._targets
+        else:
+            speeds = self.kinematics.wheel_speeds_of(*limited)
+            peak = max(map(abs, speeds))
+            if peak > self._max_wheel_speed:  # the limiter keeps this from happening
+                speeds = [v * self._max_wheel_speed / peak for v in speeds]
+            self._targets, self._limited = speeds, limited
         # State machines, then the cycle's RPDOs, then SYNC.
-        bus = self._bus
         send = bus.send_prepared
         configuring, offline = self._configuring, self._offline
         for node in self.nodes:
@@ -193,43 +201,60 @@ class ControlCycle:
         if every and not self.cycles % every:
             self.feed.offer(self.snapshot)  # a queue append (real time)
 
+    def _every_stage_enabled(self) -> bool:
+        """Every stage OPERATION ENABLED, tested on the statusword's bits."""
+        for stage in self._stages:
+            sw = stage.statusword_value
+            if sw is None or sw & _ENABLED_MASK != _ENABLED_BITS:
+                return False
+        return True
+
     def _integrate_samples(self) -> None:
         epoch = self._bus.sync_epoch
-        axes = self.axes
-        raws: list[int] = []
-        for a in axes:
+        travel: list[float] = []
+        for a in self.axes:
             raw = a.raw
             if raw is None or a.epoch != epoch:
-                raws = []
-                break
-            raws.append(raw)
-        if not raws:
-            # Not every wheel has answered the last SYNC: wait for a complete set. A wheel
-            # silent for STALE_AFTER_S has no known speed: report none rather than the
-            # last one (a drive gone offline must not look as if it were still turning).
-            self._mark_stale(epoch)
-            return
+                # Not every wheel has answered the last SYNC: wait for a complete set. A
+                # wheel silent for STALE_AFTER_S has no known speed: report none rather
+                # than the last one (a drive gone offline must not look as if it still
+                # turned). (The wheels folded so far fold the same sample again: no change.)
+                self._mark_stale(epoch)
+                return
+            # AxisIO.travel_from_sample, written out (each cycle, each wheel).
+            last = a.last_raw
+            if raw != last:
+                a.last_raw = raw
+                if last is not None:
+                    half = a._half_span
+                    a.counts += (raw - last + half) % (half << 1) - half
+            travel.append(a.counts / a.wheel.position_scale)
         if self._stale:
             self._stale = ()
-        travel = [a.travel_from_sample(raw) for a, raw in zip(axes, raws, strict=True)]
         t = self._last_sync_time
         history = self._history
         odometry = self.odometry
-        if not odometry.seeded:
-            odometry.step(travel)
-            history.clear()
-            history.append((t, travel))
-            return
+        seeded = odometry.seeded
         odometry.step(travel)
-        history.append((t, travel))
+        if not seeded:
+            self._body_sum = (0.0, 0.0, 0.0)
+            history.clear()
+            history.append((t, travel, self._body_sum))
+            return
+        # The body displacement over the speed window is the sum of odometry's steps
+        # over it (the forward kinematics is linear): one running sum, no second product.
+        dx, dy, dw = odometry.last_step
+        sx, sy, sw = self._body_sum
+        body = self._body_sum = (sx + dx, sy + dy, sw + dw)
+        history.append((t, travel, body))
         while len(history) > 2 and t - history[1][0] >= SPEED_WINDOW_S:
             history.popleft()
-        t0, travel0 = history[0]
+        t0, travel0, body0 = history[0]
         if t > t0:  # speeds over the window: SYNC timing jitter averages out
             span = t - t0
-            self._speeds = [(a - b) / span for a, b in zip(travel, travel0, strict=True)]
-            x, y, w = self.kinematics.body_of_change(travel, travel0)
-            self._measured = (x / span, y / span, w / span)
+            self._window = (travel, travel0, span)
+            self._measured = ((body[0] - body0[0]) / span, (body[1] - body0[1]) / span,
+                              (body[2] - body0[2]) / span)
 
     def _mark_stale(self, epoch: int) -> None:
         stale = tuple(i for i, a in enumerate(self.axes)
@@ -238,14 +263,19 @@ class ControlCycle:
             return
         self._stale = stale
         if stale:
-            self._speeds = [0.0 if i in stale else v for i, v in enumerate(self._speeds)]
+            # The other wheels keep their last speeds, a stale one reads 0 (the snapshot).
+            travel, travel0, span = self._window
+            self._window = ([0.0 if i in stale else v for i, v in enumerate(travel)],
+                            [0.0 if i in stale else v for i, v in enumerate(travel0)], span)
             self._measured = (0.0, 0.0, 0.0)
             self._history.clear()  # the speed window restarts with the next complete set
 
     @property
     def speeds_settled(self) -> bool:
         """The limiter's output is zero and every wheel below 5 mm/s."""
-        return self.limiter.output.is_zero() and all(abs(v) < 0.005 for v in self._speeds)
+        travel, travel0, span = self._window
+        return self.limiter.output.is_zero() and all(
+            abs(a - b) < 0.005 * span for a, b in zip(travel, travel0, strict=True))
 
     # ------------------------------------------------------------ the snapshot
 
@@ -273,10 +303,10 @@ class ControlCycle:
         else:
             wheel_flags = self._all_ok_flags
         # What the wheels were this cycle, as plain values; WheelState is made on read.
-        wheels = (self._targets, self._speeds, wheel_flags,
-                  tuple([(ax.counts, ax.stage.statusword_value, ax.stage.mode_value,
-                          ax.stage.error_value, ax.stage.error, node.fault_text)
-                         for ax, node in axes]))
+        wheels = (self._targets, self._window, wheel_flags,
+                  tuple([(ax.counts, stage.statusword_value, stage.mode_value,
+                          stage.error_value, stage.error, node.fault_text)
+                         for ax, stage, node in self._axis_parts]))
         latched = sup.latched
         enabled = (latched is None and not offline and not configuring and
                    not bus_down and self._all_enabled)
@@ -304,7 +334,9 @@ class ControlCycle:
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
         every drive enabled) as of the last cycle: what the health checks compare."""
-        return self._targets, self._speeds, self._stale, self._all_enabled
+        travel, travel0, span = self._window
+        return (self._targets, [(a - b) / span for a, b in zip(travel, travel0, strict=True)],
+                self._stale, self._all_enabled)
 
 
 def _database(cfg: ChassisConfig) -> Any:

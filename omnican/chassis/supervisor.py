@@ -26,6 +26,8 @@ from omnican import cia402
 from omnican.bus import CanBus
 from omnican.chassis.health import HealthMonitor
 from omnican.cia301 import NMT_COB_ID, NMT_COMMAND_NAMES, NmtCommand, NmtState, nmt_state_name
+from omnican.cia402 import ENABLED_BITS as _ENABLED_BITS
+from omnican.cia402 import ENABLED_MASK as _ENABLED_MASK
 from omnican.cia402 import Command, State, describe_emcy
 from omnican.clock import Clock
 from omnican.drive import DriveNode
@@ -162,8 +164,10 @@ class NodeSupervisor:
             self.latched = reason
         self.latch(reason)
 
-    def check(self, now: float) -> None:
-        """One health check of every node not being configured."""
+    def check(self, now: float, all_enabled: bool = False) -> None:
+        """One health check of every node not being configured; ``all_enabled``: every
+        stage was just seen OPERATION ENABLED (the loop tests that each cycle), so no
+        state machine needs a look."""
         configuring, offline, sdo_aborts = self.configuring, self.offline, self._sdo_aborts
         if self._foreign_nmt:
             self._foreign_nmt_seen()
@@ -194,17 +198,22 @@ class NodeSupervisor:
                 if aborts:
                     self.latch(f"node {nid} refuses its per-cycle SDO transfers "
                                f"({node.sdo_counts.last_abort})")
-            if node.heartbeat_lost(now):
+            heard = node.last_heartbeat  # node.heartbeat_lost(now), written out
+            if heard is not None and now - heard > node.heartbeat_timeout_s:
                 offline.add(nid)
                 if not self.recovering:  # recover() waits for it, and says if it never came
                     self.latch(f"node {nid} heartbeat lost")
             elif nid in offline:  # its heartbeat is back: online again (a stop stays)
                 offline.discard(nid)
-            latched = self.latched is not None and not self.recovering
+            if all_enabled:
+                continue
             for stage in node.stages:
-                state = stage.state
-                if state is _ENABLED or stage.allow_fault_reset:
+                sw = stage.statusword_value
+                if (sw is not None and sw & _ENABLED_MASK == _ENABLED_BITS) or \
+                        stage.allow_fault_reset:
                     continue  # all is well, or the stage driver resets faults (starting up)
+                latched = self.latched is not None and not self.recovering
+                state = stage.state
                 if latched and stage.goal is _ENABLED and state is not _UNKNOWN:
                     # Stopped and out of OPERATION ENABLED (a quick stop, a fault): left
                     # de-energised until recover(), not walked back up meanwhile.

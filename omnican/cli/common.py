@@ -224,11 +224,52 @@ def check_front_ends(cfg: ChassisConfig) -> ChassisConfig:
     """The tables front ends read, checked as they check them (so every command refuses
     what ``omnican ros2`` would: ``[ros2] domain_id = 999``). The library checks only
     their keys and types; ``[gamepad]``'s values it checks itself."""
+    origin = str(cfg.source) if cfg.source else "config"
     if cfg.ros2 is not None:
         from omnican.ros2.settings import from_table
 
-        from_table(cfg.ros2, str(cfg.source) if cfg.source else "config")
+        from_table(cfg.ros2, origin)
+    if cfg.foxglove is not None:
+        from omnican.live.settings import resolve
+
+        resolve(cfg.foxglove, None, origin=origin, check_sdk=False)
     return cfg
+
+
+FOXGLOVE_CONTROL_HELP = (
+    "let Foxglove clients drive the base (implies --foxglove): Twists from the Teleop "
+    "panel on /cmd_vel, services /omnican/recover, /omnican/stop, /omnican/reset_odometry, "
+    "the limits as parameters; one client at a time; --no-foxglove-control keeps a "
+    "config's [foxglove] control = true off (default: off)")
+
+
+def add_foxglove_arguments(parser: argparse.ArgumentParser, control: bool = True) -> None:
+    """--foxglove [HOST:]PORT and, for front ends that drive, --foxglove-control and
+    --foxglove-allow-remote."""
+    from omnican.live import FOXGLOVE_HELP, foxglove_address
+
+    parser.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
+                        metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    if control:
+        parser.add_argument("--foxglove-control", action=argparse.BooleanOptionalAction,
+                            default=None, help=FOXGLOVE_CONTROL_HELP)
+        parser.add_argument("--foxglove-allow-remote", action="store_true", default=None,
+                            help="allow --foxglove-control on a host other than loopback "
+                                 "(anyone who reaches it can drive the robot)")
+
+
+def foxglove_settings(args: argparse.Namespace, cfg: ChassisConfig) -> Any:
+    """The live view's :class:`~omnican.live.FoxgloveSettings` from the config's
+    [foxglove] table and the flags, or None when no view was asked for."""
+    address = getattr(args, "foxglove", None)
+    control = getattr(args, "foxglove_control", None)
+    if address is None and not control:
+        return None
+    from omnican.live import resolve
+
+    return resolve(cfg.foxglove, address, control=control,
+                   allow_remote=getattr(args, "foxglove_allow_remote", None),
+                   origin=str(cfg.source) if cfg.source else "config")
 
 
 def load(args: argparse.Namespace) -> ChassisConfig:

@@ -5,12 +5,17 @@ Give one form of motion: straight (--vx --vy --wz, held for --duration), polar
 turning at --omega) or a square (--square SIDE, turning 90 deg left in place at
 each corner). Prints the final pose, or one JSON object with --json. Speeds above
 the base's limits are scaled down to them, with a warning.
+
+With --foxglove-control and no motion, the base stands still for --duration seconds
+(until Ctrl-C without one) and takes its commands from Foxglove (the Teleop panel,
+services, parameters), then prints the same.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import asdict
 from typing import Any
@@ -22,10 +27,12 @@ from omnican.cli.common import (
     EXIT_OK,
     UsageError,
     add_bus_arguments,
+    add_foxglove_arguments,
     add_record_argument,
     add_sim_time_arguments,
     finite_float,
     fixed,
+    foxglove_settings,
     interrupted_exit,
     interrupted_word,
     pose_dict,
@@ -37,11 +44,15 @@ from omnican.cli.common import (
 )
 from omnican.errors import ConfigError, OmnicanError
 from omnican.kinematics import Twist
-from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
+from omnican.live import prepare, watch
 from omnican.motion import Leg
 from omnican.odometry import Pose2D
 
 DEFAULT_DURATION_S = 1.0
+_BOTH_DRIVE = ("--foxglove-control takes the motion from Foxglove: give no motion, only "
+               "--duration (or --no-foxglove-control to drive the motion given)")
+_NO_MOTION = ("give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega, --square SIDE, "
+              "or --foxglove-control to take it from Foxglove")
 SQUARE_SPEED, SQUARE_OMEGA = 0.3, 1.0  # m/s, rad/s
 
 
@@ -69,23 +80,26 @@ def add_subparser(sub: Any) -> None:
                         help="drive a square with sides of SIDE m, turning 90 deg left in place")
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help=f"seconds to hold the velocity (default {DEFAULT_DURATION_S:g}; not with "
-                        "--square)")
+                        "--square); with --foxglove-control and no motion, seconds to take "
+                        "commands from Foxglove (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true",
                    help='print {"pose", "twist", "duration_s", "wheels"} (+ "true_pose" under '
                         '--sim); a run-time failure prints {"error", "pose", ...} and exits 1')
     add_record_argument(p)
-    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
-                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    add_foxglove_arguments(p)
     add_bus_arguments(p)
     add_sim_time_arguments(p)
     p.set_defaults(func=run)
 
 
-def legs(args: argparse.Namespace) -> list[Leg]:
-    """The motion as legs; bad combinations are usage errors."""
+def legs(args: argparse.Namespace) -> list[Leg] | None:
+    """The motion as legs (None: no motion given, for Foxglove to drive); bad
+    combinations are usage errors."""
     cartesian = any(v is not None for v in (args.vx, args.vy, args.wz))
     polar = any(v is not None for v in (args.speed, args.heading_deg, args.omega))
     if args.square is not None:
+        if getattr(args, "foxglove_control", None):
+            raise UsageError(_BOTH_DRIVE)
         if cartesian or args.heading_deg is not None:
             raise UsageError("--square takes only --speed and --omega")
         if args.duration is not None:
@@ -98,9 +112,10 @@ def legs(args: argparse.Namespace) -> list[Leg]:
         return motion.square(args.square, speed, omega)
     if cartesian and polar:
         raise UsageError("give either --vx/--vy/--wz or --speed/--heading-deg/--omega")
+    if getattr(args, "foxglove_control", None) and (cartesian or polar):
+        raise UsageError(_BOTH_DRIVE)
     if not (cartesian or polar):
-        raise UsageError("give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega or "
-                         "--square SIDE")
+        return None  # Foxglove's, if control is on (the config may say so)
     duration = args.duration if args.duration is not None else DEFAULT_DURATION_S
     if polar:
         if args.heading_deg is not None and args.speed is None:
@@ -117,6 +132,23 @@ def execute(base: Chassis, plan: list[Leg]) -> motion.MotionResult:
         return motion.run(base, plan, bar)
 
 
+def take_commands(base: Chassis, duration_s: float | None) -> motion.MotionResult:
+    """Command nothing for ``duration_s`` (None: until Ctrl-C) while Foxglove drives;
+    the measured twist at the end."""
+    clock = base.clock
+    start = clock.now()
+    end = start + duration_s if duration_s is not None else math.inf
+    twist = Twist()
+    with progress_bar(duration_s or 0.0) as bar:
+        while (now := clock.now()) < end:
+            bar(now - start, duration_s or 0.0, "Foxglove")
+            clock.sleep(min(0.05, end - now))
+            twist = base.twist
+    elapsed = clock.now() - start
+    motion.settle(base)  # the pose printed is where it stopped
+    return motion.MotionResult(twist, elapsed)
+
+
 def _number(value: float) -> str:
     return f"{value:.6g}" if value else "0"
 
@@ -127,6 +159,8 @@ def _note(text: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     plan = legs(args)
+    if plan is None and args.foxglove is None and not args.foxglove_control:
+        raise UsageError(_NO_MOTION)  # no server, so no Foxglove to drive
     seen: dict[str, Any] = {}  # what is known when a run-time failure ends the run
     try:
         return _run(args, plan, seen)
@@ -164,20 +198,30 @@ def wheels_json(wheels: Any) -> list[dict[str, Any]]:
              else None} for w in wheels]
 
 
-def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int:
+def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]) -> int:
     with session(args) as s:
-        plan, clamps = motion.fit_to_limits(plan, s.cfg)
+        fox = foxglove_settings(args, s.cfg)
+        control = fox is not None and fox.control
+        if given is None and not control:
+            raise UsageError(_NO_MOTION)
+        if given is not None and control:
+            raise UsageError(_BOTH_DRIVE)
+        if control and s.clock.lockstep:
+            raise UsageError("--foxglove-control drives in real time: drop --fast and "
+                             "--sim-speed")
+        plan: list[Leg] = given or []
+        plan, clamps = motion.fit_to_limits(plan, s.cfg) if plan else (plan, [])
         for c in clamps:
             r, a = c.requested, c.applied
             print(f"omnican: warning: vx={_number(r.vx)} vy={_number(r.vy)} wz={_number(r.wz)} "
                   f"is beyond the base's limits ({c.limit}): driving vx={fixed(a.vx, 3)} "
                   f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
-        if args.foxglove is not None:
+        if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
         with Chassis.open(s.cfg, record=args.record, clock=s.clock) as base, \
-                watch(base, s.sim, args.foxglove, announce=_note):
+                watch(base, s.sim, fox, announce=_note):
             try:
-                result = execute(base, plan)
+                result = execute(base, plan) if plan else take_commands(base, args.duration)
             except motion.BaseStoppedError as exc:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
                 if args.json:
@@ -219,8 +263,9 @@ def _run(args: argparse.Namespace, plan: list[Leg], seen: dict[str, Any]) -> int
         print(json.dumps(out))
     else:
         t = result.twist
-        when = "once stopped on the goal" if plan[-1].is_goal else "before the stop"
-        print(f"drove {result.elapsed_s:.2f} s; measured twist {when}: vx={fixed(t.vx, 3)} "
+        when = "once stopped on the goal" if plan and plan[-1].is_goal else "before the stop"
+        what = "drove" if plan else "took commands from Foxglove for"
+        print(f"{what} {result.elapsed_s:.2f} s; measured twist {when}: vx={fixed(t.vx, 3)} "
               f"vy={fixed(t.vy, 3)} wz={fixed(t.wz, 3)}")
         if "true_pose" in out:
             print(pose_line(s.sim.true_pose).replace("pose", "true pose", 1) + " (simulated)")

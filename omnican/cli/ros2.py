@@ -22,18 +22,21 @@ import os
 from dataclasses import replace
 from typing import Any
 
+from omnican.arbiter import CommandArbiter
 from omnican.cli.common import (
     EXIT_OK,
     UsageError,
     add_bus_arguments,
+    add_foxglove_arguments,
     add_record_argument,
+    foxglove_settings,
     load,
     positive_float,
     serve_lines,
     session,
 )
 from omnican.errors import ConfigError
-from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
+from omnican.live import prepare, watch
 
 
 def add_subparser(sub: Any) -> None:
@@ -77,8 +80,7 @@ def add_subparser(sub: Any) -> None:
                      help="this machine only: loopback, no multicast, peer 127.0.0.1")
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
-    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
-                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    add_foxglove_arguments(p)
     add_record_argument(p)
     add_bus_arguments(p, sim_help="run against simulated drives in this process; DDS stays "
                       "on loopback unless --dds-interface or --dds-peer says otherwise")
@@ -158,13 +160,18 @@ def run(args: argparse.Namespace) -> int:
         if settings.cmd_vel_timeout_s is not None:
             run_cfg = replace(run_cfg, chassis=replace(run_cfg.chassis,
                                                        cmd_timeout_s=settings.cmd_vel_timeout_s))
+        fox = foxglove_settings(args, run_cfg)
+        # cmd_vel and Foxglove's clients drive one at a time
+        arbiter = (CommandArbiter(run_cfg.chassis.cmd_timeout_s)
+                   if fox is not None and fox.control else None)
         transport = DdsTransport(settings, os.environ.get("CYCLONEDDS_URI"))
-        if args.foxglove is not None:
+        if fox is not None:
             prepare(run_cfg)  # its slow set-up before the control loop runs
         try:
             with Chassis.open(run_cfg, record=args.record) as base, \
-                    Bridge(base, settings, transport, sim=sess.sim) as bridge, \
-                    watch(base, sess.sim, args.foxglove, announce=lambda t: print(t, flush=True)):
+                    Bridge(base, settings, transport, sim=sess.sim, arbiter=arbiter) as bridge, \
+                    watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True),
+                          arbiter=arbiter):
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
                     serve_lines(lambda line: command(bridge, line), args.duration)
@@ -209,7 +216,9 @@ def _print_startup(bridge: Any, network: str, timeout_s: float) -> None:
 def _print_summary(bridge: Any) -> None:
     rates = bridge.achieved_rates()
     parts = ", ".join(f"{name} {hz:.1f} Hz" for name, hz in rates.items() if hz > 0)
-    print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel", flush=True)
+    refused = (f" ({bridge.cmd_vel_refused} ignored: a Foxglove client drove)"
+               if bridge.cmd_vel_refused else "")
+    print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel{refused}", flush=True)
     if bridge.sim is not None:
         p = bridge.sim.true_pose
         print(f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f} (simulated)", flush=True)

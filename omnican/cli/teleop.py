@@ -31,22 +31,25 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
+from omnican.arbiter import CommandArbiter
 from omnican.chassis import Chassis
 from omnican.cia402 import State
 from omnican.cli.common import (
     UsageError,
     add_bus_arguments,
+    add_foxglove_arguments,
     add_record_argument,
     fixed,
+    foxglove_settings,
     pose_line,
     positive_float,
     session,
 )
 from omnican.errors import OmnicanError
-from omnican.gamepad import Gamepad, config_table, drive_step, teleop_model_for
+from omnican.gamepad import Gamepad, config_table, pad_command, teleop_model_for
 from omnican.kinematics import Twist
-from omnican.live import FOXGLOVE_HELP, foxglove_address, prepare, watch
-from omnican.teleop_model import ESC, TeleopModel, key_help
+from omnican.live import prepare, watch
+from omnican.teleop_model import ESC, Intent, TeleopModel, key_help
 
 # The last byte of an arrow key's escape sequence -> the key it stands for.
 ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}  # up, down, right, left
@@ -64,8 +67,7 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--key-timeout", type=float, default=0.6, metavar="S",
                    help="stop when no key arrives for this long (default 0.6; 0: never)")
     add_record_argument(p)
-    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
-                   metavar="[HOST:]PORT", help=FOXGLOVE_HELP)
+    add_foxglove_arguments(p)
     p.add_argument("--gamepad", nargs="?", const="", metavar="DEVICE",
                    help="drive with a gamepad (evdev; default: the first one found, or e.g. "
                         "/dev/input/event5): hold LB/L1 to move, RB/R1 for turbo, left stick "
@@ -321,30 +323,70 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     return Group(*body)
 
 
+def share_command(base: Chassis, arbiter: CommandArbiter, source: str, command: Twist,
+                  held: bool, now: float) -> tuple[bool, str | None]:
+    """The local input's command when others (Foxglove) may drive too: a motion goes to
+    the base when ``source`` may command (it then holds control); the first zero after
+    it goes too (the keys let go: the base stops) and gives control up. Returns (whether
+    ``source`` holds control, who refused it)."""
+    if not command.is_zero():
+        holder = arbiter.claim(source, now, lambda: base.set_velocity(
+            command.vx, command.vy, command.wz))
+        if holder is not None:
+            return held, holder
+        return True, None
+    if held:
+        base.set_velocity(0.0, 0.0, 0.0)
+        arbiter.release(source, now)
+    return False, None
+
+
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: _Events, pad: Gamepad | None = None) -> None:
-    """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc."""
+               events: _Events, pad: Gamepad | None = None,
+               arbiter: CommandArbiter | None = None) -> None:
+    """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. With an
+    ``arbiter`` (Foxglove may drive too) the keys command only while they move the base
+    and no one else drives; a stop key stops the base whoever drives."""
     note = ""
+    source = "the gamepad" if pad is not None else "the terminal's keys"
+    held = False
     while not keys.quit_requested:
         now = time.monotonic()
         for key in read_keys(fd, LOOP_S if pad is None else LOOP_S / 2):
-            keys.press(key, now)
+            stop = keys.press(key, now).intent is Intent.STOP
+            if note.startswith("stopped "):
+                note = ""  # the next key after it
+            if stop and arbiter is not None:  # whoever drives; it drives again once it lets go
+                stopped = arbiter.stop_by(source, base.clock.now(), base.stop)
+                if stopped:
+                    note = f"stopped {stopped}: it drives again once it lets go"
         if keys.take_recover():
-            note = "recovering..."
+            driver = arbiter.may_act(source, base.clock.now()) if arbiter else None
+            note = f"{driver} is driving: not recovering" if driver else "recovering..."
             live.update(dashboard(base, keys, Twist(), title, events, note,
                                   live.console.width, live.console.height), refresh=True)
             try:
-                base.recover()
-                note = ""
+                if not driver:
+                    base.recover()
+                    note = ""
             except OmnicanError as exc:
                 note = f"recover failed: {exc}"
         if pad is not None:  # the pad moves; the keys still quit, recover and scale
-            command = drive_step(base, pad, keys, LOOP_S / 2)
+            command = pad_command(pad, keys, LOOP_S / 2)
             shown = note or pad.status_text()
         else:
             command = keys.command(time.monotonic())
-            base.set_velocity(command.vx, command.vy, command.wz)
             shown = note
+        if arbiter is None:
+            base.set_velocity(command.vx, command.vy, command.wz)
+        else:
+            held, refused = share_command(base, arbiter, source, command, held,
+                                          base.clock.now())
+            driver = arbiter.holder(base.clock.now())
+            if refused:
+                shown = f"{refused} is driving: space stops the base"
+            elif driver and driver != source and not shown:
+                shown = f"{driver} is driving"
         live.update(dashboard(base, keys, command, title, events, shown, live.console.width,
                               live.console.height), refresh=True)
 
@@ -375,17 +417,25 @@ def run(args: argparse.Namespace) -> int:
         title = f"omnican teleop - {where}, nodes {nodes}"
         if pad is not None:
             title += f" - gamepad {pad.name}"
+        fox = foxglove_settings(args, s.cfg)
+        arbiter = (CommandArbiter(s.cfg.chassis.cmd_timeout_s)
+                   if fox is not None and fox.control else None)
         console.print(f"{title}: bringing the drives up...", style="dim")
-        if args.foxglove is not None:
+        if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
+
+        def announce(text: str) -> None:
+            console.print(text, style="dim")
+            events.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
+
         with Chassis.open(s.cfg, record=args.record) as base, \
-                watch(base, s.sim, args.foxglove) as view, cbreak(fd), \
-                logs_into(events), Live(console=console, screen=True, auto_refresh=False,
-                                        transient=True) as live:
+                watch(base, s.sim, fox, announce=announce, arbiter=arbiter) as view, \
+                cbreak(fd), logs_into(events), Live(console=console, screen=True,
+                                                    auto_refresh=False, transient=True) as live:
             if view is not None:
-                title += f" - Foxglove {view.url}"
+                title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
             try:
-                drive_loop(base, keys, fd, live, title, events, pad)
+                drive_loop(base, keys, fd, live, title, events, pad, arbiter)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
                 pass
             base.stop()

@@ -96,7 +96,7 @@ class DriveNode:
         self.emcy: EmcyError | None = None
         self._emcy_log = Throttle(logger, clock=clock.now)
         self.fault_text: str | None = None
-        self._hb_timeout = heartbeat.timeout_s(settings.heartbeat_ms / 1000.0,
+        self.heartbeat_timeout_s = heartbeat.timeout_s(settings.heartbeat_ms / 1000.0,
                                                settings.heartbeat_timeout_factor)
         network.subscribe(HEARTBEAT_BASE + node_id, self._on_heartbeat)
         self.remote.emcy.add_callback(self._on_emcy)
@@ -160,7 +160,7 @@ class DriveNode:
     def heartbeat_lost(self, now: float) -> bool:
         if self.last_heartbeat is None:
             return False
-        return now - self.last_heartbeat > self._hb_timeout
+        return now - self.last_heartbeat > self.heartbeat_timeout_s
 
 
     def detach(self) -> None:

@@ -46,6 +46,7 @@ class StageDriver:
     _waiting_state: State | None = None
     error: str | None = None
     _decoded: tuple[int | None, State] = (None, State.UNKNOWN)
+    _at_goal_sw: int | None = None  # the statusword last seen at the goal (step's fast path)
 
     @property
     def state(self) -> State:
@@ -57,6 +58,7 @@ class StageDriver:
     def set_goal(self, goal: State, allow_fault_reset: bool = False) -> None:
         if goal is not self.goal or allow_fault_reset != self.allow_fault_reset:
             self.goal, self.allow_fault_reset = goal, allow_fault_reset
+            self._at_goal_sw = None
             self._waiting_since, self.error, self._reset_phase = None, None, 0
 
     def forget(self) -> None:
@@ -67,12 +69,18 @@ class StageDriver:
 
     def step(self, now: float) -> int | None:
         """The controlword to send this cycle, or None."""
+        sw = self.statusword_value
+        if sw is not None and sw == self._at_goal_sw and self.cw == self._sent_cw:
+            return None  # still at the goal, its controlword sent: the loop's usual cycle
         state = self.state
         if state is self.goal or state is _UNKNOWN:
             self._waiting_since = None
-            if state is self.goal and self._sent_cw != self.cw:
-                return self._emit(now)  # e.g. the enable bits after a reboot
+            if state is self.goal:
+                self._at_goal_sw = sw
+                if self._sent_cw != self.cw:
+                    return self._emit(now)  # e.g. the enable bits after a reboot
             return None
+        self._at_goal_sw = None
         if state is State.FAULT and (self.goal is State.SWITCH_ON_DISABLED or
                                      not self.allow_fault_reset):
             self._waiting_since = None

@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
+from omnican.arbiter import CommandArbiter
 from omnican.errors import ConfigError, DriveError
 from omnican.kinematics import Twist
 from omnican.ros2.settings import Ros2Settings, cyclone_config, dds_topic, resolve_name
@@ -44,6 +45,7 @@ M = TypeVar("M", bound="IdlStruct")
 
 #: tf2's history depth for /tf (its TransformListener subscribes with keep-last 100).
 TF_DEPTH = 100
+CMD_VEL_SOURCE = "ROS 2 cmd_vel"  # its name to the other sources of commands
 
 
 @dataclass(frozen=True)
@@ -257,10 +259,12 @@ class Bridge:
     it does not own the chassis or the transport."""
 
     def __init__(self, base: Chassis, settings: Ros2Settings, transport: Transport, *,
-                 sim: SimulatedBase | None = None) -> None:
+                 sim: SimulatedBase | None = None, arbiter: CommandArbiter | None = None
+                 ) -> None:
         from omnican.ros2 import msgs
 
         self.base = base
+        self.arbiter = arbiter  # shared with other sources of commands (Foxglove), if any
         self.settings = settings
         self.sim = sim
         feed = base.telemetry
@@ -306,7 +310,9 @@ class Bridge:
 
         self.cmd_vel_count = 0
         self.cmd_vel_rejected = 0
+        self.cmd_vel_refused = 0  # ignored: another source held control
         self._last_reject_log = -math.inf
+        self._last_refused_log = -math.inf
         self.recover_note: str | None = None
         self._recover_thread: threading.Thread | None = None
         self._recover_lock = threading.Lock()
@@ -323,6 +329,13 @@ class Bridge:
         t = twist_from_msg((twist.linear.x, twist.linear.y, twist.linear.z),
                            (twist.angular.x, twist.angular.y, twist.angular.z))
         try:
+            if self.arbiter is not None and t.is_finite():
+                holder = self.arbiter.claim(CMD_VEL_SOURCE, self.base.clock.now(),
+                                            lambda: self.base.set_velocity(t.vx, t.vy, t.wz))
+                if holder is not None:  # someone else drives (a Foxglove client)
+                    self.cmd_vel_refused += 1
+                    self._log_refused(holder)
+                return
             self.base.set_velocity(t.vx, t.vy, t.wz)
         except ValueError as exc:
             self.cmd_vel_rejected += 1
@@ -332,6 +345,12 @@ class Bridge:
                 logger.warning("cmd_vel ignored: %s", exc)
         except DriveError:
             pass  # closing
+
+    def _log_refused(self, holder: str) -> None:
+        now = time.monotonic()
+        if now - self._last_refused_log > 5.0:
+            self._last_refused_log = now
+            logger.warning("cmd_vel ignored: %s is driving the base", holder)
 
     def _on_recover(self, msg: Any) -> None:
         with self._recover_lock:

@@ -37,6 +37,8 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
+TICK_S = 0.002  # the drives' housekeeping period in real time
+
 
 class _ReceiveErrors(can.Listener):
     """Takes python-can's receive errors (reported once per outage) so the Notifier
@@ -98,7 +100,7 @@ class SimulatedBase:
         bus: Mapping[str, Any] | None = None,
         true_kinematics: OmniKinematics | None = None,
         true_scale: float | Sequence[float] = 1.0,
-        tick_s: float = 0.002,
+        tick_s: float | None = None,
         drive_options: Mapping[int, Mapping[str, Any]] | None = None,
         clock: Clock | None = None,
         **options: Any,
@@ -110,7 +112,11 @@ class SimulatedBase:
             true_kinematics: the real geometry, if it differs from the configured one.
             true_scale: real counts per metre / configured ``position_scale``, per wheel
                 (a wheel worn smaller than configured has ``true_scale > 1``).
-            tick_s: housekeeping period.
+            tick_s: housekeeping period (heartbeats, timeouts, event TPDOs, the truth);
+                default 2 ms, and in lock-step the control period where that is longer:
+                a drive's housekeeping then runs once a control cycle, as fast as the
+                host's cycles come, not five times (frames are answered when they
+                arrive, whatever the period).
             drive_options: extra :class:`SimulatedDrive` arguments per node id.
             clock: :data:`~omnican.clock.REAL_TIME` (default: drives on a housekeeping
                 thread, frames through the configured bus) or a
@@ -127,7 +133,7 @@ class SimulatedBase:
             raise ConfigError(f"true_scale has {len(scales)} values for {len(cfg.wheels)} wheels")
         clock = clock if clock is not None else REAL_TIME
         network = Network()
-        network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the Notifier
+        network.NOTIFIER_CYCLE = 0.02  # bounds how long close() waits for the Notifier
         if clock.lockstep:
             channel = bus_kwargs.get("channel")
             if bus_kwargs.get("interface", "virtual") != "virtual" or not channel:
@@ -145,6 +151,8 @@ class SimulatedBase:
             except Exception as exc:
                 raise BusError(f"cannot open CAN bus {bus_kwargs or '(python-can config)'}: "
                                f"{exc}") from None
+        if tick_s is None:
+            tick_s = max(TICK_S, 1.0 / cfg.chassis.rate_hz) if clock.lockstep else TICK_S
         scheduler = SimScheduler(tick_s, name="omnican-sim", clock=clock)
         drives: list[SimulatedDrive] = []
         try:

@@ -14,11 +14,12 @@ Pure module: no I/O.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 
-@dataclass(frozen=True)
-class MotorState:
+class MotorState(NamedTuple):
+    """One motor at one instant (a value: a tuple, made as cheaply as one)."""
+
     position: float = 0.0  # counts (physical, never wraps)
     velocity: float = 0.0  # actual, counts/s
     demand: float = 0.0  # ramp output, counts/s
@@ -76,9 +77,10 @@ def advance(
         return state
     if accel <= 0.0 or decel <= 0.0:
         raise ValueError("accel and decel must be positive (inf for no ramp)")
-    p, v = state.position, state.velocity
-    demand = state.demand
-    for duration, c0, c1 in _ramp_segments(state.demand, target, accel, decel, dt):
+    p, v, demand = state
+    if v == demand == target:  # settled: the one segment below, without its zero terms
+        return MotorState(p + target * dt, target, target)
+    for duration, c0, c1 in _ramp_segments(demand, target, accel, decel, dt):
         if tau <= 0.0:
             p += c0 * duration + 0.5 * c1 * duration * duration
             v = c0 + c1 * duration

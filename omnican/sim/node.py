@@ -52,6 +52,7 @@ from omnican.cia301 import (
     NmtCommand,
     NmtState,
 )
+from omnican.bus import prepared_message
 from omnican.clock import Clock
 from omnican.sim.heartbeat import Heartbeat
 from omnican.sim.pdo import check_mapping_write, read_uint
@@ -141,6 +142,10 @@ class SimNode:
         self._subscribed_hb: set[int] = set()
         self.pdos = ProcessData(local, self.readers, self._send)
         self._send_failures = 0
+        # One frame per COB-ID, refilled for each send (under the send lock): every
+        # interface only reads a frame while sending it, and can.Message's constructor
+        # is most of what a simulated frame costs.
+        self._frames: dict[int, can.Message] = {}
         self._send_warned_at = -math.inf
 
         # LocalNode produces its heartbeat from a 1017h write callback; we do it ourselves.
@@ -359,7 +364,13 @@ class SimNode:
             return
         try:
             with self.network.send_lock:
-                bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+                msg = self._frames.get(cob_id)
+                if msg is None:
+                    msg = self._frames[cob_id] = prepared_message(cob_id, bytes(data))
+                else:
+                    msg.data = data  # type: ignore[assignment]  # bytes (see prepared_message)
+                    msg.dlc = len(data)
+                bus.send(msg)
         except (can.CanError, OSError, RuntimeError) as exc:
             # A link that is down refuses every frame: say so once, then now and then.
             self._send_failures += 1

@@ -15,17 +15,20 @@ node) and brings the device up to date before calling in here.
 from __future__ import annotations
 
 import logging
+import struct
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError
 
 from omnican.cia301 import RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP
-from omnican.sim.pdo import MappedObject, PdoConfig, read_pdos
+from omnican.sim.pdo import PdoConfig, read_pdos
 
 logger = logging.getLogger(__name__)
 
 Reader = Callable[[], int]
+_CODES = {8: "B", 16: "H", 32: "I", 64: "Q"}  # unsigned: each value is wrapped to its width
 Send = Callable[[int, bytes], None]
 
 
@@ -47,6 +50,8 @@ class ProcessData:
         self.tpdos: list[PdoConfig] = []
         self.rpdos: dict[int, PdoConfig] = {}  # by COB-ID
         self._pending: dict[int, bytes] = {}  # synchronous RPDOs waiting for the SYNC
+        self._makers: dict[int, Callable[[], bytes]] = {}  # id(TPDO) -> its frame
+        self._slots: dict[int, list[tuple[int, int, Any, int, int, int]]] = {}  # id(RPDO)
 
     def start(self) -> list[int]:
         """Take the PDOs as the dictionary configures them now; returns the RPDOs'
@@ -56,10 +61,25 @@ class ProcessData:
         self.tpdos = read_pdos(dictionary, getter, TPDO_COMM, TPDO_MAP)
         self.rpdos = {p.cob_id: p for p in read_pdos(dictionary, getter, RPDO_COMM, RPDO_MAP)}
         self._pending = {}
+        self._makers = {id(t): self._maker(t) for t in self.tpdos}
+        self._slots = {}
         for tpdo in self.tpdos:
             tpdo.last_data = None
             tpdo.pending_change = tpdo.event_driven  # first event TPDO goes out at once
         return list(self.rpdos)
+
+    def _maker(self, tpdo: PdoConfig) -> Callable[[], bytes]:
+        """The TPDO's frame in one call: where every object is a dynamic one of 8, 16,
+        32 or 64 bits, one precompiled struct over their readers (each value wrapped to
+        its width, as a drive's register would); else object by object."""
+        readers = [self._readers.get((e.index, e.subindex)) for e in tpdo.entries]
+        codes = [_CODES.get(e.bits) for e in tpdo.entries]
+        if tpdo.entries and all(readers) and all(codes):
+            pack = struct.Struct("<" + "".join(c for c in codes if c)).pack
+            parts = tuple((r, (1 << e.bits) - 1)
+                          for r, e in zip(readers, tpdo.entries, strict=True))
+            return lambda: pack(*[r() & mask for r, mask in parts])  # type: ignore[misc]
+        return lambda: self._slow_frame(tpdo)
 
     def stop(self) -> None:
         """No PDOs (out of OPERATIONAL)."""
@@ -87,21 +107,36 @@ class ProcessData:
                     self._send_tpdo(tpdo, now)
 
     def apply(self, rpdo: PdoConfig, payload: bytes) -> None:
-        """Write an RPDO's objects, as an SDO download would."""
-        offset = 0
-        for entry in rpdo.entries:
-            chunk = payload[offset : offset + entry.nbytes]
-            offset += entry.nbytes
+        """Write an RPDO's objects, as an SDO download would: LocalNode's write callbacks
+        (the drive's hooks), then the store; each object found once, when the PDOs were
+        taken, not looked up in the dictionary with every frame."""
+        slots = self._slots.get(id(rpdo))
+        if slots is None:
+            slots = self._slots[id(rpdo)] = self._rpdo_slots(rpdo)
+        local = self._local
+        callbacks, store = local._write_callbacks, local.data_store
+        for index, subindex, obj, start, end, size in slots:
+            chunk = payload[start:end]
+            if len(chunk) != size:
+                chunk = chunk[:size].ljust(size, b"\x00")
             try:
-                self._local.set_data(entry.index, entry.subindex, self._fit(entry, chunk))
+                for callback in callbacks:
+                    callback(index=index, subindex=subindex, od=obj, data=chunk)
             except SdoAbortedError as exc:  # e.g. an unsupported mode: ignored, as on a drive
-                logger.debug("node %d: RPDO write to 0x%04X refused: %s", self._local.id,
-                             entry.index, exc)
+                logger.debug("node %d: RPDO write to 0x%04X refused: %s", local.id, index, exc)
+                continue
+            store.setdefault(index, {})[subindex] = chunk
 
-    def _fit(self, entry: MappedObject, chunk: bytes) -> bytes:
-        var = self._local._find_object(entry.index, entry.subindex)
-        size = len(var) // 8
-        return chunk[:size].ljust(size, b"\x00")
+    def _rpdo_slots(self, rpdo: PdoConfig) -> list[tuple[int, int, Any, int, int, int]]:
+        """(index, subindex, the dictionary's variable, start, end, its size in bytes) of
+        each object an RPDO maps."""
+        slots, offset = [], 0
+        for entry in rpdo.entries:
+            obj = self._local._find_object(entry.index, entry.subindex)
+            slots.append((entry.index, entry.subindex, obj, offset, offset + entry.nbytes,
+                          len(obj) // 8))
+            offset += entry.nbytes
+        return slots
 
     def events(self, now: float) -> None:
         """Send the event-driven TPDOs whose data changed or whose event timer ran out,
@@ -117,6 +152,9 @@ class ProcessData:
                 self._send_tpdo(tpdo, now)
 
     def _frame(self, tpdo: PdoConfig) -> bytes:
+        return self._makers[id(tpdo)]()
+
+    def _slow_frame(self, tpdo: PdoConfig) -> bytes:
         out = bytearray()
         for entry in tpdo.entries:
             reader = self._readers.get((entry.index, entry.subindex))

@@ -11,7 +11,8 @@ types, CDR), ``/pose2d``, ``/twist``, ``/wheels``, ``/status`` (JSON), ``/sim/tr
 
 It has no thread of its own: the telemetry hands it each sample's messages. Nothing is
 encoded for a topic no client subscribed to. The server binds to loopback unless a
-host is given.
+host is given; clients reach it through :mod:`omnican.live.relay` (either name of the
+protocol, TLS). With control on (:mod:`omnican.live.control`) clients may drive.
 """
 
 from __future__ import annotations
@@ -22,30 +23,14 @@ from collections.abc import Iterator
 from typing import Any
 
 from omnican import rosmsg, telemetry
+from omnican.arbiter import CommandArbiter
 from omnican.errors import ConfigError
+from omnican.live.control import PARAMETERS, Control
+from omnican.live.relay import Relay, tls_context
+from omnican.live.settings import DEFAULT_HOST, DEFAULT_PORT, FoxgloveSettings, parse_address
 from omnican.telemetry import Feed, Message
 
 logger = logging.getLogger(__name__)
-
-DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8765
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
-
-
-def parse_address(text: str | None) -> tuple[str, int]:
-    """``[HOST:]PORT`` (or empty: 127.0.0.1:8765) -> (host, port); ValueError if bad."""
-    if not text:
-        return DEFAULT_HOST, DEFAULT_PORT
-    host, sep, port = text.rpartition(":")
-    if not sep and not text.isdigit():
-        host, port = text, str(DEFAULT_PORT)  # a bare host
-    try:
-        number = int(port)
-    except ValueError:
-        raise ValueError(f"want [HOST:]PORT, got {text!r}") from None
-    if not 0 <= number <= 65535:
-        raise ValueError(f"port must be 0-65535, got {number}")
-    host = host.strip("[]") or DEFAULT_HOST
-    return host, number
 
 
 def prepare(cfg: Any) -> None:
@@ -68,12 +53,21 @@ _LEFT_WORDS = ("Connection reset", "closing handshake", "Broken pipe", "os error
                "os error 32")
 
 
+# What the SDK logs as an ERROR each time a client breaks the protocol (it tells the
+# client so in a status message): a debug line here, or one client floods the log.
+_CLIENT_MISTAKES = ("Received message for unknown channel",)
+
+
 class _ViewerLeft(logging.Filter):
     """Turns the SDK's ERROR "Error receiving from client ...: Connection reset ..." into
-    an INFO line that a viewer left; other records pass as they are."""
+    an INFO line that a viewer left, and a client's protocol mistakes into DEBUG lines;
+    other records pass as they are."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         text = record.getMessage()
+        if record.levelno >= logging.ERROR and text.startswith(_CLIENT_MISTAKES):
+            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+            return logging.getLogger(record.name).isEnabledFor(logging.DEBUG)
         if record.levelno >= logging.ERROR and "from client" in text and any(
                 w in text for w in _LEFT_WORDS):
             client = text.split("from client", 1)[1].split(":", 2)
@@ -97,10 +91,13 @@ def _quiet_viewers_leaving() -> None:
 
 class LiveView:
     """A running Foxglove server publishing ``feed`` (a base's :attr:`~omnican.Chassis.telemetry`,
-    or a simulator's alone): a :class:`~omnican.telemetry.Sink`. A context manager."""
+    or a simulator's alone): a :class:`~omnican.telemetry.Sink`. With ``control``, its
+    clients may drive the base (:class:`~omnican.live.control.Control`). A context
+    manager."""
 
     def __init__(self, feed: Feed, *, host: str = DEFAULT_HOST,
-                 port: int = DEFAULT_PORT) -> None:
+                 port: int = DEFAULT_PORT, control: Control | None = None,
+                 settings: FoxgloveSettings | None = None) -> None:
         try:
             import foxglove
         except ImportError:
@@ -108,23 +105,44 @@ class LiveView:
 
             raise ConfigError("--foxglove needs the Foxglove SDK: "
                               f"{install_hint('foxglove')}") from None
+        s = settings if settings is not None else FoxgloveSettings(host=host, port=port)
+        host, port = s.host, s.port
         self.feed = feed
+        self.settings = s
+        self.control = control
         self._ctx = foxglove.Context()
         _quiet_viewers_leaving()
-        if host not in LOOPBACK:
+        tls = None
+        if s.tls_cert is not None and s.tls_key is not None:
+            try:
+                tls = tls_context(s.tls_cert, s.tls_key)
+            except ValueError as exc:
+                raise ConfigError(f"--foxglove: {exc}") from None
+        if s.remote:
             logger.warning("Foxglove server on %s: anyone who reaches this host on port %d "
                            "sees the robot's data", host, port)
+        options = control.server_options(foxglove) if control is not None else {}
         try:
-            self._server = foxglove.start_server(name="omnican", host=host, port=port,
-                                                 context=self._ctx)
-        except Exception as exc:  # the SDK raises its own error kinds (address in use, ...)
+            # The SDK's own server stays on loopback; clients come in through the relay.
+            self._server = foxglove.start_server(name="omnican", host="127.0.0.1", port=0,
+                                                 context=self._ctx, **options)
+        except Exception as exc:  # the SDK raises its own error kinds
             raise ConfigError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
-        self.host, self.port = host, int(self._server.port)
+        try:
+            self._relay = Relay(host, port, int(self._server.port), tls)
+        except OSError as exc:
+            self._server.stop()
+            why = exc.strerror or str(exc)
+            raise ConfigError(f"cannot serve Foxglove on {host}:{port}: {why}") from None
+        if control is not None:
+            control.attach(self._server)
+        self.host, self.port = host, self._relay.port
         self._closed = False
         try:
             self._channels = self._make_channels(foxglove)
             feed.add(self)
         except BaseException:
+            self._relay.close()
             self._server.stop()
             raise
 
@@ -154,7 +172,7 @@ class LiveView:
     @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"ws://{host}:{self.port}"
+        return f"{self.settings.scheme}://{host}:{self.port}"
 
     # ------------------------------------------------------------ the sink
 
@@ -174,6 +192,9 @@ class LiveView:
             return
         self._closed = True
         self.feed.remove(self)
+        if self.control is not None:
+            self.control.close()  # clients leaving now (the relay closing) change nothing
+        self._relay.close()
         self._server.stop()
 
     def __enter__(self) -> LiveView:
@@ -183,18 +204,43 @@ class LiveView:
         self.close()
 
 
+def describe_control(view: LiveView) -> list[str]:
+    """What the startup lines say of control: what a client may send, and the warning
+    when other hosts can drive."""
+    c, s = view.control, view.settings
+    if c is None:
+        return []
+    params = ", ".join(PARAMETERS[:3]) + ", ..."
+    lines = [f"Foxglove control on: Twists on {s.cmd_vel_topic} (Teleop panel; JSON or CDR), "
+             f"services {', '.join(c.service_names())}, parameters {params}; one client "
+             f"drives at a time, and the base stops when it leaves or sends nothing for "
+             f"{c.arbiter.timeout_s:g} s"]
+    if s.remote:
+        lines.append(f"warning: anyone who reaches this host on port {view.port} can drive "
+                     "the robot (--foxglove-allow-remote)")
+    return lines
+
+
 @contextlib.contextmanager
-def watch(base: Any, sim: Any = None, foxglove: str | None = None, announce: Any = None
+def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = None,
+          announce: Any = None, arbiter: CommandArbiter | None = None
           ) -> Iterator[LiveView | None]:
     """What a front end adds around a running base (or a simulator alone, ``base``
     None): the simulator's ground truth into the base's telemetry (a recording, the ROS 2
-    bridge, the view), and a Foxglove server when ``foxglove`` (``[HOST:]PORT``) is given.
-    ``announce(text)`` is told where the server listens."""
-    if foxglove is not None:
+    bridge, the view), and a Foxglove server when ``foxglove`` (``[HOST:]PORT``, or
+    :class:`FoxgloveSettings`) is given; with control on in the settings, its clients
+    may drive the base, one at a time by ``arbiter`` (shared with the front end's other
+    sources of commands; default a new one with the chassis' command timeout).
+    ``announce(text)`` is told where the server listens and what control allows."""
+    settings: FoxgloveSettings | None = None
+    if isinstance(foxglove, FoxgloveSettings):
+        settings = foxglove
+    elif foxglove is not None:
         try:
             host, port = parse_address(foxglove)
         except ValueError as exc:
             raise ConfigError(f"--foxglove: {exc}") from None
+        settings = FoxgloveSettings(host=host, port=port)
     with contextlib.ExitStack() as stack:
         if base is not None:
             feed = base.telemetry
@@ -202,13 +248,23 @@ def watch(base: Any, sim: Any = None, foxglove: str | None = None, announce: Any
                 feed.truth = sim
         else:
             feed = stack.enter_context(sim.telemetry())
-        if foxglove is None:
+        if settings is None:
             yield None
             return
-        view = stack.enter_context(LiveView(feed, host=host, port=port))
+        control = None
+        if settings.control and base is not None:
+            if arbiter is None:
+                arbiter = CommandArbiter(base.cfg.chassis.cmd_timeout_s)
+            control = Control(base, settings, arbiter, sim)
+        view = stack.enter_context(LiveView(feed, control=control, settings=settings))
         if announce is not None:
             announce(f"Foxglove: open a connection to {view.url} "
                      "(layout: foxglove/omnican-layout.json)")
+            for line in describe_control(view):
+                announce(line)
+        if settings.control and settings.remote:
+            logger.warning("Foxglove control on %s:%d: anyone who reaches this host can "
+                           "drive the robot", settings.host, view.port)
         yield view
 
 

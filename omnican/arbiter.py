@@ -1,0 +1,103 @@
+"""Who may command the base when more than one source could: one at a time.
+
+A source (the terminal's keys, a gamepad, ROS 2 ``cmd_vel``, a Foxglove client) asks
+before each command. The first to ask holds control until it releases it (it left, or
+its keys went idle) or sends nothing for ``timeout_s`` (the chassis watchdog's timeout:
+by then the base has stopped by itself). Until then every other source is refused and
+told who holds it.
+
+A stop is not a command: anyone may stop the base at any time. A stop by another source
+also takes control from the one driving, which is then refused until it lets go (sends
+nothing for ``timeout_s``): a Teleop button held down does not start the base again the
+moment after someone else stopped it.
+
+Pure: no I/O, no threads of its own; safe to call from any thread.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+
+
+class CommandArbiter:
+    """One controller at a time (see the module docstring). Times are seconds on the
+    caller's clock (``time.monotonic()`` in real time)."""
+
+    def __init__(self, timeout_s: float) -> None:
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"timeout_s must be a positive number, got {timeout_s!r}")
+        self.timeout_s = float(timeout_s)
+        self._lock = threading.Lock()
+        self._holder: str | None = None
+        self._last = -math.inf
+        self._stopped: dict[str, tuple[str, float]] = {}  # source -> (by whom, last heard)
+
+    def claim(self, source: str, now: float, send: Callable[[], None] | None = None
+              ) -> str | None:
+        """``source`` wants to command at ``now``: None if it may (it holds control from
+        here on; ``send``, the command, runs before anyone can take control away), else
+        the name of the source that holds control (or that stopped this one)."""
+        with self._lock:
+            stopped = self._stopped.get(source)
+            if stopped is not None:
+                if now - stopped[1] <= self.timeout_s:
+                    self._stopped[source] = (stopped[0], now)  # still pressing: still out
+                    return stopped[0]
+                del self._stopped[source]  # it let go
+            holder = self._current(now)
+            if holder is not None and holder != source:
+                return holder
+            self._holder, self._last = source, now
+            if send is not None:
+                send()
+            return None
+
+    def stop_by(self, source: str, now: float, stop: Callable[[], None] | None = None
+                ) -> str | None:
+        """``source`` stops the base at ``now`` (``stop`` runs with no command granted in
+        between): if another source drives, it loses control and is refused until it has
+        sent nothing for ``timeout_s``. Returns that source, if any."""
+        with self._lock:
+            if stop is not None:
+                stop()
+            holder = self._current(now)
+            if holder is None or holder == source:
+                return None
+            self._holder, self._last = None, -math.inf
+            self._stopped[holder] = (source, now)
+            return holder
+
+    def stopped_by(self, source: str, now: float) -> str | None:
+        """Who stopped ``source``, while it is still refused for that."""
+        with self._lock:
+            stopped = self._stopped.get(source)
+            return stopped[0] if stopped and now - stopped[1] <= self.timeout_s else None
+
+    def release(self, source: str, now: float) -> bool:
+        """``source`` gives control up at ``now`` (it left); True if it held control then
+        (not if its hold had lapsed)."""
+        with self._lock:
+            if self._current(now) != source:
+                return False
+            self._holder, self._last = None, -math.inf
+            return True
+
+    def holder(self, now: float) -> str | None:
+        """Who holds control at ``now`` (None: no one)."""
+        with self._lock:
+            return self._current(now)
+
+    def may_act(self, source: str, now: float) -> str | None:
+        """Whether ``source`` may do what only the controller may while one drives
+        (recover, change a limit, reset odometry): None if it may, else the holder. Does
+        not take control."""
+        with self._lock:
+            holder = self._current(now)
+            return holder if holder is not None and holder != source else None
+
+    def _current(self, now: float) -> str | None:
+        if self._holder is not None and now - self._last > self.timeout_s:
+            self._holder = None  # silent for the timeout: the base stopped by itself
+        return self._holder
