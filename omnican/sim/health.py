@@ -33,7 +33,7 @@ Reader = Callable[[], int]
 
 #: 60FDh bit the simulator's e-stop is wired to unless a config says otherwise.
 ESTOP_INPUT_BIT = 16
-WARM_EVERY_S = 0.02  # temperatures are integrated in steps of at least this
+WARM_EVERY_S = 0.1  # temperatures are integrated in steps of at least this (tau: minutes)
 DEFAULT_COUNTS_PER_M = 10_000.0  # a drive on its own (no base says how its wheel rolls)
 QUANTITIES = ("current", "torque", "voltage", "temperature")
 
