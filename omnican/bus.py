@@ -3,7 +3,9 @@
 Also counts traffic (frames and worst-case bits, for the bus load), hands every frame,
 received and sent, to a recorder when given one (:mod:`omnican.recording`) and to the
 listeners added while it runs (a telemetry tap), watches whether the bus works
-(:class:`BusWatch`) and reopens it when it does not, on a thread of its own.
+(:class:`BusWatch`) and reopens it when it does not, on a thread of its own, and keeps
+the controller's state from the error frames SocketCAN delivers
+(:mod:`omnican.canstate`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Any, Protocol
 import can
 import canopen
 
+from omnican.canstate import CanController
 from omnican.cia301 import SDO_RX_BASE, SYNC_COB_ID
 from omnican.clock import REAL_TIME, Clock
 from omnican.errors import BusError, ConfigError
@@ -108,6 +111,8 @@ class _Traffic(can.Listener):
         with self._lock:
             self._frames += 1
             self._bits += _FRAME_BITS[len(msg.data)]
+        if msg.is_error_frame:
+            self._owner.controller.on_error_frame(msg.arbitration_id, msg.data)
         if self._owner.rx_error is not None:
             self._owner.rx_error = None  # frames arrive again
 
@@ -212,6 +217,8 @@ class CanBus:
         self.send_errors = 0
         self.dropped_frames = 0  # frames the bus refused (never queued for later)
         self.rx_error: str | None = None
+        #: the controller's state, from the error frames (SocketCAN delivers them)
+        self.controller = CanController()
         self.generation = 0
         self.reconnect_error: str | None = None
         self._closed = False
@@ -324,6 +331,8 @@ class CanBus:
             for tap in taps:
                 tap.on_message_received(msg)
         if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+            if msg.is_error_frame:  # the controller's state (SocketCAN)
+                self.controller.on_error_frame(msg.arbitration_id, data)
             return  # 29-bit frames are other devices', never CANopen
         callbacks = self.network.subscribers.get(msg.arbitration_id)
         if callbacks:
@@ -532,6 +541,7 @@ class CanBus:
             self.network.bus, self.network.notifier = new_bus, notifier
         self.rx_error = None
         self.reconnect_error = None
+        self.controller.reset()
         self.generation += 1
         logger.warning("CAN bus reopened")
         return True

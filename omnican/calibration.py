@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from omnican.config import WHEEL_EDS, ChassisConfig, ChassisSettings, parse_config
+from omnican.config import SCHEMA, WHEEL_EDS, ChassisConfig, ChassisSettings, parse_config
 from omnican.errors import ConfigError
 from omnican.kinematics import OmniKinematics
 from omnican.odometry import wrap_angle
@@ -469,7 +469,39 @@ def render_config(cfg: ChassisConfig, comment: str = "", digits: int = 7) -> str
                 lines.append(f"{key} = {format_number(value)}")
         if w.mode is not None and w.mode != c.mode:
             lines.append(f'mode = "{w.mode.short}"')
+        for key in ("current", "current_scale", "torque", "voltage", "voltage_scale",
+                    "temperature", "temperature_scale"):  # what the drive reports
+            value = getattr(w, key)
+            if value == SCHEMA["wheel"][key].default:
+                continue
+            # None for an object: none (what "" says in a config)
+            lines.append(f"{key} = " + (_toml_string(value or "") if not isinstance(
+                value, float) else format_number(value)))
+        for setting in w.settings:
+            lines += ["[[wheel.sdo]]", f"object = {_toml_string(setting.object)}",
+                      f"value = {_toml_value(setting.value)}"]
+            if setting.type is not None:
+                lines.append(f'type = "{setting.type}"')
+    for table, settings in (("power", cfg.power), ("estop", cfg.estop)):
+        if settings is None:
+            continue
+        lines += ["", f"[{table}]"]
+        for f in fields(settings):
+            value = getattr(settings, f.name)
+            if value is not None and (f.name == "bit" or value != SCHEMA[table][f.name].default):
+                lines.append(f"{f.name} = {_toml_value(value)}")
     return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return _toml_string(value)
+    if isinstance(value, int):
+        return str(value)
+    assert isinstance(value, float)
+    return format_number(value)
 
 
 def _toml_string(s: str) -> str:

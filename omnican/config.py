@@ -108,6 +108,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
                            "and what that lacks goes by SDO every cycle), \"eds\" sends them by "
                            "SDO every cycle, \"sdo\" sends targets and positions by SDO every "
                            "cycle"),
+        "health_rate_hz": Key(_NUM, 5.0, "how often each drive's current, torque, voltage, "
+                              "temperature, error register and e-stop input are read"),
+        "tracking_error": Key(_NUM, 0.1, "m/s: a wheel whose measured speed stays this far "
+                              "outside what its target was over the last tracking_lag_s "
+                              "latches a stop (inf: never)"),
+        "tracking_time_s": Key(_NUM, 0.5, "for this long"),
+        "tracking_lag_s": Key(_NUM, 0.3, "how far a wheel's measured speed may lag its target "
+                              "(speed window, drive ramp and velocity loop)"),
     },
     "wheel": {
         "node_id": Key((int,), None, "CANopen node id 1-127", required=True),
@@ -127,6 +135,45 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "base_radius": Key(_NUM, None, "m, this wheel's distance from the centre; default "
                            "[chassis] base_radius"),
         "mode": Key((str,), None, "this wheel's mode; default [chassis] mode"),
+        "current": Key((str,), "0x6078", "object with the motor current: \"0xIIII:SS\", "
+                       "\"0xIIII\" (this axis's copy) or the EDS entry's name; \"\" for none"),
+        "current_scale": Key(_NUM, None, "A per unit of current; default: 6078h's per mille "
+                             "of the rated current 6075h, read at startup"),
+        "torque": Key((str,), "0x6077", "object with the torque, per mille of the rated "
+                      "torque; \"\" for none"),
+        "voltage": Key((str,), "0x6079", "object with the DC link voltage; \"\" for none"),
+        "voltage_scale": Key(_NUM, 0.001, "V per unit of voltage (6079h: mV)"),
+        "temperature": Key((str,), None, "object with a temperature (vendor-specific, e.g. "
+                           "\"0x2032:01\" or its EDS name); default none"),
+        "temperature_scale": Key(_NUM, 1.0, "degC per unit of temperature"),
+        "sdo": Key((list,), None, "vendor settings: [[wheel.sdo]] tables written in "
+                   "PRE-OPERATIONAL at every configuration (below)"),
+    },
+    # One [[wheel.sdo]] table: a setting the drive gets at startup, after a reboot and
+    # after the bus comes back.
+    "wheel.sdo": {
+        "object": Key((str,), None, "\"0xIIII:SS\" or the EDS entry's name", required=True),
+        "value": Key((int, float, bool), None, "the value written", required=True),
+        "type": Key((str,), None, "u8, u16, u32, i8, i16, i32 or bool; default: the EDS's "
+                    "type (which it must match)"),
+    },
+    # Read by the base when present: a low battery warns, then stops the base.
+    "power": {
+        "warn_v": Key(_NUM, None, "V: the DC link below this warns (status, diagnostics)"),
+        "cutoff_v": Key(_NUM, None, "V: below this for delay_s, a controlled stop "
+                        "(recover() refuses until it is back above cutoff_v + hysteresis_v)"),
+        "hysteresis_v": Key(_NUM, 0.5, "V a warning or cutoff needs to clear"),
+        "delay_s": Key(_NUM, 1.0, "below a threshold this long before it counts (a sag "
+                       "while accelerating does not)"),
+    },
+    # An e-stop (or a drive's safe torque off) as a stop reason.
+    "estop": {
+        "object": Key((str,), "0x60FD", "object with the e-stop: a digital input (60FDh), "
+                      "the statusword (0x6041, a drive's STO bit) or a vendor object"),
+        "bit": Key((int,), None, "bit of it that shows the e-stop pressed", required=True),
+        "active_low": Key((bool,), False, "pressed when the bit is clear (a normally closed "
+                          "loop)"),
+        "node_id": Key((int,), None, "the drive whose input it is; default every node"),
     },
     # Read by `omnican ros2` (omnican/ros2/settings.py checks the values).
     "ros2": {
@@ -151,6 +198,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                             "wheel_radius (no joint_states without one)"),
         "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
         "diagnostics_rate_hz": Key(_NUM, 1.0, "diagnostics rate (and at once on a change)"),
+        "battery_state_topic": Key((str,), "battery_state", "sensor_msgs/BatteryState out: the "
+                                   "drives' DC link (when they report one)"),
+        "battery_state_rate_hz": Key(_NUM, 1.0, "battery_state publish rate"),
         "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
         "odom_slip": Key(_NUM, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
                          "(covariances)"),
@@ -234,10 +284,61 @@ class WheelConfig:
     # m, when the config gave it (omnican ros2's joint angles need it). Not part of equality:
     # the scales define the wheel; a config rewritten with scales only is the same wheel.
     wheel_radius: float | None = field(default=_WHEEL["wheel_radius"], compare=False)
+    # What the drive reports of this wheel: objects as the config names them ("" none),
+    # resolved against the EDS by omnican.healthplan.
+    current: str | None = _WHEEL["current"]
+    current_scale: float | None = _WHEEL["current_scale"]
+    torque: str | None = _WHEEL["torque"]
+    voltage: str | None = _WHEEL["voltage"]
+    voltage_scale: float = _WHEEL["voltage_scale"]
+    temperature: str | None = _WHEEL["temperature"]
+    temperature_scale: float = _WHEEL["temperature_scale"]
+    settings: tuple[VendorSetting, ...] = ()  # [[wheel.sdo]]
 
     @property
     def name(self) -> str:
         return f"node {self.node_id}" + (f" axis {self.axis}" if self.axis else "")
+
+
+@dataclass(frozen=True)
+class VendorSetting:
+    """One ``[[wheel.sdo]]`` table: ``value`` written to ``object`` (as the config names
+    it) in PRE-OPERATIONAL; ``type`` None: the EDS's."""
+
+    object: str
+    value: int | float | bool
+    type: str | None = None
+
+
+#: [[wheel.sdo]] type names -> (bits, signed); bool is one byte.
+SDO_TYPES: dict[str, tuple[int, bool]] = {"u8": (8, False), "u16": (16, False),
+                                          "u32": (32, False), "i8": (8, True),
+                                          "i16": (16, True), "i32": (32, True),
+                                          "bool": (8, False)}
+
+_POWER = schema_defaults("power")
+_ESTOP = schema_defaults("estop")
+
+
+@dataclass(frozen=True)
+class PowerSettings:
+    """The ``[power]`` table: DC link thresholds with hysteresis (V, s)."""
+
+    warn_v: float | None = _POWER["warn_v"]
+    cutoff_v: float | None = _POWER["cutoff_v"]
+    hysteresis_v: float = _POWER["hysteresis_v"]
+    delay_s: float = _POWER["delay_s"]
+
+
+@dataclass(frozen=True)
+class EstopSettings:
+    """The ``[estop]`` table: bit ``bit`` of ``object`` on ``node_id`` (None: every
+    node) shows the e-stop pressed (clear when ``active_low``)."""
+
+    bit: int
+    object: str = _ESTOP["object"]
+    active_low: bool = _ESTOP["active_low"]
+    node_id: int | None = _ESTOP["node_id"]
 
 
 #: What a ``[chassis]`` table must give (or may leave to the wheels' angle_deg), for a
@@ -273,6 +374,10 @@ class ChassisSettings:
     boot_timeout_s: float = _CHASSIS["boot_timeout_s"]
     enable_timeout_s: float = _CHASSIS["enable_timeout_s"]
     pdo_mapping: str = _CHASSIS["pdo_mapping"]  # see pdoplan.MAPPING_POLICIES
+    health_rate_hz: float = _CHASSIS["health_rate_hz"]
+    tracking_error: float = _CHASSIS["tracking_error"]
+    tracking_time_s: float = _CHASSIS["tracking_time_s"]
+    tracking_lag_s: float = _CHASSIS["tracking_lag_s"]
 
     def __post_init__(self) -> None:
         for key in _SCALED:
@@ -298,6 +403,8 @@ class ChassisConfig:
     bus: Mapping[str, Any] | None = None
     source: Path | None = field(default=None, compare=False)
     ros2: Mapping[str, Any] | None = None  # the [ros2] table, schema-checked (omnican ros2)
+    power: PowerSettings | None = None  # the [power] table
+    estop: EstopSettings | None = None  # the [estop] table
     foxglove: Mapping[str, Any] | None = None  # the [foxglove] table, schema-checked (--foxglove)
 
     def kinematics(self) -> OmniKinematics:
@@ -367,16 +474,30 @@ _DEMO_WHEEL_RADIUS = 0.05
 _DEMO_SCALES = derive_scales(16.0, 4096.0, _DEMO_WHEEL_RADIUS)
 
 
+#: The demo base's health wiring: the bundled drive's temperature object (0.1 degC), its
+#: e-stop on digital input 1 (60FDh bit 16, where the simulator's e-stop is wired), and a
+#: 24 V battery (the simulator's nominal supply) that warns below 22 V and stops the base
+#: below 20 V.
+DEMO_TEMPERATURE = ("0x2100", 0.1)
+DEMO_ESTOP = EstopSettings(bit=16)
+DEMO_POWER = PowerSettings(warn_v=22.0, cutoff_v=20.0)
+
+
 def default_config(bus: Mapping[str, Any] | None = None) -> ChassisConfig:
     """The demo base that ``--sim`` runs without a config: three bundled drives,
-    node ids 1-3, the :data:`SCHEMA` defaults and :data:`DEMO_CHASSIS`."""
+    node ids 1-3, the :data:`SCHEMA` defaults and :data:`DEMO_CHASSIS`, the bundled
+    drive's temperature, an e-stop and a battery (:data:`DEMO_ESTOP`,
+    :data:`DEMO_POWER`)."""
     vs, ps = _DEMO_SCALES
+    temperature, scale = DEMO_TEMPERATURE
     wheels = tuple(
         WheelConfig(node_id=n, axis=0, eds=WHEEL_EDS, velocity_scale=vs, position_scale=ps,
-                    wheel_radius=_DEMO_WHEEL_RADIUS)
+                    wheel_radius=_DEMO_WHEEL_RADIUS, temperature=temperature,
+                    temperature_scale=scale)
         for n in (1, 2, 3)
     )
-    return ChassisConfig(chassis=ChassisSettings(), wheels=wheels, bus=bus)
+    return ChassisConfig(chassis=ChassisSettings(), wheels=wheels, bus=bus, power=DEMO_POWER,
+                         estop=DEMO_ESTOP)
 
 
 def _suggest(word: str, known: Iterable[str]) -> str:
@@ -454,7 +575,8 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        sections = ("bus", "chassis", "wheel", "ros2", "foxglove", *FRONT_END_SECTIONS)
+        sections = ("bus", "chassis", "wheel", "power", "estop", "ros2", "foxglove",
+                    *FRONT_END_SECTIONS)
         if key not in sections:
             raise r.fail(key, f"unknown section {key!r}{_suggest(key, sections)}")
     bus = data.get("bus")
@@ -469,8 +591,13 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     if rate > 5000:
         raise r.fail("chassis.rate_hz", f"must be at most 5000 Hz, got {rate}")
     for key in ("cmd_timeout_s", "heartbeat_timeout_factor", "sdo_timeout_s",
-                "boot_timeout_s", "enable_timeout_s"):
+                "boot_timeout_s", "enable_timeout_s", "health_rate_hz", "tracking_time_s",
+                "tracking_lag_s"):
         r.positive(f"chassis.{key}", c[key])
+    if c["health_rate_hz"] > rate:
+        raise r.fail("chassis.health_rate_hz", f"must be at most rate_hz ({rate:g}), got "
+                     f"{c['health_rate_hz']}")
+    r.positive("chassis.tracking_error", c["tracking_error"], allow_inf=True)
     for key in LIVE_LIMITS:
         if key not in _SCALED:
             _check_limit(r, key, c[key])
@@ -511,9 +638,11 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
                 raise r.fail(f"ros2.{key}", "must be an array of strings")
     if "gamepad" in data:
         _check_gamepad(r, data["gamepad"])
+    power = _parse_power(r, data["power"]) if "power" in data else None
+    estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
     foxglove = _foxglove_table(r, data["foxglove"], base_dir) if "foxglove" in data else None
-    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2,
-                        foxglove=foxglove)
+    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2, power=power,
+                        estop=estop, foxglove=foxglove)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -521,6 +650,55 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     if check_eds:
         check_eds_files(cfg, r.origin)
     return cfg
+
+
+def _parse_power(r: _Reader, table: Any) -> PowerSettings:
+    p = r.table("power", table, "power")
+    for key in ("warn_v", "cutoff_v"):
+        if p[key] is not None:
+            r.positive(f"power.{key}", p[key])
+    for key in ("hysteresis_v", "delay_s"):
+        if not (math.isfinite(p[key]) and p[key] >= 0):
+            raise r.fail(f"power.{key}", f"must be 0 or more, got {p[key]!r}")
+    if p["warn_v"] is not None and p["cutoff_v"] is not None and p["warn_v"] <= p["cutoff_v"]:
+        raise r.fail("power.warn_v", f"must be above cutoff_v ({p['cutoff_v']:g} V), got "
+                     f"{p['warn_v']:g}")
+    return PowerSettings(
+        warn_v=None if p["warn_v"] is None else float(p["warn_v"]),
+        cutoff_v=None if p["cutoff_v"] is None else float(p["cutoff_v"]),
+        hysteresis_v=float(p["hysteresis_v"]), delay_s=float(p["delay_s"]))
+
+
+def _parse_estop(r: _Reader, table: Any, wheels: tuple[WheelConfig, ...]) -> EstopSettings:
+    e = r.table("estop", table, "estop")
+    if not 0 <= e["bit"] < 32:
+        raise r.fail("estop.bit", f"must be 0-31, got {e['bit']}")
+    if e["node_id"] is not None and e["node_id"] not in {w.node_id for w in wheels}:
+        raise r.fail("estop.node_id", f"node {e['node_id']} drives no wheel")
+    if not e["object"].strip():
+        raise r.fail("estop.object", "must name an object")
+    return EstopSettings(bit=e["bit"], object=e["object"], active_low=e["active_low"],
+                         node_id=e["node_id"])
+
+
+def _parse_settings(r: _Reader, where: str, raw: Any) -> tuple[VendorSetting, ...]:
+    """A wheel's [[wheel.sdo]] tables (checked against the EDS later)."""
+    if raw is None:
+        return ()
+    if not isinstance(raw, list):
+        raise r.fail(f"{where}.sdo", "must be an array of tables ([[wheel.sdo]])")
+    out = []
+    for k, item in enumerate(raw):
+        t = r.table("wheel.sdo", item, f"{where}.sdo[{k}]")
+        kind = t["type"]
+        if kind is not None and kind not in SDO_TYPES:
+            raise r.fail(f"{where}.sdo[{k}].type", f"unknown type {kind!r} (one of "
+                         f"{', '.join(SDO_TYPES)})")
+        value = t["value"]
+        if isinstance(value, float) and not math.isfinite(value):
+            raise r.fail(f"{where}.sdo[{k}].value", f"must be finite, got {value!r}")
+        out.append(VendorSetting(t["object"], value, kind))
+    return tuple(out)
 
 
 def _check_limit(r: _Reader, key: str, value: Any) -> float:
@@ -613,6 +791,9 @@ def _parse_wheel(r: _Reader, i: int, data: Any, settings: ChassisSettings,
             vs, ps = -vs, -ps
     if w["base_radius"] is not None:
         r.positive(f"{where}.base_radius", w["base_radius"])
+    for k in ("current_scale", "voltage_scale", "temperature_scale"):
+        if w[k] is not None and (not math.isfinite(w[k]) or w[k] == 0):
+            raise r.fail(f"{where}.{k}", f"must be a non-zero finite number, got {w[k]!r}")
     eds = WHEEL_EDS
     if w["eds"] is not None:
         p = Path(w["eds"]).expanduser()
@@ -628,6 +809,14 @@ def _parse_wheel(r: _Reader, i: int, data: Any, settings: ChassisSettings,
         base_radius=None if w["base_radius"] is None else float(w["base_radius"]),
         mode=_parse_mode(r, f"{where}.mode", w["mode"]) or settings.mode,
         wheel_radius=float(w["wheel_radius"]) if physical else None,
+        current=w["current"],
+        current_scale=None if w["current_scale"] is None else float(w["current_scale"]),
+        torque=w["torque"],
+        voltage=w["voltage"],
+        voltage_scale=float(w["voltage_scale"]),
+        temperature=w["temperature"],
+        temperature_scale=float(w["temperature_scale"]),
+        settings=_parse_settings(r, where, w["sdo"]),
     )
 
 

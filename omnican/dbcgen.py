@@ -1,6 +1,7 @@
 """DBC databases of a base's CAN frames, derived from its config and EDS files.
 
-Every PDO of each node's plan (``omnican.layout``) becomes a message with one
+Every PDO of each node's plan (``omnican.layout``), its health TPDOs included, becomes a
+message with one
 little-endian signal per mapped object, placed, sized and signed as the control loop's
 codec (:class:`omnican.wire.PdoCodec`) packs it, plus NMT, SYNC, EMCY and heartbeats. The
 bundled ``dbc/omnican.dbc`` is this for the demo base (``tools/gen_dbc.py`` writes it,
@@ -50,6 +51,11 @@ SIGNAL_NAMES: dict[Obj, str] = {
     Obj.VL_TARGET: "VlTargetVelocity",
     Obj.VL_DEMAND: "VlVelocityDemand",
     Obj.VL_ACTUAL: "VlVelocityActual",
+    Obj.CURRENT_ACTUAL: "CurrentActual",
+    Obj.TORQUE_ACTUAL: "TorqueActual",
+    Obj.DC_LINK_VOLTAGE: "DcLinkVoltage",
+    Obj.FOLLOWING_ERROR: "FollowingError",
+    Obj.DIGITAL_INPUTS: "DigitalInputs",
 }
 
 #: Units of the bundled EDS (its comment: increments, increments/s; vl in rpm).
@@ -60,6 +66,10 @@ UNITS: dict[Obj, str] = {
     Obj.VL_TARGET: "rpm",
     Obj.VL_DEMAND: "rpm",
     Obj.VL_ACTUAL: "rpm",
+    Obj.CURRENT_ACTUAL: "permille",  # of the rated current (6075h)
+    Obj.TORQUE_ACTUAL: "permille",  # of the rated torque
+    Obj.DC_LINK_VOLTAGE: "mV",
+    Obj.FOLLOWING_ERROR: "inc",
 }
 
 #: Value tables of the objects that hold enumerations.
@@ -124,7 +134,7 @@ def pdo_message(layout: NodeLayout, pdo: PlannedPdo, tx: bool, rate_hz: float) -
         signals=signals,
         comment=f"node {layout.node_id}: {pdo.describe(kind)}",
         senders=[sender],
-        cycle_time=round(1000.0 / rate_hz) if pdo.cyclic else None,
+        cycle_time=round(1000.0 * max(1, pdo.trans_type) / rate_hz) if pdo.cyclic else None,
     )
 
 
@@ -161,7 +171,7 @@ def build_database(cfg: ChassisConfig | None = None) -> Any:
     for layout in layouts:
         for pdo in layout.plan.rpdos:
             messages.append(pdo_message(layout, pdo, False, rate_hz))
-        for pdo in layout.plan.tpdos:
+        for pdo in layout.plan.tpdos + layout.health.pdos:
             messages.append(pdo_message(layout, pdo, True, rate_hz))
     for layout in layouts:
         node = node_name(layout.node_id)

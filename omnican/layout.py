@@ -8,15 +8,16 @@ picture without a bus (check-config, monitor, plot, calibrate).
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from canopen import objectdictionary as od
 
 from omnican import cia402, edscheck
 from omnican.cia301 import CONSUMER_HEARTBEAT_TIME
 from omnican.cia402 import Mode
-from omnican.config import ChassisConfig, ChassisSettings, WheelConfig
+from omnican.config import ChassisConfig, ChassisSettings, EstopSettings, WheelConfig
 from omnican.errors import ConfigError
+from omnican.healthplan import estop_entry, node_reads, plan_health
 from omnican.odmap import (
     AxisObjects,
     Entry,
@@ -26,7 +27,8 @@ from omnican.odmap import (
     obj_name,
     variable_at,
 )
-from omnican.pdoplan import NodePlan, frame_bits, plan_node
+from omnican.pdoplan import NodePlan, frame_bits, pdo_slots, plan_node
+from omnican.vendorsdo import vendor_writes
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,7 @@ class NodeLayout:
     """One node of the base and the wheels (axes) it drives."""
 
     def __init__(self, node_id: int, wheels: list[tuple[int, WheelConfig]],
-                 settings: ChassisSettings) -> None:
+                 settings: ChassisSettings, estop: EstopSettings | None = None) -> None:
         self.node_id = node_id
         self.settings = settings
         eds = wheels[0][1].eds
@@ -85,7 +87,28 @@ class NodeLayout:
         problems = self._object_problems()
         if problems:
             raise ConfigError(f"node {node_id}: EDS {eds}: {edscheck.one_line(problems)}")
-        self.plan = self._plan()
+        plan = self._plan()
+        try:
+            reads = node_reads(self.dictionary, node_id, wheels, estop)
+        except ConfigError as exc:
+            raise ConfigError(f"node {node_id}: EDS {eds.name}: {exc}") from None
+        spare = [s for s in pdo_slots(self.dictionary, node_id, tx=True)
+                 if s.number in plan.unused_tpdos]
+        #: what the drive reports of its health, and how it is read (omnican.healthplan)
+        self.health = plan_health(node_id, self.dictionary, reads, spare, settings.rate_hz,
+                                  settings.health_rate_hz)
+        used = {p.number for p in self.health.pdos}
+        self.plan = replace(plan, unused_tpdos=tuple(n for n in plan.unused_tpdos
+                                                     if n not in used))
+        self.estop = estop if estop is not None and estop.node_id in (None, node_id) else None
+        #: the e-stop's object on this node (None: not here, or a default object it lacks)
+        self.estop_entry = (estop_entry(self.dictionary, self.estop, wheels[0][1].axis)
+                            if self.estop is not None else None)
+        #: [[wheel.sdo]] of its wheels, resolved and checked against the EDS
+        try:
+            self.settings_writes = vendor_writes(self.dictionary, wheels)
+        except ConfigError as exc:
+            raise ConfigError(f"node {node_id}: EDS {eds.name}: {exc}") from None
 
     def _object_problems(self) -> list[str]:
         """The CiA 402 objects the drive layer will map, write or read, each an integer
@@ -157,7 +180,8 @@ class NodeLayout:
 
 def node_layouts(cfg: ChassisConfig) -> list[NodeLayout]:
     """One layout per node of ``cfg``, in order of first appearance."""
-    return [NodeLayout(node_id, [(cfg.wheels.index(w), w) for w in wheels], cfg.chassis)
+    return [NodeLayout(node_id, [(cfg.wheels.index(w), w) for w in wheels], cfg.chassis,
+                       cfg.estop)
             for node_id, wheels in cfg.nodes().items()]
 
 

@@ -42,10 +42,16 @@ class Obj(enum.IntEnum):
     MODE_DISPLAY = 0x6061
     POSITION_ACTUAL = 0x6064
     VELOCITY_ACTUAL = 0x606C
+    RATED_CURRENT = 0x6075  # mA
+    TORQUE_ACTUAL = 0x6077  # per mille of the rated torque
+    CURRENT_ACTUAL = 0x6078  # per mille of the rated current
+    DC_LINK_VOLTAGE = 0x6079  # mV
     MAX_PROFILE_VELOCITY = 0x607F
     PROFILE_ACCEL = 0x6083
     PROFILE_DECEL = 0x6084
     QUICK_STOP_DECEL = 0x6085
+    FOLLOWING_ERROR = 0x60F4  # position units
+    DIGITAL_INPUTS = 0x60FD
     TARGET_VELOCITY = 0x60FF
     VL_TARGET = 0x6042
     VL_DEMAND = 0x6043
@@ -67,6 +73,8 @@ NODE_WIDE = frozenset(
         Obj.MODE,
         Obj.MODE_DISPLAY,
         Obj.SUPPORTED_MODES,
+        Obj.DC_LINK_VOLTAGE,
+        Obj.DIGITAL_INPUTS,
     }
 )
 
@@ -74,10 +82,11 @@ NODE_WIDE = frozenset(
 RECORDS = frozenset({Obj.VL_ACCEL, Obj.VL_DECEL, Obj.VL_QUICK_STOP})
 
 # Objects that hold signed quantities even where an EDS declares them unsigned
-# (ZLAC8015D declares 606Ch as UNSIGNED32).
+# (ZLAC8015D declares 606Ch as UNSIGNED32, and its right motor's 6077h sub 2 too).
 SIGNED = frozenset(
     {Obj.POSITION_ACTUAL, Obj.VELOCITY_ACTUAL, Obj.TARGET_VELOCITY, Obj.VL_TARGET,
-     Obj.VL_DEMAND, Obj.VL_ACTUAL, Obj.MODE, Obj.MODE_DISPLAY}
+     Obj.VL_DEMAND, Obj.VL_ACTUAL, Obj.MODE, Obj.MODE_DISPLAY, Obj.TORQUE_ACTUAL,
+     Obj.CURRENT_ACTUAL, Obj.FOLLOWING_ERROR}
 )
 
 

@@ -86,7 +86,8 @@ class PlannedPdo:
 
     def describe(self, kind: str) -> str:
         objs = ", ".join(f"{e.name} ({e.address})" for e in self.entries)
-        timing = "every SYNC" if self.cyclic else "on change"
+        timing = (f"every {self.trans_type} SYNCs" if self.cyclic and self.trans_type > 1 else
+                  "every SYNC" if self.cyclic else "on change")
         extras = []
         if self.inhibit_100us:
             extras.append(f"inhibit {self.inhibit_100us / 10:g} ms")

@@ -42,9 +42,10 @@ from omnican.config import ChassisConfig
 from omnican.encoder import SPEED_WINDOW_S, fold_counter
 from omnican.errors import ConfigError
 from omnican.layout import NodeLayout, node_layouts
-from omnican.odmap import Entry
+from omnican.odmap import Entry, Obj
 from omnican.odometry import Odometry
 from omnican.recording import cut_note, size_text
+from omnican.sdocycle import SDO_ANSWER_BASE, AnswerKind, parse_answer
 from omnican.wire import PdoCodec
 
 logger = logging.getLogger(__name__)
@@ -126,6 +127,10 @@ class Replay:
     reboots: tuple[tuple[float, int], ...]  # (t, node id): boot-ups the host did not ask for
     node_frames: int  # frames from or to the configured nodes (0: wrong config?)
     cut: str | None = None  # cut short or damaged: what was read and what not (cut_note)
+    #: what the drives reported: quantity ("current" A, "torque" %, "voltage" V,
+    #: "temperature" degC) -> per wheel (times, values); empty arrays where none came
+    health: dict[str, tuple[tuple[FloatArray, FloatArray], ...]] = field(
+        default_factory=dict)
 
     @property
     def complete_syncs(self) -> int:
@@ -174,6 +179,76 @@ def _slots(layouts: Sequence[NodeLayout],
     return out
 
 
+class _HealthSeries:
+    """The health values in a recording, as the base reads them: its health TPDOs and
+    the answers to its SDO reads (6075h's too, the rated current 6078h counts in)."""
+
+    QUANTITIES = ("current", "torque", "voltage", "temperature")
+
+    def __init__(self, layouts: Sequence[NodeLayout], wheels: int) -> None:
+        self.pdos: dict[int, tuple[PdoCodec, list[tuple[int, Any]]]] = {}
+        self.sdo: dict[tuple[int, int, int], Any] = {}  # (node, index, sub) -> read
+        self.rated: dict[tuple[int, int, int], list[Any]] = {}  # 6075h -> its current reads
+        self.scales: dict[tuple[int, int, int], float] = {}
+        self.series: dict[str, list[tuple[list[float], list[float]]]] = {
+            q: [([], []) for _ in range(wheels)] for q in self.QUANTITIES}
+        for layout in layouts:
+            nid = layout.node_id
+            reads = [r for r in layout.health.reads if r.quantity in self.QUANTITIES]
+            for pdo in layout.health.pdos:
+                codec = PdoCodec(pdo)
+                fields = [(i, r) for r in reads if (i := codec.index_of(r.entry)) is not None]
+                self.pdos[codec.cob_id] = (codec, [(i, (nid, r)) for i, r in fields])
+            for r in reads:
+                self.sdo[(nid, r.key[0], r.key[1])] = (nid, r)
+                if r.quantity == "current" and r.scale is None:
+                    axis = next(a for a in layout.axes if a.wheel_index == r.wheels[0])
+                    rated = axis.objs.get(Obj.RATED_CURRENT)
+                    if rated is not None:
+                        self.rated.setdefault((nid, rated.index, rated.subindex), []).append(r)
+
+    def take(self, cob: int, data: bytes | bytearray, t: float) -> bool:
+        """True when the frame was one of the health reads (then recorded)."""
+        pdo = self.pdos.get(cob)
+        if pdo is not None:
+            codec, fields = pdo
+            values = codec.unpack(data)
+            if values is not None:
+                for i, (nid, read) in fields:
+                    self._add(nid, read, values[i], t)
+            return True
+        if not SDO_ANSWER_BASE < cob <= SDO_ANSWER_BASE + 0x7F:
+            return False
+        answer = parse_answer(data)
+        if answer is None or answer.kind is not AnswerKind.UPLOADED:
+            return False
+        nid = cob - SDO_ANSWER_BASE
+        key = (nid, answer.index, answer.subindex)
+        for read in self.rated.get(key, ()):
+            raw = int.from_bytes(answer.data[:4], "little")
+            self.scales[(nid, read.key[0], read.key[1])] = raw / 1_000_000.0
+        found = self.sdo.get(key)
+        if found is None:
+            return False
+        entry = found[1].entry
+        self._add(nid, found[1], entry.decode(answer.data.ljust(entry.bits // 8, b"\x00")), t)
+        return True
+
+    def _add(self, nid: int, read: Any, raw: int, t: float) -> None:
+        scale = (read.scale if read.scale is not None else
+                 self.scales.get((nid, read.key[0], read.key[1])))
+        if scale is None:
+            return
+        for wheel in read.wheels:
+            times, values = self.series[read.quantity][wheel]
+            times.append(t)
+            values.append(raw * scale)
+
+    def arrays(self) -> dict[str, tuple[tuple[FloatArray, FloatArray], ...]]:
+        return {q: tuple((np.array(ts, dtype=np.float64), np.array(vs, dtype=np.float64))
+                         for ts, vs in per_wheel) for q, per_wheel in self.series.items()}
+
+
 def window_speeds(t: FloatArray, travel: FloatArray,
                   window_s: float = SPEED_WINDOW_S) -> FloatArray:
     """Speeds (M, N) at each row of ``travel`` (M, N) sampled at times ``t`` (M,): the
@@ -214,6 +289,7 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
             stages.append(_Stage(layout.node_id,
                                  [a.wheel_index for a in layout.axes if a.stage == k]))
     slots = _slots(layouts, first_stage)
+    health = _HealthSeries(layouts, n)
     node_ids = {layout.node_id for layout in layouts}
     vscale = [w.velocity_scale for w in cfg.wheels]
     pscale = [w.position_scale for w in cfg.wheels]
@@ -283,6 +359,9 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
                     if not changes or changes[-1].state is not state:
                         changes.append(StateChange(t, state, sw))
             continue
+        if health.take(cob, data, t):
+            node_frames += 1
+            continue
         if cob == NMT_COB_ID and len(data) >= 2:
             if data[0] in NMT_RESETS:
                 reset.update(node_ids if data[1] == 0 else {data[1]})
@@ -336,6 +415,7 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         emcy=tuple(emcy),
         syncs=syncs,
         reboots=tuple(reboots),
+        health=health.arrays(),
         node_frames=node_frames,
     )
 

@@ -54,6 +54,10 @@ class FoundNode:
     heartbeat_ms: int | None = None  # producer heartbeat time (1017h); 0: sends none
     flags: tuple[str, ...] = field(default=())  # where it disagrees with the config
     answers: int = 1  # answers to the scan's one SDO request: 2 or more, two devices
+    # What a configured node reports of its health (its config's objects, read by SDO).
+    voltage_v: float | None = None
+    temperature_c: float | None = None
+    error_register: int | None = None
 
     @property
     def supported_modes(self) -> frozenset[int]:
@@ -110,7 +114,34 @@ def probe(network: canopen.Network, node_id: int, sdo_timeout_s: float) -> Found
         del network[node_id]
 
 
-def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout_s: float) -> list[FoundNode]:
+def read_health(network: canopen.Network, layout: NodeLayout,
+                sdo_timeout_s: float) -> tuple[float | None, float | None, int | None]:
+    """(DC link V, temperature degC of its first wheel, error register) of a configured
+    node, read by SDO as its config names them (None: not given, or no answer)."""
+    node = canopen.RemoteNode(layout.node_id, od.ObjectDictionary())
+    node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
+    node.sdo.MAX_RETRIES = 1
+    network.add_node(node)
+    out: dict[str, float | None] = {}
+    try:
+        for r in layout.health.reads:
+            if r.quantity not in ("voltage", "temperature", "error_register") or \
+                    r.quantity in out:
+                continue
+            try:
+                raw = r.entry.decode(node.sdo.upload(r.entry.index, r.entry.subindex))
+            except (SdoAbortedError, SdoCommunicationError):
+                continue
+            out[r.quantity] = raw * r.scale if r.scale is not None else None
+    finally:
+        del network[layout.node_id]
+    register = out.get("error_register")
+    return (out.get("voltage"), out.get("temperature"),
+            None if register is None else int(register))
+
+
+def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout_s: float,
+         layouts: Iterable[NodeLayout] = ()) -> list[FoundNode]:
     """The nodes on ``cfg``'s bus that send heartbeats or answer an SDO read of 1000h
     within ``listen_s``, by node id (this host's own id, ``host_node_id``, excluded).
 
@@ -151,6 +182,12 @@ def scan(cfg: ChassisConfig, listen_s: float, sdo_timeout_s: float) -> list[Foun
             time.sleep(NODE_GUARDING_WAIT_S)
         results = [replace(f, nmt=nmt_state_name(heartbeats[f.node_id]))
                    if f.node_id in heartbeats else f for f in found]
+        by_id = {layout.node_id: layout for layout in layouts}
+        for k, f in enumerate(results):
+            layout = by_id.get(f.node_id)
+            if layout is not None and f.answers <= 1:
+                v, t, reg = read_health(network, layout, sdo_timeout_s)
+                results[k] = replace(f, voltage_v=v, temperature_c=t, error_register=reg)
     logger.info("scan: %d node(s) found", len(results))
     return results
 

@@ -304,6 +304,23 @@ def test_render_round_trips() -> None:
     assert "stop_decel" not in text  # the default for max_accel 2
 
 
+def test_render_keeps_what_the_drives_report_and_their_settings() -> None:
+    """A calibrated config written back keeps the health objects, [[wheel.sdo]], [power]
+    and [estop] as they were."""
+    from omnican.config import EstopSettings, PowerSettings, VendorSetting
+
+    base = default_config()
+    wheels = (replace(base.wheels[0], current="0x30D1:02", current_scale=0.001, torque="",
+                      settings=(VendorSetting("0x2000:00", 500),
+                                VendorSetting("Some flag", True, "bool"))),
+              *base.wheels[1:])
+    cfg = replace(base, wheels=wheels, power=PowerSettings(cutoff_v=21.5, delay_s=2.0),
+                  estop=EstopSettings(bit=14, object="0x6041", active_low=True, node_id=2))
+    back = load_text(render_config(cfg))
+    same_wheels(back.wheels, cfg.wheels)
+    assert (back.power, back.estop) == (cfg.power, cfg.estop)
+
+
 def test_render_custom_geometry() -> None:
     text = CONFIG_TEXT.replace('layout = "b21"\n', "").replace("node_id = 1\n",
                                                                "node_id = 1\nangle_deg = 180\n")

@@ -34,7 +34,7 @@ ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b[()][A-Z0-9]|\x1b[=>]")
 def test_drive_json_under_sim(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["drive", "--sim", "--vx", "0.3", "--duration", "0.6", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"pose", "twist", "duration_s", "true_pose"}
+    assert set(out) == {"pose", "twist", "duration_s", "true_pose", "wheels"}
     assert out["pose"]["x"] > 0.1
     assert abs(out["pose"]["y"]) < 0.005
     assert out["pose"]["x"] == pytest.approx(out["true_pose"]["x"], abs=0.005)
@@ -166,7 +166,11 @@ def test_check_config_prints_plan_and_load(capsys: pytest.CaptureFixture[str]) -
     assert "RPDO2 0x301 every SYNC, 4 bytes: Target velocity (0x60FF:00)" in out
     assert "TPDO2 0x283 every SYNC, 4 bytes: Position actual value (0x6064:00)" in out
     assert "625 worst-case bits per cycle" in out
-    assert "bus load at 500 kbit/s: 13%" in out
+    # The health values every 20th SYNC: two 8- and 5-byte TPDOs per node at 5 Hz.
+    assert ("health TPDO3 0x381 every 20 SYNCs, 8 bytes: Current actual value (0x6078:00), "
+            "Torque actual value (0x6077:00), DC link circuit voltage (0x6079:00)") in out
+    assert "health reads (5 Hz): 3.60 kbit/s of that, 0.72% of 500 kbit/s" in out
+    assert "bus load at 500 kbit/s: 14%" in out
 
 
 def test_check_config_vendor_drives(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -218,9 +222,9 @@ def test_scan_flags_a_missing_node(tmp_path: Path, capsys: pytest.CaptureFixture
 
     real = scan_cli.scan
 
-    def without_node_4(cfg, listen_s, sdo_timeout):  # type: ignore[no-untyped-def]
+    def without_node_4(cfg, listen_s, sdo_timeout, layouts):  # type: ignore[no-untyped-def]
         sims[0].drives[3].freeze()  # powered off, as far as the bus can tell
-        return real(cfg, listen_s, sdo_timeout)
+        return real(cfg, listen_s, sdo_timeout, layouts)
 
     monkeypatch.setattr(scan_cli, "scan", without_node_4)
     assert main(["scan", "--sim", "--config", str(cfg), "--listen", "0.2"]) == 1

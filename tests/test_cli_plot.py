@@ -58,7 +58,8 @@ def test_plot_a_recording(recording: Recording, tmp_path: Path,
         (pose["x"], pose["y"], pose["theta"]), abs=6e-5)
     assert out.read_bytes()[:8] == PNG_MAGIC
     image = matplotlib.image.imread(str(out))
-    assert image.shape[:2] == (880, 1400)  # 14 x 8.8 in at 100 dpi: three wheels + states
+    # 14 x 12.2 in at 100 dpi: three wheels, current, voltage, states
+    assert image.shape[:2] == (1220, 1400)
     assert image.std() > 0.05  # not a blank canvas
 
 
@@ -74,8 +75,8 @@ def test_the_figure(recording: Recording) -> None:
     truth = [(0.0, 0.0), (0.1, 0.01), (0.17, 0.05)]
     fig = plot_cli.build_figure(rep, "title here", truth)
     axes = fig.get_axes()
-    assert len(axes) == 5  # trajectory, three wheels, states
-    traj, wheels, states = axes[0], axes[1:4], axes[4]
+    assert len(axes) == 7  # trajectory, three wheels, current, voltage, states
+    traj, wheels, (current, voltage), states = axes[0], axes[1:4], axes[4:6], axes[6]
     assert "title here" in fig._suptitle.get_text()
     assert traj.get_xlabel() == "x (m)" and traj.get_ylabel() == "y (m)"
     assert traj.get_aspect() == 1.0
@@ -89,6 +90,17 @@ def test_the_figure(recording: Recording) -> None:
         assert by_label["actual (encoder)"].get_ydata().tolist() == \
             rep.actual_speed[:, i].tolist()
         assert ax.get_ylabel() == f"wheel {i} (node {i + 1})\nrim speed (m/s)"
+    for ax, quantity, label in ((current, "current", "current (A)"),
+                                (voltage, "voltage", "voltage (V)")):
+        assert ax.get_ylabel() == label
+        by_label = {line.get_label(): line for line in ax.get_lines()}
+        for i in range(3):  # what the drives reported, as replay decodes it
+            t, values = rep.health[quantity][i]
+            assert len(t) > 3
+            assert by_label[f"wheel {i}"].get_ydata().tolist() == values.tolist()
+    moving = [float(abs(rep.health["current"][i][1]).max()) for i in range(3)]
+    assert max(moving) > 0.5  # the wheels drew current while they drove
+    assert all(23.0 < v < 24.01 for i in range(3) for v in rep.health["voltage"][i][1])
     assert [t.get_text() for t in states.get_yticklabels()] == [
         "node 1 (wheel 0)", "node 2 (wheel 1)", "node 3 (wheel 2)"]
     assert states.get_xlabel() == "time since the first frame (s)"

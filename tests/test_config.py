@@ -193,9 +193,9 @@ def test_readme_reference_matches_the_schema() -> None:
     from omnican.config import reference_rows
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    rows = [line for line in readme.splitlines() if line.startswith("| `chassis.")
-            or line.startswith("| `wheel.") or line.startswith("| `ros2.")
-            or line.startswith("| `foxglove.") or line.startswith("| `gamepad.")]
+    rows = [line for line in readme.splitlines() if line.startswith(
+        ("| `chassis.", "| `wheel.", "| `power.", "| `estop.", "| `ros2.", "| `foxglove.",
+         "| `gamepad."))]
     expected = [f"| `{key}` | {default} | {doc} |" for key, default, doc in reference_rows()]
     assert rows == expected
 
@@ -224,11 +224,21 @@ def test_dataclass_defaults_are_the_schemas() -> None:
     when made) where the schema scales the key from another."""
     from dataclasses import MISSING, fields
 
-    from omnican.config import DEMO_CHASSIS, SCHEMA, ChassisSettings, WheelConfig
+    from omnican.config import (
+        DEMO_CHASSIS,
+        SCHEMA,
+        ChassisSettings,
+        EstopSettings,
+        PowerSettings,
+        WheelConfig,
+    )
 
     assert {f.name for f in fields(ChassisSettings)} == set(SCHEMA["chassis"])
+    assert {f.name for f in fields(PowerSettings)} == set(SCHEMA["power"])
+    assert {f.name for f in fields(EstopSettings)} == set(SCHEMA["estop"])
     checked = 0
-    for cls, section in ((ChassisSettings, "chassis"), (WheelConfig, "wheel")):
+    for cls, section in ((ChassisSettings, "chassis"), (WheelConfig, "wheel"),
+                         (PowerSettings, "power"), (EstopSettings, "estop")):
         for f in fields(cls):
             spec = SCHEMA[section].get(f.name)
             if spec is None or f.default is MISSING:
@@ -245,7 +255,10 @@ def test_dataclass_defaults_are_the_schemas() -> None:
                 assert f.default == spec.default, where
                 assert type(f.default) is type(spec.default), where
             checked += 1
-    assert checked == len(SCHEMA["chassis"]) + 5  # and the wheel's optional fields
+    # and the wheel's optional fields (not node_id, axis, eds, the scales and what derives
+    # them, nor its [[wheel.sdo]] list), [power], [estop] but its bit
+    assert checked == (len(SCHEMA["chassis"]) + len(SCHEMA["wheel"]) - 10 + len(SCHEMA["power"])
+                       + len(SCHEMA["estop"]) - 1)
 
 
 def test_a_config_that_gives_only_what_it_must_is_the_code_default(tmp_path: Path) -> None:

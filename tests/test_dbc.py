@@ -49,7 +49,7 @@ def _planned() -> list[tuple[NodeLayout, str, PlannedPdo]]:
     out = []
     for layout in node_layouts(default_config()):
         out += [(layout, "RPDO", p) for p in layout.plan.rpdos]
-        out += [(layout, "TPDO", p) for p in layout.plan.tpdos]
+        out += [(layout, "TPDO", p) for p in layout.plan.tpdos + layout.health.pdos]
     return out
 
 
@@ -77,8 +77,8 @@ def test_every_planned_pdo_of_nodes_1_to_3_is_in_the_dbc(db: Any) -> None:
             assert signal.byte_order == "little_endian", what
             assert signal.scale == 1 and signal.offset == 0, what
             start += entry.bits
-        cyclic = pdo.cyclic
-        assert (message.cycle_time == 10) == cyclic, where  # 100 Hz SYNC
+        # 100 Hz SYNC: every SYNC 10 ms, the health TPDOs every 20th
+        assert message.cycle_time == (10 * pdo.trans_type if pdo.cyclic else None), where
 
 
 def test_the_dbc_has_no_pdo_the_plan_lacks(db: Any) -> None:
@@ -95,6 +95,12 @@ def test_pdo_signals_have_clear_names_and_units(db: Any) -> None:
         0x180: ("TPDO1", [("Statusword", 0, 16, False, None), ("ModeDisplay", 16, 8, True, None),
                           ("ErrorCode", 24, 16, False, None)]),
         0x280: ("TPDO2", [("PositionActual", 0, 32, True, "inc")]),
+        0x380: ("TPDO3", [("CurrentActual", 0, 16, True, "permille"),
+                          ("TorqueActual", 16, 16, True, "permille"),
+                          ("DcLinkVoltage", 32, 32, False, "mV")]),
+        0x480: ("TPDO4", [("MotorTemperature", 0, 16, True, None),
+                          ("ErrorRegister", 16, 8, False, None),
+                          ("DigitalInputs", 24, 32, False, None)]),
     }
     for node in (1, 2, 3):
         for base, (kind, signals) in expected.items():
@@ -256,7 +262,8 @@ def test_dbc_signals_are_the_codecs_fields(kind: str, mapping: str, mode: str,
         layouts, db = _vendor_database(kind, mapping, mode)
     except ConfigError:
         reject()  # a drive without that mode
-    pdos = [pdo for layout in layouts for pdo in (*layout.plan.rpdos, *layout.plan.tpdos)]
+    pdos = [pdo for layout in layouts
+            for pdo in (*layout.plan.rpdos, *layout.plan.tpdos, *layout.health.pdos)]
     assert {m.frame_id for m in db.messages if 0x180 <= m.frame_id < 0x580} == \
         {pdo.cob_id for pdo in pdos}
     for pdo in pdos:

@@ -246,7 +246,7 @@ def test_ctrl_c_during_bring_up_says_so(served: tuple[SimulatedBase, Path],
     assert "omnican: interrupted during bring-up: nothing moved" in err
     if json_out:
         assert json.loads(out) == {"error": "interrupted", "pose": None, "twist": None,
-                                   "duration_s": None}
+                                   "wheels": None, "duration_s": None}
     else:
         assert out == ""
 

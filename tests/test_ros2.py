@@ -524,3 +524,35 @@ def test_ros2_sim_console_is_the_simulators_with_recover(channel: str) -> None:
         assert command(bridge, "recover") == "recovered" and recovered
         assert (command(bridge, "bogus") or "").startswith("error:")
         assert command(bridge, "quit") is None
+
+
+def test_battery_state_is_published_at_its_rate_and_follows_the_battery(
+        rig: tuple[SimulatedBase, Chassis]) -> None:
+    """battery_state (relative, in the namespace): the drives' DC link, once a second by
+    default; the e-stop and a low battery through ros2 --sim's console."""
+    pytest.importorskip("cyclonedds")
+    from omnican.cli.ros2 import command
+    from omnican.ros2.bridge import Bridge
+
+    sim, base = rig
+    t = MemoryTransport()
+    settings = Ros2Settings(namespace="/robot1", battery_state_rate_hz=10.0)
+    with Bridge(base, settings, t, sim=sim) as bridge:
+        assert wait_for(lambda: t.last("/robot1/battery_state") is not None, 2.0)
+        msg = t.last("/robot1/battery_state")
+        assert msg.voltage == pytest.approx(24.0, abs=0.2) and msg.power_supply_health == 1
+        assert math.isnan(msg.current) and msg.present
+        assert command(bridge, "battery 19") == "battery 19 V"
+        assert wait_for(lambda: t.last("/robot1/battery_state").power_supply_health == 3, 3.0)
+        assert "battery" in (base.status.stopped_reason or "")
+        assert command(bridge, "estop on") == "e-stop pressed"
+        assert wait_for(lambda: base.status.estop, 1.0)
+        assert command(bridge, "estop off") == "e-stop released"
+        assert command(bridge, "battery 24") == "battery 24 V"
+        assert wait_for(lambda: t.last("/robot1/battery_state").power_supply_health == 1, 3.0)
+        assert wait_for(lambda: not base.status.estop, 1.0)
+        assert bridge.recover()
+    # Every fifth sample (10 Hz of the 50 Hz state), odom every one; none in the samples
+    # before the first health values came (a health period: a few samples).
+    battery, odom = len(t.published["/robot1/battery_state"]), len(t.published["/robot1/odom"])
+    assert odom // 5 - 3 <= battery <= odom // 5 + 1

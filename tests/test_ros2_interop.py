@@ -13,6 +13,7 @@ the tests are skipped.
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -79,4 +80,11 @@ def test_rclpy_over_fast_dds(distro: str, netns: NetNs, tmp_path: Path) -> None:
     assert graph["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"]
     assert graph["/tf"] == ["tf2_msgs/msg/TFMessage"]
     assert graph["/omnican/recover"] == ["std_msgs/msg/Empty"]
+    assert graph["/battery_state"] == ["sensor_msgs/msg/BatteryState"]
+    # The DC link voltage the simulated drives report, as rclpy decodes the message.
+    battery = r["battery"]
+    assert battery["count"] >= 1 and battery["present"] is True
+    assert battery["voltage"] == pytest.approx(24.0, abs=1.0)
+    assert math.isnan(battery["current"]) and battery["location"].startswith("DC link")
+    assert battery["frame_id"] == "base_link"
     judge(run)

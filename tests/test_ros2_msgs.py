@@ -23,12 +23,15 @@ NAME, BASE, ARRAY, SEQUENCE = 2, 1, 3, 4  # rosbags' Nodetype values
 # rosbags packs "byte" (DiagnosticStatus.level) as signed; 0-127 is the same on both sides.
 _INT_RANGES = {"int8": (-(2**7), 2**7 - 1), "uint8": (0, 255), "octet": (0, 255),
                "byte": (0, 127), "int32": (-(2**31), 2**31 - 1), "uint32": (0, 2**32 - 1)}
-_NUMPY = {"float64": np.float64, "uint8": np.uint8, "int32": np.int32, "uint32": np.uint32}
+_NUMPY = {"float64": np.float64, "float32": np.float32, "uint8": np.uint8, "int32": np.int32,
+          "uint32": np.uint32}
 
 
 def _base_strategy(kind: str) -> st.SearchStrategy[Any]:
     if kind in ("float64", "float32"):
         return st.floats(allow_nan=False, width=64 if kind == "float64" else 32)
+    if kind == "bool":
+        return st.booleans()
     if kind == "string":
         return st.text(st.characters(blacklist_characters="\x00",
                                      blacklist_categories=("Cs",)), max_size=12)

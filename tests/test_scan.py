@@ -24,6 +24,15 @@ def test_scan_finds_the_simulated_drives(channel: str) -> None:
     assert report.ok and report.missing == () and all(f.flags == () for f in report.found)
 
 
+def test_scan_reads_what_configured_nodes_report(channel: str) -> None:
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg) as sim:
+        sim.set_battery(22.5)
+        found = scan(cfg, listen_s=0.2, sdo_timeout_s=0.2, layouts=node_layouts(cfg))
+    assert [(f.voltage_v, f.temperature_c, f.error_register) for f in found] == [
+        (22.5, 25.0, 0)] * 3
+
+
 def test_check_flags_what_disagrees(channel: str) -> None:
     cfg = sim_config(channel)
     layouts = node_layouts(cfg)

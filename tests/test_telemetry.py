@@ -188,7 +188,7 @@ def test_diagnostics_once_a_period_and_at_once_on_a_change() -> None:
 
 
 def test_every_state_topic_is_declared_and_encodes() -> None:
-    s = telemetry.Sample(**{**sample().__dict__, "true_pose": Pose2D(1, 2, 3),
+    s = telemetry.Sample(**{**sample(battery_v=23.9).__dict__, "true_pose": Pose2D(1, 2, 3),
                             "true_twist": Twist(1, 0, 0)})
     topics = {m.topic: m for m in Telemetry(SETTINGS, CFG.kinematics()).messages(s)}
     assert set(topics) == set(telemetry.TOPICS)
@@ -221,3 +221,52 @@ def test_fast_can_frame_codec_matches_the_generic_one(can_id: int, data: bytes, 
     independent = decoder(telemetry.CAN_FRAME)(fast)
     assert (independent.id, independent.dlc, bytes(independent.data)[:len(data)]) == (
         can_id, len(data), data)
+
+
+# ---------------------------------------------------------------- what the drives know
+
+
+def test_battery_state_is_the_dc_link_and_says_what_it_cannot_know() -> None:
+    assert telemetry.battery_state(sample(), SETTINGS) is None  # no drive reports one
+    for level, health in ((None, 0), ("ok", 1), ("low", 1), ("cutoff", 3)):
+        msg = telemetry.battery_state(sample(battery_v=21.25, battery=level), SETTINGS)
+        assert msg is not None
+        assert msg["voltage"] == 21.25 and msg["power_supply_health"] == health
+        assert msg["present"] and msg["header"]["frame_id"] == "base_link"
+        assert all(math.isnan(msg[k]) for k in ("current", "charge", "percentage",
+                                                 "temperature"))
+        decoded = decoder("sensor_msgs/msg/BatteryState")(
+            rosmsg.encode("sensor_msgs/msg/BatteryState", msg))
+        assert decoded.voltage == pytest.approx(21.25) and decoded.power_supply_health == health
+
+
+def test_each_wheels_health_goes_to_the_wheels_topic_and_its_diagnostics() -> None:
+    w = wheel(1, current_a=1.5, torque_pct=30.0, voltage_v=23.9, temperature_c=41.2,
+              error_register=0x05)
+    s = sample(wheels=(wheel(0), w, wheel(2)))
+    row = telemetry.wheels(s)["wheels"][1]
+    assert (row["current_a"], row["torque_pct"], row["voltage_v"], row["temperature_c"]) == (
+        1.5, 30.0, 23.9, 41.2)
+    assert telemetry.wheels(s)["wheels"][0]["current_a"] is None  # not given: null
+    diag = telemetry.wheel_status(w, "omnican", "wheel_1_joint")
+    values = {kv["key"]: kv["value"] for kv in diag["values"]}
+    assert (values["current_a"], values["voltage_v"], values["temperature_c"],
+            values["error_register"]) == ("1.5", "23.9", "41.2", "0x05")
+
+
+@pytest.mark.parametrize(("state", "level", "message"), [
+    (None, telemetry.OK, "bus load 20%"),
+    ("error-active", telemetry.OK, "bus load 20%"),
+    ("error-warning", telemetry.WARN, "CAN error-warning (tx 97, rx 0)"),
+    ("error-passive", telemetry.WARN, "CAN error-passive (tx 97, rx 0)"),
+    ("bus-off", telemetry.ERROR, "CAN bus-off (tx 97, rx 0)")])
+def test_the_can_controllers_state_is_in_the_bus_diagnostics(state: str | None, level: int,
+                                                            message: str) -> None:
+    st = status(can_state=state, can_tx_errors=97, can_rx_errors=0, can_error_frames=4)
+    bus = telemetry.bus_status(st, "omnican", "can0")
+    assert (bus["level"], bus["message"]) == (level, message)
+    values = {kv["key"]: kv["value"] for kv in bus["values"]}
+    assert values["tx_error_counter"] == "97" and values["error_frames"] == "4"
+    json_status = telemetry.status(sample(can_state=state, estop=True, battery_v=20.5))
+    assert json_status["can_state"] == (state or "") and json_status["estop"]
+    assert json_status["battery_v"] == 20.5

@@ -98,14 +98,17 @@ record(0x1018, "Identity object", [
     (3, "Revision number", U32, "ro", "0x00010000"),
     (4, "Serial number", U32, "ro", "0x00000000"),
 ])
-# PDO defaults = the plan omnican's host configures for this drive in pv mode:
+# PDO defaults = the plan omnican's host configures for the demo base (pv mode, 100 Hz):
 # RPDO1 controlword (on change), RPDO2 target velocity (SYNC), TPDO1 statusword +
-# mode display + error code (event, 2 ms inhibit, 100 ms event timer), TPDO2 position (SYNC).
+# mode display + error code (event, 2 ms inhibit, 100 ms event timer), TPDO2 position (SYNC),
+# TPDO3 and TPDO4 the health values every 20th SYNC (5 Hz): current, torque, DC link
+# voltage; temperature, error register, digital inputs (the e-stop).
 RPDOS = [(0x200, 255, ["0x60400010"]), (0x300, 1, ["0x60FF0020"]), (0x80000400, 255, []),
          (0x80000500, 255, [])]
 TPDOS = [(0x180, 255, ["0x60410010", "0x60610008", "0x603F0010"], 20, 100),
-         (0x280, 1, ["0x60640020"], 0, 0), (0x80000380, 255, [], 0, 0),
-         (0x80000480, 255, [], 0, 0)]
+         (0x280, 1, ["0x60640020"], 0, 0),
+         (0x380, 20, ["0x60780010", "0x60770010", "0x60790020"], 0, 0),
+         (0x480, 20, ["0x21000010", "0x10010008", "0x60FD0020"], 0, 0)]
 for n, (cob, trans, _) in enumerate(RPDOS):
     communication(0x1400 + n, f"RPDO{n + 1}", cob, trans, 0, 0)
 for n, (_, _, entries) in enumerate(RPDOS):
@@ -115,6 +118,8 @@ for n, (cob, trans, _, inhibit, event) in enumerate(TPDOS):
 for n, (_, _, entries, _, _) in enumerate(TPDOS):
     mapping(0x1A00 + n, f"TPDO{n + 1}", entries)
 
+# Manufacturer-specific: the motor winding temperature, 0.1 degC per unit.
+simple(0x2100, "Motor temperature", I16, "ro", 250, pdo=1)
 simple(0x6007, "Abort connection option code", I16, "rw", 3)
 simple(0x603F, "Error code", U16, "ro", 0, pdo=1)
 simple(0x6040, "Controlword", U16, "rww", 0, pdo=1)
@@ -135,18 +140,26 @@ simple(0x6064, "Position actual value", I32, "ro", 0, pdo=1)
 simple(0x606C, "Velocity actual value", I32, "ro", 0, pdo=1)
 simple(0x606D, "Velocity window", U16, "rw", 2000)
 simple(0x606E, "Velocity window time", U16, "rw", 0)
+simple(0x6075, "Motor rated current", U32, "rw", 5000)  # mA
+simple(0x6077, "Torque actual value", I16, "ro", 0, pdo=1)  # per mille of rated torque
+simple(0x6078, "Current actual value", I16, "ro", 0, pdo=1)  # per mille of rated current
+simple(0x6079, "DC link circuit voltage", U32, "ro", 24000, pdo=1)  # mV
 simple(0x607F, "Max profile velocity", U32, "rw", 2000000)
 simple(0x6083, "Profile acceleration", U32, "rw", 2000000, pdo=1)
 simple(0x6084, "Profile deceleration", U32, "rw", 2000000, pdo=1)
 simple(0x6085, "Quick stop deceleration", U32, "rw", 4000000, pdo=1)
+simple(0x60F4, "Following error actual value", I32, "ro", 0, pdo=1)
+simple(0x60FD, "Digital inputs", U32, "ro", 0, pdo=1)  # bit 16: digital input 1 (the e-stop)
 simple(0x60FF, "Target velocity", I32, "rww", 0, pdo=1)
 simple(0x6502, "Supported drive modes", U32, "ro", "0x00000106", pdo=1)
 
 MANDATORY = [0x1000, 0x1001, 0x1018]
+MANUFACTURER = [o for o in objects if 0x2000 <= o < 0x6000]
 lists: list[str] = []
 for title, items in (("MandatoryObjects", MANDATORY),
-                     ("OptionalObjects", [o for o in objects if o not in MANDATORY]),
-                     ("ManufacturerObjects", [])):
+                     ("OptionalObjects", [o for o in objects
+                                          if o not in MANDATORY and o not in MANUFACTURER]),
+                     ("ManufacturerObjects", MANUFACTURER)):
     lists += [f"[{title}]", f"SupportedObjects={len(items)}"]
     lists += [f"{i}=0x{o:04X}" for i, o in enumerate(items, 1)]
     lists.append("")

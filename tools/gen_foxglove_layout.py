@@ -97,6 +97,22 @@ def panels() -> Any:
                                              config=fl.DiagnosticsSummaryConfig(
                                                  topic_to_render="/diagnostics",
                                                  sort_by_level=True))
+    def per_wheel(title: str, field: str, *more: fl.PlotSeries) -> object:
+        return fl.PlotPanel(title=title, config=fl.PlotConfig(
+            paths=[fl.PlotSeries(value=f"/wheels.wheels[{i}].{field}") for i in range(WHEELS)]
+            + list(more), show_legend=True))
+
+    current = per_wheel("motor current (A)", "current_a")
+    voltage = per_wheel("DC link (V): each drive, and the battery", "voltage_v",
+                        fl.PlotSeries(value="/battery_state.voltage"))
+    temperature = per_wheel("temperature (°C)", "temperature_c")
+    alarms = fl.StateTransitionsPanel(title="e-stop and CAN controller",
+                                      config=fl.StateTransitionsConfig(paths=[
+                                          fl.StateTransitionsSeries(value="/status.estop",
+                                                                    label="e-stop"),
+                                          fl.StateTransitionsSeries(value="/status.can_state",
+                                                                    label="CAN controller")],
+                                          show_points=True))
     can = fl.RawMessagesPanel(title="CAN: node 1 position (decoded with the DBC)",
                               config=fl.RawMessagesConfig(topic_path="/can/TPDO2_node1"))
     teleop = fl.TeleopPanel(title=f"drive ({CMD_VEL}; needs --foxglove-control)",
@@ -120,6 +136,8 @@ def panels() -> Any:
                  (1.0, split("column", (1.2, scene()), (1.0, path))),
                  (1.3, split("column", (1.0, speeds), (1.0, twist()), (0.8, states()))),
                  (1.0, split("column", (1.0, diagnostics), (0.6, loop), (0.8, travel))))
+    drives = split("row", (1.0, split("column", (1.0, current), (1.0, voltage))),
+                   (1.0, split("column", (1.0, temperature), (0.6, alarms))))
     drive = split("row",
                   (1.3, split("column", (1.5, scene()), (1.0, twist()), (0.6, states()))),
                   (1.0, split("column",
@@ -135,7 +153,9 @@ def panels() -> Any:
                                            '{"x": 0, "y": 0, "theta": 0}', editing=True)),
                               (0.7, button("/omnican/sim/console", "Send", "#ff7f0e",
                                            "the simulator's fault console (--sim): fault N, "
-                                           "reboot N, heartbeat N off|on, freeze N, thaw N",
+                                           "reboot N, heartbeat N off|on, freeze N, thaw N, "
+                                            "jam N, free N, lift N, land N, battery V, "
+                                            "estop on|off",
                                            '{"command": "fault 2"}', editing=True)))))
     bus = split("row", (1.0, can),
                 (1.0, fl.RawMessagesPanel(title="CAN: frames received (can_msgs/Frame)",
@@ -144,6 +164,7 @@ def panels() -> Any:
     return fl.TabContainer(selected_tab_index=0, tabs=[
         fl.TabItem(title="omnican", content=live),  # type: ignore[arg-type]
         fl.TabItem(title="drive", content=drive),  # type: ignore[arg-type]
+        fl.TabItem(title="drives", content=drives),  # type: ignore[arg-type]
         fl.TabItem(title="CAN", content=bus),  # type: ignore[arg-type]
     ])
 

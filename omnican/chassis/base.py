@@ -28,6 +28,7 @@ from typing import Any
 
 from omnican.bus import CanBus
 from omnican.chassis.cycle import ControlCycle
+from omnican.chassis.health import HealthMonitor
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
 from omnican.chassis.signals import guard
 from omnican.chassis.supervisor import NodeSupervisor
@@ -65,8 +66,10 @@ class Chassis:
         self._bus = bus
         self.nodes = nodes
         self._period = 1.0 / cfg.chassis.rate_hz
-        self._supervisor = sup = NodeSupervisor(nodes, bus, clock, self._call_soon)
+        self._supervisor = sup = NodeSupervisor(nodes, bus, clock, self._call_soon,
+                                                HealthMonitor(cfg, nodes, bus))
         self._loop = loop = ControlCycle(cfg, bus, nodes, sup, clock)
+        sup.monitor.speeds = loop.wheel_speeds
         self._runner: ThreadRunner | LockstepRunner = (
             LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
             if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed))
@@ -203,6 +206,9 @@ class Chassis:
         if loop.watch.down:
             raise DriveError(f"{sup.latched or 'the CAN bus is down'}: recover once it is "
                              "back (status.bus_up)")
+        refused = sup.monitor.recover_refused()
+        if refused is not None:
+            raise DriveError(f"recover refused: {refused}")
         timeout = timeout_s if timeout_s is not None else (
             self.cfg.chassis.enable_timeout_s + self.cfg.chassis.boot_timeout_s)
 

@@ -329,7 +329,14 @@ class ControlCycle:
         )
         unknown = offline or configuring or bus_down
         return Snapshot(self.odometry.xyt, (0.0, 0.0, 0.0) if unknown else self._measured,
-                        command, wheels, status, self._wheel_info)
+                        command, wheels, status, self._wheel_info, sup.monitor.values)
+
+    def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
+        """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
+        every drive enabled) as of the last cycle: what the health checks compare."""
+        travel, travel0, span = self._window
+        return (self._targets, [(a - b) / span for a, b in zip(travel, travel0, strict=True)],
+                self._stale, self._all_enabled)
 
 
 def _database(cfg: ChassisConfig) -> Any:

@@ -24,6 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 from omnican import cia402
 from omnican.bus import CanBus
+from omnican.chassis.health import HealthMonitor
 from omnican.cia301 import NMT_COB_ID, NMT_COMMAND_NAMES, NmtCommand, NmtState, nmt_state_name
 from omnican.cia402 import ENABLED_BITS as _ENABLED_BITS
 from omnican.cia402 import ENABLED_MASK as _ENABLED_MASK
@@ -45,6 +46,8 @@ _ENABLED, _FAULT, _FAULT_REACTION, _UNKNOWN = (State.OPERATION_ENABLED, State.FA
 _PRE_OPERATIONAL, _OPERATIONAL = NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL
 _OFF = (State.SWITCH_ON_DISABLED, State.FAULT, State.UNKNOWN)
 _NMT_LOG = Throttle(logger)
+#: Stops that are the cause of others (which they replace), never replaced themselves.
+_CAUSES = ("CAN bus down", "CAN bus-off", "e-stop")
 
 
 class NodeSupervisor:
@@ -53,8 +56,11 @@ class NodeSupervisor:
     ``call_soon(fn)`` runs ``fn`` on the loop thread at its next cycle."""
 
     def __init__(self, nodes: list[DriveNode], bus: CanBus, clock: Clock,
-                 call_soon: Callable[[Callable[[], None]], None]) -> None:
+                 call_soon: Callable[[Callable[[], None]], None],
+                 monitor: HealthMonitor) -> None:
         self.nodes = nodes
+        #: the drives' health, the wheels' tracking, e-stop, battery, CAN controller
+        self.monitor = monitor
         self._bus = bus
         self.clock = clock
         self._lockstep = clock.lockstep
@@ -149,6 +155,15 @@ class NodeSupervisor:
             self.latched = reason
             logger.warning("base stopped: %s", reason)
 
+    def latch_cause(self, reason: str) -> None:
+        """A stop whose consequences may have latched first (an e-stop takes the drives'
+        torque away, bus-off silences them): ``reason`` replaces theirs, not another
+        cause's (the bus down, bus-off, an e-stop)."""
+        if self.latched is not None and not self.latched.startswith(_CAUSES):
+            logger.warning("base stopped: %s", reason)
+            self.latched = reason
+        self.latch(reason)
+
     def check(self, now: float, all_enabled: bool = False) -> None:
         """One health check of every node not being configured; ``all_enabled``: every
         stage was just seen OPERATION ENABLED (the loop tests that each cycle), so no
@@ -156,6 +171,9 @@ class NodeSupervisor:
         configuring, offline, sdo_aborts = self.configuring, self.offline, self._sdo_aborts
         if self._foreign_nmt:
             self._foreign_nmt_seen()
+        monitor = self.monitor
+        if now >= monitor.next_at:
+            monitor.check(now, self)
         for node in self.nodes:
             nid = node.node_id
             if nid in configuring:
@@ -303,7 +321,7 @@ class NodeSupervisor:
     def bus_went_down(self, failing: str) -> None:
         """The cause of the lost heartbeats & co. that follow: it replaces their latch."""
         reason = f"CAN bus down ({failing})"
-        if self.latched is not None and not self.latched.startswith("CAN bus down"):
+        if self.latched is not None and not self.latched.startswith(_CAUSES):
             logger.warning("base stopped: %s", reason)
             self.latched = reason
         self.latch(reason)
@@ -334,6 +352,7 @@ class NodeSupervisor:
                 self._start_node(node, now)
         for stage in self.stages:
             stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+        self.monitor.recovered()
         self.latched = None
 
     def end_recover(self) -> None:

@@ -50,7 +50,7 @@ def layouts_or_problems(cfg: ChassisConfig) -> tuple[list[NodeLayout], list[str]
     for node_id, wheels in cfg.nodes().items():
         try:
             layouts.append(NodeLayout(node_id, [(cfg.wheels.index(w), w) for w in wheels],
-                                      cfg.chassis))
+                                      cfg.chassis, cfg.estop))
         except ConfigError as exc:
             problems.append(f"{cfg.source or 'config'}: {exc}")
     return layouts, problems
@@ -110,12 +110,19 @@ def check_file(path: str, bitrate_arg: int | None) -> int:
         if refused is not None:
             for transfer in refused.sdo:
                 print(f"    if the drive refuses: {transfer.describe()}")
+        for line in health_lines(layout):
+            print(f"    {line}")
     bits = cycle_bits(layout.plan for layout in layouts)
     hb = heartbeat_bits_per_s(cfg)
+    health = sum(layout.health.bits_per_s(c.rate_hz) for layout in layouts)
     bitrate = bitrate_arg or (cfg.bus or {}).get("bitrate")
-    per_s = bits * c.rate_hz + hb
+    per_s = bits * c.rate_hz + hb + health
     print(f"  bus: {bits} worst-case bits per cycle ({len(layouts)} nodes + SYNC "
-          f"{frame_bits(0)}), {per_s / 1000:.1f} kbit/s at {c.rate_hz:g} Hz with heartbeats")
+          f"{frame_bits(0)}), {per_s / 1000:.1f} kbit/s at {c.rate_hz:g} Hz with heartbeats "
+          "and health reads")
+    rates = [int(bitrate)] if bitrate else [500_000, 1_000_000]
+    print(f"  health reads ({c.health_rate_hz:g} Hz): {health / 1000:.2f} kbit/s of that, "
+          + ", ".join(f"{health / r:.2%} of {r // 1000} kbit/s" for r in rates))
     if bitrate:
         load = per_s / float(bitrate)
         flag = "  TOO HIGH" if load > 0.8 else ""
@@ -136,6 +143,46 @@ def check_file(path: str, bitrate_arg: int | None) -> int:
         print(f"  if the drives refuse what their EDS marks not PDO-mappable: {worst} worst-case "
               "bits per cycle; " + _fits(worst, hb, c.rate_hz, bitrates))
     return EXIT_OK
+
+
+def health_lines(layout: NodeLayout) -> list[str]:
+    """What a node reports of its health and how it is read; its e-stop; its vendor
+    settings."""
+    from omnican.healthplan import PER_AXIS
+
+    lines = []
+    for axis in layout.axes:
+        reads = [r for r in layout.health.reads
+                 if axis.wheel_index in r.wheels and r.quantity in PER_AXIS | {"voltage"}]
+        if reads:
+            what = ", ".join(f"{r.quantity.replace('_', ' ')} {r.entry.address}"
+                             f"{_unit(r)}" for r in reads)
+            lines.append(f"wheel {axis.wheel_index} reports: {what}")
+    lines += layout.health.describe()
+    if layout.estop is not None:
+        entry = layout.estop_entry
+        if entry is None:
+            lines.append(f"e-stop: this drive has no {layout.estop.object} (not read here)")
+        else:
+            pressed = "clear" if layout.estop.active_low else "set"
+            how = ("from the statusword" if entry.obj is not None and entry.obj.name ==
+                   "STATUSWORD" else "with the health values")
+            lines.append(f"e-stop: {entry.name} ({entry.address}) bit {layout.estop.bit} "
+                         f"{pressed} = pressed ({how})")
+    lines += [f"vendor setting in PRE-OPERATIONAL: {w.describe()}" for w in
+              layout.settings_writes]
+    return lines
+
+
+def _unit(read: Any) -> str:
+    if read.quantity == "current" and read.scale is None:
+        return " (per mille of 6075h, read at startup)"
+    if read.quantity == "following_error":
+        return " (where a PDO has room)"
+    if read.scale is None or read.quantity == "torque":
+        return ""
+    unit = {"current": "A", "voltage": "V", "temperature": "degC"}[read.quantity]
+    return f" x {read.scale:g} {unit}"
 
 
 def _fits(bits: int, hb_bits_per_s: float, rate_hz: float, bitrates: list[int]) -> str:

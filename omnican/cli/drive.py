@@ -83,8 +83,8 @@ def add_subparser(sub: Any) -> None:
                         "--square); with --foxglove-control and no motion, seconds to take "
                         "commands from Foxglove (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true",
-                   help='print {"pose", "twist", "duration_s"} (+ "true_pose" under --sim); '
-                        'a run-time failure prints {"error", "pose", ...} and exits 1')
+                   help='print {"pose", "twist", "duration_s", "wheels"} (+ "true_pose" under '
+                        '--sim); a run-time failure prints {"error", "pose", ...} and exits 1')
     add_record_argument(p)
     add_foxglove_arguments(p)
     add_bus_arguments(p)
@@ -184,8 +184,18 @@ def run(args: argparse.Namespace) -> int:
 def _fail_json(error: str, seen: dict[str, Any]) -> None:
     """With --json, a run-time failure is a JSON object too (scripts parse stdout)."""
     print(json.dumps({"error": error, "pose": seen.get("pose"), "twist": None,
-                      "duration_s": seen.get("duration_s"),
+                      "duration_s": seen.get("duration_s"), "wheels": seen.get("wheels"),
                       **({"true_pose": seen["true_pose"]} if "true_pose" in seen else {})}))
+
+
+def wheels_json(wheels: Any) -> list[dict[str, Any]]:
+    """Each wheel's drive as --json shows it (null: the drive does not give it)."""
+    return [{"node_id": w.node_id, "axis": w.axis,
+             "state": str(w.state) if w.online else "OFFLINE",
+             "current_a": rounded(w.current_a) if w.current_a is not None else None,
+             "voltage_v": rounded(w.voltage_v) if w.voltage_v is not None else None,
+             "temperature_c": rounded(w.temperature_c) if w.temperature_c is not None
+             else None} for w in wheels]
 
 
 def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]) -> int:
@@ -216,6 +226,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
                 if args.json:
                     seen["pose"] = pose_dict(base.pose)
+                    seen["wheels"] = wheels_json(base.wheels)
                     if s.sim is not None:
                         seen["true_pose"] = pose_dict(s.sim.true_pose)
                     _fail_json(f"base stopped: {exc}", seen)
@@ -229,6 +240,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
                 print(f"omnican: {word}: the base stopped here", file=sys.stderr)
                 if args.json:
                     seen["pose"] = pose_dict(base.pose)
+                    seen["wheels"] = wheels_json(base.wheels)
                     if s.sim is not None:
                         seen["true_pose"] = pose_dict(s.sim.true_pose)
                     _fail_json(word, seen)
@@ -238,10 +250,12 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
             pose = base.pose
             seen["pose"] = pose_dict(pose)
             seen["duration_s"] = round(result.elapsed_s, 3)
+            seen["wheels"] = wheels_json(base.wheels)
         out: dict[str, Any] = {
             "pose": pose_dict(pose),
             "twist": {k: rounded(v) for k, v in asdict(result.twist).items()},
             "duration_s": round(result.elapsed_s, 3),
+            "wheels": seen["wheels"],
         }
         if s.sim is not None:
             out["true_pose"] = pose_dict(s.sim.true_pose)

@@ -1,5 +1,6 @@
 """omnican plot: one figure of a recording: the x-y trajectory, each wheel's
-target vs actual rim speed over time, and the drives' CiA 402 states over time.
+target vs actual rim speed over time, the motor current and DC link voltage the drives
+reported (where they did), and the drives' CiA 402 states over time.
 
     omnican plot RECORDING -o OUT.png [--config TOML]
     omnican plot --sim -o OUT.png     # drive a square on the simulator, then plot it
@@ -60,10 +61,14 @@ STATE_COLOURS: dict[State, str] = {
 }
 
 TRUTH_PERIOD_S = 0.02
+#: The panels of what the drives report, where the recording has it: (title, axis label).
+HEALTH_PANELS = {"current": ("motor current, as the drives report it", "current (A)"),
+                 "voltage": ("DC link voltage, as the drives report it", "voltage (V)")}
 
 
 def add_subparser(sub: Any) -> None:
-    p = sub.add_parser("plot", help="plot a recording: trajectory, wheel speeds, drive states",
+    p = sub.add_parser("plot", help="plot a recording: trajectory, wheel speeds, current and "
+                       "voltage, drive states",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recording", nargs="?", metavar="RECORDING",
                    help="recording made by omnican: a python-can log (.log, .asc, .blf) "
@@ -128,11 +133,14 @@ def build_figure(rep: replay.Replay, title: str,
     from matplotlib.patches import Patch
 
     n = rep.num_wheels
-    fig = Figure(figsize=(14, 2.0 + 1.7 * (n + 1)), dpi=100, layout="constrained")
+    health = [q for q in ("current", "voltage")
+              if any(len(ts) for ts, _ in rep.health.get(q, ()))]  # the drives reported them
+    panels = n + len(health)
+    fig = Figure(figsize=(14, 2.0 + 1.7 * (panels + 1)), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
     state_rows = max(1, len(rep.stages))
-    heights = [1.0] * n + [max(0.8, 0.35 * state_rows)]
-    grid = fig.add_gridspec(n + 1, 2, width_ratios=[1.0, 1.45], height_ratios=heights)
+    heights = [1.0] * panels + [max(0.8, 0.35 * state_rows)]
+    grid = fig.add_gridspec(panels + 1, 2, width_ratios=[1.0, 1.45], height_ratios=heights)
     cut = f"; recording cut: {rep.cut}" if rep.cut else ""
     fig.suptitle(f"{title}\n{rep.duration:.1f} s, {rep.complete_syncs} of {rep.syncs} SYNCs "
                  f"with every wheel's position, {len(rep.emcy)} EMCY{cut}", fontsize=12)
@@ -204,10 +212,28 @@ def build_figure(rep: replay.Replay, title: str,
         for t, _node in rep.reboots:
             wax.axvline(t, color="purple", ls=":", lw=1.0)
 
+    # What the drives reported: motor current and DC link voltage, a line per wheel.
+    for k, quantity in enumerate(health):
+        hax = fig.add_subplot(grid[n + k, 1], sharex=first)
+        for i, (times, values) in enumerate(rep.health[quantity]):
+            if len(times):
+                hax.plot(times, values, lw=1.1, color=f"C{i}", label=f"wheel {i}",
+                         drawstyle="steps-post")
+        title, unit = HEALTH_PANELS[quantity]
+        hax.set_ylabel(unit, fontsize=9)
+        hax.set_title(title, loc="left")
+        hax.grid(True, alpha=0.4)
+        hax.tick_params(labelbottom=False)
+        if hax.get_legend_handles_labels()[0]:
+            hax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=8,
+                       ncols=n, frameon=False, borderaxespad=0.1)
+        for ev in rep.emcy:
+            hax.axvline(ev.t, color="red" if ev.code else "grey", ls=":", lw=1.0)
+
     # Drive states. The last state lasts to the end of the axis: the drives are disabled
     # by the recording's last frames, and that state must show, not a sliver of no width.
     end = time_axis_end(rep.duration)
-    sax = fig.add_subplot(grid[n, 1], sharex=first)
+    sax = fig.add_subplot(grid[panels, 1], sharex=first)
     seen: dict[State, None] = {}
     for row, track in enumerate(rep.stages):
         for start, width, state in _spans(track, end):

@@ -196,6 +196,7 @@ def _print_startup(bridge: Any, network: str, timeout_s: float) -> None:
     if bridge.wheel_radii is not None:
         out.append(f"{s.topic('joint_states')} {s.joint_states_rate_hz:g} Hz")
     out.append(f"{s.topic('diagnostics')} {s.diagnostics_rate_hz:g} Hz")
+    out.append(f"{s.topic('battery_state')} {s.battery_state_rate_hz:g} Hz")
     print(f"ROS 2 node {node} on DDS domain {s.domain_id} ({network})", flush=True)
     print(f"  in:  {s.topic('cmd_vel')} ({cmd_type}; stop after {timeout_s:g} s without), "
           f"{s.topic('recover')} (std_msgs/Empty: recover)", flush=True)

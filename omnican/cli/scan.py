@@ -1,8 +1,9 @@
 """omnican scan: find the nodes on the bus and compare them with the config.
 
 Listens for heartbeats, asks every node id for its device type (SDO 1000h), then
-reads each answering node's identity (1018h) and supported modes (6502h). Prints a
-table; flags configured nodes that are missing, nodes the config does not know,
+reads each answering node's identity (1018h) and supported modes (6502h), and what a
+configured node reports of its health (DC link voltage, temperature, error register).
+Prints a table; flags configured nodes that are missing, nodes the config does not know,
 and nodes whose profile, identity or modes disagree with their EDS. Exit 1 when a
 configured node is missing or disagrees.
 """
@@ -89,10 +90,38 @@ def _tables(rows: list[tuple[list[str], list[str], list[str], str | None]],
     return [main, identity]
 
 
+def _health_table(found: tuple[FoundNode, ...]) -> Table | None:
+    """What the configured nodes report of their health; None when none reports any."""
+    rows = [f for f in found
+            if (f.voltage_v, f.temperature_c, f.error_register) != (None, None, None)]
+    if not rows:
+        return None
+    table = _table("health (as the config reads it)", ("node", "DC link", "temperature",
+                                                      "error register (1001h)"))
+    for f in rows:
+        reg = f.error_register
+        table.add_row(str(f.node_id),
+                      "-" if f.voltage_v is None else f"{f.voltage_v:.1f} V",
+                      "-" if f.temperature_c is None else f"{f.temperature_c:.1f} °C",
+                      "-" if reg is None else f"0x{reg:02X}" + (" (no error)" if reg == 0
+                                                               else f" ({_register(reg)})"),
+                      style="red" if reg else None)
+    return table
+
+
+_REGISTER_BITS = ((0x01, "generic"), (0x02, "current"), (0x04, "voltage"),
+                  (0x08, "temperature"), (0x10, "communication"), (0x20, "device profile"),
+                  (0x80, "manufacturer"))
+
+
+def _register(value: int) -> str:
+    return ", ".join(name for bit, name in _REGISTER_BITS if value & bit) or "?"
+
+
 def run(args: argparse.Namespace) -> int:
     with session(args) as s:
         layouts = node_layouts(s.cfg)
-        found = scan(s.cfg, args.listen, args.sdo_timeout)
+        found = scan(s.cfg, args.listen, args.sdo_timeout, layouts)
     report = check(found, layouts)
     console = Console()  # the terminal's width (80 when it is no terminal)
     rows = []
@@ -110,6 +139,9 @@ def run(args: argparse.Namespace) -> int:
                      "bold red"))
     for table in _tables(rows, console.width):
         console.print(table)
+    health = _health_table(report.found)
+    if health is not None:
+        console.print(health)
     for line in _nmt_notes(report.found):
         console.print(line, markup=False, highlight=False)  # wrapped at the terminal's width
     print(f"{len(report.found)} node(s) found; {len(report.missing)} configured node(s) missing")

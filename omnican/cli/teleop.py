@@ -181,6 +181,10 @@ def wrap_phrases(phrases: Sequence[str], width: int, gap: int = 4) -> str:
 # Below this width the fault text leaves the wheel table for lines of its own under it,
 # so that no row wraps (a wrapped row pushes the newest events off an 80x24 screen).
 FAULT_COLUMN_MIN_WIDTH = 110
+# The wheel table's columns; their units are in the panel's title (an 80-column screen
+# has room for the values, not for units beside each header).
+WHEEL_COLUMNS = ("wheel", "node", "state", "target", "actual", "travel", "A", "V", "°C")
+WHEEL_UNITS = "target, actual m/s; travel m; motor current A; DC link V; °C"
 
 
 def bus_back_after_down(status: Any) -> bool:
@@ -197,6 +201,13 @@ def stop_line(status: Any) -> Text:
         return Text(f"STOPPED: the CAN bus is back up - press r to recover (it was down"
                     f"{': ' + why if why else ''})", style="bold yellow", no_wrap=True,
                     overflow="ellipsis")
+    if reason.startswith("CAN bus-off") and getattr(status, "can_state", None) != "bus-off":
+        return Text("STOPPED: the CAN controller restarted - press r to recover (it was "
+                    "bus-off)", style="bold yellow")
+    if getattr(status, "estop", False):
+        return Text(f"STOPPED: {reason} - release it, then press r", style="bold red")
+    if getattr(status, "battery", None) == "cutoff":
+        return Text(f"STOPPED: {reason} - charge it, then press r", style="bold red")
     return Text(f"STOPPED: {reason} - press r to recover", style="bold red")
 
 
@@ -217,9 +228,23 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     load = (f"{st.bus_load:.0%} of {bitrate // 1000} kbit/s"
             if st.bus_load is not None and bitrate else
             f"{st.bus_bits_per_s / 1000:.1f} kbit/s (bitrate unknown)")
-    header = Text(wrap_phrases([title, f"loop {st.loop_hz:.0f} Hz", f"bus {load}"], width, 3),
-                  style="dim")
+    # Phrases never broken across lines; the CAN controller's and the battery's in colour
+    # when they need attention.
+    phrases = [title, f"loop {st.loop_hz:.0f} Hz", f"bus {load}"]
+    marked: list[tuple[str, str]] = []
+    if st.can_state is not None and st.can_state != "error-active":
+        counters = (f" (tx {st.can_tx_errors}, rx {st.can_rx_errors})"
+                    if st.can_tx_errors is not None and st.can_rx_errors is not None else "")
+        marked.append((f"CAN {st.can_state}{counters}",
+                       "bold red" if st.can_state == "bus-off" else "bold yellow"))
+    if st.battery_v is not None:
+        marked.append((f"battery {st.battery_v:.1f} V",
+                       "bold red" if st.battery in ("low", "cutoff") else "dim"))
+    header = Text(wrap_phrases(phrases + [text for text, _ in marked], width, 3), style="dim")
     header.stylize("bold not dim", 0, len(title))
+    for text, style in marked:
+        at = header.plain.rfind(text)
+        header.stylize(f"not dim {style}", at, at + len(text))
     if not st.bus_up:
         header.append("   BUS DOWN", style="bold red")
 
@@ -239,11 +264,10 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
         tw.add_row(f"{name} {unit}", fixed(a, 3, sign=True), fixed(b, 3, sign=True),
                    "-" if unknown else fixed(c, 3, sign=True))
 
-    wheels = Table(box=None, padding=(0, 1))
+    wheels = Table(box=None, padding=(0, 1), pad_edge=False)
     fault_column = width >= FAULT_COLUMN_MIN_WIDTH
-    columns = ("wheel", "node", "state", "target m/s", "actual m/s", "travel m")
-    for col in (*columns, "fault") if fault_column else columns:
-        wheels.add_column(col, justify="right" if "m" in col or col == "node" else "left",
+    for col in (*WHEEL_COLUMNS, "fault") if fault_column else WHEEL_COLUMNS:
+        wheels.add_column(col, justify="left" if col in ("wheel", "state", "fault") else "right",
                           no_wrap=col != "fault")
     faults = []
     for w in base.wheels:
@@ -254,7 +278,10 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
         trouble = w.fault or w.error or ""
         cells: list[Any] = [str(w.index), node, state, fixed(w.target_speed, 3, sign=True),
                             "-" if w.stale else fixed(w.actual_speed, 3, sign=True),
-                            fixed(w.travel, 3, sign=True)]
+                            fixed(w.travel, 3, sign=True),
+                            "-" if w.current_a is None else fixed(w.current_a, 2, sign=True),
+                            "-" if w.voltage_v is None else fixed(w.voltage_v, 1),
+                            "-" if w.temperature_c is None else fixed(w.temperature_c, 1)]
         if fault_column:
             cells.append(Text(trouble, style="red"))
         elif trouble:
@@ -281,7 +308,8 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     grid.add_row(Panel(pose_t, title="pose", title_align="left"),
                  Panel(tw, title="twist", title_align="left"))
     body: list[RenderableType] = [header, grid,
-                                  Panel(wheel_panel, title="wheels", title_align="left"),
+                                  Panel(wheel_panel, title=f"wheels ({WHEEL_UNITS})",
+                                        title_align="left"),
                                   status, settings, help_text]
     if st.warnings:
         body.append(Text("\n".join(st.warnings), style="yellow"))

@@ -27,6 +27,7 @@ from omnican.odmap import AxisObjects, Entry
 from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer, frame_bits
 from omnican.sdocycle import (
     SDO_REQUEST_BASE,
+    Answer,
     AnswerKind,
     download_request,
     parse_answer,
@@ -190,6 +191,8 @@ class CyclicIO:
         self._sdo_cw: dict[int, _SdoIO] = {}  # id(stage) -> controlword by SDO
         self.sdo_counts = SdoCounts()
         self._aborts_logged = 0
+        #: takes the node's other SDO answers first (its health reads), True when taken
+        self.answer_hook: Callable[[Answer], bool] | None = None
 
     def build(self, plan: NodePlan) -> SdoCounts:
         """Frames, handlers and SDO transfers for ``plan``; returns the new counts."""
@@ -242,7 +245,7 @@ class CyclicIO:
         self._sdo_cw = {id(io.owner): io for io in sdo_io.values() if io.role == "controlword"}
         self._sdo_io = sdo_io
         self.sdo_counts, self._aborts_logged = SdoCounts(), 0
-        self.route_sdo_answers(bool(sdo_io))
+        self.route_sdo_answers(bool(sdo_io) or self.answer_hook is not None)
         return self.sdo_counts
 
     def _owner_of(self, entry: Entry) -> tuple[str, AxisIO | StageDriver]:
@@ -280,6 +283,9 @@ class CyclicIO:
         if answer is None or io is None or not io.pending or answer.kind not in (
                 AnswerKind.ABORTED,
                 AnswerKind.DOWNLOADED if io.transfer.write else AnswerKind.UPLOADED):
+            hook = self.answer_hook
+            if answer is not None and hook is not None and hook(answer):
+                return  # a health read's
             self.remote.sdo.on_response(can_id, data, timestamp)  # a configuration SDO's
             return
         given_up = self.clock.now() - self.settings.sdo_timeout_s

@@ -25,8 +25,10 @@ from omnican import cia402, heartbeat
 from omnican.cia301 import HEARTBEAT_BASE, NMT_STATE_MASK, NmtState
 from omnican.clock import REAL_TIME, Clock
 from omnican.drive.cyclic import AxisIO, CyclicIO, EpochSource, SdoCounts
+from omnican.drive.health import NodeHealth
 from omnican.drive.setup import NodeSetup
 from omnican.drive.stage import StageDriver
+from omnican.healthplan import HealthPlan
 from omnican.layout import NodeLayout
 from omnican.logthrottle import Throttle
 from omnican.pdoplan import NodePlan
@@ -69,6 +71,9 @@ class DriveNode:
                             self.stages[a.stage]) for a in layout.axes]
         self.io = CyclicIO(network, self.remote, node_id, self.axes, self.stages, epoch_source,
                            settings, clock)
+        self.health = NodeHealth(network, node_id, layout.health, clock, settings.sdo_timeout_s)
+        if layout.health.sdo:
+            self.io.answer_hook = self.health.on_answer
         # The loop's two calls, bound once: no call of ours between it and the frames.
         self.cyclic_frames = self.io.cyclic_frames
         self.controlword_frame = self.io.controlword_frame
@@ -105,6 +110,12 @@ class DriveNode:
         """The PDO plan the drive took (the planned one, or its own mapping)."""
         self.plan = plan
         self.sdo_counts = self.io.build(plan)
+
+    def use_health(self, plan: HealthPlan) -> None:
+        """How the drive's health is read from now on (its health TPDOs, or SDO)."""
+        self.health.use(plan)
+        self.io.answer_hook = self.health.on_answer if plan.sdo else None
+        self.io.route_sdo_answers(bool(plan.sdo) or bool(self.plan.sdo))
 
     def stop(self) -> None:
         """Disable any power stage not known to be off, stop watching the host (consumer
@@ -154,6 +165,7 @@ class DriveNode:
 
     def detach(self) -> None:
         self._emcy_log.flush()
+        self.health.detach()
         self.io.detach()
         if self._on_heartbeat in self.network.subscribers.get(HEARTBEAT_BASE + self.node_id, []):
             self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self._on_heartbeat)

@@ -16,6 +16,7 @@ import contextlib
 import logging
 import threading
 from collections.abc import Iterator
+from dataclasses import replace
 from typing import Any, Protocol
 
 import can
@@ -40,8 +41,10 @@ from omnican.cia402 import Command, Mode, State
 from omnican.clock import Clock
 from omnican.config import ChassisSettings
 from omnican.drive.cyclic import AxisIO
+from omnican.drive.health import NodeHealth
 from omnican.drive.stage import StageDriver
 from omnican.errors import DriveError
+from omnican.healthplan import HealthPlan
 from omnican.layout import NodeLayout
 from omnican.odmap import Entry, Obj, entry_at, obj_name
 from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer
@@ -69,7 +72,11 @@ class Node(Protocol):
     configured_boot: int
     _boot_seen: threading.Condition
 
+    health: NodeHealth
+
     def use_plan(self, plan: NodePlan) -> None: ...
+
+    def use_health(self, plan: HealthPlan) -> None: ...
 
 logger = logging.getLogger("omnican.drive")
 
@@ -108,6 +115,10 @@ class NodeSetup:
             if stage.mode is not None:
                 self._write_value(stage.mode, int(node.mode), f"mode {node.mode.short}")
         self._configure_ramps()
+        self._read_rated_currents()
+        for write in node.layout.settings_writes:  # [[wheel.sdo]]
+            self._sdo_write(write.entry, write.entry.subindex, write.data,
+                            f"{write.entry.name} from {write.origin}")
         self._sdo_write(PRODUCER_HEARTBEAT_TIME, 0, s.heartbeat_ms.to_bytes(2, "little"),
                         "heartbeat producer")
         if node.has_consumer:
@@ -256,6 +267,58 @@ class NodeSetup:
             _tell(warn, f"node {node.node_id}: {names} by expedited SDO every cycle "
                   f"(+{plan.sdo_bits()} bits per cycle)")
         node.use_plan(plan)
+        health = node.layout.health
+        node.use_health(health.without_pdos() if self._refusal is not None else
+                        self._save_health_pdos(health))
+
+    def _save_health_pdos(self, plan: HealthPlan) -> HealthPlan:
+        """The health TPDOs; one the drive refuses is disabled and its objects are read
+        by SDO instead (the rest of the plan stands)."""
+        node = self.node
+        kept = []
+        for p in plan.pdos:
+            m = node.remote.tpdo[p.number]
+            try:
+                m.clear()
+                for entry in p.entries:
+                    m.add_variable(entry.index, entry.subindex, entry.bits)
+                m.cob_id, m.trans_type, m.enabled = p.cob_id, p.trans_type, True
+                m.inhibit_time, m.event_timer = p.inhibit_100us, p.event_timer_ms
+                self._save_map(m)
+                kept.append(p)
+            except DriveError as exc:
+                if "refused" not in str(exc):
+                    raise
+                logger.info("node %d: health TPDO%d refused (%s); reading it by SDO",
+                            node.node_id, p.number, exc)
+                self._disable_pdo(m)
+        if len(kept) == len(plan.pdos):
+            return plan
+        dropped = {(e.index, e.subindex) for p in plan.pdos if p not in kept for e in p.entries}
+        return replace(plan, pdos=tuple(kept), sdo=plan.sdo + tuple(
+            r for r in plan.reads if r.key in dropped and not r.pdo_only))
+
+    def _read_rated_currents(self) -> None:
+        """6078h counts per mille of the rated current (6075h, mA): read it, so the
+        current is shown in A (where the config gives no scale of its own)."""
+        node = self.node
+        node.health.forget()
+        for read in node.layout.health.reads:
+            if read.quantity != "current" or read.scale is not None:
+                continue
+            axis = next(ax for ax in node.axes if ax.wheel_index == read.wheels[0])
+            rated = axis.objs.get(Obj.RATED_CURRENT)
+            if rated is None:
+                logger.info("node %d: no rated current (6075h): the current is not shown in A",
+                            node.node_id)
+                continue
+            try:
+                raw = node.remote.sdo.upload(rated.index, rated.subindex)
+            except (SdoAbortedError, SdoCommunicationError) as exc:
+                logger.warning("node %d: reading the rated current (%s) failed: %s",
+                               node.node_id, rated.address, exc)
+                continue
+            node.health.scales[read.key] = rated.decode(raw) / 1_000_000.0  # mA per mille
 
     def _save_plan(self, plan: NodePlan) -> None:
         node = self.node

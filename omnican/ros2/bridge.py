@@ -276,8 +276,10 @@ class Bridge:
         self._prefix = feed.settings.prefix
         state_rate = feed.settings.state_rate_hz
         self._every = {"odom": max(1, round(state_rate / settings.odom_rate_hz)),
-                       "joint_states": max(1, round(state_rate / settings.joint_states_rate_hz))}
-        self._seen = {"odom": 0, "joint_states": 0}
+                       "joint_states": max(1, round(state_rate / settings.joint_states_rate_hz)),
+                       "battery_state": max(1, round(state_rate /
+                                                     settings.battery_state_rate_hz))}
+        self._seen = {"odom": 0, "joint_states": 0, "battery_state": 0}
 
         default = TopicQos()
         self._pub_odom = transport.publisher(settings.topic("odom"), msgs.Odometry, default)
@@ -289,6 +291,8 @@ class Bridge:
                             if self.wheel_radii is not None else None)
         self._pub_diag = transport.publisher(settings.topic("diagnostics"),
                                              msgs.DiagnosticArray, default)
+        self._pub_battery = transport.publisher(settings.topic("battery_state"),
+                                                msgs.BatteryState, default)
         self.true_pose_topic = resolve_name("~/sim/true_pose", settings.node_namespace,
                                             settings.node_name)
         self._pub_truth = (transport.publisher(self.true_pose_topic, msgs.PoseStamped, default)
@@ -296,7 +300,7 @@ class Bridge:
         cmd_type: type[Any] = msgs.TwistStamped if settings.cmd_vel_stamped else msgs.Twist
         transport.subscribe(settings.topic("cmd_vel"), cmd_type, default, self._on_cmd_vel)
         transport.subscribe(settings.topic("recover"), msgs.Empty, default, self._on_recover)
-        self._wanted = {"/odom", "/diagnostics"}
+        self._wanted = {"/odom", "/diagnostics", "/battery_state"}
         if self._pub_tf is not None:
             self._wanted.add("/tf")
         if self._pub_joints is not None:
@@ -313,7 +317,8 @@ class Bridge:
         self._recover_thread: threading.Thread | None = None
         self._recover_lock = threading.Lock()
         now = time.monotonic()
-        self.rates = {name: _Rate(now) for name in ("odom", "joint_states", "diagnostics")}
+        self.rates = {name: _Rate(now) for name in ("odom", "joint_states", "diagnostics",
+                                                     "battery_state")}
         self._started = False
 
     # ------------------------------------------------------------ inputs
@@ -397,6 +402,10 @@ class Bridge:
                 if self._pub_joints is not None and self._due("joint_states"):
                     self._pub_joints(to_idl(msgs.JointState, data))
                     self.rates["joint_states"].tick()
+            elif topic == "/battery_state":
+                if self._due("battery_state"):
+                    self._pub_battery(to_idl(msgs.BatteryState, data))
+                    self.rates["battery_state"].tick()
             elif topic == "/diagnostics":
                 # The base's statuses as every front end has them, and the bridge's own
                 # after them (only the bridge knows it): one array, as a reader expects.

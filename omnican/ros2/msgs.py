@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Annotated
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, byte, float64, int32, sequence, uint8, uint32
+from cyclonedds.idl.types import array, byte, float32, float64, int32, sequence, uint8, uint32
 
 Covariance = Annotated[Sequence[float], array(float64, 36)]
 
@@ -138,6 +138,26 @@ class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
 
 
 @dataclass
+class BatteryState(IdlStruct, typename="sensor_msgs::msg::dds_::BatteryState_"):
+    header: Header = field(default_factory=Header)
+    voltage: float32 = 0.0
+    temperature: float32 = 0.0
+    current: float32 = 0.0
+    charge: float32 = 0.0
+    capacity: float32 = 0.0
+    design_capacity: float32 = 0.0
+    percentage: float32 = 0.0
+    power_supply_status: uint8 = 0
+    power_supply_health: uint8 = 0
+    power_supply_technology: uint8 = 0
+    present: bool = False
+    cell_voltage: Annotated[Sequence[float], sequence(float32)] = field(default_factory=list)
+    cell_temperature: Annotated[Sequence[float], sequence(float32)] = field(default_factory=list)
+    location: str = ""
+    serial_number: str = ""
+
+
+@dataclass
 class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
     key: str = ""
     value: str = ""
@@ -178,6 +198,7 @@ ROS_TYPES: dict[str, type[IdlStruct]] = {
     "tf2_msgs/msg/TFMessage": TFMessage,
     "nav_msgs/msg/Odometry": Odometry,
     "sensor_msgs/msg/JointState": JointState,
+    "sensor_msgs/msg/BatteryState": BatteryState,
     "diagnostic_msgs/msg/KeyValue": KeyValue,
     "diagnostic_msgs/msg/DiagnosticStatus": DiagnosticStatus,
     "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray,

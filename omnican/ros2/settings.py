@@ -31,7 +31,8 @@ EPROSIMA_VENDOR_ID = "1.15"
 MAX_DOMAIN_ID = 232
 
 #: The topics omnican uses, by the short names ``--remap`` takes.
-TOPIC_KEYS = ("cmd_vel", "odom", "tf", "joint_states", "diagnostics", "recover")
+TOPIC_KEYS = ("cmd_vel", "odom", "tf", "joint_states", "diagnostics", "battery_state",
+              "recover")
 
 _NAME_TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 # Interface names, addresses, host names: printable ASCII; no spaces, no commas (Cyclone's
@@ -65,6 +66,8 @@ class Ros2Settings:
     wheel_radius: float | None = None
     diagnostics_topic: str = _D["diagnostics_topic"]
     diagnostics_rate_hz: float = _D["diagnostics_rate_hz"]
+    battery_state_topic: str = _D["battery_state_topic"]
+    battery_state_rate_hz: float = _D["battery_state_rate_hz"]
     recover_topic: str = _D["recover_topic"]
     odom_slip: float = _D["odom_slip"]
     interface: str | None = None
@@ -190,7 +193,8 @@ def validate(s: Ros2Settings, origin: str = "config") -> Ros2Settings:
             raise bad(key, f"must be a tf2 frame id (no leading '/', no spaces), got {frame!r}")
     if s.odom_frame == s.base_frame:
         raise bad("base_frame", f"must differ from odom_frame ({s.odom_frame!r})")
-    for key in ("odom_rate_hz", "joint_states_rate_hz", "diagnostics_rate_hz"):
+    for key in ("odom_rate_hz", "joint_states_rate_hz", "diagnostics_rate_hz",
+                "battery_state_rate_hz"):
         rate = getattr(s, key)
         if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 0 < rate <= 1000):
             raise bad(key, f"must be a rate in (0, 1000] Hz, got {rate!r}")

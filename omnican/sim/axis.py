@@ -7,6 +7,10 @@ ramp, or a coast), and :mod:`omnican.sim.motor` integrates it exactly over any t
 step. Out come the counters (6064h, which wraps like an encoder and restarts at a
 reboot; 606Ch, 6043h, 6044h) and the mode-specific statusword bits (10-13).
 
+An axis can be held still (jammed: its drive's demand goes on, the wheel does not),
+turned from outside at a speed (pushed), or lifted off the ground (it turns, but its
+ground travel, what moves the simulated base, stops).
+
 Motion advances lazily, when something reads or changes it (a SYNC, an SDO, a
 public call), so its commands are cached per axis until an object that shapes them
 is written or a stage changes state (:meth:`Motion.invalidate`).
@@ -97,6 +101,13 @@ class Axis:
     target_units: float = 0.0  # the target applied, velocity units
     command: Command | None = None  # cached; None: recompute
     params: Params | None = None  # cached; None: recompute
+    # Injected conditions (see SimulatedDrive.jam, lift, push): a jammed wheel stands
+    # still whatever its drive does; a wheel off the ground turns without moving the
+    # base; a pushed one turns at the speed it is pushed at.
+    jammed: bool = False
+    grounded: bool = True
+    pushed_counts_s: float | None = None
+    ground_position: float = 0.0  # counts rolled on the ground: what moved the base
 
 
 def group_axes(dictionary: od.ObjectDictionary, counts_per_unit: Sequence[float],
@@ -266,7 +277,16 @@ class Motion:
             if ax.command is None:
                 ax.command = self._command(ax)
             target, accel, decel, tau = ax.command
-            ax.state = motor.advance(ax.state, dt, target, accel, decel, tau)
+            old = ax.state
+            new = motor.advance(old, dt, target, accel, decel, tau)
+            if ax.jammed:  # the drive's demand goes on; the wheel does not
+                new = motor.MotorState(old.position, 0.0, new.demand)
+            elif ax.pushed_counts_s is not None:
+                pushed = ax.pushed_counts_s
+                new = motor.MotorState(old.position + pushed * dt, pushed, new.demand)
+            if ax.grounded:
+                ax.ground_position += new.position - old.position
+            ax.state = new
         return True
 
     # ------------------------------------------------------------ what it shows

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -25,8 +26,10 @@ from omnican.errors import BusError, ConfigError
 from omnican.kinematics import OmniKinematics, Twist
 from omnican.lockstep import LockstepBus, listeners_receiver
 from omnican.network import Network
+from omnican.odmap import Obj
 from omnican.odometry import Odometry, Pose2D
 from omnican.sim.drive import SimulatedDrive
+from omnican.sim.health import QUANTITIES, EstopInput
 from omnican.sim.scheduler import SimScheduler
 
 if TYPE_CHECKING:
@@ -154,10 +157,12 @@ class SimulatedBase:
         drives: list[SimulatedDrive] = []
         try:
             by_node: dict[int, SimulatedDrive] = {}
+            health = _health_wiring(cfg, scales)
             for node_id, wheels in cfg.nodes().items():
                 by_node[node_id] = cls._make_drive(network, node_id, wheels, scheduler,
-                                                   {**options, **(drive_options or {}).get(
-                                                       node_id, {}), "clock": clock})
+                                                   {**health[node_id], **options,
+                                                    **(drive_options or {}).get(node_id, {}),
+                                                    "clock": clock})
                 drives.append(by_node[node_id])
             wheel_axes = [(by_node[w.node_id], w.axis) for w in cfg.wheels]
             counts = np.array([w.position_scale * s for w, s in zip(cfg.wheels, scales,
@@ -194,8 +199,9 @@ class SimulatedBase:
     # ------------------------------------------------------------ truth
 
     def _true_travel(self, now: float | None = None) -> list[float]:
+        """What each wheel rolled on the ground (a wheel off the ground moves nothing)."""
         t = self.clock.now() if now is None else now
-        return [d.physical_counts(axis, t) * (1.0 - d.slip) / scale
+        return [d.ground_counts(axis, t) * (1.0 - d.slip) / scale
                 for (d, axis), scale in zip(self.wheel_axes, self._scales, strict=True)]
 
     def _tick(self, now: float) -> None:
@@ -212,14 +218,29 @@ class SimulatedBase:
     @property
     def true_twist(self) -> Twist:
         """Ground-truth body velocity now (m/s, m/s, rad/s)."""
-        speeds = np.array([d.velocity_counts(axis) * (1.0 - d.slip) for d, axis in
-                           self.wheel_axes]) / self._counts_per_metre
+        speeds = np.array([d.velocity_counts(axis) * (1.0 - d.slip)
+                           if d.axes[axis].grounded else 0.0
+                           for d, axis in self.wheel_axes]) / self._counts_per_metre
         return self.true_kinematics.to_twist(speeds)
 
     def reset_truth(self, pose: Pose2D | None = None) -> None:
         with self._lock:
             self._odo.update(self._true_travel())
             self._odo.reset(pose)
+
+    def set_battery(self, volts: float) -> None:
+        """The battery feeding every drive's DC link is at ``volts`` from now on
+        (nominal: 24 V); each drive's link sags below it under its motors' current."""
+        if not (math.isfinite(volts) and volts >= 0):
+            raise ValueError(f"a battery voltage is 0 or more, got {volts!r}")
+        for d in self.drives:
+            d.set_supply(volts)
+
+    def estop(self, pressed: bool) -> None:
+        """Press (True) or release the e-stop: it is wired to every drive's input and
+        to their safe torque off (see :meth:`SimulatedDrive.estop`)."""
+        for d in self.drives:
+            d.estop(pressed)
 
     def wheel_drive(self, wheel: int) -> tuple[SimulatedDrive, int]:
         """(drive, axis) that simulates wheel number ``wheel`` of the config."""
@@ -284,3 +305,31 @@ class SimulatedBase:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _health_wiring(cfg: ChassisConfig, true_scale: Sequence[float]) -> dict[int, dict[str, Any]]:
+    """Per node, what the drives need to report as ``cfg`` reads them: each axis's counts
+    per metre (the motor current follows the wheel's motion), the vendor objects the
+    config names and their units, and where the e-stop is wired."""
+    from omnican.layout import node_layouts
+
+    out: dict[int, dict[str, Any]] = {}
+    for layout in node_layouts(cfg):
+        axes = {a.wheel_index: a.wheel.axis for a in layout.axes}
+        n_axes = max(1, layout.axes[0].objs.num_axes)
+        per_m = [0.0] * n_axes
+        for a in layout.axes:
+            per_m[a.wheel.axis] = a.wheel.position_scale * true_scale[a.wheel_index]
+        # A config's scale says the object's unit: the simulator serves it so (6078h and
+        # 6077h count per mille whatever: their scale is the rated current's).
+        signals = {r.key: (r.quantity, axes[r.wheels[0]], r.scale)
+                   for r in layout.health.reads
+                   if r.quantity in QUANTITIES and r.scale is not None and
+                   not (r.quantity == "torque" and r.entry.obj is Obj.TORQUE_ACTUAL)}
+        options: dict[str, Any] = {"counts_per_m": per_m, "signals": signals}
+        entry, estop = layout.estop_entry, layout.estop
+        if estop is not None and entry is not None:
+            options["estop_input"] = EstopInput(entry.index, entry.subindex, estop.bit,
+                                                estop.active_low)
+        out[layout.node_id] = options
+    return out

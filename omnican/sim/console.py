@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 
 from omnican.sim.base import SimulatedBase
@@ -19,11 +20,20 @@ COMMANDS = (
     ("heartbeat NODE off|on", "stop or restart the node's heartbeat"),
     ("freeze NODE", "answer nothing, send nothing (a hung node)"),
     ("thaw NODE", "back to normal after freeze"),
+    ("jam NODE[.AXIS]", "the wheel cannot turn (its drive pushes at its current limit)"),
+    ("push NODE[.AXIS] M/S", "something turns the wheel at that rim speed (a runaway drive)"),
+    ("free NODE[.AXIS]", "the wheel turns again (after jam or push)"),
+    ("lift NODE[.AXIS]", "the wheel is off the ground (it moves nothing, draws less current)"),
+    ("land NODE[.AXIS]", "the wheel is back on the ground"),
+    ("ferror NODE[.AXIS] COUNTS|off", "the drive reports a following error (60F4h, bit 13)"),
+    ("battery VOLTS", "the battery feeding every drive (nominal 24 V)"),
+    ("estop on|off", "press or release the e-stop (every drive's input and safe torque off)"),
     ("pose", "print the ground-truth pose"),
     ("help", "list the commands"),
     ("quit", "stop the simulator"),
 )
 _NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw")
+_WHEEL_VERBS = ("jam", "push", "free", "lift", "land", "ferror")
 
 
 def commands_help() -> str:
@@ -44,6 +54,63 @@ def drive_for(sim: SimulatedBase, word: str) -> SimulatedDrive:
         if d.node_id == node:
             return d
     raise ValueError(f"no simulated node {node} (nodes: {_nodes(sim)})")
+
+
+def wheel_for(sim: SimulatedBase, word: str) -> tuple[SimulatedDrive, int]:
+    """``N`` (the node's first axis) or ``N.A`` (its axis A), as the dashboard names them."""
+    node, _, axis_word = word.partition(".")
+    drive = drive_for(sim, node)
+    try:
+        axis = int(axis_word) if axis_word else 0
+    except ValueError:
+        raise ValueError(f"not an axis: {axis_word!r} (e.g. {drive.node_id}.1)") from None
+    if not 0 <= axis < drive.num_axes:
+        raise ValueError(f"node {drive.node_id} has {drive.num_axes} axis(es), no axis {axis}")
+    return drive, axis
+
+
+def _number(word: str, what: str) -> float:
+    try:
+        value = float(word)
+    except ValueError:
+        raise ValueError(f"not a number: {word!r} ({what})") from None
+    if not math.isfinite(value):
+        raise ValueError(f"not a number: {word!r} ({what})")
+    return value
+
+
+def _wheel_command(sim: SimulatedBase, verb: str, rest: list[str]) -> str:
+    if not rest:
+        raise ValueError(f"{verb} needs a node id (nodes: {_nodes(sim)})")
+    drive, axis = wheel_for(sim, rest[0])
+    name = f"node {drive.node_id}" + (f".{axis}" if axis else "")
+    takes_value = verb in ("push", "ferror")
+    if len(rest) != (2 if takes_value else 1):
+        raise ValueError(f"{verb} takes a node id" + (" and a value" if takes_value else ""))
+    if verb == "jam":
+        drive.jam(axis)
+        return f"{name}: jammed"
+    if verb == "free":
+        drive.free(axis)
+        return f"{name}: turns freely"
+    if verb == "lift":
+        drive.lift(axis)
+        return f"{name}: off the ground"
+    if verb == "land":
+        drive.land(axis)
+        return f"{name}: on the ground"
+    if verb == "push":
+        speed = _number(rest[1], "m/s at the rim")
+        drive.push(speed, axis)
+        return f"{name}: pushed at {speed:g} m/s"
+    if rest[1].lower() == "off":
+        drive.clear_following_error(axis)
+        return f"{name}: no following error"
+    counts = round(_number(rest[1], "position units"))
+    if counts == 0:
+        raise ValueError("a following error is not 0 (ferror N off clears it)")
+    drive.inject_following_error(counts, axis)
+    return f"{name}: following error {counts}"
 
 
 def parse_emcy_code(word: str) -> int:
@@ -75,6 +142,21 @@ def command(sim: SimulatedBase, line: str,
         if verb == "pose":
             p = sim.true_pose
             return f"true pose x={_fixed(p.x)} y={_fixed(p.y)} theta={_fixed(p.theta)}"
+        if verb in _WHEEL_VERBS:
+            return _wheel_command(sim, verb, rest)
+        if verb == "battery":
+            if len(rest) != 1:
+                raise ValueError("battery takes the voltage, e.g. battery 19.5")
+            volts = _number(rest[0], "volts")
+            if volts < 0:
+                raise ValueError(f"a battery voltage is 0 or more, got {rest[0]!r}")
+            sim.set_battery(volts)
+            return f"battery {volts:g} V"
+        if verb == "estop":
+            if len(rest) != 1 or rest[0].lower() not in ("on", "off"):
+                raise ValueError("estop takes on or off")
+            sim.estop(rest[0].lower() == "on")
+            return f"e-stop {'pressed' if rest[0].lower() == 'on' else 'released'}"
         if verb not in _NODE_VERBS:
             raise ValueError(f"unknown command {words[0]!r} (try 'help')")
         if verb == "heartbeat" and len(rest) != 2:

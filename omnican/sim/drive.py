@@ -1,16 +1,21 @@
 """A simulated CiA 402 wheel drive on a canopen network.
 
-Three parts, each in modules of its own, put together here:
+Four parts, each in modules of its own, put together here:
 
 - :mod:`omnican.sim.node`: the CiA 301 side on :class:`canopen.LocalNode` (NMT, the
   SDO server, SYNC, EMCY), with the PDOs at run time in
   :mod:`omnican.sim.process_data` and the heartbeats in :mod:`omnican.sim.heartbeat`;
 - :mod:`omnican.sim.stage`: the CiA 402 power stage of each controlword, pure;
-- :mod:`omnican.sim.axis`: the motors (modes, ramps, counters), advanced lazily.
+- :mod:`omnican.sim.axis`: the motors (modes, ramps, counters), advanced lazily;
+- :mod:`omnican.sim.health`: what the drive reports of itself (current, torque, DC
+  link, temperature, following error, the e-stop input), from
+  :mod:`omnican.sim.electrical`.
 
 :class:`SimulatedDrive` wires them: it gives the node side the dynamic objects
 (statusword, counters, error code) and the writers of controlword and mode, turns the
-power stage's reactions into EMCY frames and motor commands, and adds fault injection.
+power stage's reactions into EMCY frames and motor commands, and adds fault injection
+(faults, silence, reboots; a jammed, pushed or lifted wheel, a following error, the
+supply voltage, the e-stop).
 
 Multi-axis drives work in both layouts omnican supports (see :mod:`omnican.odmap`):
 axes at 0x800 offsets have a power stage each; sub-indexed axes share one.
@@ -23,7 +28,7 @@ from __future__ import annotations
 
 import random
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
 
@@ -49,6 +54,7 @@ from omnican.clock import REAL_TIME, Clock
 from omnican.config import WHEEL_EDS
 from omnican.odmap import AxisObjects, Obj
 from omnican.sim.axis import DEFAULT_TAU_S, AxisGroup, Motion, group_axes, supported_modes
+from omnican.sim.health import DEFAULT_COUNTS_PER_M, DriveHealth, EstopInput
 from omnican.sim.node import SimNode
 from omnican.sim.scheduler import SimScheduler
 from omnican.sim.stage import DEFAULT_QUICK_STOP_OPTION, PowerStage, Reaction
@@ -80,6 +86,12 @@ class SimulatedDrive:
             PDO-mappable (PDOMapping=0), as real drives behind understating EDS files
             do; False (default) refuses them with the SDO abort "object cannot be mapped".
         initial_position: encoder counts at power-up, per axis (to test wrap-around).
+        counts_per_m: encoder counts per metre at the rim, per axis (for the motor
+            current; a simulated base gives its wheels').
+        signals: vendor objects that carry a health value, as a config names them:
+            (index, sub) -> (quantity, axis, SI units per unit); see
+            :mod:`omnican.sim.health`.
+        estop_input: where the e-stop shows (default: 60FDh bit 16).
         scheduler: share a housekeeping thread; default one of its own.
         boot: send the boot-up frame and enter PRE-OPERATIONAL now.
         seed: random seed for noise and frame loss.
@@ -103,6 +115,9 @@ class SimulatedDrive:
         remappable: bool = True,
         accept_unmappable: bool = False,
         initial_position: float | Sequence[float] = 0.0,
+        counts_per_m: float | Sequence[float] = DEFAULT_COUNTS_PER_M,
+        signals: Mapping[Key, tuple[str, int, float]] | None = None,
+        estop_input: EstopInput | None = None,
         scheduler: SimScheduler | None = None,
         boot: bool = True,
         seed: int | None = None,
@@ -133,6 +148,12 @@ class SimulatedDrive:
         self.motion = Motion(self.dictionary, self.groups, self.node.data_store,
                              self.node.get_data, tau_s=tau_s, encoder_noise=encoder_noise,
                              rng=rng, initial_position=init, start=clock.now())
+        per_m = _per_axis(counts_per_m, self.num_axes)
+        if len(per_m) != self.num_axes:
+            raise ValueError(f"{self.eds.name} has {self.num_axes} axes: give one value per axis")
+        self.health = DriveHealth(self.dictionary, self.axes, self.node.get_data,
+                                  counts_per_m=per_m, signals=signals, estop=estop_input,
+                                  start=clock.now())
         # Written objects the drive acts on: (index, subindex) -> writer (may refuse).
         self._writers: dict[Key, Callable[[int], None]] = {}
         readers = self._build_object_hooks()
@@ -157,7 +178,7 @@ class SimulatedDrive:
 
     def _build_object_hooks(self) -> dict[Key, Callable[[], int]]:
         """The dynamic objects' readers; the writers go to ``self._writers``."""
-        readers = self.motion.readers()
+        readers = {**self.motion.readers(), **self.health.readers()}
         for group in self.groups:
             sw, cw = group.statusword, group.controlword
             readers[(sw.index, sw.subindex)] = partial(self._statusword, group)
@@ -270,6 +291,81 @@ class SimulatedDrive:
             self.comm.frozen = False
             self.comm.heartbeat.last_sent = -1e9
 
+    def _condition(self, axis: int, **values: object) -> None:
+        """Change what holds an axis (from now on: the motion up to now is as it was)."""
+        with self.lock:
+            self.advance(self.clock.now())
+            ax = self.axes[axis]
+            for name, value in values.items():
+                setattr(ax, name, value)
+            self.motion.invalidate()
+
+    def jam(self, axis: int = 0) -> None:
+        """The wheel cannot turn (a jammed roller, a wheel against a wall): it stands
+        still while its drive pushes at its current limit."""
+        self._condition(axis, jammed=True)
+
+    def free(self, axis: int = 0) -> None:
+        """The wheel turns again (no longer jammed, nor pushed)."""
+        self._condition(axis, jammed=False, pushed_counts_s=None)
+
+    def push(self, speed_m_s: float, axis: int = 0) -> None:
+        """Something turns the wheel at ``speed_m_s`` at the rim whatever its drive does
+        (a push, a runaway drive); :meth:`free` ends it."""
+        self._condition(axis, pushed_counts_s=speed_m_s * self._counts_per_m(axis))
+
+    def lift(self, axis: int = 0) -> None:
+        """The wheel is off the ground: it turns as its drive says, on much less
+        current, and no longer moves the base."""
+        self._condition(axis, grounded=False)
+
+    def land(self, axis: int = 0) -> None:
+        """The wheel is back on the ground."""
+        self._condition(axis, grounded=True)
+
+    def inject_following_error(self, counts: int = 5000, axis: int = 0) -> None:
+        """The drive reports a following error: 60F4h reads ``counts`` and statusword
+        bit 13 is set, until :meth:`clear_following_error`."""
+        with self.lock:
+            self.health.following_error[axis] = int(counts)
+
+    def clear_following_error(self, axis: int = 0) -> None:
+        with self.lock:
+            self.health.following_error[axis] = None
+
+    def set_supply(self, volts: float) -> None:
+        """The supply (battery) voltage feeding the drive's DC link."""
+        with self.lock:
+            self.advance(self.clock.now())
+            self.health.supply_v = float(volts)
+
+    def estop(self, pressed: bool) -> None:
+        """The e-stop: its input shows it (60FDh bit 16 by default) and, pressed, it
+        takes the torque away (safe torque off): every power stage drops to SWITCH ON
+        DISABLED and cannot be enabled until it is released."""
+        with self.lock:
+            self.advance(self.clock.now())
+            self.health.estop_pressed = pressed
+            for group in self.groups:
+                self._follow(group, group.stage.safe_torque_off(pressed))
+            self.comm.event_tpdos(self.clock.now())
+
+    def current_a(self, axis: int = 0) -> float:
+        """The motor current of ``axis`` now (A)."""
+        with self.lock:
+            self.advance(self.clock.now())
+            return self.health.current_a(self.axes[axis])
+
+    def ground_counts(self, axis: int = 0, now: float | None = None) -> float:
+        """Encoder counts the wheel rolled on the ground since power-up (what moved the
+        base), at ``now`` (default: the present)."""
+        with self.lock:
+            self.advance(self.clock.now() if now is None else now)
+            return self.axes[axis].ground_position
+
+    def _counts_per_m(self, axis: int) -> float:
+        return self.health.counts_per_m[axis]
+
     # ------------------------- what the node side calls (node.Application)
 
     @property
@@ -282,6 +378,7 @@ class SimulatedDrive:
             for group in self.groups:
                 if group.stage.settling and self.motion.standstill(group):
                     self._follow(group, group.stage.settle())
+            self.health.warm(now)
 
     def writing(self, index: int, subindex: int, var: od.ODVariable, data: bytes,
                 changed: bool) -> None:
@@ -346,7 +443,8 @@ class SimulatedDrive:
         group.mode = value
 
     def _statusword(self, group: AxisGroup) -> int:
-        return group.stage.statusword() | self.motion.status_bits(group)
+        return (group.stage.statusword() | self.motion.status_bits(group) |
+                self.health.statusword_bits(group))
 
     def _error_register(self) -> int:
         reg = 0

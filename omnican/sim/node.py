@@ -29,6 +29,7 @@ import canopen
 from canopen import objectdictionary as od
 from canopen.sdo.exceptions import SdoAbortedError
 
+from omnican.bus import prepared_message
 from omnican.cia301 import (
     COB_ID_MASK,
     COMMUNICATION_PROFILE,
@@ -52,7 +53,6 @@ from omnican.cia301 import (
     NmtCommand,
     NmtState,
 )
-from omnican.bus import prepared_message
 from omnican.clock import Clock
 from omnican.sim.heartbeat import Heartbeat
 from omnican.sim.pdo import check_mapping_write, read_uint

@@ -61,7 +61,8 @@ class PowerStage:
     warning: bool = False  # statusword bit 7 (the master's heartbeat was lost)
     fault_code: int = 0  # 603Fh: the code of the fault that tripped, 0 when none
     fault_persists: bool = False  # its cause is still there: a fault reset does not clear it
-    enable_held: bool = False  # no power for the motor (DC link off, safe torque off)
+    enable_held: bool = False  # no power for the motor (DC link off)
+    torque_off: bool = False  # safe torque off (an e-stop): no torque, no enabling
 
     @property
     def halted(self) -> bool:
@@ -108,7 +109,7 @@ class PowerStage:
         if transition.number == 16 and self.quick_stop_option() not in STAY_IN_QUICK_STOP:
             return Reaction.NONE  # QUICK STOP ACTIVE is not a state this drive stays in
         if transition.target is State.OPERATION_ENABLED:
-            if self.enable_held:
+            if self.enable_held or self.torque_off:
                 return Reaction.NONE
             self.state = State.OPERATION_ENABLED
             return Reaction.ENABLED
@@ -142,6 +143,15 @@ class PowerStage:
             return Reaction.NONE
         if self.state is State.OPERATION_ENABLED:  # quick stop, and any other code
             self.state = State.QUICK_STOP_ACTIVE
+            return Reaction.STATE
+        return Reaction.NONE
+
+    def safe_torque_off(self, active: bool) -> Reaction:
+        """Safe torque off engaged (an e-stop pressed) or released: engaged, a powered
+        stage loses its torque at once (SWITCH ON DISABLED) and none can be enabled."""
+        self.torque_off = active
+        if active and self.powered:
+            self.state = State.SWITCH_ON_DISABLED
             return Reaction.STATE
         return Reaction.NONE
 

@@ -2,11 +2,12 @@
 
 Pure: a sample in, plain values out. ROS 2 messages (``nav_msgs/msg/Odometry``,
 ``tf2_msgs/msg/TFMessage``, ``sensor_msgs/msg/JointState``,
-``diagnostic_msgs/msg/DiagnosticArray``, ``geometry_msgs/msg/PoseStamped``,
-``can_msgs/msg/Frame``) are nested dicts with the message's field names; the rest are
-JSON objects with a JSON schema each (Foxglove's plot and state-transition panels read
-any field of them). The ROS 2 bridge, the live view and the MCAP recorder serialize
-these and build nothing of their own, so they say the same thing at the same moment.
+``diagnostic_msgs/msg/DiagnosticArray``, ``sensor_msgs/msg/BatteryState``,
+``geometry_msgs/msg/PoseStamped``, ``can_msgs/msg/Frame``) are nested dicts with the
+message's field names; the rest are JSON objects with a JSON schema each (Foxglove's
+plot and state-transition panels read any field of them). The ROS 2 bridge, the live
+view and the MCAP recorder serialize these and build nothing of their own, so they say
+the same thing at the same moment.
 
 Frames follow REP-103/REP-105: ``odom`` is the fixed odometry frame, ``base_link`` the
 body; twists are in the body frame. SI units throughout. Stamps are the sample's: the
@@ -166,7 +167,8 @@ def chassis_status(st: ChassisStatus, prefix: str) -> dict[str, Any]:
     values: list[tuple[str, Any]] = [
         ("enabled", st.enabled), ("stopped_reason", reason), ("loop_hz", st.loop_hz),
         ("late_fraction", st.late_fraction), ("cycles", st.cycles),
-        ("command_age_s", min(st.command_age_s, 1e9))]
+        ("command_age_s", min(st.command_age_s, 1e9)), ("estop", st.estop),
+        ("battery_v", st.battery_v), ("battery", st.battery)]
     values += [(f"warning_{i}", w) for i, w in enumerate(st.warnings)]
     return _status(level, f"{prefix}: chassis", message, "omnican", values)
 
@@ -174,8 +176,13 @@ def chassis_status(st: ChassisStatus, prefix: str) -> dict[str, Any]:
 def bus_status(st: ChassisStatus, prefix: str, channel: str) -> dict[str, Any]:
     """The CAN bus: up or down, load, bit rate, the last error."""
     load, error = st.bus_load, st.bus_error
+    controller = _controller_text(st)
     if not st.bus_up:
         level, message = ERROR, f"bus down: {error or 'reopening'}"
+    elif st.can_state == "bus-off":
+        level, message = ERROR, f"CAN {controller}"
+    elif st.can_state in ("error-warning", "error-passive"):
+        level, message = WARN, f"CAN {controller}"
     elif load is not None and load > BUS_LOAD_WARN:
         level, message = WARN, f"bus load {load:.0%}"
     else:
@@ -183,7 +190,17 @@ def bus_status(st: ChassisStatus, prefix: str, channel: str) -> dict[str, Any]:
         message = "bus load " + (f"{load:.0%}" if load is not None else "unknown (no bitrate)")
     return _status(level, f"{prefix}: CAN bus", message, channel or "can",
                    [("bus_up", st.bus_up), ("bus_load", load),
-                    ("bus_bits_per_s", st.bus_bits_per_s), ("bus_error", error)])
+                    ("bus_bits_per_s", st.bus_bits_per_s), ("bus_error", error),
+                    ("controller_state", st.can_state), ("tx_error_counter", st.can_tx_errors),
+                    ("rx_error_counter", st.can_rx_errors),
+                    ("error_frames", st.can_error_frames)])
+
+
+def _controller_text(st: ChassisStatus) -> str:
+    """e.g. ``error-passive (tx 130, rx 0)``."""
+    counters = (f" (tx {st.can_tx_errors}, rx {st.can_rx_errors})"
+                if st.can_tx_errors is not None and st.can_rx_errors is not None else "")
+    return f"{st.can_state}{counters}"
 
 
 def wheel_level(w: WheelState) -> tuple[int, str]:
@@ -210,7 +227,11 @@ def wheel_status(w: WheelState, prefix: str, joint: str) -> dict[str, Any]:
         ("statusword", f"0x{w.statusword:04X}" if w.statusword is not None else None),
         ("mode", w.mode), ("target_speed_m_s", w.target_speed),
         ("actual_speed_m_s", w.actual_speed), ("travel_m", w.travel), ("online", w.online),
-        ("stale", w.stale), ("fault", w.fault), ("error", w.error)])
+        ("stale", w.stale), ("fault", w.fault), ("error", w.error),
+        ("current_a", w.current_a), ("torque_pct", w.torque_pct), ("voltage_v", w.voltage_v),
+        ("temperature_c", w.temperature_c),
+        ("error_register", f"0x{w.error_register:02X}" if w.error_register is not None
+         else None)])
 
 
 def diagnostics(s: Sample, settings: TelemetrySettings) -> dict[str, Any]:
@@ -221,6 +242,33 @@ def diagnostics(s: Sample, settings: TelemetrySettings) -> dict[str, Any]:
                 bus_status(s.status, prefix, settings.channel)]
     statuses += [wheel_status(w, prefix, settings.joint_names[w.index]) for w in s.wheels]
     return {"header": _header(s.stamp_ns, ""), "status": statuses}
+
+
+#: sensor_msgs/msg/BatteryState constants
+POWER_SUPPLY_STATUS_UNKNOWN = 0
+POWER_SUPPLY_HEALTH_UNKNOWN, POWER_SUPPLY_HEALTH_GOOD, POWER_SUPPLY_HEALTH_DEAD = 0, 1, 3
+POWER_SUPPLY_TECHNOLOGY_UNKNOWN = 0
+
+
+def battery_state(s: Sample, settings: TelemetrySettings) -> dict[str, Any] | None:
+    """sensor_msgs/msg/BatteryState of the DC link the drives measure (the median of
+    theirs); None when no drive reports one. What the drives cannot know (the battery's
+    current, charge, temperature) is NaN, as the message says for unmeasured values;
+    health is GOOD, or DEAD below [power]'s cutoff (UNKNOWN without a [power] table)."""
+    st = s.status
+    if st is None or st.battery_v is None:
+        return None
+    nan = math.nan
+    health = {None: POWER_SUPPLY_HEALTH_UNKNOWN, "cutoff": POWER_SUPPLY_HEALTH_DEAD}.get(
+        st.battery, POWER_SUPPLY_HEALTH_GOOD)
+    return {"header": _header(s.stamp_ns, settings.base_frame), "voltage": st.battery_v,
+            "temperature": nan, "current": nan, "charge": nan, "capacity": nan,
+            "design_capacity": nan, "percentage": nan,
+            "power_supply_status": POWER_SUPPLY_STATUS_UNKNOWN,
+            "power_supply_health": health,
+            "power_supply_technology": POWER_SUPPLY_TECHNOLOGY_UNKNOWN, "present": True,
+            "cell_voltage": [], "cell_temperature": [],
+            "location": "DC link (the drives' median)", "serial_number": ""}
 
 
 def diagnostics_signature(message: dict[str, Any]) -> tuple[tuple[int, str], ...]:
@@ -259,6 +307,8 @@ def wheels(s: Sample) -> dict[str, Any]:
         "target_speed": w.target_speed, "actual_speed": w.actual_speed, "travel": w.travel,
         "online": w.online, "stale": w.stale,
         "fault": w.fault or "", "error": w.error or "",
+        "current_a": w.current_a, "torque_pct": w.torque_pct, "voltage_v": w.voltage_v,
+        "temperature_c": w.temperature_c,
     } for w in s.wheels]}
 
 
@@ -272,13 +322,17 @@ def status(s: Sample) -> dict[str, Any]:
             "bus_load": st.bus_load if st.bus_load is not None else -1.0,
             "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
             "bus_up": st.bus_up,
-            "command_age_s": min(st.command_age_s, 1e9)}
+            "command_age_s": min(st.command_age_s, 1e9),
+            "can_state": st.can_state or "", "can_tx_errors": st.can_tx_errors,
+            "can_rx_errors": st.can_rx_errors, "estop": st.estop, "battery_v": st.battery_v}
 
 
 _NUM = {"type": "number"}
 _STR = {"type": "string"}
 _INT = {"type": "integer"}
 _BOOL = {"type": "boolean"}
+_MAYBE_NUM = {"type": ["number", "null"]}  # null: the drive does not give it
+_MAYBE_INT = {"type": ["integer", "null"]}
 _TIME = {"type": "object", "properties": {"sec": _INT, "nsec": _INT}}
 _TWIST = {"type": "object", "properties": {"vx": _NUM, "vy": _NUM, "wz": _NUM}}
 
@@ -295,11 +349,13 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object", "properties": {
             "index": _INT, "node_id": _INT, "axis": _INT, "state": _STR, "statusword": _INT,
             "target_speed": _NUM, "actual_speed": _NUM, "travel": _NUM, "online": _BOOL,
-            "stale": _BOOL, "fault": _STR, "error": _STR}}}),
+            "stale": _BOOL, "fault": _STR, "error": _STR, "current_a": _MAYBE_NUM,
+            "torque_pct": _MAYBE_NUM, "voltage_v": _MAYBE_NUM, "temperature_c": _MAYBE_NUM}}}),
     "omnican.Status": _object("omnican.Status", enabled=_BOOL, state=_STR, stopped_reason=_STR,
                               loop_hz=_NUM, late_fraction=_NUM, cycles=_INT, bus_load=_NUM,
                               bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL,
-                              command_age_s=_NUM),
+                              command_age_s=_NUM, can_state=_STR, can_tx_errors=_MAYBE_INT,
+                              can_rx_errors=_MAYBE_INT, estop=_BOOL, battery_v=_MAYBE_NUM),
 }
 
 
@@ -317,6 +373,7 @@ TOPICS: dict[str, tuple[str, str]] = {
     "/twist": ("omnican.Twist", JSON),
     "/wheels": ("omnican.Wheels", JSON),
     "/status": ("omnican.Status", JSON),
+    "/battery_state": ("sensor_msgs/msg/BatteryState", ROS2),
     "/sim/true_pose": ("geometry_msgs/msg/PoseStamped", ROS2),
     "/sim/pose2d": ("omnican.Pose2D", JSON),
 }

@@ -98,6 +98,10 @@ class Telemetry:
                 diag = m.diagnostics(s, settings)
                 if self._diagnostics_due(ns, diag) or last:
                     out.append(state_message("/diagnostics", ns, diag))
+            if wants("/battery_state"):
+                battery = m.battery_state(s, settings)
+                if battery is not None:
+                    out.append(state_message("/battery_state", ns, battery))
             pose = s.pose
             for topic, make in (("/pose2d", lambda: m.pose2d(ns, pose)),
                                 ("/twist", lambda: m.twist(s)),

@@ -13,7 +13,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Empty
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -23,7 +23,7 @@ import scenario
 class RclpyPeer(scenario.Peer):
     def __init__(self, node):
         self.node = node
-        self.seen = {"odom": [], "joints": [], "diag": [], "truth": []}
+        self.seen = {"odom": [], "joints": [], "diag": [], "truth": [], "battery": []}
 
         def keep(key):
             return lambda msg: self.seen[key].append((time.monotonic(), msg))
@@ -33,6 +33,7 @@ class RclpyPeer(scenario.Peer):
         node.create_subscription(JointState, "/joint_states", keep("joints"),
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
         node.create_subscription(DiagnosticArray, "/diagnostics", keep("diag"), 10)
+        node.create_subscription(BatteryState, "/battery_state", keep("battery"), 10)
         node.create_subscription(PoseStamped, f"{scenario.NODE_TOPIC}/sim/true_pose",
                                  keep("truth"), 10)
         self.cmd = node.create_publisher(Twist, "/cmd_vel", 10)

@@ -106,6 +106,12 @@ def run(peer):
         j = seen["joints"][-1][1]
         results["moving_joints"] = {"name": list(j.name), "position": list(j.position),
                                     "velocity": list(j.velocity)}
+        if seen.get("battery"):  # the peers that subscribe (rclpy): decoded by ROS 2 itself
+            b = seen["battery"][-1][1]
+            results["battery"] = {"count": len(seen["battery"]), "voltage": b.voltage,
+                                  "current": b.current, "present": b.present,
+                                  "technology": b.power_supply_technology,
+                                  "frame_id": b.header.frame_id, "location": b.location}
         note("driven")
         # Commands stop: the watchdog stops the base.
         spin_for(2.0)

@@ -1,0 +1,105 @@
+"""Is each wheel following its target? A wheel whose measured speed stays outside what
+its target was, give or take ``error``, for ``time_s`` is not: stalled (a jammed roller,
+a wall), slipping, off the ground, a drive browning out; or, with a zero target,
+turning when it should stand (pushed, a runaway drive).
+
+"What its target was" is the range the target spanned over the last ``lag_s``: the
+measured speed is an average over a window and lags a drive following a ramp (its own
+velocity loop, a cycle or two on the bus), so on the acceleration ramp the measurement
+stays inside that range and nothing trips, however steep the ramp, as long as the lag
+is within ``lag_s``. Steady, the band is the target plus or minus ``error``.
+
+Only wheels with a fresh measurement count, and only while the base runs (every drive
+enabled, nothing latched): :meth:`TrackingDetector.update` is told which. A wheel that
+drops out starts over. Pure: no I/O, no clock; the caller gives the time.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+ZERO_M_S = 1e-6  # a target below this is zero
+
+
+@dataclass(frozen=True)
+class NotFollowing:
+    """A wheel that has not followed its target for ``for_s`` (m/s; ``band`` is what its
+    target spanned over the lag window, error included)."""
+
+    wheel: int
+    target: float
+    measured: float
+    for_s: float
+    zero_target: bool  # the target was zero all along: it turns when it should not
+
+    def describe(self, node_id: int, axis: int = 0) -> str:
+        """The stop's reason (always says "not following its target")."""
+        node = f"node {node_id}" + (f" axis {axis}" if axis else "")
+        head = f"wheel {self.wheel} ({node}) not following its target for {self.for_s:.1f} s"
+        if self.zero_target:
+            return (f"{head}: turns at {self.measured:+.2f} m/s with a zero target (pushed, or "
+                    "a runaway drive)")
+        return (f"{head}: stalled, slipping or off the ground (target {self.target:+.2f} m/s, "
+                f"measured {self.measured:+.2f} m/s)")
+
+
+class TrackingDetector:
+    """Each wheel's measured speed against its recent targets (see the module docstring)."""
+
+    def __init__(self, wheels: int, error: float, time_s: float, lag_s: float) -> None:
+        if not (error > 0 and time_s > 0 and lag_s >= 0):
+            raise ValueError("error and time_s must be positive, lag_s not negative")
+        self.wheels = wheels
+        self.error = error
+        self.time_s = time_s
+        self.lag_s = lag_s
+        self._targets: collections.deque[tuple[float, tuple[float, ...]]] = collections.deque()
+        self._since: list[float | None] = [None] * wheels
+
+    def reset(self) -> None:
+        """Start over (the base stopped, recovered): nothing is held against any wheel."""
+        self._targets.clear()
+        self._since = [None] * self.wheels
+
+    def band(self, wheel: int) -> tuple[float, float]:
+        """(lowest, highest) speed that counts as following, now (m/s)."""
+        values = [targets[wheel] for _, targets in self._targets]
+        return min(values) - self.error, max(values) + self.error
+
+    def update(self, now: float, targets: Sequence[float], measured: Sequence[float],
+               fresh: Sequence[bool], running: bool) -> list[NotFollowing]:
+        """One check at ``now`` (s): each wheel's target and measured speed (m/s), which
+        wheels have a fresh measurement, whether the base runs. Returns the wheels not
+        following for ``time_s`` or more, as of this check."""
+        if not running or math.isinf(self.error):
+            if self._targets:
+                self.reset()
+            return []
+        history = self._targets
+        history.append((now, tuple(targets)))
+        while len(history) > 1 and now - history[1][0] >= self.lag_s:
+            history.popleft()
+        out = []
+        since = self._since
+        error = self.error
+        # Each wheel's targets over the window, in one pass (a few entries, at the check rate).
+        columns = zip(*[t for _, t in history], strict=True)
+        for i, column in enumerate(columns):
+            if not fresh[i]:
+                since[i] = None
+                continue
+            speed = measured[i]
+            if min(column) - error <= speed <= max(column) + error:
+                since[i] = None
+                continue
+            start = since[i]
+            if start is None:
+                since[i] = now
+                continue
+            if now - start >= self.time_s:
+                zero = max(map(abs, column)) < ZERO_M_S
+                out.append(NotFollowing(i, targets[i], speed, now - start, zero))
+        return out

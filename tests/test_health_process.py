@@ -1,0 +1,130 @@
+"""What the drives know, across processes: ``omnican sim`` in one process (faults typed
+into its console), the base in this one or in ``omnican drive`` (a third), over the
+simulator's loopback hub: each detection's stop, and the health values it reads."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from omnican import Chassis, default_config
+from omnican.errors import DriveError
+
+from .helpers import drive_for, wait_for
+from .test_faults_process import SimProcess, free_port
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[SimProcess, int]]:
+    port = free_port()
+    process = SimProcess(port)
+    try:
+        yield process, port
+    finally:
+        while SimProcess.started:
+            SimProcess.started.pop().kill()
+
+
+def remote(port: int) -> dict[str, str]:
+    return {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"}
+
+
+def keep_driving(base: Chassis, text: str, timeout: float, vx: float = 0.3) -> str:
+    """Command vx until the base is held stopped for a reason containing ``text``."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and text not in (base.status.stopped_reason or ""):
+        base.set_velocity(vx, 0.0, 0.0)
+        time.sleep(0.02)
+    reason = base.status.stopped_reason or ""
+    assert text in reason, base.status
+    return reason
+
+
+def test_each_detection_across_processes(sim: tuple[SimProcess, int]) -> None:
+    process, port = sim
+    cfg = default_config(bus=remote(port))
+    with Chassis.open(cfg) as base:
+        # The health values come over the hub from the other process's drives.
+        drive_for(base, 1.0, vx=0.3)
+        assert wait_for(lambda: all(w.voltage_v is not None for w in base.wheels), 2.0)
+        w = base.wheels[1]
+        assert w.voltage_v == pytest.approx(24.0, abs=0.3) and w.temperature_c is not None
+        on_ground = abs(w.current_a or 0.0)
+        assert on_ground > 0.3  # it drives
+
+        # Off the ground: no stop (its drive keeps its speed), a fraction of the current.
+        assert process.command("lift 2").strip() == "node 2: off the ground"
+        drive_for(base, 1.0, vx=0.3)
+        assert base.status.stopped_reason is None
+        assert abs(base.wheels[1].current_a or 0.0) < 0.5 * on_ground
+        process.command("land 2")
+
+        assert process.command("jam 2").strip() == "node 2: jammed"
+        reason = keep_driving(base, "wheel 1 (node 2) not following its target", 5.0)
+        assert "stalled, slipping or off the ground" in reason
+        process.command("free 2")
+        base.recover()
+
+        process.command("estop on")
+        keep_driving(base, "e-stop pressed", 5.0)
+        with pytest.raises(DriveError, match="recover refused: e-stop pressed"):
+            base.recover()
+        process.command("estop off")
+        assert wait_for(lambda: not base.status.estop, 3.0)
+        base.recover()
+
+        process.command("battery 19")
+        keep_driving(base, "battery low", 5.0)
+        with pytest.raises(DriveError, match="recover refused: battery"):
+            base.recover()
+        process.command("battery 24")
+        assert wait_for(lambda: base.status.battery == "ok", 3.0)
+        base.recover()
+
+        process.command("ferror 3 2500")
+        keep_driving(base, "wheel 2 (node 3) not following its target: its drive reports a "
+                           "following error", 5.0)
+        process.command("ferror 3 off")
+        base.recover()
+
+        base.stop()
+        time.sleep(0.3)
+        process.command("push 1 0.2")  # the base stands; wheel 0 turns
+        keep_driving(base, "with a zero target", 5.0, vx=0.0)
+        process.command("free 1")
+        base.recover()
+        drive_for(base, 0.5, vx=0.3)
+        assert base.status.stopped_reason is None and base.twist.vx > 0.2
+
+
+def test_drive_json_names_a_jammed_wheel_and_lists_the_wheels(sim: tuple[SimProcess, int]
+                                                              ) -> None:
+    process, port = sim
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    drive = subprocess.Popen(
+        [sys.executable, "-m", "omnican", "drive", "-i", "remote", "-c",
+         f"ws://127.0.0.1:{port}/", "--vx", "0.3", "--duration", "8", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert wait_for(lambda: process.true_x() > 0.05, 20.0, step=0.1)  # up and driving
+        process.command("jam 3")
+        out, err = drive.communicate(timeout=30)
+    finally:
+        if drive.poll() is None:
+            drive.kill()
+            drive.communicate(timeout=5)
+    assert drive.returncode == 1, err
+    result = json.loads(out)
+    assert result["error"].startswith("base stopped: wheel 2 (node 3) not following its target")
+    assert [w["node_id"] for w in result["wheels"]] == [1, 2, 3]
+    assert all(w["voltage_v"] is not None for w in result["wheels"])
+    assert "Traceback" not in err
