@@ -279,12 +279,7 @@ class NodeSetup:
         for p in plan.pdos:
             m = node.remote.tpdo[p.number]
             try:
-                m.clear()
-                for entry in p.entries:
-                    m.add_variable(entry.index, entry.subindex, entry.bits)
-                m.cob_id, m.trans_type, m.enabled = p.cob_id, p.trans_type, True
-                m.inhibit_time, m.event_timer = p.inhibit_100us, p.event_timer_ms
-                self._save_map(m)
+                self._write_map(m, p)
                 kept.append(p)
             except DriveError as exc:
                 if "refused" not in str(exc):
@@ -328,18 +323,22 @@ class NodeSetup:
             self._disable_pdo(node.remote.tpdo[number])
         for planned, maps in ((plan.rpdos, node.remote.rpdo), (plan.tpdos, node.remote.tpdo)):
             for p in planned:
-                m = maps[p.number]
-                m.clear()
-                for entry in p.entries:
-                    m.add_variable(entry.index, entry.subindex, entry.bits)
-                m.cob_id, m.trans_type, m.enabled = p.cob_id, p.trans_type, True
-                m.inhibit_time, m.event_timer = p.inhibit_100us, p.event_timer_ms
-                self._save_map(m)
+                self._write_map(maps[p.number], p)
 
     def _disable_pdo(self, m: canopen.pdo.PdoMap) -> None:
         cob = (m.predefined_cob_id or (m.com_record.od[1].default or 0)) & COB_ID_MASK
         self._sdo_write(m.com_record.od.index, 1, (cob | COB_ID_INVALID).to_bytes(4, "little"),
                         "PDO COB-ID (disable)")
+
+    def _write_map(self, m: canopen.pdo.PdoMap, p: PlannedPdo) -> None:
+        """One planned PDO (the cyclic plan's or the health plan's) into the drive: its mapping
+        and communication parameters, through canopen's PdoMap."""
+        m.clear()
+        for entry in p.entries:
+            m.add_variable(entry.index, entry.subindex, entry.bits)
+        m.cob_id, m.trans_type, m.enabled = p.cob_id, p.trans_type, True
+        m.inhibit_time, m.event_timer = p.inhibit_100us, p.event_timer_ms
+        self._save_map(m)
 
     def _save_map(self, m: canopen.pdo.PdoMap) -> None:
         with self._sdo_errors(f"configuring PDO 0x{m.com_record.od.index:04X}"):
