@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from omnican import cia402
 from omnican.battery import BatteryMonitor, base_voltage
@@ -32,10 +32,22 @@ from omnican.odmap import Obj
 from omnican.state import no_health
 from omnican.tracking import TrackingDetector
 
-if TYPE_CHECKING:
-    from omnican.chassis.supervisor import NodeSupervisor
-
 logger = logging.getLogger("omnican.chassis")
+
+
+class NodeSupervisor(Protocol):
+    """What the checks read of the supervisor (omnican.chassis.supervisor), and how they
+    stop the base: the supervisor owns this monitor and hands itself to each check."""
+
+    latched: str | None
+    recovering: bool
+    configuring: set[int]
+    offline: set[int]
+    closed: bool
+
+    def latch(self, reason: str) -> None: ...
+
+    def latch_cause(self, reason: str) -> None: ...
 
 TRACKING_HZ = 10.0  # tracking checks per second (at most the loop rate)
 _ENABLED = State.OPERATION_ENABLED
