@@ -91,6 +91,7 @@ class NodeSetup:
     def __init__(self, node: Node) -> None:
         self.node = node
         self._refusal: str | None = None  # why the drive refused the plan (then: its own)
+        self._later: list[str] = []  # warnings of a configuration, logged at its end
 
     def configure(self, warn: list[str] | None = None) -> None:
         """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded.
@@ -98,8 +99,13 @@ class NodeSetup:
         Raises DriveError naming the node and what it was doing; also when two devices
         answer as this node (each boot-up and SDO answer comes twice), before it starts."""
         node = self.node
+        self._later = []
         with self._counting_sdo_answers():
             self._configure(warn)
+        # What failed on the way, said once the answers were all one device's (a second
+        # device on this id garbles SDO replies: then its error is the only one).
+        for text in self._later:
+            logger.warning("%s", text)
         node.network.send_message(NMT_COB_ID, bytes([NmtCommand.START, node.node_id]))
 
     def _configure(self, warn: list[str] | None) -> None:
@@ -310,8 +316,8 @@ class NodeSetup:
             try:
                 raw = node.remote.sdo.upload(rated.index, rated.subindex)
             except (SdoAbortedError, SdoCommunicationError) as exc:
-                logger.warning("node %d: reading the rated current (%s) failed: %s",
-                               node.node_id, rated.address, exc)
+                self._later.append(f"node {node.node_id}: reading the rated current "
+                                   f"({rated.address}) failed: {exc}")
                 continue
             node.health.scales[read.key] = rated.decode(raw) / 1_000_000.0  # mA per mille
 
