@@ -4,6 +4,7 @@ pushed, a following error), the e-stop, a low battery, a bus-off controller."""
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from dataclasses import replace
@@ -321,3 +322,24 @@ def test_temperature_rises_with_current_while_stalled(rig: Rig) -> None:
     assert math.isclose(sim.drives[1].current_a(), 0.0, abs_tol=10.0)
     t0 = base.wheels[1].temperature_c
     assert t0 is not None and t0 > 25.0
+
+
+def test_a_rated_current_the_drive_will_not_give_is_one_warning_and_no_amps(
+        channel: str, caplog: pytest.LogCaptureFixture) -> None:
+    """6078h counts per mille of 6075h: a drive that refuses 6075h (here: its dictionary
+    lacks it, whatever the EDS says) still runs, says why its current shows no amps, and
+    the other drives' currents are shown."""
+    cfg = sim_config(channel)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        del sim.drives[0].dictionary[0x6075]
+        with caplog.at_level(logging.WARNING, logger="omnican"), \
+                Chassis.open(cfg, clock=clock) as base:
+            drive_for(base, 0.5, vx=0.3)
+            wheels = base.wheels
+            assert base.status.stopped_reason is None
+    warned = [r.getMessage() for r in caplog.records if "rated current" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(
+        "node 1: reading the rated current (0x6075:00) failed"), warned
+    assert wheels[0].current_a is None and wheels[0].voltage_v is not None
+    assert wheels[1].current_a is not None and wheels[2].current_a is not None
