@@ -316,13 +316,14 @@ def test_bridge_drives_publishes_and_recovers(rig: tuple[SimulatedBase, Chassis]
     with Bridge(base, Ros2Settings(diagnostics_rate_hz=5.0), t, sim=sim) as bridge:
         assert set(t.subscribers) == {"/cmd_vel", "/omnican/recover"}
         assert t.qos["/tf"].depth == TF_DEPTH and t.qos["/odom"].reliable
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
+        def at_speed() -> bool:  # cmd_vel kept coming, as a nav stack sends it
             t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.5))
-            time.sleep(0.02)
-        odom = t.last("/odom")
-        assert odom.twist.twist.linear.x == pytest.approx(0.3, abs=0.02)
-        assert odom.twist.twist.angular.z == pytest.approx(0.5, abs=0.05)
+            odom = t.last("/odom")
+            return odom is not None and \
+                odom.twist.twist.linear.x == pytest.approx(0.3, abs=0.02) and \
+                odom.twist.twist.angular.z == pytest.approx(0.5, abs=0.05)
+
+        assert wait_for(at_speed, 10.0, step=0.02), t.last("/odom")
         # cmd_vel stops: the chassis watchdog stops the base.
         assert wait_for(lambda: abs(t.last("/odom").twist.twist.linear.x) < 1e-3, 2.0)
         time.sleep(0.05)
@@ -399,11 +400,11 @@ def test_stamped_cmd_vel_and_no_joint_states_without_a_radius(channel: str) -> N
         assert bridge.wheel_radii is None
         assert "/joint_states" not in t.published and "/tf" not in t.published
         stamped = msgs.TwistStamped(msgs.Header(), _twist(0.0, 0.2, 0.0))
-        end = time.monotonic() + 0.6
-        while time.monotonic() < end:
+        def at_speed() -> bool:
             t.deliver("/cmd_vel", stamped)
-            time.sleep(0.02)
-        assert sim.true_twist.vy == pytest.approx(0.2, abs=0.03)
+            return bool(sim.true_twist.vy == pytest.approx(0.2, abs=0.03))
+
+        assert wait_for(at_speed, 10.0, step=0.02), sim.true_twist
 
 
 def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Chassis]) -> None:
