@@ -520,11 +520,12 @@ def test_ros2_sim_console_is_the_simulators_with_recover(channel: str) -> None:
     with SimulatedBase.from_config(sim_config(channel)) as sim:
         recovered: list[bool] = []
         bridge = types.SimpleNamespace(sim=sim, recover_note=None,
-                                       recover=lambda: recovered.append(True) or True)
+                                       recover=lambda answered=False: recovered.append(answered)
+                                       or True)
         assert command(bridge, "freeze 2") == "node 2: frozen" and sim.drives[1].frozen
         assert command(bridge, "thaw 2") == "node 2: thawed" and not sim.drives[1].frozen
         assert "freeze NODE" in (command(bridge, "help") or "")
-        assert command(bridge, "recover") == "recovered" and recovered
+        assert command(bridge, "recover") == "recovered" and recovered == [True]  # answered
         assert (command(bridge, "bogus") or "").startswith("error:")
         assert command(bridge, "quit") is None
 

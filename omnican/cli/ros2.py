@@ -230,7 +230,8 @@ def command(bridge: Any, line: str) -> str | None:
     """One stdin line; returns the reply, or None to quit. Under --sim, the simulator's
     console (omnican sim's commands) with recover besides."""
     def recover() -> str:
-        return "recovered" if bridge.recover() else f"recover {bridge.recover_note}"
+        return ("recovered" if bridge.recover(answered=True) else
+                f"recover {bridge.recover_note}")
 
     if bridge.sim is not None:
         from omnican.sim import console

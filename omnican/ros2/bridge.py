@@ -361,8 +361,9 @@ class Bridge:
                                                     name="omnican-ros2-recover", daemon=True)
             self._recover_thread.start()
 
-    def recover(self) -> bool:
-        """Clear a latched stop (what the recover topic does); True when it worked."""
+    def recover(self, answered: bool = False) -> bool:
+        """Clear a latched stop (what the recover topic does); True when it worked. A
+        failure is logged as a warning, unless ``answered`` (the console prints it)."""
         logger.info("recover requested")
         ok = True
         try:
@@ -372,7 +373,7 @@ class Bridge:
             ok, note = False, f"failed: {exc}"
         stamp = time.strftime("%H:%M:%S")
         self.recover_note = f"{note} ({stamp})"
-        (logger.info if ok else logger.warning)("recover %s", note)
+        (logger.info if ok or answered else logger.warning)("recover %s", note)
         return ok
 
     # ------------------------------------------------------------ outputs (the sink)
