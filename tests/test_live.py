@@ -265,6 +265,23 @@ def test_shipped_layout_is_current_and_names_our_topics() -> None:
             value == t or value.startswith(t + ".") for t in published) else value)
     assert used <= published | services | {cmd_vel}, used - published - services
     assert {"/odom", "/wheels", "/twist", "/diagnostics", "/status"} <= used
+    # Each field a panel plots on a JSON topic is in that topic's schema (a renamed field
+    # would leave the panel empty, with no error anywhere).
+    fields = 0
+    for topic, path in re.findall(r'"(/[a-z0-9_]+)\.([A-Za-z0-9_.\[\]]+)"', text):
+        schema_name, kind = telemetry.TOPICS.get(topic, ("", ""))
+        if kind != telemetry.messages.JSON:
+            continue
+        node = telemetry.messages.JSON_SCHEMAS[schema_name]
+        for part in path.split("."):
+            name = part.split("[")[0]
+            props = node["properties"] if "properties" in node else node["items"]["properties"]
+            assert name in props, f"{topic}.{path}: no field {name!r} in {schema_name}"
+            node = props[name]
+            if "[" in part:
+                assert node["type"] == "array", (topic, path)
+        fields += 1
+    assert fields >= 10  # the wheels' speeds, currents, voltages, temperatures; e-stop ...
 
 
 def test_bus_listeners_added_late_see_both_directions_across_a_reconnect(channel: str) -> None:
