@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import fcntl
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -15,6 +17,19 @@ from omnican.clock import REAL_TIME, Clock, SimClock
 from omnican.config import ChassisSettings
 
 from .conftest import VENDOR_EDS
+
+
+@contextmanager
+def locked(path: Path) -> Iterator[None]:
+    """One pytest run at a time builds what ``path`` (a lock file) stands for: a cached
+    venv, an npm install."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def wait_for(pred: Callable[[], bool], timeout: float = 2.0, step: float = 0.005,

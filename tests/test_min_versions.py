@@ -10,7 +10,6 @@ with the reason, when the package index cannot be reached.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
 import os
@@ -18,8 +17,6 @@ import re
 import shutil
 import subprocess
 import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -27,6 +24,8 @@ from packaging.requirements import Requirement
 from packaging.version import Version
 
 from omnican.config import tomllib
+
+from .helpers import locked
 
 ROOT = Path(__file__).resolve().parents[1]
 PIP_TIMEOUT_S = 900
@@ -64,18 +63,6 @@ def floors(python: str) -> list[str]:
         assert len(lows) == 1, f"{text}: a dependency needs exactly one floor (>=)"
         pins.append(f"{req.name}=={lows[0]}")
     return sorted(pins)
-
-
-@contextmanager
-def locked(path: Path) -> Iterator[None]:
-    """One pytest run at a time builds a given environment."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def pip(venv_python: Path, *args: str) -> subprocess.CompletedProcess[str]:

@@ -9,7 +9,6 @@ files and Node's major version), never into the repository.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
 import os
@@ -20,10 +19,11 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
+
+from ..helpers import locked
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -35,18 +35,6 @@ NODE_MAJOR_MIN = 18
 def cache_dir() -> Path:
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "omnican" / "foxglove-node"
-
-
-@contextmanager
-def _locked(path: Path) -> Iterator[None]:
-    """One test run at a time installs a given set of packages."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def node_modules() -> tuple[Path | None, str]:
@@ -72,7 +60,7 @@ def node_modules() -> tuple[Path | None, str]:
     modules = target / "node_modules"
     if (target / "omnican-ok").is_file():
         return modules, f"cached {target}"
-    with _locked(cache_dir() / f".{key}.lock"):
+    with locked(cache_dir() / f".{key}.lock"):
         if (target / "omnican-ok").is_file():
             return modules, f"cached {target}"
         tmp = target.with_name(target.name + f".tmp{os.getpid()}")
