@@ -11,10 +11,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from omnican import WHEEL_EDS, ChassisConfig, WheelConfig, default_config
+from omnican import WHEEL_EDS, Chassis, ChassisConfig, WheelConfig, default_config
 from omnican.cia402 import Mode
 from omnican.clock import REAL_TIME, Clock, SimClock
 from omnican.config import ChassisSettings
+from omnican.sim import SimulatedBase
 
 from .conftest import VENDOR_EDS
 
@@ -93,3 +94,13 @@ def still(sim: Any) -> bool:
     """The simulated base stands still (its true twist, not the odometry)."""
     t = sim.true_twist
     return bool(math.hypot(t.vx, t.vy) < 1e-3 and abs(t.wz) < 1e-2)
+
+
+@contextmanager
+def lockstep_rig(channel: str) -> Iterator[tuple[SimClock, SimulatedBase, Chassis]]:
+    """The demo base (:func:`sim_config`) and its simulated drives, in lock-step."""
+    cfg = sim_config(channel)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
+            Chassis.open(cfg, clock=clock) as base:
+        yield clock, sim, base

@@ -21,7 +21,7 @@ from omnican.errors import DriveError
 from omnican.lockstep import LockstepBus
 from omnican.sim import SimulatedBase
 
-from .helpers import drive_for, sim_config, still, wait_for
+from .helpers import drive_for, lockstep_rig, sim_config, still, wait_for
 from .shared_bus import bus_args, shared_bus
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -30,11 +30,8 @@ Rig = tuple[SimClock, SimulatedBase, Chassis]
 
 @pytest.fixture
 def rig(channel: str) -> Iterator[Rig]:
-    cfg = sim_config(channel)
-    clock = SimClock()
-    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
-            Chassis.open(cfg, clock=clock) as base:
-        yield clock, sim, base
+    with lockstep_rig(channel) as r:
+        yield r
 
 
 def stopped_for(base: Chassis, text: str, seconds: float, **velocity: float) -> str:

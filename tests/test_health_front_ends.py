@@ -23,18 +23,15 @@ from omnican.sim import SimulatedBase
 from omnican.sim.console import command
 from omnican.teleop_model import TeleopModel
 
-from .helpers import drive_for, sim_config
+from .helpers import drive_for, lockstep_rig, sim_config
 
 Rig = tuple[SimClock, SimulatedBase, Chassis]
 
 
 @pytest.fixture
 def rig(channel: str) -> Iterator[Rig]:
-    cfg = sim_config(channel)
-    clock = SimClock()
-    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
-            Chassis.open(cfg, clock=clock) as base:
-        yield clock, sim, base
+    with lockstep_rig(channel) as r:
+        yield r
 
 
 def screen(base: Chassis, width: int = 80) -> list[str]:
