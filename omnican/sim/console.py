@@ -79,6 +79,15 @@ def _number(word: str, what: str) -> float:
     return value
 
 
+#: the wheel commands without a value: what each does to the drive, and the reply
+_WHEEL_STATES: dict[str, tuple[Callable[[SimulatedDrive, int], None], str]] = {
+    "jam": (SimulatedDrive.jam, "jammed"),
+    "free": (SimulatedDrive.free, "turns freely"),
+    "lift": (SimulatedDrive.lift, "off the ground"),
+    "land": (SimulatedDrive.land, "on the ground"),
+}
+
+
 def _wheel_command(sim: SimulatedBase, verb: str, rest: list[str]) -> str:
     if not rest:
         raise ValueError(f"{verb} needs a node id (nodes: {_nodes(sim)})")
@@ -87,18 +96,10 @@ def _wheel_command(sim: SimulatedBase, verb: str, rest: list[str]) -> str:
     takes_value = verb in ("push", "ferror")
     if len(rest) != (2 if takes_value else 1):
         raise ValueError(f"{verb} takes a node id" + (" and a value" if takes_value else ""))
-    if verb == "jam":
-        drive.jam(axis)
-        return f"{name}: jammed"
-    if verb == "free":
-        drive.free(axis)
-        return f"{name}: turns freely"
-    if verb == "lift":
-        drive.lift(axis)
-        return f"{name}: off the ground"
-    if verb == "land":
-        drive.land(axis)
-        return f"{name}: on the ground"
+    if verb in _WHEEL_STATES:
+        change, said = _WHEEL_STATES[verb]
+        change(drive, axis)
+        return f"{name}: {said}"
     if verb == "push":
         speed = _number(rest[1], "m/s at the rim")
         drive.push(speed, axis)
