@@ -35,8 +35,8 @@ from omnican.tracking import TrackingDetector
 logger = logging.getLogger("omnican.chassis")
 
 
-class NodeSupervisor(Protocol):
-    """What the checks read of the supervisor (omnican.chassis.supervisor), and how they
+class Latches(Protocol):
+    """What the checks read of the NodeSupervisor (omnican.chassis.supervisor), and how they
     stop the base: the supervisor owns this monitor and hands itself to each check."""
 
     latched: str | None
@@ -128,7 +128,7 @@ class HealthMonitor:
         #: what each snapshot carries until the next check (see omnican.state.no_health)
         self.values: tuple[tuple[tuple[Any, ...], ...], tuple[Any, ...]] = no_health(len(axes))
 
-    def check(self, now: float, sup: NodeSupervisor) -> None:
+    def check(self, now: float, sup: Latches) -> None:
         """What is due at ``now`` (loop thread, once ``next_at`` has come); ``sup``
         latches what it finds."""
         next_at = math.inf
@@ -147,7 +147,7 @@ class HealthMonitor:
             self._refresh(now, sup)
         self.next_at = min(next_at, self._next_tracking, self._next_values)
 
-    def _refresh(self, now: float, sup: NodeSupervisor) -> None:
+    def _refresh(self, now: float, sup: Latches) -> None:
         """The values each snapshot carries, the e-stop, the battery."""
         wheel_values = []
         for health, reads in self._wheel_reads:
@@ -187,7 +187,7 @@ class HealthMonitor:
 
     # ------------------------------------------------------------ the checks
 
-    def _check_estop(self, now: float, sup: NodeSupervisor) -> bool:
+    def _check_estop(self, now: float, sup: Latches) -> bool:
         held = None
         for estop in self._estops:
             if estop.pressed(now):
@@ -200,7 +200,7 @@ class HealthMonitor:
         self.estop_held = held
         return held is not None
 
-    def _check_controller(self, sup: NodeSupervisor) -> None:
+    def _check_controller(self, sup: Latches) -> None:
         state = self._bus.controller.state
         if state.bus_off and self.bus_off is None:
             self.bus_off = (f"CAN bus-off: the controller left the bus after too many errors "
@@ -211,7 +211,7 @@ class HealthMonitor:
                            state.describe())
             self.bus_off = None
 
-    def _check_tracking(self, now: float, sup: NodeSupervisor) -> None:
+    def _check_tracking(self, now: float, sup: Latches) -> None:
         speeds = self.speeds
         if speeds is None:
             return
@@ -229,7 +229,7 @@ class HealthMonitor:
         if running:
             self._check_following_error(now, sup)
 
-    def _check_following_error(self, now: float, sup: NodeSupervisor) -> None:
+    def _check_following_error(self, now: float, sup: Latches) -> None:
         for index, node, axis, stage in self._stages:
             sw = stage.statusword_value
             if (sw is None or not sw & cia402.SW_OMS_13 or stage.state is not _ENABLED or
