@@ -24,6 +24,7 @@ import can
 from omnican.clock import Clock
 
 Receiver = Callable[[can.Message], None]
+_new = object.__new__
 
 
 class LockstepBus(can.BusABC):
@@ -50,21 +51,36 @@ class LockstepBus(can.BusABC):
         if self._is_shutdown:
             raise can.CanOperationError("the lock-step bus is shut down")
         stamp = self._clock.wall()
-        for peer in self._channels.get(self.channel, ()):
+        channel = self.channel
+        for peer in self._channels.get(channel, ()):
             if peer is not self and not peer._is_shutdown:
-                peer._deliver(_received(msg, stamp, self.channel))
+                # What the peer receives: a message of its own with the same frame,
+                # stamped, received. Made field by field, here: can.Message's
+                # constructor (keywords, data conversion) and a call per peer are most
+                # of what a frame costs the lock-step bus.
+                out: can.Message = _new(can.Message)
+                out.timestamp = stamp
+                out.arbitration_id = msg.arbitration_id
+                out.is_extended_id = msg.is_extended_id
+                out.is_remote_frame = msg.is_remote_frame
+                out.is_error_frame = msg.is_error_frame
+                out.channel = channel
+                out.is_fd = msg.is_fd
+                out.is_rx = True
+                out.bitrate_switch = msg.bitrate_switch
+                out.error_state_indicator = msg.error_state_indicator
+                out.data = bytearray(msg.data)
+                out.dlc = msg.dlc
+                receiver = peer._receiver
+                if receiver is not None:
+                    receiver(out)
+                else:
+                    peer._queue.append(out)
 
     def push(self, msg: can.Message) -> None:
         """Queue ``msg`` for :meth:`recv` (a receiver that reads through recv calls this
         first)."""
         self._queue.append(msg)
-
-    def _deliver(self, msg: can.Message) -> None:
-        receiver = self._receiver
-        if receiver is not None:
-            receiver(msg)
-        else:
-            self._queue.append(msg)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         try:
@@ -81,28 +97,6 @@ class LockstepBus(can.BusABC):
                 self._channels.pop(self.channel, None)
         super().shutdown()
 
-
-_new = object.__new__
-
-
-def _received(msg: can.Message, stamp: float, channel: str) -> can.Message:
-    """What a peer receives of ``msg``: a message of its own with the same frame,
-    stamped, received. Made field by field: can.Message's constructor (keywords, data
-    conversion) is most of what a frame costs the lock-step bus, per peer."""
-    out: can.Message = _new(can.Message)
-    out.timestamp = stamp
-    out.arbitration_id = msg.arbitration_id
-    out.is_extended_id = msg.is_extended_id
-    out.is_remote_frame = msg.is_remote_frame
-    out.is_error_frame = msg.is_error_frame
-    out.channel = channel
-    out.is_fd = msg.is_fd
-    out.is_rx = True
-    out.bitrate_switch = msg.bitrate_switch
-    out.error_state_indicator = msg.error_state_indicator
-    out.data = bytearray(msg.data)
-    out.dlc = msg.dlc
-    return out
 
 
 def listeners_receiver(listeners: list[Any]) -> Receiver:

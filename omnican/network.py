@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import can
@@ -59,6 +60,33 @@ class Network(canopen.Network):
 
     def check(self) -> None:
         """Receive errors are handled where they happen (see the module docstring)."""
+
+    def lockstep_receiver(self) -> Callable[[can.Message], None]:
+        """What a :class:`~omnican.lockstep.LockstepBus` hands each frame to: every
+        listener, as a Notifier would, with canopen's own (:class:`StandardFrames`,
+        then :meth:`notify`) done in this one call, not three: a lock-step simulation
+        runs every frame of every node through here."""
+        listeners, subscribers, scanner = self.listeners, self.subscribers, self.scanner
+
+        def receive(msg: can.Message) -> None:
+            for listener in listeners:
+                if type(listener) is not StandardFrames:
+                    listener.on_message_received(msg)
+                    continue
+                if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+                    continue
+                can_id = msg.arbitration_id
+                try:
+                    callbacks = subscribers.get(can_id)
+                    if callbacks:
+                        data, stamp = msg.data, msg.timestamp
+                        for callback in callbacks:
+                            callback(can_id, data, stamp)
+                    scanner.on_message_received(can_id)
+                except Exception as exc:  # one bad frame must not stop reception
+                    frame_error(can_id, exc)
+
+        return receive
 
     def subscribe(self, can_id: int, callback: Any) -> None:
         with self._subscribe_lock:

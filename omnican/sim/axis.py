@@ -25,7 +25,6 @@ import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from functools import partial
 
 from canopen import objectdictionary as od
 
@@ -131,19 +130,6 @@ def group_axes(dictionary: od.ObjectDictionary, counts_per_unit: Sequence[float]
     return list(groups.values()), axes
 
 
-def _as_stored(entry: Entry, reader: Callable[[], int]) -> Callable[[], int]:
-    """``reader`` as the object's raw integer: wrapped to its width like an encoder
-    counter, two's complement for unsigned types."""
-    bits = entry.bits
-    half, full = 1 << (bits - 1), 1 << bits
-
-    def wrapped() -> int:
-        value = (int(reader()) + half) % full - half
-        return value if entry.declared_signed else value % full
-
-    return wrapped
-
-
 class Motion:
     """The motors of one drive, advanced together in time.
 
@@ -182,17 +168,37 @@ class Motion:
         """The objects the motion produces (counters, velocities), as raw values."""
         out: dict[Key, Callable[[], int]] = {}
         for ax in self.axes:
-            readers: tuple[tuple[Obj, Callable[[], int]], ...] = (
-                (Obj.POSITION_ACTUAL, partial(self.position, ax)),
-                (Obj.VELOCITY_ACTUAL, partial(self.velocity, ax)),
-                (Obj.VL_ACTUAL, partial(self.velocity, ax)),
-                (Obj.VL_DEMAND, partial(self.demand, ax)),
-            )
-            for obj, reader in readers:
+            for obj, quantity in ((Obj.POSITION_ACTUAL, "position"),
+                                  (Obj.VELOCITY_ACTUAL, "velocity"),
+                                  (Obj.VL_ACTUAL, "velocity"), (Obj.VL_DEMAND, "demand")):
                 entry = ax.objs.get(obj)
                 if entry is not None:
-                    out[(entry.index, entry.subindex)] = _as_stored(entry, reader)
+                    out[(entry.index, entry.subindex)] = self._reader(ax, quantity, entry)
         return out
+
+    def _reader(self, ax: Axis, quantity: str, entry: Entry) -> Callable[[], int]:
+        """What :meth:`position`, :meth:`velocity` or :meth:`demand` give, as the object's
+        raw integer: wrapped to its width like an encoder counter, two's complement for
+        an unsigned type. One closure each (TPDOs read them with every SYNC)."""
+        half, full = 1 << (entry.bits - 1), 1 << entry.bits
+        signed = entry.declared_signed
+
+        if quantity == "position":
+            def read() -> int:
+                counts = ax.state.position - ax.counter_offset
+                if self.encoder_noise:
+                    counts += self._rng.gauss(0.0, self.encoder_noise)
+                value = (round(counts) + half) % full - half
+                return value if signed else value % full
+        elif quantity == "velocity":
+            def read() -> int:
+                value = (round(ax.state.velocity / ax.counts_per_unit) + half) % full - half
+                return value if signed else value % full
+        else:
+            def read() -> int:
+                value = (round(ax.state.demand / ax.counts_per_unit) + half) % full - half
+                return value if signed else value % full
+        return read
 
     def _shaping_objects(self) -> tuple[set[Key], dict[Key, Axis]]:
         """(every object that shapes the motion, the target objects and their axis)."""
@@ -308,33 +314,43 @@ class Motion:
 
     def standstill(self, group: AxisGroup) -> bool:
         """Every axis below one velocity unit: the drive's "speed = 0"."""
-        return all(abs(ax.state.velocity / ax.counts_per_unit) < STANDSTILL_UNITS
-                   for ax in group.axes)
+        for ax in group.axes:
+            if not abs(ax.state.velocity / ax.counts_per_unit) < STANDSTILL_UNITS:
+                return False
+        return True
 
     def status_bits(self, group: AxisGroup) -> int:
         """The mode-specific statusword bits: internal limit (11), target reached (10),
         pv "speed is zero" and csv "following the command value" (12)."""
+        # Read with every event check and SYNC: loops, not generators.
+        axes = group.axes
         sw = 0
-        if any(ax.internal_limit for ax in group.axes):
-            sw |= cia402.SW_INTERNAL_LIMIT
-        state = group.stage.state
+        for ax in axes:
+            if ax.internal_limit:
+                sw = cia402.SW_INTERNAL_LIMIT
+                break
+        stage = group.stage
+        state = stage.state
         if state is State.OPERATION_ENABLED:
-            mode = self.mode(group)
+            mode = group.mode if group.mode is not None else self.mode(group)
             if mode == Mode.CYCLIC_SYNC_VELOCITY:
                 sw |= cia402.SW_OMS_12
-            elif all(self._reached(ax) for ax in group.axes):
-                sw |= cia402.SW_TARGET_REACHED
+            else:
+                halted = stage.controlword & cia402.CW_HALT
+                window = self.window
+                for ax in axes:
+                    if ax.command is None:
+                        ax.command = self._command(ax)  # refreshes target_units
+                    target = 0.0 if halted else ax.target_units
+                    if abs(ax.state.velocity / ax.counts_per_unit - target) > window:
+                        break
+                else:
+                    sw |= cia402.SW_TARGET_REACHED
             if mode == Mode.PROFILE_VELOCITY and self.standstill(group):
                 sw |= cia402.SW_OMS_12
         elif state is State.QUICK_STOP_ACTIVE and self.standstill(group):
             sw |= cia402.SW_TARGET_REACHED
         return sw
-
-    def _reached(self, ax: Axis) -> bool:
-        if ax.command is None:
-            ax.command = self._command(ax)  # refreshes target_units
-        target = 0.0 if ax.group.stage.halted else ax.target_units
-        return abs(ax.state.velocity / ax.counts_per_unit - target) <= self.window
 
     # ------------------------------------------------------------ commands
 

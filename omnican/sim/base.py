@@ -24,7 +24,7 @@ from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, WheelConfig
 from omnican.errors import BusError, ConfigError
 from omnican.kinematics import OmniKinematics, Twist
-from omnican.lockstep import LockstepBus, listeners_receiver
+from omnican.lockstep import LockstepBus
 from omnican.network import Network
 from omnican.odmap import Obj
 from omnican.odometry import Odometry, Pose2D
@@ -140,7 +140,7 @@ class SimulatedBase:
                 raise ConfigError("lock-step simulation runs on an in-process channel: the "
                                   "bus must be interface 'virtual' with a channel")
             lockstep = LockstepBus(str(channel), clock)
-            lockstep.set_receiver(listeners_receiver(network.listeners))
+            lockstep.set_receiver(network.lockstep_receiver())
             network.bus = lockstep
         else:
             # A receive error (an interface that went down) is handled, not the end of
@@ -205,9 +205,14 @@ class SimulatedBase:
                 for (d, axis), scale in zip(self.wheel_axes, self._scales, strict=True)]
 
     def _tick(self, now: float) -> None:
+        """The truth follows the wheels as their drives last moved them (on the SYNC, or
+        in their own housekeeping when no SYNC comes): moving them here as well would
+        move every motor twice a cycle."""
         with self._lock:
             if not self._closed:
-                self._odo.update(self._true_travel(now))
+                self._odo.update([d.axes[axis].ground_position * (1.0 - d.slip) / scale
+                                  for (d, axis), scale in zip(self.wheel_axes, self._scales,
+                                                              strict=True)])
 
     @property
     def true_pose(self) -> Pose2D:

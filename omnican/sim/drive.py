@@ -57,7 +57,7 @@ from omnican.sim.axis import DEFAULT_TAU_S, AxisGroup, Motion, group_axes, suppo
 from omnican.sim.health import DEFAULT_COUNTS_PER_M, DriveHealth, EstopInput
 from omnican.sim.node import SimNode
 from omnican.sim.scheduler import SimScheduler
-from omnican.sim.stage import DEFAULT_QUICK_STOP_OPTION, PowerStage, Reaction
+from omnican.sim.stage import DEFAULT_QUICK_STOP_OPTION, SETTLING, PowerStage, Reaction
 
 CIA402_SERVO_DRIVE = 0x00020192  # 1000h: device profile 402, servo drive
 # Error register (1001h) bits by EMCY class.
@@ -181,7 +181,7 @@ class SimulatedDrive:
         readers = {**self.motion.readers(), **self.health.readers()}
         for group in self.groups:
             sw, cw = group.statusword, group.controlword
-            readers[(sw.index, sw.subindex)] = partial(self._statusword, group)
+            readers[(sw.index, sw.subindex)] = self._statusword_of(group)
             self._writers[(cw.index, cw.subindex)] = partial(self._on_controlword, group)
             if group.mode_entry is not None:
                 m = group.mode_entry
@@ -374,20 +374,33 @@ class SimulatedDrive:
 
     def advance(self, now: float) -> None:
         """Bring the motors and the power stages up to ``now``."""
-        if self.motion.advance(now):
+        motion = self.motion
+        if now > motion.last_advance and motion.advance(now):
             for group in self.groups:
-                if group.stage.settling and self.motion.standstill(group):
+                if group.stage.state in SETTLING and motion.standstill(group):
                     self._follow(group, group.stage.settle())
             self.health.warm(now)
 
-    def writing(self, index: int, subindex: int, var: od.ODVariable, data: bytes,
-                changed: bool) -> None:
+    def write_hook(self, index: int, subindex: int,
+                   var: od.ODVariable) -> Callable[[bytes, bool], None] | None:
+        """Before an object is written: a new value of one that shapes the motion applies
+        from now (the motors are advanced to now first), and the objects the drive acts
+        on go to their writer, which may refuse the value (SDO abort: nothing stored)."""
         key = (index, subindex)
-        if changed and self.motion.shapes(key):
-            self.advance(self.clock.now())  # the old value applied until now
+        shapes = self.motion.shapes(key)
         writer = self._writers.get(key)
-        if writer is not None:  # may refuse the value (SDO abort): then nothing is stored
-            writer(int.from_bytes(data, "little", signed=var.data_type in SIGNED_TYPES))
+        if not shapes and writer is None:
+            return None
+        signed = var.data_type in SIGNED_TYPES
+        clock, motion = self.clock, self.motion
+
+        def hook(data: bytes, changed: bool) -> None:
+            if changed and shapes and clock.now() > motion.last_advance:
+                self.advance(clock.now())  # the old value applied until now
+            if writer is not None:
+                writer(int.from_bytes(data, "little", signed=signed))
+
+        return hook
 
     def written(self, index: int, subindex: int) -> None:
         self.motion.written(index, subindex)
@@ -411,11 +424,14 @@ class SimulatedDrive:
             stage.connection_restored()
 
     def tick(self, now: float) -> None:
-        """Housekeeping (called by the scheduler)."""
+        """Housekeeping (called by the scheduler). The motors are brought up to date at
+        least once a housekeeping period: SYNCs, SDO requests and controlwords do it in
+        between (a drive on a running bus moves its motors once a SYNC, not twice)."""
         with self.lock:
             if self.comm.closed:
                 return
-            self.advance(now)
+            if now - self.motion.last_advance >= self.scheduler.period_s:
+                self.advance(now)
             self.comm.tick(now)
 
     # ----------------------------------------------------------- CiA 402
@@ -434,17 +450,28 @@ class SimulatedDrive:
             self.comm.emcy(EMCY_NO_ERROR, 0)  # error reset
 
     def _on_controlword(self, group: AxisGroup, value: int) -> None:
-        self.advance(self.clock.now())
-        self._follow(group, group.stage.write_controlword(value))
+        now = self.clock.now()
+        if now > self.motion.last_advance:
+            self.advance(now)
+        reaction = group.stage.write_controlword(value)
+        if reaction is not Reaction.NONE:
+            self._follow(group, reaction)
 
     def _on_mode(self, group: AxisGroup, value: int) -> None:
         if value not in self._supported_modes and value != 0:
             raise SdoAbortedError(SDO_ABORT_VALUE_RANGE)
         group.mode = value
 
-    def _statusword(self, group: AxisGroup) -> int:
-        return (group.stage.statusword() | self.motion.status_bits(group) |
-                self.health.statusword_bits(group))
+    def _statusword_of(self, group: AxisGroup) -> Callable[[], int]:
+        """The group's statusword (6041h), as the stage, the motors and the drive's health
+        make it up (read with every event check: one closure, no lookups)."""
+        stage, status_bits, health_bits = group.stage, self.motion.status_bits, \
+            self.health.statusword_bits
+
+        def statusword() -> int:
+            return stage.statusword() | status_bits(group) | health_bits(group)
+
+        return statusword
 
     def _error_register(self) -> int:
         reg = 0

@@ -36,6 +36,7 @@ ESTOP_INPUT_BIT = 16
 WARM_EVERY_S = 0.1  # temperatures are integrated in steps of at least this (tau: minutes)
 DEFAULT_COUNTS_PER_M = 10_000.0  # a drive on its own (no base says how its wheel rolls)
 QUANTITIES = ("current", "torque", "voltage", "temperature")
+_STATUSWORD = int(Obj.STATUSWORD)
 
 
 @dataclass(frozen=True)
@@ -171,10 +172,13 @@ class DriveHealth:
         """Bits of 6041h this adds: 13 (following error, pv's "max slippage error") while
         one is injected, and the e-stop where it is wired to the statusword."""
         sw = 0
-        if any(self.following_error[ax.number] for ax in group.axes):
-            sw |= cia402.SW_OMS_13
+        following = self.following_error
+        for ax in group.axes:
+            if following[ax.number]:
+                sw = cia402.SW_OMS_13
+                break
         estop = self.estop_input
-        if estop.index == int(Obj.STATUSWORD) and self.estop_pressed != estop.active_low:
+        if estop.index == _STATUSWORD and self.estop_pressed != estop.active_low:
             sw |= 1 << estop.bit
         return sw
 

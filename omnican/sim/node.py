@@ -77,9 +77,12 @@ class Application(Protocol):
     def advance(self, now: float) -> None:
         """Bring the device up to ``now`` (before a frame acts on it)."""
 
-    def writing(self, index: int, subindex: int, var: od.ODVariable, data: bytes,
-                changed: bool) -> None:
-        """An object is about to be written; raise :class:`SdoAbortedError` to refuse."""
+    def write_hook(self, index: int, subindex: int,
+                   var: od.ODVariable) -> Callable[[bytes, bool], None] | None:
+        """What the device does before an object is written: a function of the new
+        data and whether it changed, which raises :class:`SdoAbortedError` to refuse
+        the value; None when the device does nothing then. Asked once per object and
+        kept (PDOs write the same objects with every frame)."""
 
     def written(self, index: int, subindex: int) -> None:
         """An object was written with a new value (stored by now)."""
@@ -140,7 +143,7 @@ class SimNode:
         self.closed = False
         self.heartbeat = Heartbeat()
         self._subscribed_hb: set[int] = set()
-        self.pdos = ProcessData(local, self.readers, self._send)
+        self.pdos = ProcessData(local, self.readers, self._send, self._compile_write)
         self._send_failures = 0
         # One frame per COB-ID, refilled for each send (under the send lock): every
         # interface only reads a frame while sending it, and can.Message's constructor
@@ -257,23 +260,43 @@ class SimNode:
         return None if reader is None else reader()
 
     def _on_write(self, index: int, subindex: int, od: od.ODVariable, data: bytes) -> None:
-        if RPDO_MAP <= index < RPDO_MAP + MAX_PDOS or TPDO_MAP <= index < TPDO_MAP + MAX_PDOS:
+        if _is_mapping(index):
             if not self.remappable:
                 raise SdoAbortedError(SDO_ABORT_READ_ONLY)
             check_mapping_write(self.dictionary, self.local.get_data, index, subindex, data,
                                 self.max_mapping_entries, self.accept_unmappable)
             return
-        store = self.local.data_store.setdefault(index, {})
-        data = bytes(data)
-        changed = store.get(subindex) != data
-        self.app.writing(index, subindex, od, data, changed)  # a refusal stores nothing
-        # Store now (LocalNode stores again after us) so what follows reads the new value.
-        store[subindex] = data
-        if not changed:
-            return  # the same value again (a cyclic controlword): nothing to recompute
-        self.app.written(index, subindex)
-        if index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME):
-            self._load_heartbeat_config()
+        self._object_write(index, subindex, od)(bytes(data))
+
+    def _object_write(self, index: int, subindex: int,
+                      var: od.ODVariable) -> Callable[[bytes], None]:
+        """Writing one (not a mapping) object: the device's hook (a refusal stores
+        nothing), the store (LocalNode stores again after an SDO download: storing now
+        lets what follows read the new value), and on a new value what depends on it."""
+        hook = self.app.write_hook(index, subindex, var)
+        store_of, written = self.local.data_store, self.app.written
+        heartbeat = index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME)
+
+        def write(data: bytes) -> None:
+            store = store_of.setdefault(index, {})
+            changed = store.get(subindex) != data
+            if hook is not None:
+                hook(data, changed)
+            store[subindex] = data
+            if changed:  # the same value again (a cyclic controlword): nothing to recompute
+                written(index, subindex)
+                if heartbeat:
+                    self._load_heartbeat_config()
+
+        return write
+
+    def _compile_write(self, index: int, subindex: int,
+                       var: od.ODVariable) -> Callable[[bytes], None] | None:
+        """An RPDO's write of one object, decided once (see :class:`ProcessData`): what
+        an SDO download of it does, while this node is LocalNode's only write callback."""
+        if self.local._write_callbacks != [self._on_write] or _is_mapping(index):
+            return None
+        return self._object_write(index, subindex, var)
 
     def _uint(self, index: int, sub: int, fmt: str, default: int = 0) -> int:
         return read_uint(self.local.get_data, index, sub, fmt, default)
@@ -282,9 +305,10 @@ class SimNode:
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
-            if self.frozen or self.nmt != NmtState.OPERATIONAL or self._lost():
+            if (self.frozen or self.nmt != NmtState.OPERATIONAL
+                    or (self.frame_loss and self._lost())):
                 return
-            now = self._frame_time(timestamp)
+            now = self.clock.now() if self.clock.lockstep else self._frame_time(timestamp)
             self.app.advance(now)
             self.pdos.sync(now)
 
@@ -300,7 +324,8 @@ class SimNode:
     def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
             rpdo = self.pdos.rpdos.get(can_id)
-            if rpdo is None or self.frozen or self.nmt != NmtState.OPERATIONAL or self._lost():
+            if (rpdo is None or self.frozen or self.nmt != NmtState.OPERATIONAL
+                    or (self.frame_loss and self._lost())):
                 return
             if len(data) < rpdo.length:
                 self.emcy(EMCY_PDO_LENGTH, ERROR_REGISTER_COMMUNICATION)
@@ -325,14 +350,17 @@ class SimNode:
         the lock, the device brought up to ``now``)."""
         if self.frozen:
             return
-        if self.heartbeat.due(now):
+        heartbeat = self.heartbeat
+        if heartbeat.period_s > 0 and now - heartbeat.last_sent >= heartbeat.period_s:
             self._send_heartbeat(now)
-        for producer in self.heartbeat.expired(now):
-            logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
-                        producer)
-            self.emcy(EMCY_HEARTBEAT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
-            self.app.abort_connection()
-        self.event_tpdos(now)
+        if heartbeat.timeouts:
+            for producer in heartbeat.expired(now):
+                logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
+                            producer)
+                self.emcy(EMCY_HEARTBEAT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
+                self.app.abort_connection()
+        if self.nmt == NmtState.OPERATIONAL:
+            self.pdos.events(now)
 
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         producer = can_id - HEARTBEAT_BASE
@@ -357,7 +385,7 @@ class SimNode:
         return self.frame_loss > 0 and self._rng.random() < self.frame_loss
 
     def _send(self, cob_id: int, data: bytes, droppable: bool = True) -> None:
-        if self.frozen or self.closed or (droppable and self._lost()):
+        if self.frozen or self.closed or (droppable and self.frame_loss and self._lost()):
             return
         bus = self.network.bus
         if bus is None:
@@ -395,6 +423,11 @@ class SimNode:
         if self.node_id in net.nodes and net.nodes[self.node_id] is self.local:
             # LocalNode.remove_network would unsubscribe handlers we already replaced.
             del net.nodes[self.node_id]
+
+
+def _is_mapping(index: int) -> bool:
+    """A PDO mapping parameter (16xxh, 1Axxh): written as the PDO configuration."""
+    return RPDO_MAP <= index < RPDO_MAP + MAX_PDOS or TPDO_MAP <= index < TPDO_MAP + MAX_PDOS
 
 
 def _unsubscribe(net: canopen.Network, cob: int, handler: Any) -> None:

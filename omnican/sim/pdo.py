@@ -57,18 +57,16 @@ class PdoConfig:
     last_data: bytes | None = None
     last_sent: float = field(default=-1e9)
     pending_change: bool = False
+    # What the fields above fix (worked out once: the PDO is taken as a whole and kept
+    # until the node leaves OPERATIONAL, and these are read with every frame).
+    length: int = field(init=False)  # bytes
+    synchronous: bool = field(init=False)  # acts on SYNC (transmission types 0-240)
+    event_driven: bool = field(init=False)  # on a change or its event timer (254, 255)
 
-    @property
-    def length(self) -> int:
-        return sum(e.nbytes for e in self.entries)
-
-    @property
-    def synchronous(self) -> bool:
-        return self.trans_type <= TRANS_SYNC_MAX
-
-    @property
-    def event_driven(self) -> bool:
-        return self.trans_type >= TRANS_EVENT_MANUFACTURER
+    def __post_init__(self) -> None:
+        self.length = sum(e.nbytes for e in self.entries)
+        self.synchronous = self.trans_type <= TRANS_SYNC_MAX
+        self.event_driven = self.trans_type >= TRANS_EVENT_MANUFACTURER
 
 
 Getter = Callable[[int, int], bytes]

@@ -30,6 +30,12 @@ logger = logging.getLogger(__name__)
 Reader = Callable[[], int]
 _CODES = {8: "B", 16: "H", 32: "I", 64: "Q"}  # unsigned: each value is wrapped to its width
 Send = Callable[[int, bytes], None]
+Write = Callable[[bytes], None]
+#: Compiles the write of one object an RPDO maps: (index, subindex, the dictionary's
+#: variable) -> what writing it takes, as an SDO download would do it; None: the
+#: generic path (LocalNode's write callbacks, then the store).
+CompileWrite = Callable[[int, int, Any], "Write | None"]
+Maker = Callable[[], bytes]
 
 
 class ProcessData:
@@ -40,18 +46,23 @@ class ProcessData:
         readers: dynamic objects, (index, subindex) -> raw value; a TPDO reads them
             directly instead of through the dictionary.
         send: sends one frame (COB-ID, data); it may lose it.
+        compile_write: the node's writes, decided once per mapped object (see
+            :data:`CompileWrite`); default every write through LocalNode's callbacks.
     """
 
     def __init__(self, local: canopen.LocalNode, readers: Mapping[tuple[int, int], Reader],
-                 send: Send) -> None:
+                 send: Send, compile_write: CompileWrite | None = None) -> None:
         self._local = local
         self._readers = readers
         self._send = send
+        self._compile_write = compile_write
         self.tpdos: list[PdoConfig] = []
         self.rpdos: dict[int, PdoConfig] = {}  # by COB-ID
         self._pending: dict[int, bytes] = {}  # synchronous RPDOs waiting for the SYNC
-        self._makers: dict[int, Callable[[], bytes]] = {}  # id(TPDO) -> its frame
-        self._slots: dict[int, list[tuple[int, int, Any, int, int, int]]] = {}  # id(RPDO)
+        # What a SYNC and an event check go through: (TPDO, its frame maker), in order.
+        self._on_sync: list[tuple[PdoConfig, Maker]] = []
+        self._on_event: list[tuple[PdoConfig, Maker]] = []
+        self._appliers: dict[int, Write] = {}  # id(RPDO) -> writes its objects
 
     def start(self) -> list[int]:
         """Take the PDOs as the dictionary configures them now; returns the RPDOs'
@@ -61,29 +72,40 @@ class ProcessData:
         self.tpdos = read_pdos(dictionary, getter, TPDO_COMM, TPDO_MAP)
         self.rpdos = {p.cob_id: p for p in read_pdos(dictionary, getter, RPDO_COMM, RPDO_MAP)}
         self._pending = {}
-        self._makers = {id(t): self._maker(t) for t in self.tpdos}
-        self._slots = {}
+        self._on_sync = [(t, self._maker(t)) for t in self.tpdos if t.synchronous]
+        self._on_event = [(t, self._maker(t)) for t in self.tpdos if t.event_driven]
+        self._appliers = {}
         for tpdo in self.tpdos:
             tpdo.last_data = None
             tpdo.pending_change = tpdo.event_driven  # first event TPDO goes out at once
         return list(self.rpdos)
 
-    def _maker(self, tpdo: PdoConfig) -> Callable[[], bytes]:
+    def _maker(self, tpdo: PdoConfig) -> Maker:
         """The TPDO's frame in one call: where every object is a dynamic one of 8, 16,
         32 or 64 bits, one precompiled struct over their readers (each value wrapped to
         its width, as a drive's register would); else object by object."""
         readers = [self._readers.get((e.index, e.subindex)) for e in tpdo.entries]
         codes = [_CODES.get(e.bits) for e in tpdo.entries]
-        if tpdo.entries and all(readers) and all(codes):
-            pack = struct.Struct("<" + "".join(c for c in codes if c)).pack
-            parts = tuple((r, (1 << e.bits) - 1)
-                          for r, e in zip(readers, tpdo.entries, strict=True))
-            return lambda: pack(*[r() & mask for r, mask in parts])  # type: ignore[misc]
-        return lambda: self._slow_frame(tpdo)
+        if not (tpdo.entries and all(readers) and all(codes)):
+            return lambda: self._slow_frame(tpdo)
+        pack = struct.Struct("<" + "".join(c for c in codes if c)).pack
+        parts = [(r, (1 << e.bits) - 1) for r, e in zip(readers, tpdo.entries, strict=True)]
+        # One to three objects (nearly every PDO) without building an argument list.
+        if len(parts) == 1:
+            (r1, m1), = parts
+            return lambda: pack(r1() & m1)  # type: ignore[misc]
+        if len(parts) == 2:
+            (r1, m1), (r2, m2) = parts
+            return lambda: pack(r1() & m1, r2() & m2)  # type: ignore[misc]
+        if len(parts) == 3:
+            (r1, m1), (r2, m2), (r3, m3) = parts
+            return lambda: pack(r1() & m1, r2() & m2, r3() & m3)  # type: ignore[misc]
+        return lambda: pack(*[r() & mask for r, mask in parts])  # type: ignore[misc]
 
     def stop(self) -> None:
         """No PDOs (out of OPERATIONAL)."""
         self.tpdos, self.rpdos, self._pending = [], {}, {}
+        self._on_sync, self._on_event, self._appliers = [], [], {}
 
     def hold(self, cob_id: int, data: bytes) -> None:
         """A synchronous RPDO: applied at the next SYNC (the last one received wins)."""
@@ -91,68 +113,83 @@ class ProcessData:
 
     def sync(self, now: float) -> None:
         """A SYNC: apply the RPDOs that waited for it, send the TPDOs due on it."""
-        pending, self._pending = self._pending, {}
-        for cob, payload in pending.items():
-            rpdo = self.rpdos.get(cob)
-            if rpdo is not None:
-                self.apply(rpdo, payload)
-        for tpdo in self.tpdos:
-            if tpdo.trans_type == 0:
-                if tpdo.pending_change or self._frame(tpdo) != tpdo.last_data:
-                    self._send_tpdo(tpdo, now)
-            elif tpdo.synchronous:
+        if self._pending:
+            pending, self._pending = self._pending, {}
+            rpdos = self.rpdos
+            for cob, payload in pending.items():
+                rpdo = rpdos.get(cob)
+                if rpdo is not None:
+                    applier = self._appliers.get(id(rpdo))
+                    if applier is None:
+                        applier = self._appliers[id(rpdo)] = self._applier(rpdo)
+                    applier(payload)
+        for tpdo, make in self._on_sync:
+            if tpdo.trans_type == 0:  # acyclic: on the SYNC after a change
+                data = make()
+                if tpdo.pending_change or data != tpdo.last_data:
+                    self._emit(tpdo, data, now)
+            else:
                 tpdo.sync_count += 1
                 if tpdo.sync_count >= tpdo.trans_type:
                     tpdo.sync_count = 0
-                    self._send_tpdo(tpdo, now)
+                    self._emit(tpdo, make(), now)
 
     def apply(self, rpdo: PdoConfig, payload: bytes) -> None:
-        """Write an RPDO's objects, as an SDO download would: LocalNode's write callbacks
-        (the drive's hooks), then the store; each object found once, when the PDOs were
-        taken, not looked up in the dictionary with every frame."""
-        slots = self._slots.get(id(rpdo))
-        if slots is None:
-            slots = self._slots[id(rpdo)] = self._rpdo_slots(rpdo)
-        local = self._local
-        callbacks, store = local._write_callbacks, local.data_store
-        for index, subindex, obj, start, end, size in slots:
-            chunk = payload[start:end]
-            if len(chunk) != size:
-                chunk = chunk[:size].ljust(size, b"\x00")
-            try:
-                for callback in callbacks:
-                    callback(index=index, subindex=subindex, od=obj, data=chunk)
-            except SdoAbortedError as exc:  # e.g. an unsupported mode: ignored, as on a drive
-                logger.debug("node %d: RPDO write to 0x%04X refused: %s", local.id, index, exc)
-                continue
-            store.setdefault(index, {})[subindex] = chunk
+        """Write an RPDO's objects, as an SDO download would (the drive's hooks, then the
+        store); each object found and its write decided once, when the PDO is first
+        applied, not looked up in the dictionary with every frame."""
+        applier = self._appliers.get(id(rpdo))
+        if applier is None:
+            applier = self._appliers[id(rpdo)] = self._applier(rpdo)
+        applier(payload)
 
-    def _rpdo_slots(self, rpdo: PdoConfig) -> list[tuple[int, int, Any, int, int, int]]:
-        """(index, subindex, the dictionary's variable, start, end, its size in bytes) of
-        each object an RPDO maps."""
-        slots, offset = [], 0
+    def _applier(self, rpdo: PdoConfig) -> Write:
+        local = self._local
+        parts: list[tuple[int, int, int, int, Write]] = []
+        offset = 0
         for entry in rpdo.entries:
-            obj = self._local._find_object(entry.index, entry.subindex)
-            slots.append((entry.index, entry.subindex, obj, offset, offset + entry.nbytes,
-                          len(obj) // 8))
+            index, subindex = entry.index, entry.subindex
+            obj = local._find_object(index, subindex)
+            write = self._compile_write(index, subindex, obj) if self._compile_write else None
+            if write is None:
+                write = self._generic_write(index, subindex, obj)
+            parts.append((index, offset, offset + entry.nbytes, len(obj) // 8, write))
             offset += entry.nbytes
-        return slots
+
+        def apply(payload: bytes) -> None:
+            for index, start, end, size, write in parts:
+                chunk = payload[start:end]
+                if len(chunk) != size:
+                    chunk = chunk[:size].ljust(size, b"\x00")
+                try:
+                    write(chunk)
+                except SdoAbortedError as exc:  # e.g. an unsupported mode: ignored, as a drive
+                    logger.debug("node %d: RPDO write to 0x%04X refused: %s", local.id,
+                                 index, exc)
+
+        return apply
+
+    def _generic_write(self, index: int, subindex: int, obj: Any) -> Write:
+        """LocalNode's write callbacks (a refusal raises), then the store."""
+        local = self._local
+
+        def write(chunk: bytes) -> None:
+            for callback in local._write_callbacks:
+                callback(index=index, subindex=subindex, od=obj, data=chunk)
+            local.data_store.setdefault(index, {})[subindex] = chunk
+
+        return write
 
     def events(self, now: float) -> None:
         """Send the event-driven TPDOs whose data changed or whose event timer ran out,
         as their inhibit times allow."""
-        for tpdo in self.tpdos:
-            if not tpdo.event_driven:
-                continue
-            data = self._frame(tpdo)
+        for tpdo, make in self._on_event:
+            data = make()
             if data != tpdo.last_data:
                 tpdo.pending_change = True
             due = tpdo.pending_change or (tpdo.event_s and now - tpdo.last_sent >= tpdo.event_s)
             if due and now - tpdo.last_sent >= tpdo.inhibit_s:
-                self._send_tpdo(tpdo, now)
-
-    def _frame(self, tpdo: PdoConfig) -> bytes:
-        return self._makers[id(tpdo)]()
+                self._emit(tpdo, data, now)
 
     def _slow_frame(self, tpdo: PdoConfig) -> bytes:
         out = bytearray()
@@ -165,7 +202,6 @@ class ProcessData:
                 out += self._local.get_data(entry.index, entry.subindex)[: entry.nbytes]
         return bytes(out)
 
-    def _send_tpdo(self, tpdo: PdoConfig, now: float) -> None:
-        data = self._frame(tpdo)
+    def _emit(self, tpdo: PdoConfig, data: bytes, now: float) -> None:
         tpdo.last_data, tpdo.last_sent, tpdo.pending_change = data, now, False
         self._send(tpdo.cob_id, data)
