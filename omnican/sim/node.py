@@ -61,6 +61,7 @@ from omnican.sim.process_data import ProcessData
 logger = logging.getLogger(__name__)
 
 SEND_WARNING_EVERY_S = 5.0  # a refused send is logged at most this often
+_EXPIRY_SLACK_S = 1e-6  # Heartbeat.expired decides; next_expiry is a sum, rounded
 
 Key = tuple[int, int]
 Reader = Callable[[], int]
@@ -353,7 +354,7 @@ class SimNode:
         heartbeat = self.heartbeat
         if heartbeat.period_s > 0 and now - heartbeat.last_sent >= heartbeat.period_s:
             self._send_heartbeat(now)
-        if heartbeat.timeouts:
+        if now >= heartbeat.next_expiry - _EXPIRY_SLACK_S:
             for producer in heartbeat.expired(now):
                 logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
                             producer)
