@@ -210,9 +210,9 @@ class SimulatedBase:
         move every motor twice a cycle."""
         with self._lock:
             if not self._closed:
-                self._odo.update([d.axes[axis].ground_position * (1.0 - d.slip) / scale
-                                  for (d, axis), scale in zip(self.wheel_axes, self._scales,
-                                                              strict=True)])
+                self._odo.step([d.axes[axis].ground_position * (1.0 - d.slip) / scale
+                                for (d, axis), scale in zip(self.wheel_axes, self._scales,
+                                                            strict=True)])
 
     @property
     def true_pose(self) -> Pose2D:
