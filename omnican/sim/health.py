@@ -82,6 +82,7 @@ class DriveHealth:
         self.temperature_c = [model.ambient_c] * len(self.axes)
         self.following_error: list[int | None] = [None] * len(self.axes)
         self._warmed_at = start
+        self.warm_at = start + WARM_EVERY_S  # warm() integrates from about then on
 
     # ------------------------------------------------------------ the values (SI)
 
@@ -114,6 +115,7 @@ class DriveHealth:
         if dt < WARM_EVERY_S:
             return
         self._warmed_at = now
+        self.warm_at = now + WARM_EVERY_S
         for ax in self.axes:
             k = ax.number
             self.temperature_c[k] = electrical.temperature_after(

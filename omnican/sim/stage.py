@@ -28,7 +28,9 @@ DEFAULT_QUICK_STOP_OPTION = 2
 #: 605Ah codes that stay in QUICK STOP ACTIVE once stopped (left by transition 12 or 16).
 STAY_IN_QUICK_STOP = frozenset({5, 6, 7, 8})
 
-_STATE_BITS: dict[State, int] = {s: cia402.state_bits(s) for s in State if s is not State.UNKNOWN}
+# By the member's id: State is an Enum, whose hash is a Python call (members are
+# singletons), and the statusword is read with every event check.
+_STATE_BITS: dict[int, int] = {id(s): cia402.state_bits(s) for s in State if s is not State.UNKNOWN}
 _POWERED = (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
 _FAULTED = (State.FAULT, State.FAULT_REACTION_ACTIVE)
 SETTLING = (State.FAULT_REACTION_ACTIVE, State.QUICK_STOP_ACTIVE)
@@ -82,7 +84,7 @@ class PowerStage:
     def statusword(self) -> int:
         """The bits of 6041h the device control function owns: the state (0-6),
         warning (7) and remote (9, always: the drive takes commands over CANopen)."""
-        sw = _STATE_BITS[self.state] | cia402.SW_REMOTE
+        sw = _STATE_BITS[id(self.state)] | cia402.SW_REMOTE
         if self.warning:
             sw |= cia402.SW_WARNING
         return sw
