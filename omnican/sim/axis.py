@@ -49,6 +49,11 @@ Key = tuple[int, int]
 Store = dict[int, dict[int, bytes]]
 
 _VELOCITY_MODES = (Mode.VELOCITY, Mode.PROFILE_VELOCITY, Mode.CYCLIC_SYNC_VELOCITY)
+# Plain names for what every statusword and command reads: an Enum member read as a class
+# attribute (State.X) is a descriptor call on Python 3.11, several times a plain name's cost.
+_ENABLED, _QUICK_STOP = State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE
+_STOPPING = (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE)
+_PV, _CSV = int(Mode.PROFILE_VELOCITY), int(Mode.CYCLIC_SYNC_VELOCITY)
 _TARGETS = (Obj.TARGET_VELOCITY, Obj.VL_TARGET)
 _SHAPING = (*_TARGETS, Obj.PROFILE_ACCEL, Obj.PROFILE_DECEL, Obj.QUICK_STOP_DECEL,
             Obj.MAX_PROFILE_VELOCITY)
@@ -331,24 +336,27 @@ class Motion:
                 break
         stage = group.stage
         state = stage.state
-        if state is State.OPERATION_ENABLED:
+        if state is _ENABLED:
             mode = group.mode if group.mode is not None else self.mode(group)
-            if mode == Mode.CYCLIC_SYNC_VELOCITY:
+            if mode == _CSV:
                 sw |= cia402.SW_OMS_12
-            else:
+            else:  # target reached, and pv's speed zero, in one pass over the axes
                 halted = stage.controlword & cia402.CW_HALT
                 window = self.window
+                reached = still = True
                 for ax in axes:
                     if ax.command is None:
                         ax.command = self._command(ax)  # refreshes target_units
-                    target = 0.0 if halted else ax.target_units
-                    if abs(ax.state.velocity / ax.counts_per_unit - target) > window:
-                        break
-                else:
+                    units = ax.state.velocity / ax.counts_per_unit
+                    if abs(units - (0.0 if halted else ax.target_units)) > window:
+                        reached = False
+                    if not abs(units) < STANDSTILL_UNITS:
+                        still = False
+                if reached:
                     sw |= cia402.SW_TARGET_REACHED
-            if mode == Mode.PROFILE_VELOCITY and self.standstill(group):
-                sw |= cia402.SW_OMS_12
-        elif state is State.QUICK_STOP_ACTIVE and self.standstill(group):
+                if still and mode == _PV:
+                    sw |= cia402.SW_OMS_12
+        elif state is _QUICK_STOP and self.standstill(group):
             sw |= cia402.SW_TARGET_REACHED
         return sw
 
@@ -404,10 +412,10 @@ class Motion:
         mode, quick, accel_c, decel_c, limit, target_entry = params
         stage = ax.group.stage
         state = stage.state
-        if state in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE):
+        if state in _STOPPING:
             ax.target_units = 0.0
             return 0.0, quick, quick, self.tau_s
-        if state is not State.OPERATION_ENABLED:
+        if state is not _ENABLED:
             ax.target_units = 0.0
             return 0.0, math.inf, math.inf, COAST_TAU_S
         if mode not in _VELOCITY_MODES:
@@ -418,6 +426,6 @@ class Motion:
         if ax.internal_limit:
             target = int(math.copysign(limit, target))
         ax.target_units = float(target)
-        if stage.halted and mode != Mode.CYCLIC_SYNC_VELOCITY:
+        if stage.halted and mode != _CSV:
             return 0.0, decel_c, decel_c, self.tau_s
         return target * ax.counts_per_unit, accel_c, decel_c, self.tau_s

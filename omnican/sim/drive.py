@@ -65,6 +65,7 @@ _ERROR_REGISTER_BITS = {0x2: ERROR_REGISTER_CURRENT, 0x3: ERROR_REGISTER_VOLTAGE
                         0x4: ERROR_REGISTER_TEMPERATURE, 0x8: ERROR_REGISTER_COMMUNICATION}
 
 Key = tuple[int, int]
+_NO_REACTION = Reaction.NONE  # a plain name: Reaction.X is a descriptor call on Python 3.11
 
 
 class SimulatedDrive:
@@ -455,7 +456,7 @@ class SimulatedDrive:
         if now > self.motion.last_advance:
             self.advance(now)
         reaction = group.stage.write_controlword(value)
-        if reaction is not Reaction.NONE:
+        if reaction is not _NO_REACTION:
             self._follow(group, reaction)
 
     def _on_mode(self, group: AxisGroup, value: int) -> None:

@@ -61,6 +61,7 @@ from omnican.sim.process_data import ProcessData
 logger = logging.getLogger(__name__)
 
 SEND_WARNING_EVERY_S = 5.0  # a refused send is logged at most this often
+_OPERATIONAL = int(NmtState.OPERATIONAL)  # a plain name: NmtState.X is a descriptor call
 _EXPIRY_SLACK_S = 1e-6  # Heartbeat.expired decides; next_expiry is a sum, rounded
 
 Key = tuple[int, int]
@@ -306,7 +307,7 @@ class SimNode:
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
-            if (self.frozen or self.nmt != NmtState.OPERATIONAL
+            if (self.frozen or self.nmt != _OPERATIONAL
                     or (self.frame_loss and self._lost())):
                 return
             now = self.clock.now() if self.clock.lockstep else self._frame_time(timestamp)
@@ -325,7 +326,7 @@ class SimNode:
     def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
             rpdo = self.pdos.rpdos.get(can_id)
-            if (rpdo is None or self.frozen or self.nmt != NmtState.OPERATIONAL
+            if (rpdo is None or self.frozen or self.nmt != _OPERATIONAL
                     or (self.frame_loss and self._lost())):
                 return
             if len(data) < rpdo.length:
@@ -341,7 +342,7 @@ class SimNode:
 
     def event_tpdos(self, now: float) -> None:
         """Send the event-driven TPDOs that are due (in OPERATIONAL)."""
-        if self.nmt == NmtState.OPERATIONAL:
+        if self.nmt == _OPERATIONAL:
             self.pdos.events(now)
 
     # ------------------------------------------------------ heartbeat, EMCY
@@ -360,7 +361,7 @@ class SimNode:
                             producer)
                 self.emcy(EMCY_HEARTBEAT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
                 self.app.abort_connection()
-        if self.nmt == NmtState.OPERATIONAL:
+        if self.nmt == _OPERATIONAL:
             self.pdos.events(now)
 
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
