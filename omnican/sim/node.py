@@ -353,7 +353,7 @@ class SimNode:
         if self.frozen:
             return
         heartbeat = self.heartbeat
-        if heartbeat.period_s > 0 and now - heartbeat.last_sent >= heartbeat.period_s:
+        if heartbeat.due(now):
             self._send_heartbeat(now)
         if now >= heartbeat.next_expiry - _EXPIRY_SLACK_S:
             for producer in heartbeat.expired(now):
