@@ -9,6 +9,7 @@ import select
 import shutil
 import subprocess
 import sys
+import termios
 import time
 from pathlib import Path
 
@@ -353,6 +354,23 @@ def test_teleop_ctrl_c_quits_with_the_pose() -> None:
         term.keys("\x03")  # Ctrl-C
         assert term.exit_code() == 0
         assert re.search(r"pose x=\S+ y=\S+ theta=\S+", term.read(0.5))
+    finally:
+        term.close()
+
+
+def test_teleop_keeps_ctrl_c_from_discarding_what_it_prints_and_gives_the_flag_back() -> None:
+    """A Ctrl-C makes the terminal discard the output not yet shown: a second one right
+    after the final pose was printed, with the terminal behind (ssh to a loaded robot,
+    or this test beside busy processes), wiped the pose. While a base is open the
+    terminal has NOFLSH; a program that ends without a signal gives it back."""
+    term = Pty("--sim")
+    try:
+        assert not termios.tcgetattr(term.master)[3] & termios.NOFLSH
+        term.wait_for("RUNNING")
+        assert termios.tcgetattr(term.master)[3] & termios.NOFLSH
+        term.keys("\x1b")  # Esc quits without a signal
+        assert term.exit_code() == 0
+        assert not termios.tcgetattr(term.master)[3] & termios.NOFLSH
     finally:
         term.close()
 

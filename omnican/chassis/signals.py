@@ -7,7 +7,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -34,7 +36,15 @@ class SignalGuard:
     until it is over, so the second Ctrl-C cannot cut short what the program does after
     the stop either (a front end printing the final pose, a simulator shutting down).
     The first signal after the grace restores the program's own handlers and acts as
-    they would."""
+    they would.
+
+    A Ctrl-C also makes the terminal discard the output it has not shown yet (the
+    terminal's NOFLSH flag is off by default): a second one right after the program
+    printed its final pose, with the terminal behind (ssh to a loaded robot), would wipe
+    the pose off the screen. So while a base is open, and until the grace is over,
+    NOFLSH is set on the controlling terminal. A program that ends within the grace
+    leaves it set: restoring it as it exits would open that window again. (NOFLSH only
+    keeps ^C from discarding output not yet shown.)"""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -44,6 +54,7 @@ class SignalGuard:
         self._saved: dict[int, Any] = {}
         self._first_at = -math.inf
         self._lingering = False  # released within the grace: handlers still installed
+        self._terminal: tuple[int, int] | None = None  # (fd, its NOFLSH bit before)
 
     def acquire(self) -> bool:
         """Install the handlers (main thread only); False where that is impossible."""
@@ -55,6 +66,7 @@ class SignalGuard:
             else:
                 self._saved = {int(sig): signal.signal(sig, self._handle)
                                for sig in self.SIGNALS}
+                self._keep_output()
             self._first_at = -math.inf
         self._users += 1
         return True
@@ -75,6 +87,42 @@ class SignalGuard:
             with contextlib.suppress(ValueError, TypeError):  # not the main thread now
                 signal.signal(sig, old if old is not None else signal.SIG_DFL)
         self._saved = {}
+        self._restore_output()
+
+    def _keep_output(self) -> None:
+        """NOFLSH on the controlling terminal (the first of stdin, stdout, stderr that is
+        one), its old value kept; nothing where there is no terminal."""
+        if self._terminal is not None:
+            return
+        try:
+            import termios
+        except ImportError:  # not POSIX
+            return
+        for stream in (sys.stdin, sys.stdout, sys.stderr):
+            try:
+                fd = stream.fileno()
+                if not os.isatty(fd):
+                    continue
+                attrs = termios.tcgetattr(fd)
+                was = attrs[3] & termios.NOFLSH
+                attrs[3] |= termios.NOFLSH
+                termios.tcsetattr(fd, termios.TCSANOW, attrs)
+            except (AttributeError, ValueError, OSError, termios.error):
+                continue
+            self._terminal = (fd, was)
+            return
+
+    def _restore_output(self) -> None:
+        terminal, self._terminal = self._terminal, None
+        if terminal is None:
+            return
+        import termios
+
+        fd, was = terminal
+        with contextlib.suppress(OSError, termios.error):
+            attrs = termios.tcgetattr(fd)
+            attrs[3] = (attrs[3] & ~termios.NOFLSH) | was
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
 
     def at_exit(self) -> None:
         """The interpreter is ending within the grace: ignore the signals from here on.
