@@ -103,6 +103,8 @@ class SignalGuard:
                 fd = stream.fileno()
                 if not os.isatty(fd):
                     continue
+                if os.tcgetpgrp(fd) != os.getpgrp():
+                    return  # in the background: a terminal change would stop us (SIGTTOU)
                 attrs = termios.tcgetattr(fd)
                 was = attrs[3] & termios.NOFLSH
                 attrs[3] |= termios.NOFLSH
@@ -120,6 +122,8 @@ class SignalGuard:
 
         fd, was = terminal
         with contextlib.suppress(OSError, termios.error):
+            if os.tcgetpgrp(fd) != os.getpgrp():
+                return  # put in the background since: a change would stop us (SIGTTOU)
             attrs = termios.tcgetattr(fd)
             attrs[3] = (attrs[3] & ~termios.NOFLSH) | was
             termios.tcsetattr(fd, termios.TCSANOW, attrs)
