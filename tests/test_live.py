@@ -18,13 +18,13 @@ import pytest
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 
-from omnican import Chassis, default_config
+from omnican import Chassis
 from omnican.cli import main
 from omnican.live import watch
 from omnican.sim import SimulatedBase
 
 from .foxglove_client import FoxgloveClient
-from .helpers import drive_for, one_error_line, wait_for
+from .helpers import drive_for, one_error_line, sim_config, wait_for
 
 
 def free_port() -> int:
@@ -129,7 +129,11 @@ def test_drive_under_foxglove_publishes_odometry_matching_the_truth() -> None:
 
 
 def test_fault_shows_in_diagnostics_and_wheels(channel: str) -> None:
-    cfg = default_config(bus={"interface": "virtual", "channel": channel})
+    # Heartbeats may go missing for 1 s, not 0.35 s: the drives, the base and the viewer
+    # share one process, and a loaded machine stalled it long enough that the stop named
+    # a lost heartbeat, not the fault (seen once beside two busy processes). This test
+    # is about what the viewer shows of a fault, not about scheduling latency.
+    cfg = sim_config(channel, heartbeat_timeout_factor=10.0)
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
             watch(base, sim, "127.0.0.1:0") as view:
         assert listening_on(view.port) == {"0100007F"}
