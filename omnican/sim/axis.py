@@ -182,9 +182,10 @@ class Motion:
         return out
 
     def _reader(self, ax: Axis, quantity: str, entry: Entry) -> Callable[[], int]:
-        """What :meth:`position`, :meth:`velocity` or :meth:`demand` give, as the object's
-        raw integer: wrapped to its width like an encoder counter, two's complement for
-        an unsigned type. One closure each (TPDOs read them with every SYNC)."""
+        """6064h (counts since the last encoder reset, with the encoder's noise), 606Ch or
+        6044h (:meth:`velocity`) or 6043h (the ramp's output, velocity units) as the
+        object's raw integer: wrapped to its width like an encoder counter, two's
+        complement for an unsigned type. One closure each (TPDOs read them every SYNC)."""
         half, full = 1 << (entry.bits - 1), 1 << entry.bits
         signed = entry.declared_signed
 
@@ -302,20 +303,9 @@ class Motion:
 
     # ------------------------------------------------------------ what it shows
 
-    def position(self, ax: Axis) -> int:
-        """6064h: counts since the last encoder reset, with the encoder's noise."""
-        counts = ax.state.position - ax.counter_offset
-        if self.encoder_noise:
-            counts += self._rng.gauss(0.0, self.encoder_noise)
-        return round(counts)
-
     def velocity(self, ax: Axis) -> int:
         """606Ch / 6044h, velocity units."""
         return round(ax.state.velocity / ax.counts_per_unit)
-
-    def demand(self, ax: Axis) -> int:
-        """6043h: the ramp's output, velocity units."""
-        return round(ax.state.demand / ax.counts_per_unit)
 
     def standstill(self, group: AxisGroup) -> bool:
         """Every axis below one velocity unit: the drive's "speed = 0"."""
@@ -337,7 +327,7 @@ class Motion:
         stage = group.stage
         state = stage.state
         if state is _ENABLED:
-            mode = group.mode if group.mode is not None else self.mode(group)
+            mode = self.mode(group)
             if mode == _CSV:
                 sw |= cia402.SW_OMS_12
             else:  # target reached, and pv's speed zero, in one pass over the axes

@@ -198,10 +198,12 @@ class SimulatedBase:
 
     # ------------------------------------------------------------ truth
 
-    def _true_travel(self, now: float | None = None) -> list[float]:
-        """What each wheel rolled on the ground (a wheel off the ground moves nothing)."""
+    def _true_travel(self, now: float | None = None, moved: bool = True) -> list[float]:
+        """What each wheel rolled on the ground (a wheel off the ground moves nothing), at
+        ``now`` (default the present); ``moved=False``: as the drives last moved them."""
         t = self.clock.now() if now is None else now
-        return [d.ground_counts(axis, t) * (1.0 - d.slip) / scale
+        return [(d.ground_counts(axis, t) if moved else d.axes[axis].ground_position)
+                * (1.0 - d.slip) / scale
                 for (d, axis), scale in zip(self.wheel_axes, self._scales, strict=True)]
 
     def _tick(self, now: float) -> None:
@@ -210,9 +212,7 @@ class SimulatedBase:
         move every motor twice a cycle."""
         with self._lock:
             if not self._closed:
-                self._odo.step([d.axes[axis].ground_position * (1.0 - d.slip) / scale
-                                for (d, axis), scale in zip(self.wheel_axes, self._scales,
-                                                            strict=True)])
+                self._odo.step(self._true_travel(now, moved=False))
 
     @property
     def true_pose(self) -> Pose2D:

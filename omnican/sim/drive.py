@@ -57,7 +57,7 @@ from omnican.sim.axis import DEFAULT_TAU_S, AxisGroup, Motion, group_axes, suppo
 from omnican.sim.health import DEFAULT_COUNTS_PER_M, DriveHealth, EstopInput
 from omnican.sim.node import SimNode
 from omnican.sim.scheduler import SimScheduler
-from omnican.sim.stage import DEFAULT_QUICK_STOP_OPTION, SETTLING, PowerStage, Reaction
+from omnican.sim.stage import DEFAULT_QUICK_STOP_OPTION, PowerStage, Reaction
 
 CIA402_SERVO_DRIVE = 0x00020192  # 1000h: device profile 402, servo drive
 # Error register (1001h) bits by EMCY class.
@@ -375,13 +375,11 @@ class SimulatedDrive:
 
     def advance(self, now: float) -> None:
         """Bring the motors and the power stages up to ``now``."""
-        motion = self.motion
-        if now > motion.last_advance and motion.advance(now):
+        if self.motion.advance(now):
             for group in self.groups:
-                if group.stage.state in SETTLING and motion.standstill(group):
+                if group.stage.settling and self.motion.standstill(group):
                     self._follow(group, group.stage.settle())
-            if now >= self.health.warm_at - 1e-9:  # warm() decides (its times are sums)
-                self.health.warm(now)
+            self.health.warm(now)
 
     def write_hook(self, index: int, subindex: int,
                    var: od.ODVariable) -> Callable[[bytes, bool], None] | None:
@@ -394,10 +392,10 @@ class SimulatedDrive:
         if not shapes and writer is None:
             return None
         signed = var.data_type in SIGNED_TYPES
-        clock, motion = self.clock, self.motion
+        clock = self.clock
 
         def hook(data: bytes, changed: bool) -> None:
-            if changed and shapes and clock.now() > motion.last_advance:
+            if changed and shapes:
                 self.advance(clock.now())  # the old value applied until now
             if writer is not None:
                 writer(int.from_bytes(data, "little", signed=signed))
@@ -452,9 +450,7 @@ class SimulatedDrive:
             self.comm.emcy(EMCY_NO_ERROR, 0)  # error reset
 
     def _on_controlword(self, group: AxisGroup, value: int) -> None:
-        now = self.clock.now()
-        if now > self.motion.last_advance:
-            self.advance(now)
+        self.advance(self.clock.now())
         reaction = group.stage.write_controlword(value)
         if reaction is not _NO_REACTION:
             self._follow(group, reaction)

@@ -82,7 +82,6 @@ class DriveHealth:
         self.temperature_c = [model.ambient_c] * len(self.axes)
         self.following_error: list[int | None] = [None] * len(self.axes)
         self._warmed_at = start
-        self.warm_at = start + WARM_EVERY_S  # warm() integrates from about then on
 
     # ------------------------------------------------------------ the values (SI)
 
@@ -115,7 +114,6 @@ class DriveHealth:
         if dt < WARM_EVERY_S:
             return
         self._warmed_at = now
-        self.warm_at = now + WARM_EVERY_S
         for ax in self.axes:
             k = ax.number
             self.temperature_c[k] = electrical.temperature_after(

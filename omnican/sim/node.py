@@ -310,7 +310,7 @@ class SimNode:
             if (self.frozen or self.nmt != _OPERATIONAL
                     or (self.frame_loss and self._lost())):
                 return
-            now = self.clock.now() if self.clock.lockstep else self._frame_time(timestamp)
+            now = self._frame_time(timestamp)
             self.app.advance(now)
             self.pdos.sync(now)
 

@@ -119,10 +119,7 @@ class ProcessData:
             for cob, payload in pending.items():
                 rpdo = rpdos.get(cob)
                 if rpdo is not None:
-                    applier = self._appliers.get(id(rpdo))
-                    if applier is None:
-                        applier = self._appliers[id(rpdo)] = self._applier(rpdo)
-                    applier(payload)
+                    self.apply(rpdo, payload)
         for tpdo, make in self._on_sync:
             if tpdo.trans_type == 0:  # acyclic: on the SYNC after a change
                 data = make()

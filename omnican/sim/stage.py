@@ -33,7 +33,7 @@ STAY_IN_QUICK_STOP = frozenset({5, 6, 7, 8})
 _STATE_BITS: dict[int, int] = {id(s): cia402.state_bits(s) for s in State if s is not State.UNKNOWN}
 _POWERED = (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
 _FAULTED = (State.FAULT, State.FAULT_REACTION_ACTIVE)
-SETTLING = (State.FAULT_REACTION_ACTIVE, State.QUICK_STOP_ACTIVE)
+_SETTLING = (State.FAULT_REACTION_ACTIVE, State.QUICK_STOP_ACTIVE)
 
 
 class Reaction(enum.Enum):
@@ -79,7 +79,7 @@ class PowerStage:
     @property
     def settling(self) -> bool:
         """In a state that ends once the motors stand still (see :meth:`settle`)."""
-        return self.state in SETTLING
+        return self.state in _SETTLING
 
     def statusword(self) -> int:
         """The bits of 6041h the device control function owns: the state (0-6),
