@@ -8,8 +8,6 @@ at the first heartbeat it receives, and again after each boot.
 
 from __future__ import annotations
 
-import math
-
 from canopen import objectdictionary as od
 
 from omnican.cia301 import CONSUMER_HEARTBEAT_TIME, MAX_NODE_ID, PRODUCER_HEARTBEAT_TIME
@@ -26,9 +24,6 @@ class Heartbeat:
         self.timeouts: dict[int, float] = {}  # 1016h: producer node id -> timeout s
         self._seen: dict[int, float] = {}  # producer -> when last heard
         self._lost: set[int] = set()
-        # No producer can have timed out before this (s): the node's every-tick check
-        # asks expired() only from then on.
-        self.next_expiry = math.inf
 
     def load(self, dictionary: od.ObjectDictionary, get_data: Getter) -> list[int]:
         """Take 1017h and 1016h from the dictionary; returns the producers consumed."""
@@ -45,14 +40,12 @@ class Heartbeat:
                     self.timeouts[producer] = ms / 1000.0
         self._seen = {p: t for p, t in self._seen.items() if p in self.timeouts}
         self._lost &= set(self.timeouts)
-        self._reschedule()
         return list(self.timeouts)
 
     def restart(self) -> None:
         """After a boot a consumer watches from the next heartbeat it receives, not from
         one it heard before (a host that ran earlier)."""
         self._seen, self._lost = {}, set()
-        self._reschedule()
 
     def due(self, now: float) -> bool:
         """Time for the next heartbeat."""
@@ -61,10 +54,10 @@ class Heartbeat:
     def heard(self, producer: int, now: float) -> bool:
         """A consumed producer's heartbeat arrived; True if it had been lost."""
         self._seen[producer] = now
-        was_lost = producer in self._lost
-        self._lost.discard(producer)
-        self._reschedule()
-        return was_lost
+        if producer in self._lost:
+            self._lost.discard(producer)
+            return True
+        return False
 
     def expired(self, now: float) -> list[int]:
         """The producers whose heartbeat has just timed out (each reported once)."""
@@ -76,11 +69,4 @@ class Heartbeat:
             if now - seen > timeout:
                 self._lost.add(producer)
                 lost.append(producer)
-        if lost:
-            self._reschedule()
         return lost
-
-    def _reschedule(self) -> None:
-        self.next_expiry = min((seen + self.timeouts[p] for p, seen in self._seen.items()
-                                if p in self.timeouts and p not in self._lost),
-                               default=math.inf)

@@ -62,7 +62,6 @@ logger = logging.getLogger(__name__)
 
 SEND_WARNING_EVERY_S = 5.0  # a refused send is logged at most this often
 _OPERATIONAL = int(NmtState.OPERATIONAL)  # a plain name: NmtState.X is a descriptor call
-_EXPIRY_SLACK_S = 1e-6  # Heartbeat.expired decides; next_expiry is a sum, rounded
 
 Key = tuple[int, int]
 Reader = Callable[[], int]
@@ -355,12 +354,11 @@ class SimNode:
         heartbeat = self.heartbeat
         if heartbeat.due(now):
             self._send_heartbeat(now)
-        if now >= heartbeat.next_expiry - _EXPIRY_SLACK_S:
-            for producer in heartbeat.expired(now):
-                logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
-                            producer)
-                self.emcy(EMCY_HEARTBEAT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
-                self.app.abort_connection()
+        for producer in heartbeat.expired(now):
+            logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
+                        producer)
+            self.emcy(EMCY_HEARTBEAT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
+            self.app.abort_connection()
         if self.nmt == _OPERATIONAL:
             self.pdos.events(now)
 
