@@ -18,10 +18,11 @@ ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b[()][A-Za-z0-9]|\x1b[=>]")
 
 
 class Pty:
-    """``python -m omnican ARGS`` in a pseudo-terminal of 120 x 40 that is its controlling
-    terminal (so Ctrl-C on it sends SIGINT)."""
+    """``python -m omnican ARGS`` (or the command ``argv``) in a pseudo-terminal of
+    120 x 40 that is its controlling terminal (so Ctrl-C on it sends SIGINT)."""
 
-    def __init__(self, *args: str, columns: int = 120, lines: int = 40) -> None:
+    def __init__(self, *args: str, columns: int = 120, lines: int = 40,
+                 argv: list[str] | None = None) -> None:
         self.master, slave = os.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", lines, columns, 0, 0))
         env = {**os.environ, "PYTHONPATH": str(ROOT), "TERM": "xterm-256color",
@@ -31,7 +32,7 @@ class Pty:
             os.setsid()
             fcntl.ioctl(0, termios.TIOCSCTTY, 0)
 
-        self.proc = subprocess.Popen([sys.executable, "-m", "omnican", *args],
+        self.proc = subprocess.Popen(argv or [sys.executable, "-m", "omnican", *args],
                                      stdin=slave, stdout=slave, stderr=slave, env=env,
                                      preexec_fn=controlling_terminal)  # noqa: PLW1509
         os.close(slave)

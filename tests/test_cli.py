@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import re
@@ -380,36 +379,16 @@ def test_teleop_keeps_ctrl_c_from_discarding_what_it_prints_and_gives_the_flag_b
 def test_drive_in_the_background_of_a_terminal_runs_to_the_end() -> None:
     """A background job that changes its terminal's settings is stopped (SIGTTOU): the
     NOFLSH above is set only by a program in the terminal's foreground."""
-    master, slave = os.openpty()
-
-    def controlling_terminal() -> None:
-        os.setsid()
-        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
-
     job = (f"set -m; {sys.executable} -m omnican drive --sim --vx 0.1 --duration 0.3 & "
            "wait $!; echo rc=$?")
-    proc = subprocess.Popen(["bash", "-c", job], stdin=slave, stdout=slave, stderr=slave,
-                            env={**os.environ, "PYTHONPATH": str(terminal.ROOT)},
-                            preexec_fn=controlling_terminal)  # noqa: PLW1509
-    os.close(slave)
-    out = b""
+    term = terminal.Pty(argv=["bash", "-c", job])
     try:
-        end = time.monotonic() + 60
-        while time.monotonic() < end and b"rc=" not in out:
-            ready, _, _ = select.select([master], [], [], 0.1)
-            if ready:
-                try:
-                    out += os.read(master, 65536)
-                except OSError:
-                    break
-        text = out.decode(errors="replace")
+        assert term.exit_code(timeout=60) == 0
+        text = term.read(0.2)
         assert "rc=0" in text, text[-2000:]
         assert re.search(r"^pose x=\S+ y=\S+ theta=\S+", text, re.M)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(timeout=10)
-        os.close(master)
+        term.close()
 
 
 @pytest.mark.parametrize("gap_s", [0.05, 0.3])
