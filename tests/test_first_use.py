@@ -725,7 +725,7 @@ def test_ros2_records_the_bus(tmp_path: Path) -> None:
 
     log = tmp_path / "ros2.log"
     proc = subprocess.run(
-        [sys.executable, "-m", "omnican", "ros2", "--sim", "--localhost", "--domain-id", "96",
+        [sys.executable, "-m", "omnican", "ros2", "--sim", "--localhost", "--domain-id", "95",
          "--duration", "1.5", "--record", str(log)],
         capture_output=True, text=True, env=ENV, timeout=60, check=False, stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stderr
