@@ -80,6 +80,18 @@ class Pty:
                 break
         raise AssertionError(f"{text!r} not on screen:\n{self.read(0.1)[-3000:]}")
 
+    def wait_for_any(self, texts: tuple[str, ...], timeout: float = 15.0) -> str:
+        """The first of ``texts`` to show on the screen."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            screen = self.read(0.1)
+            for text in texts:
+                if text in screen:
+                    return text
+            if self.proc.poll() is not None:
+                break
+        raise AssertionError(f"none of {texts!r} on screen:\n{self.read(0.1)[-3000:]}")
+
     def exit_code(self, timeout: float = 15.0) -> int | None:
         """Wait for the program to end, reading the screen so it never blocks on output."""
         end = time.monotonic() + timeout

@@ -45,8 +45,8 @@ def test_drive_json_under_sim(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_drive_polar_form(capsys: pytest.CaptureFixture[str]) -> None:
     # 0.3 m/s at 90 deg: straight to the left, at the physical speed (not 2/3 of it).
-    assert main(["drive", "--sim", "--speed", "0.3", "--heading-deg", "90", "--duration", "0.6",
-                 "--json"]) == 0
+    assert main(["drive", "--sim", "--fast", "--speed", "0.3", "--heading-deg", "90",
+                 "--duration", "0.6", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["twist"]["vy"] == pytest.approx(0.3, abs=0.03)
     assert abs(out["pose"]["x"]) < 0.005
@@ -93,7 +93,8 @@ def test_drive_records_the_bus(tmp_path: Path, capsys: pytest.CaptureFixture[str
     import can
 
     log = tmp_path / "run.log"
-    assert main(["drive", "--sim", "--vy", "0.2", "--duration", "0.3", "--record", str(log)]) == 0
+    assert main(["drive", "--sim", "--fast", "--vy", "0.2", "--duration", "0.3",
+                 "--record", str(log)]) == 0
     ids = {m.arbitration_id for m in can.LogReader(str(log))}
     assert {0x80, 0x301, 0x302, 0x303, 0x281, 0x77F} <= ids
 

@@ -192,7 +192,8 @@ def test_a_vendor_config_gets_its_own_frames(tmp_path: Path) -> None:
 def test_cantools_decode_reads_a_drive_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]
                                                  ) -> None:
     log = tmp_path / "run.log"
-    code = main(["drive", "--sim", "--vx", "0.2", "--duration", "0.5", "--record", str(log)])
+    code = main(["drive", "--sim", "--fast", "--vx", "0.2", "--duration", "0.5",
+                 "--record", str(log)])
     assert code == 0
     capsys.readouterr()
     text = log.read_text()

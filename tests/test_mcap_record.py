@@ -51,8 +51,10 @@ def read_all(path: Path) -> tuple[dict[str, list[Any]], dict[str, Any], Any]:
 def test_drive_records_frames_and_ros2_state(tmp_path: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "run.mcap"
-    assert main(["drive", "--sim", "--vx", "0.2", "--vy", "0.1", "--wz", "0.4", "--duration",
-                 "1.0", "--json", "--record", str(path)]) == 0
+    # In simulated time: the point is the file, and a stall of this process beside busy
+    # ones cannot cost the drives the host's heartbeat (seen once).
+    assert main(["drive", "--sim", "--fast", "--vx", "0.2", "--vy", "0.1", "--wz", "0.4",
+                 "--duration", "1.0", "--json", "--record", str(path)]) == 0
     result = json.loads(capsys.readouterr().out)
     topics, info, (header, attachments, metadata) = read_all(path)
     assert header.profile == "ros2"
