@@ -336,6 +336,10 @@ def test_teleop_wheel_reads_online_when_its_heartbeat_is_back(sim_port: int) -> 
 def test_teleop_at_80x24_keeps_the_newest_events_in_view(
         served: tuple[SimulatedBase, Path]) -> None:
     sim, toml = served
+    # The point is the layout: a stall of either process (beside busy ones) must not
+    # cost the drives the host's heartbeat first (seen once at the default 0.35 s).
+    toml.write_text(toml.read_text().replace('layout = "b21"',
+                                             'layout = "b21"\nheartbeat_timeout_factor = 10.0'))
     term = Pty("teleop", "--config", str(toml), columns=80, lines=24)
     try:
         term.wait_for_frame("RUNNING", timeout=30)
