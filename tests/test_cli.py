@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import json
+import logging
 import os
 import re
 import select
@@ -41,6 +43,25 @@ def test_drive_json_under_sim(capsys: pytest.CaptureFixture[str]) -> None:
     assert out["pose"]["x"] == pytest.approx(out["true_pose"]["x"], abs=0.005)
     assert out["twist"]["vx"] == pytest.approx(0.3, abs=0.03)
     assert out["duration_s"] == pytest.approx(0.6, abs=0.1)
+
+
+def test_main_gives_the_caller_its_logging_back(capsys: pytest.CaptureFixture[str]) -> None:
+    """A program (or a test) that calls main() keeps its own logging: no handler of the
+    command's is left writing to a stderr that may be gone, and the levels are as set."""
+    root = logging.getLogger()
+    mine = logging.StreamHandler(io.StringIO())
+    root.addHandler(mine)
+    before = (list(root.handlers), root.level, logging.getLogger("canopen").level)
+    try:
+        assert main(["-v", "drive", "--sim", "--fast", "--vx", "0.1", "--duration", "0.2"]) == 0
+        assert "every drive enabled" in capsys.readouterr().err  # -v logged, to stderr
+        after = (list(root.handlers), root.level, logging.getLogger("canopen").level)
+        assert after == before
+        logging.getLogger("omnican").warning("after main")
+        assert "after main" in mine.stream.getvalue()
+        assert "after main" not in capsys.readouterr().err
+    finally:
+        root.removeHandler(mine)
 
 
 def test_drive_polar_form(capsys: pytest.CaptureFixture[str]) -> None:

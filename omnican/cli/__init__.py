@@ -25,7 +25,7 @@ from omnican.cli.common import (
     UsageError,
     fail,
     interrupted_exit,
-    setup_logging,
+    logging_for_command,
 )
 from omnican.extras import needs
 
@@ -119,21 +119,21 @@ def _main(words: list[str]) -> int:
     if not hasattr(args, "func"):
         parser.print_help(sys.stderr)
         return EXIT_USAGE
-    setup_logging(args.verbose + getattr(args, "command_verbose", 0))
-    why = unavailable(command) if command in COMMANDS else None
-    if why is not None:  # its help shows; running it needs the extra
-        return fail(why, EXIT_USAGE)
-    from omnican.errors import ConfigError, OmnicanError
+    with logging_for_command(args.verbose + getattr(args, "command_verbose", 0)):
+        why = unavailable(command) if command in COMMANDS else None
+        if why is not None:  # its help shows; running it needs the extra
+            return fail(why, EXIT_USAGE)
+        from omnican.errors import ConfigError, OmnicanError
 
-    try:
-        code: int = args.func(args)
-        return code
-    except (ConfigError, UsageError) as exc:
-        return fail(str(exc), EXIT_USAGE)
-    except OmnicanError as exc:
-        return fail(str(exc), EXIT_FAILURE)
-    except BrokenPipeError:  # output piped into head & co.
-        return 0
+        try:
+            code: int = args.func(args)
+            return code
+        except (ConfigError, UsageError) as exc:
+            return fail(str(exc), EXIT_USAGE)
+        except OmnicanError as exc:
+            return fail(str(exc), EXIT_FAILURE)
+        except BrokenPipeError:  # output piped into head & co.
+            return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -373,6 +373,27 @@ def progress_bar(total_s: float) -> Iterator[ProgressBar]:
         bar.close()
 
 
+_QUIETED = ("canopen", "can", "canopen.objectdictionary", "canopen.sdo.client")
+
+
+@contextlib.contextmanager
+def logging_for_command(verbosity: int, stream: Any = None) -> Iterator[None]:
+    """:func:`setup_logging` for one command, and the logging as it was afterwards: a
+    program calling :func:`omnican.cli.main` keeps its own handlers and levels, and no
+    handler is left writing to a stream that has gone (a test's captured stderr)."""
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    levels = {name: logging.getLogger(name).level for name in _QUIETED}
+    setup_logging(verbosity, stream)
+    try:
+        yield
+    finally:
+        root.handlers[:] = handlers
+        root.setLevel(level)
+        for name, old in levels.items():
+            logging.getLogger(name).setLevel(old)
+
+
 def setup_logging(verbosity: int, stream: Any = None) -> None:
     """Warnings by default; -v info; -vv debug (canopen's chatty INFO only at -vv)."""
     level = logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
