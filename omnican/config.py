@@ -63,6 +63,9 @@ def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float) -> Key:
 
 _NUM = (int, float)
 
+#: The highest chassis.rt_priority: Linux's highest SCHED_FIFO priority.
+MAX_RT_PRIORITY = 99
+
 #: Values of chassis.pdo_mapping (what omnican.pdoplan does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
 
@@ -84,6 +87,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                       "(0, 120, -120 deg); omit and give angle_deg per wheel instead"),
         "base_radius": Key(_NUM, None, "m, base centre to wheel contact point", required=True),
         "rate_hz": Key(_NUM, 100.0, "control loop and SYNC rate"),
+        "rt_priority": Key((int,), 50, "SCHED_FIFO priority 1-99 of the control loop thread "
+                           "(its thread alone) where the process may: root, CAP_SYS_NICE or "
+                           "RLIMIT_RTPRIO; elsewhere normal priority and a note; 0: never"),
         "cmd_timeout_s": Key(_NUM, 0.5, "no command for this long -> controlled stop"),
         "max_wheel_speed": Key(_NUM, 1.0, "m/s at the rim; commands are desaturated to it"),
         "max_speed": Key(_NUM, math.inf, "m/s, body linear speed (vector norm)"),
@@ -357,6 +363,7 @@ class ChassisSettings:
     layout: str | None = _CHASSIS["layout"]
     base_radius: float = _CHASSIS["base_radius"]
     rate_hz: float = _CHASSIS["rate_hz"]
+    rt_priority: int = _CHASSIS["rt_priority"]
     cmd_timeout_s: float = _CHASSIS["cmd_timeout_s"]
     max_wheel_speed: float = _CHASSIS["max_wheel_speed"]
     max_speed: float = _CHASSIS["max_speed"]
@@ -590,6 +597,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     rate = r.positive("chassis.rate_hz", c["rate_hz"])
     if rate > 5000:
         raise r.fail("chassis.rate_hz", f"must be at most 5000 Hz, got {rate}")
+    if not 0 <= c["rt_priority"] <= MAX_RT_PRIORITY:
+        raise r.fail("chassis.rt_priority", f"must be 0 (normal priority) or a SCHED_FIFO "
+                     f"priority 1-{MAX_RT_PRIORITY}, got {c['rt_priority']}")
     for key in ("cmd_timeout_s", "heartbeat_timeout_factor", "sdo_timeout_s",
                 "boot_timeout_s", "enable_timeout_s", "health_rate_hz", "tracking_time_s",
                 "tracking_lag_s"):

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from omnican.bus import CanBus
+from omnican.chassis import realtime
 from omnican.chassis.cycle import ControlCycle
 from omnican.chassis.health import HealthMonitor
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
@@ -72,7 +73,8 @@ class Chassis:
         sup.monitor.speeds = loop.wheel_speeds
         self._runner: ThreadRunner | LockstepRunner = (
             LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
-            if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed))
+            if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed,
+                                                cfg.chassis.rt_priority))
         loop.runner = self._runner
         self._own_sinks: list[Any] = []  # telemetry sinks open() made (a recording)
         self._limits_lock = threading.Lock()
@@ -80,6 +82,7 @@ class Chassis:
         self._closed = False
         self._close_lock = threading.Lock()
         self._guards_signals = False
+        self._froze_heap = False
 
     def _call_soon(self, fn: Any) -> None:
         self._loop.call_soon(fn)
@@ -163,6 +166,9 @@ class Chassis:
         self._runner.start()
         self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
         self._supervisor.started()
+        if not self._lockstep:  # what start-up made is out of the collector's way
+            realtime.freeze_startup()
+            self._froze_heap = True
         logger.info("every drive enabled, %.2f s after the bus opened", self.clock.now() - started)
 
     def _wait_enabled(self, timeout: float, what: str) -> None:
@@ -352,6 +358,9 @@ class Chassis:
                 if self._guards_signals:
                     self._guards_signals = False
                     guard.release()
+                if self._froze_heap:
+                    self._froze_heap = False
+                    realtime.thaw()
         powered = sup.still_powered()
         if powered:
             logger.error("base closed; not confirmed disabled: %s", ", ".join(powered))

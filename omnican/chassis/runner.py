@@ -1,7 +1,8 @@
 """What runs the control cycle: a real-time thread of its own, or the simulated clock.
 
 :class:`ThreadRunner` calls the cycle every period on a thread, sleeping between cycles
-and counting the cycles that start late; :class:`LockstepRunner` registers it with a
+and counting the cycles that start late (at real-time priority where the process may:
+:mod:`omnican.chassis.realtime`); :class:`LockstepRunner` registers it with a
 :class:`~omnican.clock.SimClock`, whose ``sleep`` calls it on the caller's thread. Both
 keep the base stopping whatever a cycle raised: ``on_error`` is told, the next cycle
 runs.
@@ -14,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable
 
+from omnican.chassis.realtime import make_realtime
 from omnican.clock import Clock
 
 logger = logging.getLogger("omnican.chassis")
@@ -24,10 +26,14 @@ Cycle = Callable[[float], None]
 
 
 class ThreadRunner:
-    """The control cycle on a thread of its own, every ``period_s`` (real time)."""
+    """The control cycle on a thread of its own, every ``period_s`` (real time); the
+    thread runs SCHED_FIFO at ``rt_priority`` where the process may (0: never)."""
 
-    def __init__(self, period_s: float, cycle: Cycle, on_error: Callable[[], None]) -> None:
+    def __init__(self, period_s: float, cycle: Cycle, on_error: Callable[[], None],
+                 rt_priority: int = 0) -> None:
         self.period_s = period_s
+        self.rt_priority = rt_priority
+        self.realtime = False  # whether the thread got its real-time priority
         self.cycle = cycle  # what it calls each period (a benchmark may wrap it)
         self._on_error = on_error
         self.late = 0  # cycles that started more than a fifth of a period late
@@ -48,6 +54,8 @@ class ThreadRunner:
             self.thread.join(timeout=timeout_s)
 
     def _run(self) -> None:
+        if self.rt_priority:  # the thread's own: the threads it starts run normally
+            self.realtime = make_realtime(self.rt_priority)
         period = self.period_s
         on_error = self._on_error
         next_t = time.monotonic()
@@ -89,6 +97,7 @@ class LockstepRunner:
 
     late = 0  # simulated time is never late
     cpu_s = 0.0  # no thread of its own
+    realtime = False  # nor a priority
 
     def __init__(self, clock: Clock, period_s: float, cycle: Cycle,
                  on_error: Callable[[], None]) -> None:
