@@ -299,6 +299,7 @@ _CHASSIS_VALUES = {
                                                                 "max_angular_speed")},
     "host_node_id": st.integers(4, 127),
     "sdo_retries": st.integers(0, 20),
+    "rt_priority": st.integers(0, 99),
     "pdo_mapping": st.sampled_from(["try", "eds", "sdo"]),
     "mode": st.sampled_from(["pv", "csv", "vl"]),
 }
