@@ -19,6 +19,7 @@ import pytest
 
 from omnican import Chassis, ConfigError, load_config
 from omnican.chassis import realtime
+from omnican.chassis.runner import ThreadRunner
 from omnican.sim import SimulatedBase
 
 from .helpers import sim_config, wait_for
@@ -62,6 +63,15 @@ def fifo_threads(pid: int | str = "self") -> dict[int, int]:
         except ProcessLookupError:  # it ended meanwhile
             continue
     return out
+
+
+def loop_thread(base: Chassis) -> int:
+    """The native id of ``base``'s loop thread."""
+    runner = base._runner
+    assert isinstance(runner, ThreadRunner)
+    native_id = runner.thread.native_id
+    assert native_id is not None
+    return native_id
 
 
 @pytest.fixture
@@ -129,7 +139,7 @@ def test_the_loop_thread_alone_runs_real_time(channel: str) -> None:
         t.join()
 
     with SimulatedBase.from_config(cfg), Chassis.open(cfg) as base:
-        loop = base._runner.thread.native_id
+        loop = loop_thread(base)
         assert fifo_threads() == {loop: 42}
         assert base._runner.realtime
         base._loop.call_soon(start_child)
@@ -200,7 +210,7 @@ def test_a_process_that_may_not_says_so_once_and_runs(channel: str, note_again: 
             with Chassis.open(cfg) as base:
                 assert base.status.enabled
                 assert not base._runner.realtime
-                assert realtime.policy_of(base._runner.thread.native_id) == os.SCHED_OTHER
+                assert realtime.policy_of(loop_thread(base)) == os.SCHED_OTHER
     assert len(calls) == 2 and all(p & FIFO for p in calls)  # each base asked
     notes = [r for r in caplog.records if "control loop at normal priority" in r.getMessage()]
     assert len(notes) == 1
