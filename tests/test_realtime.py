@@ -227,10 +227,12 @@ def test_a_process_that_may_not_says_so_once_and_runs(channel: str, note_again: 
 def test_startup_is_frozen_out_of_the_collector_while_the_base_runs(channel: str) -> None:
     """Once the base is enabled what start-up made is frozen (a collection while the loop
     runs walks only what came since); closed, it is given back to the collector."""
-    assert gc.get_freeze_count() == 0
+    before = gc.get_freeze_count()  # 0 unless something else froze the heap
+    ours = before == 0 and realtime._frozen_by_us == 0
     cfg = sim_config(channel)
     with SimulatedBase.from_config(cfg), Chassis.open(cfg) as base:
-        frozen = gc.get_freeze_count()
-        assert frozen > 10_000  # the object dictionaries, the PDO maps, the libraries
+        # the object dictionaries, the PDO maps, the libraries
+        assert gc.get_freeze_count() > before + 10_000
         assert base.status.enabled
-    assert gc.get_freeze_count() == 0
+    if ours:
+        assert gc.get_freeze_count() == 0
