@@ -109,6 +109,7 @@ def run_host(args: argparse.Namespace) -> None:
 
         runner.cycle = timed
         gc.callbacks.append(on_gc)
+        count0 = gc.get_count()[0]
         late0, cpu0 = runner.late, runner.cpu_s
         t0 = time.monotonic()
         end = t0 + args.duration
@@ -124,9 +125,20 @@ def run_host(args: argparse.Namespace) -> None:
             base.set_velocity(0.2, 0.0, 0.5)
             time.sleep(0.02)
         elapsed = time.monotonic() - t0
-        gc.callbacks.remove(on_gc)
         runner.cycle = inner
-        late, cpu = runner.late - late0, runner.cpu_s - cpu0
+        gc.callbacks.remove(on_gc)
+        late, cpu, trips = runner.late - late0, runner.cpu_s - cpu0, emcy[0]
+        # Net container objects made over the run by every thread (while none was
+        # collected: the collector's own count), then what a full collection of this heap
+        # costs, the longest a gen-2 pause could be (after the figures above: it holds the
+        # loop up meanwhile).
+        allocated = gc.get_count()[0] - count0 if not pauses[0] else None
+        walked, full, full_cpu = len(gc.get_objects()), [], []
+        for _ in range(3):
+            t, c = time.perf_counter(), time.thread_time()
+            gc.collect()
+            full.append(time.perf_counter() - t)
+            full_cpu.append(time.thread_time() - c)
         realtime = runner.realtime
     period = 1.0 / args.rate
     gaps.sort()
@@ -138,11 +150,15 @@ def run_host(args: argparse.Namespace) -> None:
         "p999_gap_ms": round(1000 * gaps[int(0.999 * (len(gaps) - 1))], 2) if gaps else None,
         "gaps_over_2_periods": sum(g > 2 * period for g in gaps),
         "gaps_over_100ms": sum(g > 0.1 for g in gaps),
-        "emcy_8130": emcy[0], "stops": sum(stops.values()), "reasons": dict(stops),
+        "emcy_8130": trips, "stops": sum(stops.values()), "reasons": dict(stops),
         "loop_cpu_us_per_cycle": round(1e6 * cpu / max(len(gaps), 1), 1),
         "gc_collections": [len(pauses[g]) for g in (0, 1, 2)],
         "gc_max_pause_ms": [round(1000 * max(pauses[g], default=0.0), 3) for g in (0, 1, 2)],
         "gc_total_pause_ms": round(1000 * sum(sum(p) for p in pauses.values()), 1),
+        "gc_net_allocations": allocated,
+        "gc_full_collection_ms": [round(1000 * min(full), 2), round(1000 * max(full), 2)],
+        "gc_full_collection_cpu_ms": round(1000 * min(full_cpu), 2),
+        "gc_tracked_objects": walked,
         "load": [round(x, 1) for x in os.getloadavg()],
     }), flush=True)
 
@@ -225,6 +241,10 @@ def table(results: list[dict[str, Any]], args: argparse.Namespace) -> str:
         row("GC collections gen 0/1/2", lambda r: "/".join(map(str, r["gc_collections"]))),
         row("longest GC pause gen 0/1/2", lambda r: "/".join(map(str, r["gc_max_pause_ms"]))
             + " ms"),
+        row("net container allocations (run)", lambda r: r["gc_net_allocations"]),
+        row("a full collection (gc.collect: wall min-max of 3; CPU)", lambda r: "-".join(
+            map(str, r["gc_full_collection_ms"])) + f" ms; {r['gc_full_collection_cpu_ms']} ms "
+            f"({r['gc_tracked_objects']:,} objects)"),
         row("load average at the end", lambda r: r["load"][0]),
     ]
     return "\n".join(rows)
