@@ -106,6 +106,44 @@ def test_a_wheel_turning_with_a_zero_target_is_stopped_and_its_drive_disabled(ri
     assert base.status.enabled
 
 
+def test_a_stopped_base_disables_and_names_a_wheel_that_turns(rig: Rig) -> None:
+    """Issue 30.1: held stopped (a reboot latched it), wheel 0 is pushed. Its drive, still
+    enabled, is disabled within the longest stop ramp and the check's time, and the stop
+    names it after the first reason."""
+    clock, sim, base = rig
+    clock.sleep(0.5)
+    sim.drives[2].reboot()
+    clock.sleep(2)
+    assert base.status.stopped_reason == "node 3 rebooted"
+    assert sim.drives[0].state() is State.OPERATION_ENABLED  # held at zero, energised
+    sim.drives[0].push(0.2)
+    t0 = clock.now()
+    assert wait_for(lambda: sim.drives[0].state() is State.SWITCH_ON_DISABLED, 5.0, clock=clock)
+    assert clock.now() - t0 < 2.0  # 0.88 s stop ramp + 0.3 s lag + 0.5 s, and a check
+    reason = base.status.stopped_reason or ""
+    assert reason.startswith("node 3 rebooted; wheel 0 (node 1) turns at +0.20 m/s while the "
+                             "base is stopped"), reason
+    assert reason.endswith("its drive disabled")
+    assert sim.drives[1].state() is State.OPERATION_ENABLED  # the still one is left alone
+    sim.drives[0].free()
+    base.recover()
+    drive_for(base, 0.5, vx=0.3)
+    assert base.status.stopped_reason is None and base.twist.vx > 0.2
+
+
+def test_a_stop_from_full_speed_names_no_wheel(rig: Rig) -> None:
+    """The wheels of a base stopped at full speed (a drive rebooted: the others' targets
+    drop to zero at once, their own ramps stop them) are not taken for runaways."""
+    clock, sim, base = rig
+    drive_for(base, 2.5, wz=9.0)  # every wheel at its limit
+    assert min(abs(w.actual_speed) for w in base.wheels) > 0.9
+    sim.drives[2].reboot()
+    clock.sleep(4.0)
+    assert base.status.stopped_reason == "node 3 rebooted"
+    assert [sim.drives[i].state() for i in (0, 1)] == [State.OPERATION_ENABLED] * 2
+    assert still(sim)
+
+
 def test_a_following_error_the_drive_reports_stops_the_base(rig: Rig) -> None:
     _clock, sim, base = rig
     drive_for(base, 0.5, vx=0.2)

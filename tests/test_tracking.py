@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from omnican.tracking import TrackingDetector
+from omnican.tracking import HOLD_LOAD_PCT, StandstillWatch, TrackingDetector
 
 DT = 0.02  # the health checks' period (50 Hz)
 ERROR, TIME_S, LAG_S = 0.1, 0.5, 0.3
@@ -110,3 +110,55 @@ def test_a_wheel_that_drops_out_starts_over() -> None:
 def test_a_detector_that_never_trips_when_the_error_is_infinite() -> None:
     d = TrackingDetector(1, math.inf, TIME_S, LAG_S)
     assert run([0.5] * 100, [0.0] * 100, detector=d) == []
+
+
+# ---------------------------------------------------------------- a stopped base
+
+HOLD_S = 1.7
+
+
+def watch_run(measured: list[float], loads: list[float | None] | None = None,
+              watched: bool = True, fresh: bool = True) -> list[tuple[float, object]]:
+    w = StandstillWatch(1, ERROR, HOLD_S)
+    loads = loads if loads is not None else [None] * len(measured)
+    out = []
+    for k, (m, load) in enumerate(zip(measured, loads, strict=True)):
+        out += [(k * DT, f) for f in w.update(k * DT, [watched], [m], [fresh], [load])]
+    return out
+
+
+@given(speed=st.floats(-2.0, 2.0), decel=st.floats(0.6, 50.0), extra=st.integers(0, 200),
+       load=st.one_of(st.none(), st.floats(-0.99 * HOLD_LOAD_PCT, 0.99 * HOLD_LOAD_PCT)))
+def test_a_wheel_that_stops_within_the_hold_time_is_never_named(
+        speed: float, decel: float, extra: int, load: float | None) -> None:
+    """A wheel slowing from any speed to a standstill on a ramp that ends within the hold
+    time (its length capped to it), its drive below its rating, is never named."""
+    steps = max(1, min(round(abs(speed) / decel / DT), round(HOLD_S / DT) - 1))
+    ramp = [speed * (1 - k / steps) for k in range(steps + 1)] + [0.0] * extra
+    assert watch_run(ramp, [load] * len(ramp)) == []
+
+
+@given(speed=st.floats(ERROR * 1.01, 2.0), sign=st.sampled_from([-1.0, 1.0]))
+def test_a_wheel_that_keeps_turning_is_named_after_the_hold_time(speed: float,
+                                                                 sign: float) -> None:
+    found = watch_run([sign * speed] * (round(HOLD_S / DT) + 3))
+    assert found and found[0][0] == pytest.approx(HOLD_S)
+    f = found[0][1]
+    assert f.measured == sign * speed and f.load_pct is None  # type: ignore[attr-defined]
+    assert "turns at" in f.describe(2) and "node 2" in f.describe(2)  # type: ignore[attr-defined]
+
+
+@given(load=st.floats(HOLD_LOAD_PCT, 400.0), sign=st.sampled_from([-1.0, 1.0]))
+def test_a_drive_pushing_against_a_zero_target_is_named(load: float, sign: float) -> None:
+    n = round(HOLD_S / DT) + 3
+    found = watch_run([0.0] * n, [sign * load] * n)
+    assert found and found[0][1].load_pct == load  # type: ignore[attr-defined]
+    assert "energised at" in found[0][1].describe(1)  # type: ignore[attr-defined]
+
+
+def test_an_unwatched_or_stale_wheel_is_never_named() -> None:
+    n = round(HOLD_S / DT) * 3
+    assert watch_run([1.0] * n, watched=False) == []
+    assert watch_run([1.0] * n, fresh=False) == []
+    # A break in what it does starts the time again.
+    assert watch_run(([1.0] * (round(HOLD_S / DT) - 1) + [0.0]) * 3) == []
