@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from omnican import Chassis, default_config
+from omnican.cia402 import State
 from omnican.errors import DriveError
 
 from .helpers import drive_for, wait_for
@@ -128,3 +129,29 @@ def test_drive_json_names_a_jammed_wheel_and_lists_the_wheels(sim: tuple[SimProc
     assert [w["node_id"] for w in result["wheels"]] == [1, 2, 3]
     assert all(w["voltage_v"] is not None for w in result["wheels"])
     assert "Traceback" not in err
+
+
+def test_a_stopped_base_disables_a_pushed_wheel_across_processes(
+        sim: tuple[SimProcess, int]) -> None:
+    """Issue 30.1 as it was found: ``reboot 3`` latches a stop, then ``push 1 0.2`` in the
+    simulator's console. The base (this process) disables wheel 0's drive and names it."""
+    process, port = sim
+    cfg = default_config(bus=remote(port))
+    with Chassis.open(cfg) as base:
+        drive_for(base, 0.5, vx=0.3)
+        base.stop()
+        process.command("reboot 3")
+        assert wait_for(lambda: base.status.stopped_reason == "node 3 rebooted", 5.0)
+        assert wait_for(lambda: base.wheels[2].state is State.SWITCH_ON_DISABLED, 10.0)
+        assert base.wheels[0].state is State.OPERATION_ENABLED
+        process.command("push 1 0.2")
+        assert wait_for(lambda: base.wheels[0].state is State.SWITCH_ON_DISABLED, 15.0)
+        reason = base.status.stopped_reason or ""
+        assert reason.startswith("node 3 rebooted; wheel 0 (node 1) turns at") or \
+            reason.startswith("node 3 rebooted; wheel 0 (node 1) drive energised at"), reason
+        assert reason.endswith("its drive disabled")
+        assert base.wheels[1].state is State.OPERATION_ENABLED
+        process.command("free 1")
+        base.recover()
+        drive_for(base, 0.5, vx=0.3)
+        assert base.status.stopped_reason is None and base.twist.vx > 0.2

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import pytest
 from hypothesis import given
@@ -18,7 +19,7 @@ def run(targets: list[float], measured: list[float], fresh: bool = True, running
         detector: TrackingDetector | None = None) -> list[tuple[float, object]]:
     """One wheel through the detector; (time, finding) of each finding."""
     d = detector or TrackingDetector(1, ERROR, TIME_S, LAG_S)
-    out = []
+    out: list[tuple[float, object]] = []
     for k, (t, m) in enumerate(zip(targets, measured, strict=True)):
         for finding in d.update(k * DT, [t], [m], [fresh], running):
             out.append((k * DT, finding))
@@ -117,11 +118,11 @@ def test_a_detector_that_never_trips_when_the_error_is_infinite() -> None:
 HOLD_S = 1.7
 
 
-def watch_run(measured: list[float], loads: list[float | None] | None = None,
+def watch_run(measured: list[float], loads: Sequence[float | None] | None = None,
               watched: bool = True, fresh: bool = True) -> list[tuple[float, object]]:
     w = StandstillWatch(1, ERROR, HOLD_S)
     loads = loads if loads is not None else [None] * len(measured)
-    out = []
+    out: list[tuple[float, object]] = []
     for k, (m, load) in enumerate(zip(measured, loads, strict=True)):
         out += [(k * DT, f) for f in w.update(k * DT, [watched], [m], [fresh], [load])]
     return out
