@@ -201,7 +201,10 @@ class HealthMonitor:
         battery = self.battery
         level = None
         if battery is not None:
-            if battery.update(now, volts) and not sup.closed:
+            battery.update(now, volts)
+            # Held for as long as it lasts, not only when reached: a recover() that cleared
+            # the stop meanwhile is stopped again.
+            if battery.cut and sup.latched is None and not sup.closed:
                 sup.latch(battery.cutoff_reason())
             warning = battery.warning()
             if warning:
@@ -221,7 +224,7 @@ class HealthMonitor:
             if estop.pressed(now):
                 held = f"e-stop pressed ({estop.where})"
                 break
-        if held is not None and self.estop_held is None:
+        if held is not None and (self.estop_held is None or sup.latched is None):
             sup.latch_cause(held)
         elif held is None and self.estop_held is not None:
             logger.warning("e-stop released: recover() starts the base again")
@@ -230,7 +233,7 @@ class HealthMonitor:
 
     def _check_controller(self, sup: Latches) -> None:
         state = self._bus.controller.state
-        if state.bus_off and self.bus_off is None:
+        if state.bus_off and (self.bus_off is None or sup.latched is None):
             self.bus_off = (f"CAN bus-off: the controller left the bus after too many errors "
                             f"({state.describe()}); the interface's restart-ms brings it back")
             sup.latch_cause(self.bus_off)
