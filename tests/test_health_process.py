@@ -155,3 +155,45 @@ def test_a_stopped_base_disables_a_pushed_wheel_across_processes(
         base.recover()
         drive_for(base, 0.5, vx=0.3)
         assert base.status.stopped_reason is None and base.twist.vx > 0.2
+
+
+@pytest.mark.parametrize("meanwhile", ["", "fault 2 0x8130", "reboot 3", "estop on"])
+def test_a_cutoff_reached_during_recover_refuses_it_across_processes(
+        sim: tuple[SimProcess, int], meanwhile: str) -> None:
+    """Issue 30.2 as it was found: the drives' heartbeat EMCYs stopped the base; recover()
+    passed its first check, and before the loop cleared the stop the battery fell below
+    its cutoff (``battery 19``, typed into the simulator's console) and another stop
+    reason came. recover() is refused, and the base does not run."""
+    process, port = sim
+    cfg = default_config(bus=remote(port))
+    with Chassis.open(cfg) as base:
+        drive_for(base, 0.5, vx=0.3)
+        process.command("fault 1 0x8130")
+        keep_driving(base, "node 1 fault", 5.0)
+        monitor = base._supervisor.monitor
+        check = monitor.recover_refused
+        window: list[str | None] = []
+
+        def refused() -> str | None:
+            answer = check()
+            if not window:  # recover()'s first check has answered: now, before the loop
+                window.append(answer)
+                process.command("battery 19")
+                if meanwhile:
+                    process.command(meanwhile)
+                assert wait_for(lambda: monitor.battery is not None and monitor.battery.cut,
+                                10.0)
+            return answer
+
+        monitor.recover_refused = refused  # type: ignore[method-assign]
+        with pytest.raises(DriveError, match=r"recover refused: (battery 19.0 V: below the "
+                                             r"cutoff|e-stop pressed)"):
+            base.recover()
+        assert window == [None]  # the first check let it through
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            base.set_velocity(0.3, 0.0, 0.0)
+            st = base.status
+            assert not st.enabled and st.stopped_reason is not None, st
+            time.sleep(0.02)
+        assert base.status.battery == "cutoff"
