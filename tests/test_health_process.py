@@ -62,11 +62,18 @@ def test_each_detection_across_processes(sim: tuple[SimProcess, int]) -> None:
         on_ground = abs(w.current_a or 0.0)
         assert on_ground > 0.3  # it drives
 
-        # Off the ground: no stop (its drive keeps its speed), a fraction of the current.
+        # Off the ground: no stop (its drive keeps its speed), a fraction of the current,
+        # and a warning that names it.
         assert process.command("lift 2").strip() == "node 2: off the ground"
         drive_for(base, 1.0, vx=0.3)
-        assert base.status.stopped_reason is None
         assert abs(base.wheels[1].current_a or 0.0) < 0.5 * on_ground
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end and not any(
+                w.startswith("wheel 1 (node 2) off the ground") for w in base.status.warnings):
+            drive_for(base, 0.1, vx=0.3)
+        assert any(w.startswith("wheel 1 (node 2) off the ground") for w in
+                   base.status.warnings), base.status.warnings
+        assert base.status.stopped_reason is None
         process.command("land 2")
 
         assert process.command("jam 2").strip() == "node 2: jammed"

@@ -4,6 +4,8 @@ the loop thread by the supervisor (never by the control cycle itself):
 - each wheel against its target (:mod:`omnican.tracking`), from the targets and
   measured speeds the cycle already has, and the following error a drive reports
   (statusword bit 13 in pv and csv);
+- each wheel's current against its siblings' (:mod:`omnican.lift`): one off the ground
+  (or without its roller) warns, or stops the base (``chassis.lifted_wheel``);
 - each wheel of a stopped base (latched, or a drive out of OPERATION ENABLED) whose
   drive is still energised: one that turns, or whose drive pushes against its zero
   target, for longer than the longest stop ramp is disabled and named;
@@ -32,6 +34,7 @@ from omnican.config import ChassisConfig
 from omnican.drive import DriveNode
 from omnican.drive.health import NodeHealth
 from omnican.healthplan import HealthRead
+from omnican.lift import LiftDetector
 from omnican.limits import longest_stop_s
 from omnican.odmap import Obj
 from omnican.state import no_health
@@ -119,6 +122,8 @@ class HealthMonitor:
             longest_stop_s(cfg.limits(), cfg.kinematics()) + c.tracking_lag_s
             + c.tracking_time_s)
         self._named: set[int] = set()  # wheels named since the last recover()
+        self.lifted_wheel = c.lifted_wheel
+        self.lift = LiftDetector(len(axes))
         # Per wheel, how hard its drive pushes, % of its rating: the torque (6077h), else
         # the current where it is 6078h (per mille of the rated current).
         self._loads: list[tuple[NodeHealth, HealthRead | None, Key | None]] = []
@@ -194,10 +199,12 @@ class HealthMonitor:
                     scale = scales.get(key)
                 row.append(got[0] if scale == 0.0 else None if scale is None else got[0] * scale)
             wheel_values.append(tuple(row))
+        lift_warnings = self._check_lift(now, sup, wheel_values) \
+            if self.lifted_wheel != "off" else ()
         pressed = self._check_estop(now, sup)
         volts = base_voltage([h.si(r, now) for h, r in self._voltages]) if self._voltages \
             else None
-        warnings: tuple[str, ...] = ()
+        warnings: tuple[str, ...] = lift_warnings
         battery = self.battery
         level = None
         if battery is not None:
@@ -208,7 +215,7 @@ class HealthMonitor:
                 sup.latch(battery.cutoff_reason())
             warning = battery.warning()
             if warning:
-                warnings = (warning,)
+                warnings = (*warnings, warning)
             level = "cutoff" if battery.cut else "low" if battery.low else "ok"
         can = self._bus.controller.state
         seen = can.error_frames > 0
@@ -217,6 +224,34 @@ class HealthMonitor:
                                              level, warnings))
 
     # ------------------------------------------------------------ the checks
+
+    def _check_lift(self, now: float, sup: Latches,
+                    wheel_values: list[tuple[float | int | None, ...]]) -> tuple[str, ...]:
+        """Each wheel's current against its siblings' while the base runs; the warnings
+        of the wheels found off the ground."""
+        speeds = self.speeds
+        lift = self.lift
+        if speeds is None:
+            return ()
+        _, measured, stale, all_enabled = speeds()
+        if not (all_enabled and sup.latched is None and not sup.recovering and
+                not sup.offline and not sup.configuring and not sup.closed):
+            lift.paused()
+            return ()
+        currents = [None if row[0] is None else float(row[0]) for row in wheel_values]
+        known = [None if i in stale else v for i, v in enumerate(measured)]
+        for finding in lift.update(now, known, currents):
+            _, node, axis = self._wheels[finding.wheel]
+            reason = finding.describe(node.node_id, axis)
+            if self.lifted_wheel == "stop":
+                sup.latch(reason)
+            else:
+                logger.warning("%s", reason)
+        out = []
+        for lifted in lift.lifted.values():
+            _, node, axis = self._wheels[lifted.wheel]
+            out.append(lifted.describe(node.node_id, axis))
+        return tuple(out)
 
     def _check_estop(self, now: float, sup: Latches) -> bool:
         held = None
@@ -336,3 +371,4 @@ class HealthMonitor:
         self.tracking.reset()
         self.standstill.reset()
         self._named.clear()
+        self.lift.reset()
