@@ -220,23 +220,29 @@ class Chassis:
         # Asked again where the latch is cleared, on the loop thread: an interlock reached
         # between the check above and then (the battery's cutoff, an e-stop) must hold.
         outcome: list[str | None] = []
+        taken = threading.Lock()  # begin() runs whole, or (given up on) not at all
 
         def begin() -> None:
-            now = self.clock.now()
-            loop.command = (Twist(), now)
-            why = ("the CAN bus is down: recover once it is back (status.bus_up)"
-                   if loop.watch.down else sup.monitor.recover_refused())
-            if why is None:
-                sup.begin_recover(now)
-            outcome.append(why)
+            with taken:
+                if outcome:
+                    return
+                now = self.clock.now()
+                loop.command = (Twist(), now)
+                why = ("the CAN bus is down: recover once it is back (status.bus_up)"
+                       if loop.watch.down else sup.monitor.recover_refused())
+                if why is None:
+                    sup.begin_recover(now)
+                outcome.append(why)
 
         loop.call_soon(begin)
         self.clock.sleep(2 * self._period)
         deadline = self.clock.now() + max(1.0, 10 * self._period)
         while not outcome and self.clock.now() < deadline and self._runner.running:
             self.clock.sleep(self._period if self._lockstep else 0.002)
-        if not outcome:
-            raise DriveError("recover: the control loop did not take the request")
+        with taken:
+            if not outcome:
+                outcome.append("the control loop did not take the request")
+                raise DriveError("recover: the control loop did not take the request")
         if outcome[0] is not None:
             raise DriveError(f"recover refused: {outcome[0]}")
         try:
