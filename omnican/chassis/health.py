@@ -116,11 +116,10 @@ class HealthMonitor:
         self.tracking = TrackingDetector(len(axes), c.tracking_error, c.tracking_time_s,
                                          c.tracking_lag_s)
         # A stopped base: a drive's own ramp (set from the stop decelerations) ends within
-        # the longest stop ramp, its measurement within the lag; then the check's time.
+        # the longest stop ramp, its measurement within the lag; from then on, as running.
         self.standstill = StandstillWatch(
-            len(axes), c.tracking_error,
-            longest_stop_s(cfg.limits(), cfg.kinematics()) + c.tracking_lag_s
-            + c.tracking_time_s)
+            len(axes), c.tracking_error, c.tracking_time_s,
+            longest_stop_s(cfg.limits(), cfg.kinematics()) + c.tracking_lag_s)
         self._named: set[int] = set()  # wheels named since the last recover()
         self.lifted_wheel = c.lifted_wheel
         self.lift = LiftDetector(len(axes))
