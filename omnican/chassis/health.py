@@ -8,7 +8,8 @@ the loop thread by the supervisor (never by the control cycle itself):
   (or without its roller) warns, or stops the base (``chassis.lifted_wheel``);
 - each wheel of a stopped base (latched, or a drive out of OPERATION ENABLED) whose
   drive is still energised: one that turns, or whose drive pushes against its zero
-  target, for longer than the longest stop ramp is disabled and named;
+  target, for ``tracking_time_s`` once the longest stop ramp is over, is disabled and
+  named;
 - the e-stop input (``[estop]``): pressed, it is the stop's reason, and ``recover()``
   refuses while it is held;
 - the battery (``[power]``, :mod:`omnican.battery`): a warning, then a controlled stop;
