@@ -68,6 +68,8 @@ MAX_RT_PRIORITY = 99
 
 #: Values of chassis.pdo_mapping (what omnican.pdoplan does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
+#: Values of chassis.lifted_wheel (what the health checks do with a wheel off the ground).
+LIFTED_WHEEL = ("warn", "stop", "off")
 
 #: [chassis] keys a running base takes while it runs (:meth:`omnican.Chassis.set_limits`,
 #: Foxglove's parameters): its velocity limiter's.
@@ -122,6 +124,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "tracking_time_s": Key(_NUM, 0.5, "for this long"),
         "tracking_lag_s": Key(_NUM, 0.3, "how far a wheel's measured speed may lag its target "
                               "(speed window, drive ramp and velocity loop)"),
+        "lifted_wheel": Key((str,), "warn", "a wheel off the ground (or without its roller), "
+                            "found from its current against its siblings': \"warn\" (a status "
+                            "warning naming it), \"stop\" (a stop naming it) or \"off\""),
     },
     "wheel": {
         "node_id": Key((int,), None, "CANopen node id 1-127", required=True),
@@ -385,6 +390,7 @@ class ChassisSettings:
     tracking_error: float = _CHASSIS["tracking_error"]
     tracking_time_s: float = _CHASSIS["tracking_time_s"]
     tracking_lag_s: float = _CHASSIS["tracking_lag_s"]
+    lifted_wheel: str = _CHASSIS["lifted_wheel"]  # see LIFTED_WHEEL
 
     def __post_init__(self) -> None:
         for key in _SCALED:
@@ -624,6 +630,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
                      f"{1000.0 / c['heartbeat_ms']:g} or heartbeat_ms")
     if not 0 <= c["sdo_retries"] <= 20:
         raise r.fail("chassis.sdo_retries", f"must be 0-20, got {c['sdo_retries']}")
+    if c["lifted_wheel"] not in LIFTED_WHEEL:
+        raise r.fail("chassis.lifted_wheel", f"must be one of {', '.join(LIFTED_WHEEL)}, got "
+                     f"{c['lifted_wheel']!r}")
     if c["pdo_mapping"] not in PDO_MAPPINGS:
         raise r.fail("chassis.pdo_mapping", f"must be one of {', '.join(PDO_MAPPINGS)}, got "
                      f"{c['pdo_mapping']!r}")

@@ -201,3 +201,15 @@ class VelocityLimiter:
         out = (vx, vy, wz) if k == 1.0 else (cx + k * dvx, cy + k * dvy, cw + k * dwz)
         self._last = out
         return out
+
+
+def longest_stop_s(limits: VelocityLimits, kinematics: OmniKinematics) -> float:
+    """The longest a stop ramp at ``limits``' stop decelerations can take (s), from any
+    twist the base may have (every wheel within ``max_wheel_speed``, the body within its
+    speed limits): one common factor brings linear and angular speed to zero together,
+    so the slower of the two decides. An upper bound (each body speed bounded on its own)."""
+    w = limits.max_wheel_speed
+    rx, ry, rw = kinematics.forward_rows
+    linear = min(limits.max_linear, w * math.hypot(sum(map(abs, rx)), sum(map(abs, ry))))
+    angular = min(limits.max_angular, w * sum(map(abs, rw)))
+    return max(linear / limits.stop_linear_decel, angular / limits.stop_angular_decel)

@@ -103,3 +103,86 @@ class TrackingDetector:
                 zero = max(map(abs, column)) < ZERO_M_S
                 out.append(NotFollowing(i, targets[i], speed, now - start, zero))
         return out
+
+
+#: A drive holding a stopped wheel at this share of its rated torque (or current), %,
+#: pushes against something: a base at rest on level ground needs next to none, one held
+#: on a ramp it can climb well under its rated torque.
+HOLD_LOAD_PCT = 100.0
+
+
+@dataclass(frozen=True)
+class NotStill:
+    """A wheel of a stopped base whose drive is still energised and that turns, or whose
+    drive pushes (``load_pct`` of its rated torque), for ``for_s`` (m/s, %)."""
+
+    wheel: int
+    measured: float | None  # it turns at this speed (None: it does not, or not known)
+    load_pct: float | None  # its drive pushes at this share of its rating (None: it does not)
+    for_s: float
+
+    def describe(self, node_id: int, axis: int = 0) -> str:
+        """What the stop says of it (always names the wheel and says its drive is disabled)."""
+        node = f"node {node_id}" + (f" axis {axis}" if axis else "")
+        if self.measured is not None:
+            what = (f"turns at {self.measured:+.2f} m/s while the base is stopped "
+                    f"(pushed, or a runaway drive)")
+        else:
+            what = (f"drive energised at {self.load_pct:.0f} % of its rated torque against a "
+                    f"zero target (pushing against something)")
+        return f"wheel {self.wheel} ({node}) {what} for {self.for_s:.1f} s: its drive disabled"
+
+
+class StandstillWatch:
+    """The wheels of a stopped base (a latched stop, a drive out of OPERATION ENABLED):
+    a wheel whose drive is still energised may neither turn (outside ``error``, m/s) nor
+    be pushed by its drive (``HOLD_LOAD_PCT`` of its rating) for ``time_s``, as on a running
+    base, once ``settle_s`` (the longest stop ramp and the lag of the measurement behind
+    it) has passed since it was first watched; until then, for ``settle_s + time_s``. Pure:
+    the caller gives the time and says which wheels are watched (energised, zero target,
+    the base stopped)."""
+
+    def __init__(self, wheels: int, error: float, time_s: float, settle_s: float) -> None:
+        if not (error > 0 and time_s > 0 and settle_s >= 0):
+            raise ValueError("error and time_s must be positive, settle_s not negative")
+        self.wheels = wheels
+        self.error = error
+        self.time_s = time_s
+        self.settle_s = settle_s
+        self._since: list[float | None] = [None] * wheels  # not still since
+        self._watched: list[float | None] = [None] * wheels  # watched since
+
+    def reset(self) -> None:
+        self._since = [None] * self.wheels
+        self._watched = [None] * self.wheels
+
+    def update(self, now: float, watched: Sequence[bool], measured: Sequence[float],
+               fresh: Sequence[bool], load_pct: Sequence[float | None]) -> list[NotStill]:
+        """One check at ``now`` (s). ``watched``: the wheel's drive is energised while the
+        base is stopped and its target is zero; ``measured`` its speed (m/s, counted where
+        ``fresh``); ``load_pct`` its drive's torque or current, % of rated (None: not
+        known). Returns the wheels not still for long enough, as of this check."""
+        out = []
+        since, watched_since = self._since, self._watched
+        error = self.error
+        for i in range(self.wheels):
+            if not watched[i]:
+                since[i] = watched_since[i] = None
+                continue
+            first = watched_since[i]
+            if first is None:
+                watched_since[i] = first = now
+            turns = fresh[i] and abs(measured[i]) > error
+            load = load_pct[i]
+            pushes = load is not None and abs(load) >= HOLD_LOAD_PCT
+            if not (turns or pushes):
+                since[i] = None
+                continue
+            start = since[i]
+            if start is None:
+                since[i] = start = now
+            if now - start >= self.time_s and now - first >= self.settle_s + self.time_s:
+                out.append(NotStill(i, measured[i] if turns else None,
+                                    abs(load) if pushes and load is not None else None,
+                                    now - start))
+        return out

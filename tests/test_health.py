@@ -106,6 +106,44 @@ def test_a_wheel_turning_with_a_zero_target_is_stopped_and_its_drive_disabled(ri
     assert base.status.enabled
 
 
+def test_a_stopped_base_disables_and_names_a_wheel_that_turns(rig: Rig) -> None:
+    """Issue 30.1: held stopped (a reboot latched it), wheel 0 is pushed. Its drive, still
+    enabled, is disabled as soon as on a running base (the stop has settled), and the
+    stop names it after the first reason."""
+    clock, sim, base = rig
+    clock.sleep(0.5)
+    sim.drives[2].reboot()
+    clock.sleep(2)
+    assert base.status.stopped_reason == "node 3 rebooted"
+    assert sim.drives[0].state() is State.OPERATION_ENABLED  # held at zero, energised
+    sim.drives[0].push(0.2)
+    t0 = clock.now()
+    assert wait_for(lambda: sim.drives[0].state() is State.SWITCH_ON_DISABLED, 5.0, clock=clock)
+    assert clock.now() - t0 < 1.0  # settled: as on a running base (0.5 s, and a check)
+    reason = base.status.stopped_reason or ""
+    assert reason.startswith("node 3 rebooted; wheel 0 (node 1) turns at +0.20 m/s while the "
+                             "base is stopped"), reason
+    assert reason.endswith("its drive disabled")
+    assert sim.drives[1].state() is State.OPERATION_ENABLED  # the still one is left alone
+    sim.drives[0].free()
+    base.recover()
+    drive_for(base, 0.5, vx=0.3)
+    assert base.status.stopped_reason is None and base.twist.vx > 0.2
+
+
+def test_a_stop_from_full_speed_names_no_wheel(rig: Rig) -> None:
+    """The wheels of a base stopped at full speed (a drive rebooted: the others' targets
+    drop to zero at once, their own ramps stop them) are not taken for runaways."""
+    clock, sim, base = rig
+    drive_for(base, 2.5, wz=9.0)  # every wheel at its limit
+    assert min(abs(w.actual_speed) for w in base.wheels) > 0.9
+    sim.drives[2].reboot()
+    clock.sleep(4.0)
+    assert base.status.stopped_reason == "node 3 rebooted"
+    assert [sim.drives[i].state() for i in (0, 1)] == [State.OPERATION_ENABLED] * 2
+    assert still(sim)
+
+
 def test_a_following_error_the_drive_reports_stops_the_base(rig: Rig) -> None:
     _clock, sim, base = rig
     drive_for(base, 0.5, vx=0.2)
@@ -118,20 +156,52 @@ def test_a_following_error_the_drive_reports_stops_the_base(rig: Rig) -> None:
 
 
 def test_a_wheel_off_the_ground_keeps_its_speed_on_less_current(rig: Rig) -> None:
-    """Its drive follows the target as before (no stop: nothing to tell from the speeds);
-    the current shows it, and the base no longer goes where the odometry says."""
+    """Its drive follows the target as before (nothing to tell from the speeds); the
+    current shows it (issue 30.3: a warning names the wheel, by default), and the base no
+    longer goes where the odometry says."""
     _clock, sim, base = rig
     drive_for(base, 1.0, vx=0.4)
     on_ground = abs(base.wheels[1].current_a or 0.0)
+    assert not any("off the ground" in w for w in base.status.warnings)
     sim.drives[1].lift()
-    drive_for(base, 1.0, vx=0.4)
+    drive_for(base, 2.0, vx=0.4)
     lifted = abs(base.wheels[1].current_a or 0.0)
     assert base.status.stopped_reason is None
     assert lifted < 0.5 * on_ground and lifted > 0.0
     assert base.pose.distance_to(sim.true_pose) > 0.05
+    lifted_warnings = [w for w in base.status.warnings if "off the ground" in w]
+    assert len(lifted_warnings) == 1 and lifted_warnings[0].startswith(
+        "wheel 1 (node 2) off the ground or without its roller: it turns on 43 % of its "
+        "siblings' current ("), lifted_warnings
     sim.drives[1].land()
     drive_for(base, 0.5, vx=0.4)
     assert abs(base.wheels[1].current_a or 0.0) == pytest.approx(on_ground, rel=0.2)
+    assert not any("off the ground" in w for w in base.status.warnings)
+
+
+@pytest.mark.parametrize("wheel", [0, 1, 2])
+def test_a_wheel_lifted_at_rest_stops_the_base_when_configured(channel: str,
+                                                               wheel: int) -> None:
+    """``chassis.lifted_wheel = "stop"``: lifted before the base sets off, each wheel is
+    found within a square run and the stop names it."""
+    cfg = sim_config(channel, lifted_wheel="stop")
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
+            Chassis.open(cfg, clock=clock) as base:
+        clock.sleep(0.3)
+        sim.drives[wheel].lift()
+        for vx, vy in ((0.4, 0.0), (0.0, 0.4), (-0.4, 0.0), (0.0, -0.4)):
+            drive_for(base, 2.0, vx=vx, vy=vy)
+            if base.status.stopped_reason is not None:
+                break
+        reason = base.status.stopped_reason or ""
+        assert reason.startswith(f"wheel {wheel} (node {wheel + 1}) off the ground or without "
+                                 "its roller: it turns on "), reason
+        sim.drives[wheel].land()
+        base.recover()
+        for vx, vy in ((0.4, 0.0), (0.0, 0.4), (-0.4, 0.0), (0.0, -0.4)):
+            drive_for(base, 2.0, vx=vx, vy=vy)
+        assert base.status.stopped_reason is None
 
 
 def test_the_estop_stops_the_base_and_recover_waits_for_its_release(rig: Rig) -> None:
@@ -220,10 +290,11 @@ def test_full_speed_starts_and_stops_never_latch_a_tracking_stop(
         channel: str, rate: float, loss: float, seed: int, tau_s: float, accel: float) -> None:
     """At the configured accelerations (and the steeper stop), with frames lost, on a
     drive with a slow velocity loop: starts to full speed, stops, reversals and spins
-    never look like a wheel not following. (At 5 % loss, three heartbeats of a node lost
+    never look like a wheel not following, nor like one off the ground. (At 5 % loss, three heartbeats of a node lost
     in a row now and then stop the base, as they should; the base is recovered then, and
     the run goes on.)"""
-    cfg = sim_config(channel, rate_hz=rate, max_accel=accel, max_angular_accel=3 * accel)
+    cfg = sim_config(channel, rate_hz=rate, max_accel=accel, max_angular_accel=3 * accel,
+                     lifted_wheel="stop")  # nor a wheel off the ground
     with shared_bus(channel, loss=loss, seed=seed) as (clock, _, _, drives), \
             SimulatedBase.from_config(cfg, bus=bus_args(drives), clock=clock,
                                       tau_s=tau_s) as sim, \

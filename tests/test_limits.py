@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from omnican import OmniKinematics, Twist, VelocityLimiter, VelocityLimits
+from omnican.limits import longest_stop_s
 
 KIN = OmniKinematics.from_layout("b21", base_radius=0.19)
 LIMITS = VelocityLimits(
@@ -138,3 +139,27 @@ def test_a_held_command_gives_what_a_fresh_computation_gives(
             got = lim.step_xyz(vx, vy, wz, dt)
             assert got == pytest.approx((expected.vx, expected.vy, expected.wz), abs=1e-12)
             prev = Twist(*got)
+
+
+# ---------------------------------------------------------------- the longest stop
+
+@settings(max_examples=60)
+@given(vx=st.floats(-5, 5), vy=st.floats(-5, 5), wz=st.floats(-20, 20),
+       decel=st.floats(0.2, 10), adecel=st.floats(0.5, 30), radius=st.floats(0.1, 0.5))
+def test_no_stop_ramp_outlasts_the_longest_stop(vx: float, vy: float, wz: float, decel: float,
+                                                adecel: float, radius: float) -> None:
+    """From any twist the limiter reaches (at its wheel limit), a stop command brings the
+    output to zero within longest_stop_s."""
+    kin = OmniKinematics.from_layout("b21", base_radius=radius)
+    lim = VelocityLimits(max_linear_accel=100.0, max_angular_accel=300.0,
+                         stop_linear_decel=decel, stop_angular_decel=adecel,
+                         max_wheel_speed=1.0)
+    limiter = VelocityLimiter(lim, kin)
+    for _ in range(40):
+        limiter.step(Twist(vx, vy, wz), 0.05)
+    bound = longest_stop_s(lim, kin)
+    dt, t = 0.01, 0.0
+    while not limiter.output.is_zero():
+        limiter.step(Twist(), dt)
+        t += dt
+        assert t <= bound + dt

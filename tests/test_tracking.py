@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from omnican.tracking import TrackingDetector
+from omnican.tracking import HOLD_LOAD_PCT, StandstillWatch, TrackingDetector
 
 DT = 0.02  # the health checks' period (50 Hz)
 ERROR, TIME_S, LAG_S = 0.1, 0.5, 0.3
@@ -18,7 +19,7 @@ def run(targets: list[float], measured: list[float], fresh: bool = True, running
         detector: TrackingDetector | None = None) -> list[tuple[float, object]]:
     """One wheel through the detector; (time, finding) of each finding."""
     d = detector or TrackingDetector(1, ERROR, TIME_S, LAG_S)
-    out = []
+    out: list[tuple[float, object]] = []
     for k, (t, m) in enumerate(zip(targets, measured, strict=True)):
         for finding in d.update(k * DT, [t], [m], [fresh], running):
             out.append((k * DT, finding))
@@ -110,3 +111,66 @@ def test_a_wheel_that_drops_out_starts_over() -> None:
 def test_a_detector_that_never_trips_when_the_error_is_infinite() -> None:
     d = TrackingDetector(1, math.inf, TIME_S, LAG_S)
     assert run([0.5] * 100, [0.0] * 100, detector=d) == []
+
+
+# ---------------------------------------------------------------- a stopped base
+
+SETTLE_S = 1.2  # the longest stop ramp and the lag
+HOLD_S = SETTLE_S + TIME_S
+
+
+def watch_run(measured: list[float], loads: Sequence[float | None] | None = None,
+              watched: bool = True, fresh: bool = True) -> list[tuple[float, object]]:
+    w = StandstillWatch(1, ERROR, TIME_S, SETTLE_S)
+    loads = loads if loads is not None else [None] * len(measured)
+    out: list[tuple[float, object]] = []
+    for k, (m, load) in enumerate(zip(measured, loads, strict=True)):
+        out += [(k * DT, f) for f in w.update(k * DT, [watched], [m], [fresh], [load])]
+    return out
+
+
+@given(speed=st.floats(-2.0, 2.0), decel=st.floats(0.6, 50.0), extra=st.integers(0, 200),
+       load=st.one_of(st.none(), st.floats(-0.99 * HOLD_LOAD_PCT, 0.99 * HOLD_LOAD_PCT)))
+def test_a_wheel_that_stops_within_the_hold_time_is_never_named(
+        speed: float, decel: float, extra: int, load: float | None) -> None:
+    """A wheel slowing from any speed to a standstill on a ramp that ends within the
+    settling time and the check's (its length capped to it), its drive below its rating,
+    is never named."""
+    steps = max(1, min(round(abs(speed) / decel / DT), round(HOLD_S / DT) - 1))
+    ramp = [speed * (1 - k / steps) for k in range(steps + 1)] + [0.0] * extra
+    assert watch_run(ramp, [load] * len(ramp)) == []
+
+
+@given(speed=st.floats(ERROR * 1.01, 2.0), sign=st.sampled_from([-1.0, 1.0]))
+def test_a_wheel_that_keeps_turning_is_named_after_the_hold_time(speed: float,
+                                                                 sign: float) -> None:
+    found = watch_run([sign * speed] * (round(HOLD_S / DT) + 3))
+    assert found and found[0][0] == pytest.approx(HOLD_S)
+    f = found[0][1]
+    assert f.measured == sign * speed and f.load_pct is None  # type: ignore[attr-defined]
+    assert "turns at" in f.describe(2) and "node 2" in f.describe(2)  # type: ignore[attr-defined]
+
+
+@given(after=st.integers(round(SETTLE_S / DT), 200), speed=st.floats(ERROR * 1.01, 2.0))
+def test_a_wheel_that_starts_turning_once_settled_is_named_as_on_a_running_base(
+        after: int, speed: float) -> None:
+    """Pushed once the stop has settled: named after tracking_time_s, not the ramp's."""
+    found = watch_run([0.0] * after + [speed] * (round(TIME_S / DT) + 3))
+    assert found and after * DT + TIME_S - 1e-9 <= found[0][0] <= after * DT + TIME_S + 1.5 * DT
+
+
+@given(load=st.floats(HOLD_LOAD_PCT, 400.0), sign=st.sampled_from([-1.0, 1.0]))
+def test_a_drive_pushing_against_a_zero_target_is_named(load: float, sign: float) -> None:
+    n = round(HOLD_S / DT) + 3
+    found = watch_run([0.0] * n, [sign * load] * n)
+    assert found and found[0][1].load_pct == load  # type: ignore[attr-defined]
+    assert "energised at" in found[0][1].describe(1)  # type: ignore[attr-defined]
+
+
+def test_an_unwatched_or_stale_wheel_is_never_named() -> None:
+    n = round(HOLD_S / DT) * 3
+    assert watch_run([1.0] * n, watched=False) == []
+    assert watch_run([1.0] * n, fresh=False) == []
+    # A break in what it does starts the time again.
+    settled = [0.0] * round(SETTLE_S / DT)
+    assert watch_run(settled + ([1.0] * (round(TIME_S / DT) - 1) + [0.0]) * 3) == []

@@ -21,7 +21,7 @@ import atexit
 import logging
 import threading
 import weakref
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -171,7 +171,10 @@ class Chassis:
             self._froze_heap = True
         logger.info("every drive enabled, %.2f s after the bus opened", self.clock.now() - started)
 
-    def _wait_enabled(self, timeout: float, what: str) -> None:
+    def _wait_enabled(self, timeout: float, what: str,
+                      refuse: Callable[[], str | None] | None = None) -> None:
+        """Until every drive is enabled; ``refuse`` says why it may not be (an interlock
+        reached meanwhile): then at once."""
         clock = self.clock
         deadline = clock.now() + timeout
         while clock.now() < deadline:
@@ -180,6 +183,9 @@ class Chassis:
                 return
             if self._closed:
                 raise DriveError(f"{what}: the base was closed")
+            refused = refuse() if refuse is not None else None
+            if refused is not None:
+                raise DriveError(f"{what} refused: {refused}")
             clock.sleep(self._period if self._lockstep else 0.002)
         raise DriveError(f"{what}: drives not enabled within {timeout:.2g} s "
                          f"({self._supervisor.not_enabled_why()})")
@@ -217,16 +223,36 @@ class Chassis:
             raise DriveError(f"recover refused: {refused}")
         timeout = timeout_s if timeout_s is not None else (
             self.cfg.chassis.enable_timeout_s + self.cfg.chassis.boot_timeout_s)
+        # Asked again where the latch is cleared, on the loop thread: an interlock reached
+        # between the check above and then (the battery's cutoff, an e-stop) must hold.
+        outcome: list[str | None] = []
+        taken = threading.Lock()  # begin() runs whole, or (given up on) not at all
 
         def begin() -> None:
-            now = self.clock.now()
-            loop.command = (Twist(), now)
-            sup.begin_recover(now)
+            with taken:
+                if outcome:
+                    return
+                now = self.clock.now()
+                loop.command = (Twist(), now)
+                why = ("the CAN bus is down: recover once it is back (status.bus_up)"
+                       if loop.watch.down else sup.monitor.recover_refused())
+                if why is None:
+                    sup.begin_recover(now)
+                outcome.append(why)
 
         loop.call_soon(begin)
         self.clock.sleep(2 * self._period)
+        deadline = self.clock.now() + max(1.0, 10 * self._period)
+        while not outcome and self.clock.now() < deadline and self._runner.running:
+            self.clock.sleep(self._period if self._lockstep else 0.002)
+        with taken:
+            if not outcome:
+                outcome.append("the control loop did not take the request")
+                raise DriveError("recover: the control loop did not take the request")
+        if outcome[0] is not None:
+            raise DriveError(f"recover refused: {outcome[0]}")
         try:
-            self._wait_enabled(timeout, "recover")
+            self._wait_enabled(timeout, "recover", refuse=sup.monitor.recover_refused)
             logger.info("recovered: every drive enabled")
         finally:
             loop.call_soon(sup.end_recover)

@@ -4,6 +4,12 @@ the loop thread by the supervisor (never by the control cycle itself):
 - each wheel against its target (:mod:`omnican.tracking`), from the targets and
   measured speeds the cycle already has, and the following error a drive reports
   (statusword bit 13 in pv and csv);
+- each wheel's current against its siblings' (:mod:`omnican.lift`): one off the ground
+  (or without its roller) warns, or stops the base (``chassis.lifted_wheel``);
+- each wheel of a stopped base (latched, or a drive out of OPERATION ENABLED) whose
+  drive is still energised: one that turns, or whose drive pushes against its zero
+  target, for ``tracking_time_s`` once the longest stop ramp is over, is disabled and
+  named;
 - the e-stop input (``[estop]``): pressed, it is the stop's reason, and ``recover()``
   refuses while it is held;
 - the battery (``[power]``, :mod:`omnican.battery`): a warning, then a controlled stop;
@@ -28,9 +34,12 @@ from omnican.cia402 import Mode, State
 from omnican.config import ChassisConfig
 from omnican.drive import DriveNode
 from omnican.drive.health import NodeHealth
+from omnican.healthplan import HealthRead
+from omnican.lift import LiftDetector
+from omnican.limits import longest_stop_s
 from omnican.odmap import Obj
 from omnican.state import no_health
-from omnican.tracking import TrackingDetector
+from omnican.tracking import ZERO_M_S, StandstillWatch, TrackingDetector
 
 logger = logging.getLogger("omnican.chassis")
 
@@ -49,8 +58,11 @@ class Latches(Protocol):
 
     def latch_cause(self, reason: str) -> None: ...
 
+    def latch_also(self, reason: str) -> None: ...
+
 TRACKING_HZ = 10.0  # tracking checks per second (at most the loop rate)
 _ENABLED = State.OPERATION_ENABLED
+_ENERGISED = (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
 _SLIPPAGE_MODES = (int(Mode.PROFILE_VELOCITY), int(Mode.CYCLIC_SYNC_VELOCITY))
 #: (targets, measured speeds, wheels without a fresh sample, every drive enabled)
 Speeds = Callable[[], tuple[Sequence[float], Sequence[float], Sequence[int], bool]]
@@ -104,6 +116,27 @@ class HealthMonitor:
         self._all_fresh = [True] * len(axes)
         self.tracking = TrackingDetector(len(axes), c.tracking_error, c.tracking_time_s,
                                          c.tracking_lag_s)
+        # A stopped base: a drive's own ramp (set from the stop decelerations) ends within
+        # the longest stop ramp, its measurement within the lag; from then on, as running.
+        self.standstill = StandstillWatch(
+            len(axes), c.tracking_error, c.tracking_time_s,
+            longest_stop_s(cfg.limits(), cfg.kinematics()) + c.tracking_lag_s)
+        self._named: set[int] = set()  # wheels named since the last recover()
+        self.lifted_wheel = c.lifted_wheel
+        self.lift = LiftDetector(len(axes))
+        # Per wheel, how hard its drive pushes, % of its rating: the torque (6077h), else
+        # the current where it is 6078h (per mille of the rated current).
+        self._loads: list[tuple[NodeHealth, HealthRead | None, Key | None]] = []
+        for a, n in axes:
+            torque: HealthRead | None = None
+            current: Key | None = None
+            for read in n.health.plan.reads:
+                if a.wheel_index in read.wheels and read.quantity == "torque":
+                    torque = read
+                elif (a.wheel_index in read.wheels and read.quantity == "current"
+                      and read.entry.obj is Obj.CURRENT_ACTUAL):
+                    current = read.key
+            self._loads.append((n.health, torque, current))
         # Per wheel: its node's values and, per quantity, (key, SI per unit; None: the
         # scale found at startup; 0: the raw integer), or None where the drive has none.
         self._wheel_reads: list[tuple[NodeHealth, tuple[tuple[Key, float | None] | None,
@@ -166,18 +199,23 @@ class HealthMonitor:
                     scale = scales.get(key)
                 row.append(got[0] if scale == 0.0 else None if scale is None else got[0] * scale)
             wheel_values.append(tuple(row))
+        lift_warnings = self._check_lift(now, sup, wheel_values) \
+            if self.lifted_wheel != "off" else ()
         pressed = self._check_estop(now, sup)
         volts = base_voltage([h.si(r, now) for h, r in self._voltages]) if self._voltages \
             else None
-        warnings: tuple[str, ...] = ()
+        warnings: tuple[str, ...] = lift_warnings
         battery = self.battery
         level = None
         if battery is not None:
-            if battery.update(now, volts) and not sup.closed:
+            battery.update(now, volts)
+            # Held for as long as it lasts, not only when reached: a recover() that cleared
+            # the stop meanwhile is stopped again.
+            if battery.cut and sup.latched is None and not sup.closed:
                 sup.latch(battery.cutoff_reason())
             warning = battery.warning()
             if warning:
-                warnings = (warning,)
+                warnings = (*warnings, warning)
             level = "cutoff" if battery.cut else "low" if battery.low else "ok"
         can = self._bus.controller.state
         seen = can.error_frames > 0
@@ -187,13 +225,41 @@ class HealthMonitor:
 
     # ------------------------------------------------------------ the checks
 
+    def _check_lift(self, now: float, sup: Latches,
+                    wheel_values: list[tuple[float | int | None, ...]]) -> tuple[str, ...]:
+        """Each wheel's current against its siblings' while the base runs; the warnings
+        of the wheels found off the ground."""
+        speeds = self.speeds
+        lift = self.lift
+        if speeds is None:
+            return ()
+        _, measured, stale, all_enabled = speeds()
+        if not (all_enabled and sup.latched is None and not sup.recovering and
+                not sup.offline and not sup.configuring and not sup.closed):
+            lift.paused()
+            return ()
+        currents = [None if row[0] is None else float(row[0]) for row in wheel_values]
+        known = [None if i in stale else v for i, v in enumerate(measured)]
+        for finding in lift.update(now, known, currents):
+            _, node, axis = self._wheels[finding.wheel]
+            reason = finding.describe(node.node_id, axis)
+            if self.lifted_wheel == "stop":
+                sup.latch(reason)
+            else:
+                logger.warning("%s", reason)
+        out = []
+        for lifted in lift.lifted.values():
+            _, node, axis = self._wheels[lifted.wheel]
+            out.append(lifted.describe(node.node_id, axis))
+        return tuple(out)
+
     def _check_estop(self, now: float, sup: Latches) -> bool:
         held = None
         for estop in self._estops:
             if estop.pressed(now):
                 held = f"e-stop pressed ({estop.where})"
                 break
-        if held is not None and self.estop_held is None:
+        if held is not None and (self.estop_held is None or sup.latched is None):
             sup.latch_cause(held)
         elif held is None and self.estop_held is not None:
             logger.warning("e-stop released: recover() starts the base again")
@@ -202,7 +268,7 @@ class HealthMonitor:
 
     def _check_controller(self, sup: Latches) -> None:
         state = self._bus.controller.state
-        if state.bus_off and self.bus_off is None:
+        if state.bus_off and (self.bus_off is None or sup.latched is None):
             self.bus_off = (f"CAN bus-off: the controller left the bus after too many errors "
                             f"({state.describe()}); the interface's restart-ms brings it back")
             sup.latch_cause(self.bus_off)
@@ -228,6 +294,47 @@ class HealthMonitor:
             return
         if running:
             self._check_following_error(now, sup)
+        elif not sup.closed and not sup.recovering:
+            self._check_standstill(now, sup, targets, measured, fresh)
+        elif self._named or sup.recovering:
+            self.standstill.reset()
+
+    def _load_pct(self, wheel: int, now: float) -> float | None:
+        health, torque, current = self._loads[wheel]
+        if torque is not None:
+            pct = health.si(torque, now)
+            if pct is not None:
+                return pct
+        if current is not None:
+            raw = health.raw(current, now)
+            if raw is not None:
+                return raw / 10.0
+        return None
+
+    def _check_standstill(self, now: float, sup: Latches, targets: Sequence[float],
+                          measured: Sequence[float], fresh: Sequence[bool]) -> None:
+        """The base is stopped: a wheel whose drive is still energised turns, or its drive
+        pushes, for longer than a stop takes. Its drive is disabled, the wheel named (in
+        the stop's reason: after the first one if the base was already held stopped)."""
+        watched, loads = [], []
+        busy = sup.configuring or sup.offline
+        for index, node, _axis, stage in self._stages:
+            watch = (stage.state in _ENERGISED and abs(targets[index]) < ZERO_M_S and
+                     index not in self._named and
+                     not (busy and (node.node_id in sup.configuring or
+                                    node.node_id in sup.offline)))
+            watched.append(watch)
+            loads.append(self._load_pct(index, now) if watch else None)
+        for finding in self.standstill.update(now, watched, measured, fresh, loads):
+            _, node, axis = self._wheels[finding.wheel]
+            for stage in node.stages:
+                stage.set_goal(State.SWITCH_ON_DISABLED)
+            self._named.add(finding.wheel)
+            reason = finding.describe(node.node_id, axis)
+            if sup.latched is None:
+                sup.latch(reason)
+            else:
+                sup.latch_also(reason)
 
     def _check_following_error(self, now: float, sup: Latches) -> None:
         for index, node, axis, stage in self._stages:
@@ -262,3 +369,6 @@ class HealthMonitor:
     def recovered(self) -> None:
         """recover() began: nothing is held against any wheel."""
         self.tracking.reset()
+        self.standstill.reset()
+        self._named.clear()
+        self.lift.reset()

@@ -164,6 +164,15 @@ class NodeSupervisor:
             self.latched = reason
         self.latch(reason)
 
+    def latch_also(self, reason: str) -> None:
+        """Something more found while the base is held stopped (a wheel that turns): said
+        after the first reason, which stays first."""
+        if self.latched is None:
+            self.latch(reason)
+            return
+        logger.warning("base stopped, and: %s", reason)
+        self.latched = f"{self.latched}; {reason}"
+
     def check(self, now: float, all_enabled: bool = False) -> None:
         """One health check of every node not being configured; ``all_enabled``: every
         stage was just seen OPERATION ENABLED (the loop tests that each cycle), so no
