@@ -1,0 +1,111 @@
+"""Start-up against slow drives (issue 30, item 4), in lock-step: a drive that boots
+slowly opens, a lost reset is recovered, an absent node fails within the boot time, and
+a drive that answers SDOs later than the timeout is named as such within a few timeouts."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from omnican import Chassis
+from omnican.cia301 import NMT_COB_ID, NmtCommand
+from omnican.clock import SimClock
+from omnican.errors import DriveError
+from omnican.sim import SimulatedBase
+
+from .helpers import sim_config
+
+
+def _drop_first_reset(drive: Any) -> list[int]:
+    """The drive misses the first NMT reset communication addressed to it."""
+    comm, net = drive.comm, drive.network
+    dropped: list[int] = []
+    handler: Callable[..., None] = comm._on_nmt
+
+    def lossy(can_id: int, data: bytearray, timestamp: float) -> None:
+        if not dropped and data[:2] == bytes([NmtCommand.RESET_COMMUNICATION, drive.node_id]):
+            dropped.append(1)
+            return
+        handler(can_id, data, timestamp)
+
+    net.unsubscribe(NMT_COB_ID, handler)
+    net.subscribe(NMT_COB_ID, lossy)
+    comm._on_nmt = lossy  # detached as it was subscribed
+    return dropped
+
+
+def test_a_drive_booting_in_1_5_s_opens_with_a_2_s_boot_timeout(channel: str) -> None:
+    cfg = sim_config(channel, boot_timeout_s=2.0)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[1].slow_boot(1.5)
+        with Chassis.open(cfg, clock=clock) as base:
+            assert base.status.enabled
+            assert 1.5 <= clock.now() < 2.0  # one boot: no reset restarted it
+
+
+def test_a_drive_booting_in_1_5_s_opens_in_real_time(channel: str) -> None:
+    cfg = sim_config(channel, boot_timeout_s=2.0)
+    with SimulatedBase.from_config(cfg) as sim:
+        sim.drives[2].slow_boot(1.5)
+        with Chassis.open(cfg) as base:
+            assert base.status.enabled
+
+
+def test_a_lost_reset_is_sent_again(channel: str) -> None:
+    cfg = sim_config(channel, boot_timeout_s=2.0)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        dropped = _drop_first_reset(sim.drives[1])
+        with Chassis.open(cfg, clock=clock) as base:
+            assert dropped
+            assert base.status.enabled
+
+
+def test_a_lost_reset_to_a_slow_drive_is_sent_again(channel: str) -> None:
+    cfg = sim_config(channel, boot_timeout_s=2.0)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[1].slow_boot(1.5)
+        dropped = _drop_first_reset(sim.drives[1])
+        with Chassis.open(cfg, clock=clock) as base:
+            assert dropped
+            assert base.status.enabled
+
+
+def test_an_absent_node_fails_within_the_boot_time_and_a_second(channel: str) -> None:
+    cfg = sim_config(channel, boot_timeout_s=2.0)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[1].freeze()
+        with pytest.raises(DriveError, match=r"node 2: no boot-up within 2 s"):
+            Chassis.open(cfg, clock=clock)
+        assert clock.now() <= 2.0 + 1.0
+
+
+def test_sdo_answers_later_than_the_timeout_are_named_within_three_timeouts(
+        channel: str) -> None:
+    cfg = sim_config(channel, sdo_timeout_s=0.5)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[1].slow_sdo(0.55)
+        with pytest.raises(DriveError) as err:
+            Chassis.open(cfg, clock=clock)
+        # 0.55 s and the simulator's 10 ms housekeeping step
+        assert re.fullmatch(r"node 2 answers SDOs after 0\.5[56] s, slower than "
+                            r"chassis\.sdo_timeout_s 0\.5 s: raise it", str(err.value))
+        # Told after two timeouts; the rest is disabling node 2 on the way out, at the
+        # pace it answers (no longer taking one answer for another).
+        assert clock.now() <= 6 * 0.5
+
+
+def test_sdo_answers_within_the_timeout_open(channel: str) -> None:
+    cfg = sim_config(channel, sdo_timeout_s=0.5)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[1].slow_sdo(0.05)
+        with Chassis.open(cfg, clock=clock) as base:
+            assert base.status.enabled
