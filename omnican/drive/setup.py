@@ -84,6 +84,7 @@ logger = logging.getLogger("omnican.drive")
 
 # Power stages with no torque: nothing to disable on the way out.
 _OFF_STATES = frozenset({State.SWITCH_ON_DISABLED, State.NOT_READY_TO_SWITCH_ON, State.FAULT})
+MODE_READS, MODE_READ_GAP_S = 4, 0.05  # the mode display read back after setting the mode
 BOOT_RESETS = 4  # NMT resets sent (within boot_timeout_s) before a node counts as absent
 
 
@@ -122,6 +123,7 @@ class NodeSetup:
             stage.forget()
             if stage.mode is not None:
                 self._write_value(stage.mode, int(node.mode), f"mode {node.mode.short}")
+            self._confirm_mode(stage)
         self._configure_ramps()
         self._read_rated_currents()
         for write in node.layout.settings_writes:  # [[wheel.sdo]]
@@ -255,6 +257,33 @@ class NodeSetup:
             return False
         finally:
             sdo.MAX_RETRIES = retries
+
+    def _confirm_mode(self, stage: StageDriver) -> None:
+        """Read the mode display (6061h) back: a drive that did not take the mode (a
+        read-only 6060h, a mode it refuses without an abort) would follow targets it
+        does not read as velocities. A drive gets ``MODE_READS`` reads, 50 ms apart."""
+        node = self.node
+        display = stage.mode_display
+        if display is None:
+            return
+        clock = node.clock
+        value = None
+        for read in range(MODE_READS):
+            if read and clock.can_wait:
+                clock.sleep(MODE_READ_GAP_S)
+            with self._sdo_errors(f"reading the mode display ({display.address})"):
+                value = display.decode(node.remote.sdo.upload(display.index, display.subindex))
+            if value == int(node.mode):
+                return
+        assert value is not None
+        mode = stage.mode
+        how = (f"writing mode {node.mode.short} ({int(node.mode)}) to {mode.address}"
+               if mode is not None and mode.writable else
+               f"setting mode {node.mode.short} ({int(node.mode)}), which its EDS does not "
+               "let omnican write")
+        raise DriveError(f"node {node.node_id}: the mode display {display.address} shows "
+                         f"{value} ({cia402.MODE_NAMES.get(value, 'unknown')}) after {how}: "
+                         "the drive did not take the mode")
 
     def _twins(self, evidence: str) -> str:
         node = self.node
