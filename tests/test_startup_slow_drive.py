@@ -109,3 +109,15 @@ def test_sdo_answers_within_the_timeout_open(channel: str) -> None:
         sim.drives[1].slow_sdo(0.05)
         with Chassis.open(cfg, clock=clock) as base:
             assert base.status.enabled
+
+
+def test_sdo_answers_later_than_the_timeout_are_named_in_real_time(channel: str) -> None:
+    cfg = sim_config(channel, sdo_timeout_s=0.5)
+    with SimulatedBase.from_config(cfg) as sim:
+        sim.drives[1].slow_sdo(0.55)
+        with pytest.raises(DriveError) as err:
+            Chassis.open(cfg)
+    m = re.fullmatch(r"node 2 answers SDOs after (\d+\.\d\d) s, slower than "
+                     r"chassis\.sdo_timeout_s 0\.5 s: raise it", str(err.value))
+    assert m is not None, str(err.value)
+    assert float(m.group(1)) >= 0.55  # never less than the drive's delay (load adds to it)

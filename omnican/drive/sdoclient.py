@@ -70,8 +70,8 @@ class CheckedSdoClient(SdoClient):
         self._drain()
         retries_left = self.MAX_RETRIES
         while True:
+            sent = self.clock.now()  # before the send: an answer is never early
             self.send_request(request)
-            sent = self.clock.now()
             try:
                 answer = self._answer(wanted)
             except SdoTooSlowError:
