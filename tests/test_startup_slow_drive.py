@@ -76,6 +76,47 @@ def test_a_lost_reset_to_a_slow_drive_is_sent_again(channel: str) -> None:
             assert base.status.enabled
 
 
+def test_a_lost_boot_up_is_asked_for_again(channel: str) -> None:
+    """The drive reset but its boot-up frame was lost: it answers 1000h, so it is given
+    the boot time, then reset once more."""
+    cfg = sim_config(channel, boot_timeout_s=2.0)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        comm = sim.drives[1].comm
+        send = comm._send
+        lost: list[int] = []
+
+        def lossy(cob_id: int, data: bytes, droppable: bool = True) -> None:
+            if cob_id == 0x700 + comm.node_id and data == b"\x00" and not lost:
+                lost.append(cob_id)
+                return
+            send(cob_id, data, droppable)
+
+        comm._send = lossy
+        with Chassis.open(cfg, clock=clock) as base:
+            assert lost
+            assert base.status.enabled
+            assert clock.now() >= 2.0  # waited the boot time before resetting it again
+
+
+def test_a_node_answering_sdos_without_a_boot_up_fails_naming_that(channel: str) -> None:
+    cfg = sim_config(channel, boot_timeout_s=2.0)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        comm = sim.drives[1].comm
+        send = comm._send
+
+        def no_boot_up(cob_id: int, data: bytes, droppable: bool = True) -> None:
+            if not (cob_id == 0x700 + comm.node_id and data == b"\x00"):
+                send(cob_id, data, droppable)
+
+        comm._send = no_boot_up
+        with pytest.raises(DriveError, match=r"node 2: answers SDOs but sent no boot-up "
+                                             r"within 2 s of an NMT reset communication"):
+            Chassis.open(cfg, clock=clock)
+        assert clock.now() <= 2 * 2.0 + 1.0
+
+
 def test_an_absent_node_fails_within_the_boot_time_and_a_second(channel: str) -> None:
     cfg = sim_config(channel, boot_timeout_s=2.0)
     clock = SimClock()
