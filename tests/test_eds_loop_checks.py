@@ -90,6 +90,19 @@ def test_chassis_open_refuses_it_before_any_frame(tmp_path: Path, channel: str,
     says(str(raised.value), NARROW_OR_LOCKED[case][1])
 
 
+@pytest.mark.parametrize("case", ["target velocity 16-bit", "mode read-only"])
+def test_a_run_command_refuses_it_too(tmp_path: Path, case: str) -> None:
+    cfg, eds = broken_robot(tmp_path, case)
+    for argv in (["drive", "--sim", "--config", str(cfg), "--vx", "0.2", "--duration", "0.3"],
+                 ["sim", "--config", str(cfg), "--duration", "0.3"]):
+        code, out, err = run_main(argv)
+        assert code == 2
+        line = one_error_line(err)
+        assert str(eds) in line
+        says(line, NARROW_OR_LOCKED[case][1])
+        assert "pose" not in out and "serving" not in out
+
+
 def _in_code(eds: Path, channel: str) -> ChassisConfig:
     """examples/robot.toml as a program builds it in code (no load_config of the broken
     file), node 2 on ``eds``, on a virtual channel."""
