@@ -4,8 +4,13 @@ a drive that answers SDOs later than the timeout is named as such within a few t
 
 from __future__ import annotations
 
+import json
+import os
 import re
+import subprocess
+import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -17,6 +22,8 @@ from omnican.errors import DriveError
 from omnican.sim import SimulatedBase
 
 from .helpers import sim_config
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _drop_first_reset(drive: Any) -> list[int]:
@@ -162,3 +169,35 @@ def test_sdo_answers_later_than_the_timeout_are_named_in_real_time(channel: str)
                      r"chassis\.sdo_timeout_s 0\.5 s: raise it", str(err.value))
     assert m is not None, str(err.value)
     assert float(m.group(1)) >= 0.55  # never less than the drive's delay (load adds to it)
+
+
+# ---------------------------------------------------------------- across processes
+
+def _drive(toml: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "omnican", "drive", "--config", str(toml),
+                           "--vx", "0.1", "--duration", "0.3", "--json", *extra],
+                          check=False, capture_output=True, text=True, env=env, timeout=60)
+
+
+def test_a_slow_booting_drive_opens_from_another_process(
+        served: tuple[SimulatedBase, Path]) -> None:
+    sim, toml = served
+    sim.drives[1].slow_boot(1.5)
+    done = _drive(toml)
+    assert done.returncode == 0, done.stderr
+    assert "pose" in json.loads(done.stdout)
+
+
+def test_a_slow_sdo_drive_is_named_from_another_process(
+        served: tuple[SimulatedBase, Path]) -> None:
+    sim, toml = served
+    toml.write_text(toml.read_text().replace("base_radius = 0.19\n",
+                                             "base_radius = 0.19\nsdo_timeout_s = 0.5\n"))
+    sim.drives[1].slow_sdo(0.55)
+    done = _drive(toml)
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    assert re.search(r"node 2 answers SDOs after 0\.\d\d s, slower than "
+                     r"chassis\.sdo_timeout_s 0\.5 s: raise it", done.stdout + done.stderr), (
+        done.stdout, done.stderr)
