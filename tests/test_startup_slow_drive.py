@@ -201,3 +201,17 @@ def test_a_slow_sdo_drive_is_named_from_another_process(
     assert re.search(r"node 2 answers SDOs after 0\.\d\d s, slower than "
                      r"chassis\.sdo_timeout_s 0\.5 s: raise it", done.stdout + done.stderr), (
         done.stdout, done.stderr)
+
+
+def test_the_sim_console_slows_a_drive(channel: str) -> None:
+    from omnican.sim.console import command
+
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg, clock=SimClock()) as sim:
+        assert command(sim, "slowboot 2 1.5") == "node 2: boot-up 1.5 s after an NMT reset"
+        assert command(sim, "slowsdo 3 0.55") == "node 3: SDO answers 0.55 s after the request"
+        assert (sim.drives[1].comm.boot_delay_s, sim.drives[2].comm.sdo_delay_s) == (1.5, 0.55)
+        assert command(sim, "slowsdo 3 -1") == "error: a delay is 0 s or more, got '-1'"
+        assert command(sim, "slowboot 2") == ("error: slowboot takes a node id and seconds, "
+                                              "e.g. slowboot 2 0.5")
+        assert sim.drives[1].comm.boot_delay_s == 1.5
