@@ -95,6 +95,9 @@ class NodeSetup:
         self.node = node
         self._refusal: str | None = None  # why the drive refused the plan (then: its own)
         self._later: list[str] = []  # warnings of a configuration, logged at its end
+        # The drive watches this host's heartbeat (1016h written since its last reset
+        # communication, which clears it): then the way out stops that.
+        self._watching = False
 
     def configure(self, warn: list[str] | None = None) -> None:
         """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded.
@@ -134,6 +137,7 @@ class NodeSetup:
         if node.has_consumer:
             ms = heartbeat.consumer_time_ms(s.heartbeat_ms, s.heartbeat_timeout_factor)
             value = (s.host_node_id << 16) | ms
+            self._watching = True  # also if the write's answer is lost
             self._sdo_write(CONSUMER_HEARTBEAT_TIME, 1, value.to_bytes(4, "little"),
                             "heartbeat consumer")
             abort = node.axes[0].objs.get(Obj.ABORT_OPTION)
@@ -189,6 +193,7 @@ class NodeSetup:
                 return node.boot_count - before
 
         def reset() -> float:
+            self._watching = False  # a reset communication clears 1016h
             node.network.send_message(NMT_COB_ID,
                                       bytes([NmtCommand.RESET_COMMUNICATION, node.node_id]))
             return clock.now()
@@ -584,7 +589,7 @@ class NodeSetup:
                 except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                     logger.warning("node %d: disabling its drive by SDO failed: %s",
                                    node.node_id, exc)
-        if node.has_consumer:
+        if node.has_consumer and self._watching:
             try:
                 node.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
