@@ -14,6 +14,12 @@ Two kinds of object, each with the sub-indices and the data types omnican relies
   statusword, mode, target, position, ramps ...), which must be integers omnican can
   encode.
 
+What the control loop needs beyond the types (:func:`width_problem`,
+:func:`counter_problem`, :func:`access_problem`, :func:`modes_problem`, applied by
+:class:`omnican.layout.NodeLayout` with the config's speed, scales and rate): a target
+wide enough for the top speed, a position counter that cannot pass half its span between
+samples, write access where omnican writes, a velocity mode among 6502h's.
+
 Real drives' files understate their drives (objects marked not PDO-mappable, optional
 sub-indices left out, a sub 0 declared UNSIGNED16): none of that is refused here. What
 is refused is a file no drive could have, before a frame is sent.
