@@ -42,6 +42,12 @@ class Clock:
         if seconds > 0:
             time.sleep(seconds)
 
+    @property
+    def can_wait(self) -> bool:
+        """Waiting on this clock lets time pass (not so inside a task of a lock-step
+        clock: it must return for time to go on)."""
+        return True
+
     def every(self, period_s: float, step: Step, first_s: float | None = None) -> object:
         """Lock-step clocks run tasks; in real time each loop has a thread of its own."""
         raise RuntimeError("tasks run on a lock-step clock only (omnican.clock.SimClock)")
@@ -97,6 +103,10 @@ class SimClock(Clock):
 
     def now(self) -> float:
         return self._t
+
+    @property
+    def can_wait(self) -> bool:
+        return not self._running
 
     def wall(self) -> float:
         return self.epoch + self._t

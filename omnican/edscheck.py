@@ -14,6 +14,12 @@ Two kinds of object, each with the sub-indices and the data types omnican relies
   statusword, mode, target, position, ramps ...), which must be integers omnican can
   encode.
 
+What the control loop needs beyond the types (:func:`width_problem`,
+:func:`counter_problem`, :func:`access_problem`, :func:`modes_problem`, applied by
+:class:`omnican.layout.NodeLayout` with the config's speed, scales and rate): a target
+wide enough for the top speed, a position counter that cannot pass half its span between
+samples, write access where omnican writes, a velocity mode among 6502h's.
+
 Real drives' files understate their drives (objects marked not PDO-mappable, optional
 sub-indices left out, a sub 0 declared UNSIGNED16): none of that is refused here. What
 is refused is a file no drive could have, before a frame is sent.
@@ -246,3 +252,57 @@ def one_line(problems: list[str]) -> str:
     """The first problem, and how many more there are."""
     more = len(problems) - 1
     return problems[0] + (f" (and {more} more problem{'s' if more > 1 else ''})" if more else "")
+
+
+# ------------------------------------------------ what the control loop needs of it
+
+def value_range(bits: int, signed: bool) -> tuple[int, int]:
+    """The integers a ``bits``-wide object holds."""
+    return (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+
+
+def width_problem(where: str, bits: int, signed: bool, largest: float, why: str) -> str | None:
+    """An object omnican sends values up to +-``largest`` in: its type holds them (else
+    the drive gets a capped value, or a wrapped one). None if it does."""
+    lo, hi = value_range(bits, signed)
+    if -largest >= lo and largest <= hi:
+        return None
+    kind = "signed" if signed else "unsigned"
+    return (f"{where} is {bits}-bit {kind} ({lo} to {hi}): too narrow for "
+            f"+-{largest:.0f} ({why})")
+
+
+def counter_problem(where: str, bits: int, counts_per_cycle: float, cycles: int,
+                    why: str) -> str | None:
+    """A counter read once a cycle: it must not move half its span in ``cycles``
+    cycles (a sample or a few lost), or a wrap cannot be told from a step back."""
+    half = 1 << (bits - 1)
+    if counts_per_cycle * cycles < half:
+        return None
+    return (f"{where} is {bits}-bit (wraps every {1 << bits} counts): {why} moves it "
+            f"{counts_per_cycle:.0f} counts a cycle, so a wrap cannot be told from a step back; "
+            f"omnican needs under {half // cycles} counts a cycle (a wider type, or a lower "
+            "position_scale)")
+
+
+def access_problem(var: od.ODVariable, where: str, write: bool, why: str) -> str | None:
+    """An object omnican writes (``write``) or reads: its EDS access allows it."""
+    if (var.writable if write else var.readable):
+        return None
+    need = "writes" if write else "reads"
+    return f"{where} is AccessType {var.access_type}; omnican {need} it ({why})"
+
+
+def modes_problem(where: str, offered: frozenset[int], mode: int, mode_name: str,
+                  velocity_modes: dict[int, str], configured: bool) -> str | None:
+    """6502h, where the EDS gives its value (0: not given): a velocity mode, and the
+    chosen one."""
+    if not offered or mode in offered:
+        return None
+    names = ", ".join(velocity_modes.values())
+    if not offered & velocity_modes.keys():
+        return (f"{where} offers no velocity mode ({names}); omnican drives each wheel in "
+                "one of them")
+    have = ", ".join(velocity_modes[m] for m in sorted(offered & velocity_modes.keys()))
+    return (f"{where} does not offer mode {mode_name}{' (configured)' if configured else ''}; "
+            f"it offers {have}")

@@ -13,7 +13,15 @@ from dataclasses import dataclass, replace
 from canopen import objectdictionary as od
 
 from omnican import cia402, edscheck
-from omnican.cia301 import CONSUMER_HEARTBEAT_TIME
+from omnican.cia301 import (
+    CONSUMER_HEARTBEAT_TIME,
+    MAX_PDOS,
+    PDO_COB_ID,
+    PRODUCER_HEARTBEAT_TIME,
+    RPDO_COMM,
+    TPDO_COMM,
+    TPDO_MAP,
+)
 from omnican.cia402 import Mode
 from omnican.config import ChassisConfig, ChassisSettings, EstopSettings, WheelConfig
 from omnican.errors import ConfigError
@@ -28,7 +36,11 @@ from omnican.odmap import (
     variable_at,
 )
 from omnican.pdoplan import NodePlan, frame_bits, pdo_slots, plan_node
-from omnican.vendorsdo import vendor_writes
+from omnican.vendorsdo import overwrite_problem, vendor_writes
+
+#: A position counter must not move half its span in this many control cycles (so
+#: samples lost on the way still leave a wrap told from a step back).
+COUNTER_CYCLES = 4
 
 
 @dataclass(frozen=True)
@@ -85,6 +97,7 @@ class NodeLayout:
         self.has_consumer = isinstance(self.dictionary.get(CONSUMER_HEARTBEAT_TIME),
                                        (od.ODArray, od.ODRecord))
         problems = self._object_problems()
+        problems += self._loop_problems(any(w.mode is not None for _, w in wheels))
         if problems:
             raise ConfigError(f"node {node_id}: EDS {eds}: {edscheck.one_line(problems)}")
         plan = self._plan()
@@ -109,6 +122,37 @@ class NodeLayout:
             self.settings_writes = vendor_writes(self.dictionary, wheels)
         except ConfigError as exc:
             raise ConfigError(f"node {node_id}: EDS {eds.name}: {exc}") from None
+        overwrite = overwrite_problem(self.settings_writes, self.configured_by_omnican)
+        if overwrite is not None:
+            raise ConfigError(f"node {node_id}: {overwrite}")
+
+    def configured_by_omnican(self, index: int, subindex: int) -> str | None:
+        """What omnican sets ``index:subindex`` for at each configuration (None: it does
+        not): PDO parameters, heartbeats, each axis's mode, ramps, abort option and cyclic
+        objects."""
+        if RPDO_COMM <= index < TPDO_MAP + MAX_PDOS:
+            return "the PDO configuration"
+        if (index, subindex) == (PRODUCER_HEARTBEAT_TIME, 0):
+            return "the heartbeat producer, chassis.heartbeat_ms"
+        if (index, subindex) == (CONSUMER_HEARTBEAT_TIME, 1) and self.has_consumer:
+            return "the heartbeat consumer watching the host"
+        for ax in self.axes:
+            stage = self.stages[ax.stage]
+            named = [(ax.target, "the wheel's target"), (stage.controlword, "the controlword"),
+                     (stage.mode, "the mode of operation")]
+            objs = ax.objs
+            if self.has_consumer:
+                named.append((objs.get(Obj.ABORT_OPTION), "what a lost host stops with"))
+            if self.mode is not Mode.VELOCITY:
+                for obj in (Obj.PROFILE_ACCEL, Obj.PROFILE_DECEL, Obj.QUICK_STOP_DECEL):
+                    named.append((objs.get(obj), f"{obj_name(obj)}, from the chassis limits"))
+            for entry, why in named:
+                if entry is not None and (entry.index, entry.subindex) == (index, subindex):
+                    return why
+            for rec in (Obj.VL_ACCEL, Obj.VL_DECEL):
+                if objs.record(rec) == index and self.mode is Mode.VELOCITY:
+                    return f"{obj_name(rec)}, from the chassis limits"
+        return None
 
     def _object_problems(self) -> list[str]:
         """The CiA 402 objects the drive layer will map, write or read, each an integer
@@ -138,6 +182,60 @@ class NodeLayout:
             problem = edscheck.variable_problem(var, name, declared, bits)
             if problem:
                 problems.append(problem)
+        return problems
+
+    def _loop_problems(self, mode_configured: bool) -> list[str]:
+        """What the control loop needs of the objects it uses, beyond their types: wide
+        enough for the configured speed and travel, the access it uses them with, the
+        chosen mode among the supported ones (6502h, where the EDS gives its value)."""
+        s = self.settings
+        problems: list[str] = []
+
+        def add(problem: str | None) -> None:
+            if problem is not None and problem not in problems:
+                problems.append(problem)
+
+        def access(entry: Entry | None, write: bool, why: str) -> None:
+            var = None if entry is None else variable_at(self.dictionary, entry.index,
+                                                         entry.subindex)
+            if entry is not None and var is not None:
+                add(edscheck.access_problem(var, f"{entry.address} {entry.name}", write, why))
+
+        velocity = {int(m): m.short for m in Mode}
+        for ax in self.axes:
+            w, i = ax.wheel, ax.wheel_index
+            top = f"wheel {i} at max_wheel_speed {s.max_wheel_speed:g} m/s"
+            add(edscheck.width_problem(
+                f"{ax.target.address} {ax.target.name}", ax.target.bits, ax.target.signed,
+                s.max_wheel_speed * abs(w.velocity_scale),
+                f"{top} x velocity_scale {w.velocity_scale:g}"))
+            add(edscheck.counter_problem(
+                f"{ax.position.address} {ax.position.name}", ax.position.bits,
+                s.max_wheel_speed * abs(w.position_scale) / s.rate_hz, COUNTER_CYCLES,
+                f"{top} x position_scale {w.position_scale:g} at rate_hz {s.rate_hz:g}"))
+            stage = self.stages[ax.stage]
+            access(ax.target, True, "the wheel's target, every cycle")
+            access(ax.position, False, "the wheel's travel, every cycle")
+            access(stage.controlword, True, "the controlword")
+            access(stage.statusword, False, "the statusword")
+            access(stage.mode, True, f"the mode of operation, {self.mode.short}")
+            access(stage.mode_display, False, "to confirm the mode")
+            supported = ax.objs.get(Obj.SUPPORTED_MODES)
+            var = None if supported is None else variable_at(self.dictionary, supported.index,
+                                                             supported.subindex)
+            if supported is not None and var is not None and isinstance(var.default, int):
+                add(edscheck.modes_problem(
+                    f"{supported.address} {supported.name} (0x{var.default:X})",
+                    cia402.supported_modes(var.default), int(self.mode), self.mode.short,
+                    velocity, mode_configured))
+        for index, sub, why in ((PRODUCER_HEARTBEAT_TIME, 0, "the drive's heartbeat"),
+                                *([(CONSUMER_HEARTBEAT_TIME, 1, "to watch the host's "
+                                    "heartbeat")] if self.has_consumer else []),
+                                *((base + n, PDO_COB_ID, "it enables or disables each PDO")
+                                  for base in (RPDO_COMM, TPDO_COMM) for n in range(MAX_PDOS))):
+            var = variable_at(self.dictionary, index, sub)
+            if var is not None:
+                add(edscheck.access_problem(var, f"0x{index:04X}:{sub:02X} {var.name}", True, why))
         return problems
 
     def _choose_mode(self, wheels: list[tuple[int, WheelConfig]]) -> Mode:

@@ -11,7 +11,7 @@ dictionary in, the bytes to write out.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from canopen import objectdictionary as od
@@ -98,6 +98,19 @@ def _integer(value: int | float | bool, boolean: bool, what: str) -> int:
             raise ConfigError(f"{what} is an integer, got {value!r}")
         return int(value)
     return value
+
+
+def overwrite_problem(writes: Sequence[VendorWrite],
+                      owned: Callable[[int, int], str | None]) -> str | None:
+    """The first setting that would overwrite an object omnican configures itself
+    (``owned(index, subindex)`` says what for; None: not omnican's). Settings are
+    written after omnican's own configuration, so such a setting would undo it."""
+    for write in writes:
+        why = owned(write.entry.index, write.entry.subindex)
+        if why is not None:
+            return (f"{write.origin}: {write.entry.name} ({write.entry.address}) is set by "
+                    f"omnican ({why}); a vendor setting would overwrite it")
+    return None
 
 
 def vendor_writes(dictionary: od.ObjectDictionary,

@@ -26,6 +26,7 @@ from omnican.cia301 import HEARTBEAT_BASE, NMT_STATE_MASK, NmtState
 from omnican.clock import REAL_TIME, Clock
 from omnican.drive.cyclic import AxisIO, CyclicIO, EpochSource, SdoCounts
 from omnican.drive.health import NodeHealth
+from omnican.drive.sdoclient import CheckedRemoteNode
 from omnican.drive.setup import NodeSetup
 from omnican.drive.stage import StageDriver
 from omnican.healthplan import HealthPlan
@@ -57,9 +58,11 @@ class DriveNode:
         self.mode = layout.mode
         self.has_consumer = layout.has_consumer
         self.plan = layout.plan
-        self.remote = canopen.RemoteNode(node_id, self.dictionary)
+        # Initiate answers matched to their request, a late one told from none (sdoclient).
+        self.remote: canopen.RemoteNode = CheckedRemoteNode(node_id, self.dictionary, clock,
+                                                            settings.sdo_timeout_s)
         # canopen's MAX_RETRIES counts attempts, not retries. In lock-step an answer arrives
-        # inside its request's send, or never: nothing to wait for.
+        # inside its request's send, or (at opening) on the simulated clock.
         self.remote.sdo.RESPONSE_TIMEOUT = (LOCKSTEP_SDO_WAIT_S if clock.lockstep
                                             else settings.sdo_timeout_s)
         self.remote.sdo.MAX_RETRIES = settings.sdo_retries + 1

@@ -28,6 +28,7 @@ from omnican.cia301 import (
     COB_ID_INVALID,
     COB_ID_MASK,
     CONSUMER_HEARTBEAT_TIME,
+    DEVICE_TYPE,
     NMT_COB_ID,
     PRODUCER_HEARTBEAT_TIME,
     TPDO_COMM,
@@ -42,6 +43,7 @@ from omnican.clock import Clock
 from omnican.config import ChassisSettings
 from omnican.drive.cyclic import AxisIO
 from omnican.drive.health import NodeHealth
+from omnican.drive.sdoclient import SdoTooSlowError
 from omnican.drive.stage import StageDriver
 from omnican.errors import DriveError
 from omnican.healthplan import HealthPlan
@@ -82,6 +84,7 @@ logger = logging.getLogger("omnican.drive")
 
 # Power stages with no torque: nothing to disable on the way out.
 _OFF_STATES = frozenset({State.SWITCH_ON_DISABLED, State.NOT_READY_TO_SWITCH_ON, State.FAULT})
+MODE_READS, MODE_READ_GAP_S = 4, 0.05  # the mode display read back after setting the mode
 BOOT_RESETS = 4  # NMT resets sent (within boot_timeout_s) before a node counts as absent
 
 
@@ -92,6 +95,9 @@ class NodeSetup:
         self.node = node
         self._refusal: str | None = None  # why the drive refused the plan (then: its own)
         self._later: list[str] = []  # warnings of a configuration, logged at its end
+        # The drive watches this host's heartbeat (1016h written since its last reset
+        # communication, which clears it): then the way out stops that.
+        self._watching = False
 
     def configure(self, warn: list[str] | None = None) -> None:
         """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded.
@@ -120,6 +126,7 @@ class NodeSetup:
             stage.forget()
             if stage.mode is not None:
                 self._write_value(stage.mode, int(node.mode), f"mode {node.mode.short}")
+            self._confirm_mode(stage)
         self._configure_ramps()
         self._read_rated_currents()
         for write in node.layout.settings_writes:  # [[wheel.sdo]]
@@ -130,6 +137,7 @@ class NodeSetup:
         if node.has_consumer:
             ms = heartbeat.consumer_time_ms(s.heartbeat_ms, s.heartbeat_timeout_factor)
             value = (s.host_node_id << 16) | ms
+            self._watching = True  # also if the write's answer is lost
             self._sdo_write(CONSUMER_HEARTBEAT_TIME, 1, value.to_bytes(4, "little"),
                             "heartbeat consumer")
             abort = node.axes[0].objs.get(Obj.ABORT_OPTION)
@@ -155,31 +163,132 @@ class NodeSetup:
 
     def _reset_communication(self) -> None:
         """NMT reset communication and wait for the boot-up: the drive's 1000h-1FFFh
-        (PDOs, heartbeat) are back at their power-on values. A reset or a boot-up lost on
-        the way is asked for again, up to ``BOOT_RESETS`` times within boot_timeout_s."""
+        (PDOs, heartbeat) are back at their power-on values.
+
+        Every ``boot_timeout_s / BOOT_RESETS`` without a boot-up, one SDO read of 1000h
+        asks whether the node is there (CiA 302-2's boot process). A node that answers is
+        booting: a new reset would start its boot again, so it gets the whole boot time
+        (then one more reset, for a reset or a boot-up lost on the way). A silent one is
+        sent the reset again (it may have missed it); it fails after the boot time."""
         node = self.node
         s = node.settings
-        wait = 0.0 if node.clock.lockstep else s.boot_timeout_s / BOOT_RESETS
+        clock = node.clock
+        waits = not clock.lockstep or clock.can_wait  # lock-step inside a task: no waiting
+        interval = s.boot_timeout_s / BOOT_RESETS
         with node._boot_seen:
             before = node.boot_count
-        booted = resets = 0
-        while not booted and resets < BOOT_RESETS:
-            resets += 1
+
+        def booted() -> int:
+            with node._boot_seen:
+                return node.boot_count - before
+
+        def wait_boot(until: float) -> int:
+            left = until - clock.now()
+            if clock.lockstep:
+                if waits and left > 0:
+                    clock.run_until(booted, left, 0.001)  # type: ignore[attr-defined]
+                return booted()
+            with node._boot_seen:
+                node._boot_seen.wait_for(lambda: node.boot_count != before, max(left, 0.0))
+                return node.boot_count - before
+
+        def reset() -> float:
+            self._watching = False  # a reset communication clears 1016h
             node.network.send_message(NMT_COB_ID,
                                       bytes([NmtCommand.RESET_COMMUNICATION, node.node_id]))
-            with node._boot_seen:
-                if node._boot_seen.wait_for(lambda: node.boot_count != before, wait):
-                    booted = node.boot_count - before
-        if not booted:
-            within = f" within {s.boot_timeout_s:g} s" if wait else ""
+            return clock.now()
+
+        last_reset = reset()
+        resets, answered, retried_alive = 1, False, False
+        end = last_reset + s.boot_timeout_s
+        next_check = last_reset + interval
+        while not booted():
+            if not waits:  # nothing can come meanwhile: the resets at once
+                if resets >= BOOT_RESETS:
+                    break
+                last_reset, resets = reset(), resets + 1
+                continue
+            if wait_boot(min(next_check, end)):
+                break
+            if clock.now() >= end and (not answered or retried_alive):
+                break
+            alive = self._answers_1000h()
+            if booted():
+                break
+            now = clock.now()
+            if alive:
+                answered = True
+                if now >= last_reset + s.boot_timeout_s:
+                    if retried_alive:
+                        break
+                    # There, but no boot-up for a whole boot time: the reset or its
+                    # boot-up was lost. Once more, with another boot time to answer.
+                    last_reset, resets, retried_alive = reset(), resets + 1, True
+                    now = last_reset
+                end = max(end, last_reset + s.boot_timeout_s)
+            elif now < end:
+                last_reset, resets = reset(), resets + 1  # silent: it may have missed it
+                now = last_reset
+            else:
+                break
+            next_check = now + interval
+        count = booted()
+        if not count:
+            if answered:
+                raise DriveError(f"node {node.node_id}: answers SDOs but sent no boot-up within "
+                                 f"{s.boot_timeout_s:g} s of an NMT reset communication (sent "
+                                 f"{resets} times; raise chassis.boot_timeout_s?)")
+            within = f" within {s.boot_timeout_s:g} s" if waits else ""
             raise DriveError(f"node {node.node_id}: no boot-up{within} after NMT reset "
-                             f"communication (sent {BOOT_RESETS} times; powered? node id? "
+                             f"communication (sent {resets} times; powered? node id? "
                              "bitrate?)")
-        if resets == 1 and booted > 1:  # one reset, two boot-ups
+        if resets == 1 and count > 1:  # one reset, two boot-ups
             node.twins = True
-            raise DriveError(self._twins(f"{booted} boot-ups answered one NMT reset"))
+            raise DriveError(self._twins(f"{count} boot-ups answered one NMT reset"))
         with node._boot_seen:
             node.configured_boot = node.boot_count
+
+    def _answers_1000h(self) -> bool:
+        """One SDO read of the device type (1000h), one attempt: the node is there."""
+        sdo = self.node.remote.sdo
+        retries = sdo.MAX_RETRIES
+        sdo.MAX_RETRIES = 1
+        try:
+            sdo.upload(DEVICE_TYPE, 0)
+            return True
+        except SdoAbortedError:
+            return True  # an abort is an answer too
+        except (SdoCommunicationError, can.CanError, OSError):
+            return False
+        finally:
+            sdo.MAX_RETRIES = retries
+
+    def _confirm_mode(self, stage: StageDriver) -> None:
+        """Read the mode display (6061h) back: a drive that did not take the mode (a
+        read-only 6060h, a mode it refuses without an abort) would follow targets it
+        does not read as velocities. A drive gets ``MODE_READS`` reads, 50 ms apart."""
+        node = self.node
+        display = stage.mode_display
+        if display is None:
+            return
+        clock = node.clock
+        value = None
+        for read in range(MODE_READS):
+            if read and clock.can_wait:
+                clock.sleep(MODE_READ_GAP_S)
+            with self._sdo_errors(f"reading the mode display ({display.address})"):
+                value = display.decode(node.remote.sdo.upload(display.index, display.subindex))
+            if value == int(node.mode):
+                return
+        assert value is not None
+        mode = stage.mode
+        how = (f"writing mode {node.mode.short} ({int(node.mode)}) to {mode.address}"
+               if mode is not None and mode.writable else
+               f"setting mode {node.mode.short} ({int(node.mode)}), which its EDS does not "
+               "let omnican write")
+        raise DriveError(f"node {node.node_id}: the mode display {display.address} shows "
+                         f"{value} ({cia402.MODE_NAMES.get(value, 'unknown')}) after {how}: "
+                         "the drive did not take the mode")
 
     def _twins(self, evidence: str) -> str:
         node = self.node
@@ -315,6 +424,8 @@ class NodeSetup:
                 continue
             try:
                 raw = node.remote.sdo.upload(rated.index, rated.subindex)
+            except SdoTooSlowError as exc:
+                raise DriveError(self._too_slow(exc)) from None
             except (SdoAbortedError, SdoCommunicationError) as exc:
                 self._later.append(f"node {node.node_id}: reading the rated current "
                                    f"({rated.address}) failed: {exc}")
@@ -432,11 +543,18 @@ class NodeSetup:
         except SdoAbortedError as exc:
             raise DriveError(f"node {node.node_id}: {doing} refused: {abort_text(exc.code)}"
                              ) from None
+        except SdoTooSlowError as exc:
+            raise DriveError(self._too_slow(exc)) from None
         except SdoCommunicationError:
             sdo = node.remote.sdo
             wait = node.settings.sdo_timeout_s if not node.clock.lockstep else 0.0
             raise DriveError(f"node {node.node_id}: no SDO answer {doing} ({sdo.MAX_RETRIES} "
                              f"attempts{f', {wait:g} s each' if wait else ''})") from None
+
+    def _too_slow(self, exc: SdoTooSlowError) -> str:
+        timeout = self.node.settings.sdo_timeout_s
+        return (f"node {self.node.node_id} answers SDOs after {exc.late_s:.2f} s, slower than "
+                f"chassis.sdo_timeout_s {timeout:g} s: raise it")
 
     def _sdo_write(self, entry_or_index: Entry | int, subindex: int, data: bytes,
                    what: str) -> None:
@@ -471,7 +589,7 @@ class NodeSetup:
                 except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                     logger.warning("node %d: disabling its drive by SDO failed: %s",
                                    node.node_id, exc)
-        if node.has_consumer:
+        if node.has_consumer and self._watching:
             try:
                 node.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:

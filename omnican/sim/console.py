@@ -26,6 +26,8 @@ COMMANDS = (
     ("lift NODE[.AXIS]", "the wheel is off the ground (it moves nothing, draws less current)"),
     ("land NODE[.AXIS]", "the wheel is back on the ground"),
     ("ferror NODE[.AXIS] COUNTS|off", "the drive reports a following error (60F4h, bit 13)"),
+    ("slowboot NODE SECONDS", "answer an NMT reset with the boot-up that much later (0: at once)"),
+    ("slowsdo NODE SECONDS", "answer each SDO request that much later (0: at once)"),
     ("battery VOLTS", "the battery feeding every drive (nominal 24 V)"),
     ("estop on|off", "press or release the e-stop (every drive's input and safe torque off)"),
     ("pose", "print the ground-truth pose"),
@@ -114,6 +116,25 @@ def _wheel_command(sim: SimulatedBase, verb: str, rest: list[str]) -> str:
     return f"{name}: following error {counts}"
 
 
+#: the commands that slow a drive down: what each sets, and the reply
+_SLOW: dict[str, tuple[Callable[[SimulatedDrive, float], None], str]] = {
+    "slowboot": (SimulatedDrive.slow_boot, "boot-up {:g} s after an NMT reset"),
+    "slowsdo": (SimulatedDrive.slow_sdo, "SDO answers {:g} s after the request"),
+}
+
+
+def _slow_command(sim: SimulatedBase, verb: str, rest: list[str]) -> str:
+    if len(rest) != 2:
+        raise ValueError(f"{verb} takes a node id and seconds, e.g. {verb} 2 0.5")
+    drive = drive_for(sim, rest[0])
+    seconds = _number(rest[1], "seconds")
+    if seconds < 0:
+        raise ValueError(f"a delay is 0 s or more, got {rest[1]!r}")
+    change, said = _SLOW[verb]
+    change(drive, seconds)
+    return f"node {drive.node_id}: {said.format(seconds)}"
+
+
 def parse_emcy_code(word: str) -> int:
     try:
         code = int(word, 0)
@@ -145,6 +166,8 @@ def command(sim: SimulatedBase, line: str,
             return f"true pose x={_fixed(p.x)} y={_fixed(p.y)} theta={_fixed(p.theta)}"
         if verb in _WHEEL_VERBS:
             return _wheel_command(sim, verb, rest)
+        if verb in _SLOW:
+            return _slow_command(sim, verb, rest)
         if verb == "battery":
             if len(rest) != 1:
                 raise ValueError("battery takes the voltage, e.g. battery 19.5")

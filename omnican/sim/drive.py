@@ -26,6 +26,7 @@ Threads: frames are handled on the network's Notifier thread; a
 
 from __future__ import annotations
 
+import math
 import random
 import threading
 from collections.abc import Callable, Mapping, Sequence
@@ -217,6 +218,21 @@ class SimulatedDrive:
     @frame_loss.setter
     def frame_loss(self, value: float) -> None:
         self.comm.frame_loss = value
+
+    def slow_boot(self, seconds: float) -> None:
+        """Answer an NMT reset with the boot-up ``seconds`` later (0: at once), answering
+        SDOs meanwhile; a reset during that time starts the wait again."""
+        if not (math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f"a boot delay is 0 s or more, got {seconds}")
+        with self.lock:
+            self.comm.boot_delay_s = seconds
+
+    def slow_sdo(self, seconds: float) -> None:
+        """Answer each SDO request ``seconds`` after it came (0: at once)."""
+        if not (math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f"an SDO delay is 0 s or more, got {seconds}")
+        with self.lock:
+            self.comm.sdo_delay_s = seconds
 
     @property
     def tau_s(self) -> float:

@@ -142,6 +142,14 @@ class SimNode:
         self.nmt = NmtState.BOOT_UP
         self.frozen = False
         self.closed = False
+        #: seconds from an NMT reset to the boot-up frame: the drive answers SDOs
+        #: meanwhile (its communication is up, its application still starting) but sends
+        #: no heartbeat; another reset starts the wait again
+        self.boot_delay_s = 0.0
+        self._boot_due: tuple[float, bool] | None = None  # (when, reset node) of a slow boot
+        #: seconds from an SDO request to its answer (a slow SDO server)
+        self.sdo_delay_s = 0.0
+        self._sdo_answers: list[tuple[float, bytes]] = []  # (due, frame) held back
         self.heartbeat = Heartbeat()
         self._subscribed_hb: set[int] = set()
         self.pdos = ProcessData(local, self.readers, self._send, self._compile_write)
@@ -162,6 +170,7 @@ class SimNode:
         network.unsubscribe(local.sdo.rx_cobid, local.sdo.on_request)
         network.subscribe(NMT_COB_ID, self._on_nmt)
         network.subscribe(local.sdo.rx_cobid, self._on_sdo)
+        local.sdo.send_response = self._send_sdo_answer  # type: ignore[method-assign]
         self._sync_cob = self._uint(SYNC_COB_ID_OBJECT, 0, "<I", SYNC_COB_ID) & COB_ID_MASK
         network.subscribe(self._sync_cob, self._on_sync)
 
@@ -194,6 +203,7 @@ class SimNode:
     def boot(self, reset_node: bool) -> None:
         """Boot-up frame and PRE-OPERATIONAL; ``reset_node``: every object back to its
         default, else the communication objects only."""
+        self._boot_due = None
         self.nmt = NmtState.BOOT_UP
         self.pdos.stop()
         store = self.local.data_store
@@ -236,11 +246,23 @@ class SimNode:
                 self.nmt = NmtState.PRE_OPERATIONAL
                 self.pdos.stop()
             elif cmd == NmtCommand.RESET_NODE:
-                self.boot(reset_node=True)
+                self._reset(reset_node=True, now=now)
             elif cmd == NmtCommand.RESET_COMMUNICATION:
                 self.app.abort_connection()
-                self.boot(reset_node=False)
+                self._reset(reset_node=False, now=now)
             self._send_heartbeat(now)  # heartbeats show a new state at once
+
+    def _reset(self, reset_node: bool, now: float) -> None:
+        """An NMT reset: the boot at once, or (``boot_delay_s``) after a while, quiet
+        but answering SDOs meanwhile; a reset during that wait starts it again."""
+        if self.boot_delay_s <= 0:
+            self.boot(reset_node)
+            return
+        self.nmt = NmtState.BOOT_UP
+        self.pdos.stop()
+        self.heartbeat.enabled = False
+        due = self._boot_due
+        self._boot_due = (now + self.boot_delay_s, reset_node or (due is not None and due[1]))
 
     def _enter_operational(self) -> None:
         for cob in self.pdos.start():
@@ -251,10 +273,18 @@ class SimNode:
 
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
-            if self.frozen or self.nmt in (NmtState.STOPPED, NmtState.BOOT_UP):
+            if self.frozen or self.nmt == NmtState.STOPPED or (
+                    self.nmt == NmtState.BOOT_UP and self._boot_due is None):
                 return
             self.app.advance(self.clock.now())
             self.local.sdo.on_request(can_id, data, timestamp)
+
+    def _send_sdo_answer(self, response: bytes | bytearray) -> None:
+        """The SDO server's answer: on the bus now, or ``sdo_delay_s`` later."""
+        if self.sdo_delay_s > 0:
+            self._sdo_answers.append((self.clock.now() + self.sdo_delay_s, bytes(response)))
+        else:
+            self._send(self.local.sdo.tx_cobid, bytes(response), droppable=False)
 
     def _on_read(self, index: int, subindex: int, od: od.ODVariable) -> int | None:
         reader = self.readers.get((index, subindex))
@@ -351,6 +381,12 @@ class SimNode:
         the lock, the device brought up to ``now``)."""
         if self.frozen:
             return
+        if self._boot_due is not None and now >= self._boot_due[0]:
+            reset_node = self._boot_due[1]
+            self._boot_due = None
+            self.boot(reset_node)
+        while self._sdo_answers and now >= self._sdo_answers[0][0]:
+            self._send(self.local.sdo.tx_cobid, self._sdo_answers.pop(0)[1], droppable=False)
         heartbeat = self.heartbeat
         if heartbeat.due(now):
             self._send_heartbeat(now)
