@@ -149,7 +149,7 @@ def test_fault_shows_in_diagnostics_and_wheels(channel: str) -> None:
             wheel_faults: list[str] = []
 
             def seen_all() -> bool:
-                return ("omnican: wheel 1 (wheel_1_joint): fault: 0x2310 continuous "
+                return ("omnican: wheel 1: fault: 0x2310 continuous "
                         "over-current" in texts
                         and any(t.startswith("omnican: chassis: stopped: node 2 fault: 0x2310")
                                 for t in texts)
