@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -278,12 +279,12 @@ APP_FIELD_TYPES = {"boolean", "string", "number", "integer", "object", "array"}
 APP_ITEM_TYPES = {"boolean", "string", "number", "integer", "object"}
 
 
-def _app_rejects(schema: dict[str, object], path: str = "") -> list[str]:
+def _app_rejects(schema: dict[str, Any], path: str = "") -> list[str]:
     """What the app's parser would refuse in an object schema, as "path: why"."""
     if schema.get("type") != "object":
         return [f"{path or '<root>'}: not an object"]
     bad: list[str] = []
-    for name, field in schema["properties"].items():  # type: ignore[attr-defined]
+    for name, field in schema["properties"].items():
         where = f"{path}.{name}" if path else name
         kind = field.get("type")
         if not isinstance(kind, str) or kind not in APP_FIELD_TYPES:
@@ -308,22 +309,23 @@ _JSON_TYPES = {"number": (int, float), "integer": (int,), "string": (str,),
                "boolean": (bool,), "object": (dict,), "array": (list,)}
 
 
-def _conforms(value: object, schema: dict[str, object], path: str = "") -> list[str]:
+def _conforms(given: Any, schema: dict[str, Any], path: str = "") -> list[str]:
     kind = schema["type"]
     assert isinstance(kind, str)
-    if not isinstance(value, _JSON_TYPES[kind]) or (
-            kind in ("number", "integer") and isinstance(value, bool)):
-        return [f"{path}: {value!r} is not {kind}"]
-    if kind == "number" and not math.isfinite(value):  # type: ignore[arg-type]
+    if not isinstance(given, _JSON_TYPES[kind]) or (
+            kind in ("number", "integer") and isinstance(given, bool)):
+        return [f"{path}: {given!r} is not {kind}"]
+    value: Any = given
+    if kind == "number" and not math.isfinite(value):
         return [f"{path}: {value!r} (JSON has no NaN or infinity)"]
     if kind == "object":
-        props: dict[str, dict[str, object]] = schema["properties"]  # type: ignore[assignment]
-        return ([f"{path}.{k}: not in the schema" for k in value if k not in props]  # type: ignore[attr-defined]
-                + [e for k, v in value.items() if k in props  # type: ignore[attr-defined]
+        props = schema["properties"]
+        return ([f"{path}.{k}: not in the schema" for k in value if k not in props]
+                + [e for k, v in value.items() if k in props
                    for e in _conforms(v, props[k], f"{path}.{k}")])
     if kind == "array":
-        return [e for i, v in enumerate(value)  # type: ignore[arg-type]
-                for e in _conforms(v, schema["items"], f"{path}[{i}]")]  # type: ignore[arg-type]
+        return [e for i, v in enumerate(value)
+                for e in _conforms(v, schema["items"], f"{path}[{i}]")]
     return []
 
 

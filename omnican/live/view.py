@@ -3,8 +3,9 @@
 
 It is a front end of the base's telemetry (:mod:`omnican.telemetry.feed`), as an MCAP
 recording is, so one Foxglove layout (:data:`LAYOUT`, installed with the package) serves
-both, with the same messages and stamps: ``/odom``, ``/odom/pose`` and ``/odom/path`` (what
-the 3D panel draws), ``/tf``, ``/joint_states``, ``/diagnostics`` (ROS 2 types, CDR), ``/pose2d``, ``/twist``, ``/wheels``, ``/status`` (JSON), ``/sim/true_pose`` and
+both, with the same messages and stamps: ``/odom``, ``/odom/pose`` and ``/odom/path``
+(what the 3D panel draws), ``/tf``, ``/joint_states``, ``/diagnostics`` (ROS 2 types,
+CDR), ``/pose2d``, ``/twist``, ``/wheels``, ``/status`` (JSON), ``/sim/true_pose`` and
 ``/sim/pose2d`` under simulation, the raw frames on ``/from_can_bus`` / ``/to_can_bus``
 (``can_msgs/msg/Frame``), and every frame the base's DBC describes decoded on
 ``/can/<message name>`` (JSON, one number per signal).

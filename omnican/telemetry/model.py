@@ -5,8 +5,8 @@ same list of :class:`Message` for the ROS 2 bridge, the live view and the MCAP r
 sample to sample (it grows with the distance rolled), the path rolled so far
 (:mod:`~omnican.telemetry.trail`, published every ``trail.PERIOD_S``), and when
 diagnostics are due (once per ``diagnostics_period_s`` of the base's clock, and at once
-when a level or a message changes). A message's bytes (CDR for ROS 2 types, JSON for the rest) are made once, by
-the first front end that asks for them, and shared.
+when a level or a message changes). A message's bytes (CDR for ROS 2 types, JSON for
+the rest) are made once, by the first front end that asks for them, and shared.
 """
 
 from __future__ import annotations
