@@ -57,6 +57,9 @@ def panels() -> Any:
         arrow = (0.4, 0.05, 0.05)  # m: about the base's size (0.19 m radius)
         return fl.ThreeDeePanel(title="base (odom frame)", config=fl.ThreeDeeConfig(
             follow_tf="base_link", fixed_frame="odom", follow_mode="follow-position",
+            # frame names small beside the base (the default covers it at this distance)
+            scene=fl.BaseRendererSceneSettings(transforms=fl.BaseRendererTransforms(
+                label_size=0.06)),
             camera_state=fl.ThreeDeeCameraState(distance=4.0, perspective=True, phi=45.0,
                                                 theta_offset=0.0, target_offset=(0, 0, 0)),
             layers={"grid": fl.BaseRendererGridLayerSettings(
