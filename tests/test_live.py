@@ -149,7 +149,7 @@ def test_fault_shows_in_diagnostics_and_wheels(channel: str) -> None:
             wheel_faults: list[str] = []
 
             def seen_all() -> bool:
-                return ("omnican: wheel 1 (wheel_1_joint): fault: 0x2310 continuous "
+                return ("omnican: wheel 1: fault: 0x2310 continuous "
                         "over-current" in texts
                         and any(t.startswith("omnican: chassis: stopped: node 2 fault: 0x2310")
                                 for t in texts)
@@ -219,7 +219,7 @@ _ = uuid, time
 
 
 def test_shipped_layout_is_current_and_names_our_topics() -> None:
-    """foxglove/omnican-layout.json is what tools/gen_foxglove_layout.py builds, in the
+    """The shipped layout is what tools/gen_foxglove_layout.py builds, in the
     format the app's *Import from file* reads (every panel of the layout tree configured
     in configById, and no other), and every topic and service it names is one the live
     view (and an MCAP recording) offers; its Teleop panel drives the control topic often
@@ -268,7 +268,7 @@ def test_shipped_layout_is_current_and_names_our_topics() -> None:
                       if value == t or value.startswith(t + ".")) if any(
             value == t or value.startswith(t + ".") for t in published) else value)
     assert used <= published | services | {cmd_vel}, used - published - services
-    assert {"/odom", "/wheels", "/twist", "/diagnostics", "/status"} <= used
+    assert {"/odom/pose", "/odom/path", "/wheels", "/twist", "/diagnostics", "/status"} <= used
     # Each field a panel plots on a JSON topic is in that topic's schema (a renamed field
     # would leave the panel empty, with no error anywhere).
     fields = 0

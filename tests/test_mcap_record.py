@@ -78,9 +78,9 @@ def test_drive_records_frames_and_ros2_state(tmp_path: Path,
                                               abs=0.05)
     _, diag = topics["/diagnostics#"][-1]
     assert [s.name for s in diag.status] == ["omnican: chassis", "omnican: CAN bus",
-                                             "omnican: wheel 0 (wheel_0_joint)",
-                                             "omnican: wheel 1 (wheel_1_joint)",
-                                             "omnican: wheel 2 (wheel_2_joint)"]
+                                             "omnican: wheel 0",
+                                             "omnican: wheel 1",
+                                             "omnican: wheel 2"]
     # Frames both ways, decodable with the DBC that came along.
     db = cantools.database.load_string(attachments["omnican.dbc"].data.decode(), "dbc")
     tx = {f.id for _, f in topics["/to_can_bus#"]}

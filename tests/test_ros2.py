@@ -450,7 +450,7 @@ def test_wheel_status_levels() -> None:
     faulted = model.wheel_status(replace(w, state=State.FAULT, fault="0x2310 x"), "x", "j")
     assert faulted["level"] == model.ERROR and "0x2310" in faulted["message"]
     assert faulted["hardware_id"] == "canopen node 1"
-    assert faulted["name"] == "x: wheel 0 (j)"
+    assert faulted["name"] == "x: wheel 0"
 
 
 # ------------------------------------------------------------ the command line

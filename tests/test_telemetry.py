@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -146,8 +147,7 @@ def test_diagnostics_stale_wheel_and_bus_down() -> None:
     s = sample(wheels=(wheel(0), wheel(1, stale=True, actual_speed=0.0), wheel(2)),
                bus_up=False, bus_error="send 0x080 failed: Network is down")
     levels = _levels(s)
-    assert levels["omnican: wheel 1 (wheel_1_joint)"] == (telemetry.WARN,
-                                                         "no fresh encoder sample")
+    assert levels["omnican: wheel 1"] == (telemetry.WARN, "no fresh encoder sample")
     assert levels["omnican: CAN bus"] == (telemetry.ERROR,
                                           "bus down: send 0x080 failed: Network is down")
     assert telemetry.status(s)["bus_up"] is False
@@ -160,11 +160,10 @@ def test_diagnostics_levels_and_emcy_text() -> None:
     s = sample(wheels=wheels, stopped_reason="node 2 fault: 0x2310 continuous over-current",
                enabled=False)
     levels = _levels(s)
-    assert levels["omnican: wheel 0 (wheel_0_joint)"] == (telemetry.OK, "OPERATION ENABLED")
-    assert levels["omnican: wheel 1 (wheel_1_joint)"] == (
+    assert levels["omnican: wheel 0"] == (telemetry.OK, "OPERATION ENABLED")
+    assert levels["omnican: wheel 1"] == (
         telemetry.ERROR, "fault: 0x2310 continuous over-current")
-    assert levels["omnican: wheel 2 (wheel_2_joint)"] == (telemetry.ERROR,
-                                                         "offline (no heartbeat)")
+    assert levels["omnican: wheel 2"] == (telemetry.ERROR, "offline (no heartbeat)")
     assert levels["omnican: chassis"] == (
         telemetry.ERROR,
         "stopped: node 2 fault: 0x2310 continuous over-current (recover to clear)")
@@ -247,7 +246,7 @@ def test_each_wheels_health_goes_to_the_wheels_topic_and_its_diagnostics() -> No
     row = telemetry.wheels(s)["wheels"][1]
     assert (row["current_a"], row["torque_pct"], row["voltage_v"], row["temperature_c"]) == (
         1.5, 30.0, 23.9, 41.2)
-    assert telemetry.wheels(s)["wheels"][0]["current_a"] is None  # not given: null
+    assert "current_a" not in telemetry.wheels(s)["wheels"][0]  # not given: absent
     diag = telemetry.wheel_status(w, "omnican", "wheel_1_joint")
     values = {kv["key"]: kv["value"] for kv in diag["values"]}
     assert (values["current_a"], values["voltage_v"], values["temperature_c"],
@@ -270,3 +269,150 @@ def test_the_can_controllers_state_is_in_the_bus_diagnostics(state: str | None, 
     json_status = telemetry.status(sample(can_state=state, estop=True, battery_v=20.5))
     assert json_status["can_state"] == (state or "") and json_status["estop"]
     assert json_status["battery_v"] == 20.5
+
+
+# ---------------------------------------------------------------- what Foxglove's app reads
+
+# The app's JSON schema parser (parseJsonSchema in Foxglove Studio's and Lichtblick's
+# mcap-support; tests/test_foxglove_app.py runs the app's own code): one type per field.
+APP_FIELD_TYPES = {"boolean", "string", "number", "integer", "object", "array"}
+APP_ITEM_TYPES = {"boolean", "string", "number", "integer", "object"}
+
+
+def _app_rejects(schema: dict[str, Any], path: str = "") -> list[str]:
+    """What the app's parser would refuse in an object schema, as "path: why"."""
+    if schema.get("type") != "object":
+        return [f"{path or '<root>'}: not an object"]
+    bad: list[str] = []
+    for name, field in schema["properties"].items():
+        where = f"{path}.{name}" if path else name
+        kind = field.get("type")
+        if not isinstance(kind, str) or kind not in APP_FIELD_TYPES:
+            bad.append(f"{where}: type {kind!r}")
+        elif kind == "object":
+            bad += _app_rejects(field, where)
+        elif kind == "array":
+            item = field["items"]
+            if item.get("type") not in APP_ITEM_TYPES:
+                bad.append(f"{where}[]: type {item.get('type')!r}")
+            elif item["type"] == "object":
+                bad += _app_rejects(item, where + "[]")
+    return bad
+
+
+def test_json_schemas_use_only_what_foxglove_parses() -> None:
+    for name, schema in telemetry.JSON_SCHEMAS.items():
+        assert _app_rejects(schema) == [], name
+
+
+_JSON_TYPES = {"number": (int, float), "integer": (int,), "string": (str,),
+               "boolean": (bool,), "object": (dict,), "array": (list,)}
+
+
+def _conforms(given: Any, schema: dict[str, Any], path: str = "") -> list[str]:
+    kind = schema["type"]
+    assert isinstance(kind, str)
+    if not isinstance(given, _JSON_TYPES[kind]) or (
+            kind in ("number", "integer") and isinstance(given, bool)):
+        return [f"{path}: {given!r} is not {kind}"]
+    value: Any = given
+    if kind == "number" and not math.isfinite(value):
+        return [f"{path}: {value!r} (JSON has no NaN or infinity)"]
+    if kind == "object":
+        props = schema["properties"]
+        return ([f"{path}.{k}: not in the schema" for k in value if k not in props]
+                + [e for k, v in value.items() if k in props
+                   for e in _conforms(v, props[k], f"{path}.{k}")])
+    if kind == "array":
+        return [e for i, v in enumerate(value)
+                for e in _conforms(v, schema["items"], f"{path}[{i}]")]
+    return []
+
+
+maybe = st.none() | finite
+maybe_count = st.none() | st.integers(0, 255)
+
+
+@codec
+@given(readings=st.lists(st.tuples(maybe, maybe, maybe, maybe, st.none() | st.integers(0, 0xFFFF)),
+                         min_size=3, max_size=3),
+       bus_load=st.none() | st.floats(0.0, 2.0), tx=maybe_count, rx=maybe_count,
+       battery_v=maybe)
+def test_json_messages_leave_out_what_is_not_measured(
+        readings: list[tuple[float | None, ...]], bus_load: float | None, tx: int | None,
+        rx: int | None, battery_v: float | None) -> None:
+    """Every /wheels and /status message fits its schema (no null anywhere); a reading
+    that is not there is an absent field, never a stand-in value such as -1."""
+    wheels = tuple(wheel(i, current_a=c, torque_pct=t, voltage_v=v, temperature_c=k,
+                         statusword=sw) for i, (c, t, v, k, sw) in enumerate(readings))
+    s = sample(wheels=wheels, bus_load=bus_load, can_tx_errors=tx, can_rx_errors=rx,
+               battery_v=battery_v)
+    for topic, msg in (("/wheels", telemetry.wheels(s)), ("/status", telemetry.status(s))):
+        schema = telemetry.JSON_SCHEMAS[telemetry.TOPICS[topic][0]]
+        assert _conforms(msg, schema, topic) == []
+    rows = telemetry.wheels(s)["wheels"]
+    for row, (c, t, v, k, sw) in zip(rows, readings, strict=True):
+        for key, given_ in (("current_a", c), ("torque_pct", t), ("voltage_v", v),
+                            ("temperature_c", k), ("statusword", sw)):
+            assert row.get(key) == given_ and (key in row) == (given_ is not None)
+    st_ = telemetry.status(s)
+    for key, given_ in (("bus_load", bus_load), ("can_tx_errors", tx),
+                        ("can_rx_errors", rx), ("battery_v", battery_v)):
+        assert st_.get(key) == given_ and (key in st_) == (given_ is not None)
+
+
+def test_diagnostic_names_read_once_in_foxglove() -> None:
+    """Foxglove lists a status as "hardware_id: name": the prefix appears once, and a
+    bus without a bitrate (a virtual one, --sim) says its traffic rather than "unknown"."""
+    statuses = telemetry.diagnostics(sample(bus_load=None, bus_bits_per_s=52_300.0),
+                                     SETTINGS)["status"]
+    shown = [f"{s['hardware_id']}: {s['name']}" if s["hardware_id"] else s["name"]
+             for s in statuses]
+    assert shown[0] == "omnican: chassis"
+    assert all(text.count("omnican") == 1 for text in shown), shown
+    assert shown[2:] == [f"canopen node {i + 1}: omnican: wheel {i}" for i in range(3)]
+    bus = statuses[1]
+    assert (bus["level"], bus["message"]) == (telemetry.OK, "52.3 kbit/s (no bitrate set)")
+    values = {kv["key"]: kv["value"] for kv in statuses[2]["values"]}
+    assert values["joint"] == "wheel_0_joint"  # the joint: in the values, not the name
+
+
+def test_the_odometry_pose_and_path_so_far_go_out_as_the_3d_panel_draws_them() -> None:
+    """/odom/pose each sample (a PoseStamped: the 3D panel draws no Odometry); /odom/path
+    (nav_msgs/Path) every half second of the base's clock, with the run so far."""
+    model = Telemetry(SETTINGS, CFG.kinematics())
+    paths: list[tuple[int, object]] = []
+    for i in range(100):  # 2 s at 50 Hz, 0.5 m/s along x
+        ns = 1_700_000_000_000_000_000 + i * 20_000_000
+        s = telemetry.Sample(**{**sample(Pose2D(0.01 * i, 0.0, 0.0)).__dict__, "stamp_ns": ns})
+        out = {m.topic: m for m in model.messages(s)}
+        pose = decoder("geometry_msgs/msg/PoseStamped")(out["/odom/pose"].payload())
+        assert (pose.header.frame_id, pose.pose.position.x) == ("odom", pytest.approx(0.01 * i))
+        if "/odom/path" in out:
+            paths.append((i, decoder("nav_msgs/msg/Path")(out["/odom/path"].payload())))
+    assert [i for i, _ in paths] == [0, 25, 50, 75]
+    last = paths[-1][1]
+    xs = [p.pose.position.x for p in last.poses]  # type: ignore[attr-defined]
+    assert last.header.frame_id == "odom"  # type: ignore[attr-defined]
+    assert xs[0] == 0.0 and 0.75 - xs[-1] < 0.02 + 1e-9  # up to the base, one spacing behind
+    assert all(0.02 - 1e-9 < b - a < 0.03 + 1e-9 for a, b in itertools.pairwise(xs))
+
+
+@codec
+@given(points=st.lists(st.tuples(st.integers(0, 2**31 * 10**9 - 1), finite, finite,
+                                 st.floats(-20, 20)), max_size=30),
+       frame=st.text(st.characters(exclude_characters="\x00", exclude_categories=("Cs",)),
+                     max_size=12),
+       ns=st.integers(0, 2**31 * 10**9 - 1))
+def test_fast_path_codec_matches_the_generic_one(points: list[tuple[int, float, float, float]],
+                                                 frame: str, ns: int) -> None:
+    """/odom/path's hundreds of poses are packed directly (the generic encoder holds the
+    GIL for milliseconds): the same bytes, which an independent decoder reads back."""
+    msg = telemetry.path(ns, [(t, Pose2D(x, y, th)) for t, x, y, th in points], frame)
+    typename = "nav_msgs/msg/Path"
+    fast = rosmsg.encode(typename, msg)
+    generic = bytes(rosmsg.typestore().serialize_cdr(rosmsg._builder(typename)(msg), typename))
+    assert fast == generic
+    decoded = decoder(typename)(fast)
+    assert [(p.pose.position.x, p.pose.position.y) for p in decoded.poses] == [
+        (x, y) for _, x, y, _ in points]

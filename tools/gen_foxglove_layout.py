@@ -1,4 +1,5 @@
-"""Write foxglove/omnican-layout.json: the Foxglove layout for omnican's live view and
+"""Write omnican/foxglove/omnican-layout.json (installed with the package; the repository's
+foxglove/ links to it): the Foxglove layout for omnican's live view and
 MCAP recordings (both publish the same topics; see omnican.telemetry.TOPICS), with a
 "drive" tab for driving from Foxglove (--foxglove-control): a Teleop panel on /cmd_vel,
 Stop / Recover buttons, odometry reset, the limits as parameters and, under --sim, the
@@ -22,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-LAYOUT = Path(__file__).resolve().parents[1] / "foxglove" / "omnican-layout.json"
+LAYOUT = Path(__file__).resolve().parents[1] / "omnican" / "foxglove" / "omnican-layout.json"
 WHEELS = 3
 CMD_VEL = "/cmd_vel"  # [foxglove] cmd_vel_topic's default
 TELEOP_RATE_HZ = 10.0  # well above 1 / cmd_timeout_s (0.5 s): the base keeps moving
@@ -50,12 +51,29 @@ def panels() -> Any:
                                          timestamp_method="receiveTime")
 
     def scene() -> Any:
+        """The base from above and behind, followed as it moves (the view keeps the odom
+        frame's orientation, so the trail reads as a map): odometry's pose and path, the
+        simulator's truth, on a grid of 0.5 m squares."""
+        arrow = (0.4, 0.05, 0.05)  # m: about the base's size (0.19 m radius)
         return fl.ThreeDeePanel(title="base (odom frame)", config=fl.ThreeDeeConfig(
-            follow_tf="base_link", fixed_frame="odom", topics={
-                "/odom": fl.BaseRendererPoseTopicSettings(visible=True, type="arrow",
-                                                          color="#1f77b4"),
-                "/sim/true_pose": fl.BaseRendererPoseTopicSettings(visible=True, type="arrow",
-                                                                   color="#2ca02c"),
+            follow_tf="base_link", fixed_frame="odom", follow_mode="follow-position",
+            # frame names small beside the base (the default covers it at this distance)
+            scene=fl.BaseRendererSceneSettings(transforms=fl.BaseRendererTransforms(
+                label_size=0.06)),
+            camera_state=fl.ThreeDeeCameraState(distance=4.0, perspective=True, phi=45.0,
+                                                theta_offset=0.0, target_offset=(0, 0, 0)),
+            layers={"grid": fl.BaseRendererGridLayerSettings(
+                visible=True, layer_id="foxglove.Grid", label="grid (0.5 m)",
+                frame_id="odom", size=20.0, divisions=40, line_width=1.0,
+                color="#248eff80", order=1)},
+            topics={
+                "/odom/pose": fl.BaseRendererPoseTopicSettings(
+                    visible=True, type="arrow", arrow_scale=arrow, color="#1f77b4"),
+                "/odom/path": fl.BaseRendererPosesTopicSettings(
+                    visible=True, type="line", line_width=0.02,
+                    gradient=("#1f77b440", "#1f77b4")),
+                "/sim/true_pose": fl.BaseRendererPoseTopicSettings(
+                    visible=True, type="arrow", arrow_scale=arrow, color="#2ca02c"),
             }))
 
     def twist() -> Any:
@@ -99,19 +117,17 @@ def panels() -> Any:
                                                  sort_by_level=True))
     def per_wheel(title: str, field: str, *more: fl.PlotSeries) -> object:
         return fl.PlotPanel(title=title, config=fl.PlotConfig(
-            paths=[fl.PlotSeries(value=f"/wheels.wheels[{i}].{field}") for i in range(WHEELS)]
+            paths=[series(f"/wheels.wheels[{i}].{field}") for i in range(WHEELS)]
             + list(more), show_legend=True))
 
     current = per_wheel("motor current (A)", "current_a")
     voltage = per_wheel("DC link (V): each drive, and the battery", "voltage_v",
-                        fl.PlotSeries(value="/battery_state.voltage"))
+                        series("/battery_state.voltage"))
     temperature = per_wheel("temperature (°C)", "temperature_c")
     alarms = fl.StateTransitionsPanel(title="e-stop and CAN controller",
                                       config=fl.StateTransitionsConfig(paths=[
-                                          fl.StateTransitionsSeries(value="/status.estop",
-                                                                    label="e-stop"),
-                                          fl.StateTransitionsSeries(value="/status.can_state",
-                                                                    label="CAN controller")],
+                                          state("/status.estop", "e-stop"),
+                                          state("/status.can_state", "CAN controller")],
                                           show_points=True))
     can = fl.RawMessagesPanel(title="CAN: node 1 position (decoded with the DBC)",
                               config=fl.RawMessagesConfig(topic_path="/can/TPDO2_node1"))
@@ -132,14 +148,17 @@ def panels() -> Any:
                                  items=[fl.SplitItem(proportion=p, content=c)  # type: ignore[arg-type]
                                         for p, c in items])
 
+    # Proportions: at the window the app was tried in (about 1180 x 970 px of panels) the
+    # drive states show all five rows (64 px each) and the diagnostics all five statuses
+    # on one line each; tests/test_foxglove_app.py checks.
     live = split("row",
-                 (1.0, split("column", (1.2, scene()), (1.0, path))),
-                 (1.3, split("column", (1.0, speeds), (1.0, twist()), (0.8, states()))),
-                 (1.0, split("column", (1.0, diagnostics), (0.6, loop), (0.8, travel))))
+                 (1.0, split("column", (1.3, scene()), (1.0, path))),
+                 (1.3, split("column", (0.8, speeds), (0.8, twist()), (1.1, states()))),
+                 (1.4, split("column", (0.9, diagnostics), (0.6, loop), (0.6, travel))))
     drives = split("row", (1.0, split("column", (1.0, current), (1.0, voltage))),
                    (1.0, split("column", (1.0, temperature), (0.6, alarms))))
     drive = split("row",
-                  (1.3, split("column", (1.5, scene()), (1.0, twist()), (0.6, states()))),
+                  (1.3, split("column", (1.4, scene()), (0.8, twist()), (1.5, states()))),
                   (1.0, split("column",
                               (1.3, teleop),
                               (0.45, split("row",

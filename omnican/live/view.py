@@ -2,9 +2,10 @@
 ``pip install 'omnican[foxglove]'``) that publishes what the base is doing.
 
 It is a front end of the base's telemetry (:mod:`omnican.telemetry.feed`), as an MCAP
-recording is, so one Foxglove layout (``foxglove/omnican-layout.json``) serves both, with
-the same messages and stamps: ``/odom``, ``/tf``, ``/joint_states``, ``/diagnostics`` (ROS 2
-types, CDR), ``/pose2d``, ``/twist``, ``/wheels``, ``/status`` (JSON), ``/sim/true_pose`` and
+recording is, so one Foxglove layout (:data:`LAYOUT`, installed with the package) serves
+both, with the same messages and stamps: ``/odom``, ``/odom/pose`` and ``/odom/path``
+(what the 3D panel draws), ``/tf``, ``/joint_states``, ``/diagnostics`` (ROS 2 types,
+CDR), ``/pose2d``, ``/twist``, ``/wheels``, ``/status`` (JSON), ``/sim/true_pose`` and
 ``/sim/pose2d`` under simulation, the raw frames on ``/from_can_bus`` / ``/to_can_bus``
 (``can_msgs/msg/Frame``), and every frame the base's DBC describes decoded on
 ``/can/<message name>`` (JSON, one number per signal).
@@ -20,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 from omnican import rosmsg, telemetry
@@ -31,6 +33,10 @@ from omnican.live.settings import DEFAULT_HOST, DEFAULT_PORT, FoxgloveSettings, 
 from omnican.telemetry import Feed, Message
 
 logger = logging.getLogger(__name__)
+
+#: The Foxglove layout for the live view and recordings (Import from file... in the app),
+#: installed with the package (``foxglove/omnican-layout.json`` in a clone).
+LAYOUT = Path(__file__).resolve().parents[1] / "foxglove" / "omnican-layout.json"
 
 
 def prepare(cfg: Any) -> None:
@@ -258,8 +264,7 @@ def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = 
             control = Control(base, settings, arbiter, sim)
         view = stack.enter_context(LiveView(feed, control=control, settings=settings))
         if announce is not None:
-            announce(f"Foxglove: open a connection to {view.url} "
-                     "(layout: foxglove/omnican-layout.json)")
+            announce(f"Foxglove: open a connection to {view.url} (layout: {LAYOUT})")
             for line in describe_control(view):
                 announce(line)
         if settings.control and settings.remote:

@@ -3,7 +3,8 @@
 Pure: a sample in, plain values out. ROS 2 messages (``nav_msgs/msg/Odometry``,
 ``tf2_msgs/msg/TFMessage``, ``sensor_msgs/msg/JointState``,
 ``diagnostic_msgs/msg/DiagnosticArray``, ``sensor_msgs/msg/BatteryState``,
-``geometry_msgs/msg/PoseStamped``, ``can_msgs/msg/Frame``) are nested dicts with the
+``geometry_msgs/msg/PoseStamped``, ``nav_msgs/msg/Path``, ``can_msgs/msg/Frame``) are
+nested dicts with the
 message's field names; the rest are JSON objects with a JSON schema each (Foxglove's
 plot and state-transition panels read any field of them). The ROS 2 bridge, the live
 view and the MCAP recorder serialize these and build nothing of their own, so they say
@@ -121,6 +122,12 @@ def pose_stamped(ns: int, pose: Pose2D, frame: str) -> dict[str, Any]:
     return {"header": _header(ns, frame), "pose": _pose(pose)}
 
 
+def path(ns: int, points: Sequence[tuple[int, Pose2D]], frame: str) -> dict[str, Any]:
+    """nav_msgs/msg/Path of stamped poses (the 3D panel draws it as a line)."""
+    return {"header": _header(ns, frame),
+            "poses": [pose_stamped(t, p, frame) for t, p in points]}
+
+
 def joint_states(s: Sample, settings: TelemetrySettings) -> dict[str, Any] | None:
     """sensor_msgs/msg/JointState, one revolute joint per wheel (the configured names):
     angle (rad) and angular speed (rad/s) from rim travel and rim speed, positive in the
@@ -170,7 +177,8 @@ def chassis_status(st: ChassisStatus, prefix: str) -> dict[str, Any]:
         ("command_age_s", min(st.command_age_s, 1e9)), ("estop", st.estop),
         ("battery_v", st.battery_v), ("battery", st.battery)]
     values += [(f"warning_{i}", w) for i, w in enumerate(st.warnings)]
-    return _status(level, f"{prefix}: chassis", message, "omnican", values)
+    # No hardware id: Foxglove shows "hardware_id: name", and the name says it all.
+    return _status(level, f"{prefix}: chassis", message, "", values)
 
 
 def bus_status(st: ChassisStatus, prefix: str, channel: str) -> dict[str, Any]:
@@ -185,9 +193,10 @@ def bus_status(st: ChassisStatus, prefix: str, channel: str) -> dict[str, Any]:
         level, message = WARN, f"CAN {controller}"
     elif load is not None and load > BUS_LOAD_WARN:
         level, message = WARN, f"bus load {load:.0%}"
-    else:
-        level = OK
-        message = "bus load " + (f"{load:.0%}" if load is not None else "unknown (no bitrate)")
+    elif load is not None:
+        level, message = OK, f"bus load {load:.0%}"
+    else:  # e.g. a virtual bus (--sim): the traffic is known, its share of nothing
+        level, message = OK, f"{st.bus_bits_per_s / 1000:.1f} kbit/s (no bitrate set)"
     return _status(level, f"{prefix}: CAN bus", message, channel or "can",
                    [("bus_up", st.bus_up), ("bus_load", load),
                     ("bus_bits_per_s", st.bus_bits_per_s), ("bus_error", error),
@@ -222,8 +231,8 @@ def wheel_status(w: WheelState, prefix: str, joint: str) -> dict[str, Any]:
     """One wheel's drive: CiA 402 state, faults (with the EMCY text), speeds, travel."""
     level, message = wheel_level(w)
     hardware = f"canopen node {w.node_id}" + (f" axis {w.axis}" if w.axis else "")
-    return _status(level, f"{prefix}: wheel {w.index} ({joint})", message, hardware, [
-        ("state", str(w.state)),
+    return _status(level, f"{prefix}: wheel {w.index}", message, hardware, [
+        ("joint", joint), ("state", str(w.state)),
         ("statusword", f"0x{w.statusword:04X}" if w.statusword is not None else None),
         ("mode", w.mode), ("target_speed_m_s", w.target_speed),
         ("actual_speed_m_s", w.actual_speed), ("travel_m", w.travel), ("online", w.online),
@@ -299,40 +308,51 @@ def twist(s: Sample) -> dict[str, Any]:
     return out
 
 
+def _given(out: dict[str, Any], **maybe: Any) -> dict[str, Any]:
+    """``out`` with the fields of ``maybe`` that are not None: a reading a drive or the bus
+    does not give is absent from the message (Foxglove plots a gap; JSON has no NaN and the
+    app's schema parser no type unions)."""
+    out.update((k, v) for k, v in maybe.items() if v is not None)
+    return out
+
+
 def wheels(s: Sample) -> dict[str, Any]:
-    return {"timestamp": json_time(s.stamp_ns), "wheels": [{
+    """Each wheel's drive; ``statusword``, ``current_a``, ``torque_pct``, ``voltage_v`` and
+    ``temperature_c`` only when the drive gives them."""
+    return {"timestamp": json_time(s.stamp_ns), "wheels": [_given({
         "index": w.index, "node_id": w.node_id, "axis": w.axis,
         "state": "OFFLINE" if not w.online else str(w.state),
-        "statusword": w.statusword if w.statusword is not None else -1,
         "target_speed": w.target_speed, "actual_speed": w.actual_speed, "travel": w.travel,
         "online": w.online, "stale": w.stale,
-        "fault": w.fault or "", "error": w.error or "",
-        "current_a": w.current_a, "torque_pct": w.torque_pct, "voltage_v": w.voltage_v,
-        "temperature_c": w.temperature_c,
-    } for w in s.wheels]}
+        "fault": w.fault or "", "error": w.error or ""},
+        statusword=w.statusword, current_a=w.current_a, torque_pct=w.torque_pct,
+        voltage_v=w.voltage_v, temperature_c=w.temperature_c) for w in s.wheels]}
 
 
 def status(s: Sample) -> dict[str, Any]:
+    """The base as a whole; ``bus_load`` (a fraction of the bitrate) only when the
+    bitrate is known, the CAN error counters and ``battery_v`` only when measured."""
     st = s.status
     assert st is not None
-    return {"timestamp": json_time(s.stamp_ns), "enabled": st.enabled,
-            "state": "STOPPED" if st.stopped_reason else "RUNNING" if st.enabled else "STARTING",
-            "stopped_reason": st.stopped_reason or "", "loop_hz": st.loop_hz,
-            "late_fraction": st.late_fraction, "cycles": st.cycles,
-            "bus_load": st.bus_load if st.bus_load is not None else -1.0,
-            "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
-            "bus_up": st.bus_up,
-            "command_age_s": min(st.command_age_s, 1e9),
-            "can_state": st.can_state or "", "can_tx_errors": st.can_tx_errors,
-            "can_rx_errors": st.can_rx_errors, "estop": st.estop, "battery_v": st.battery_v}
+    return _given({
+        "timestamp": json_time(s.stamp_ns), "enabled": st.enabled,
+        "state": "STOPPED" if st.stopped_reason else "RUNNING" if st.enabled else "STARTING",
+        "stopped_reason": st.stopped_reason or "", "loop_hz": st.loop_hz,
+        "late_fraction": st.late_fraction, "cycles": st.cycles,
+        "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
+        "bus_up": st.bus_up, "command_age_s": min(st.command_age_s, 1e9),
+        "can_state": st.can_state or "", "estop": st.estop},
+        bus_load=st.bus_load, can_tx_errors=st.can_tx_errors, can_rx_errors=st.can_rx_errors,
+        battery_v=st.battery_v)
 
 
+# What Foxglove's JSON schema parser accepts (the app's parseJsonSchema, as in Foxglove
+# Studio and Lichtblick): one "type" per field, of boolean, string, number, integer, object
+# or array; no "null", no unions. A field a message may leave out is simply not required.
 _NUM = {"type": "number"}
 _STR = {"type": "string"}
 _INT = {"type": "integer"}
 _BOOL = {"type": "boolean"}
-_MAYBE_NUM = {"type": ["number", "null"]}  # null: the drive does not give it
-_MAYBE_INT = {"type": ["integer", "null"]}
 _TIME = {"type": "object", "properties": {"sec": _INT, "nsec": _INT}}
 _TWIST = {"type": "object", "properties": {"vx": _NUM, "vy": _NUM, "wz": _NUM}}
 
@@ -341,21 +361,35 @@ def _object(title: str, **props: Any) -> dict[str, Any]:
     return {"title": title, "type": "object", "properties": {"timestamp": _TIME, **props}}
 
 
+def _maybe(schema: dict[str, Any], why: str) -> dict[str, Any]:
+    """A field that is absent when there is no reading."""
+    return {**schema, "description": f"absent when {why}"}
+
+
+_BY_DRIVE = "the drive does not give it"
+
 #: JSON schema of each JSON message kind (Foxglove wants one per channel).
 JSON_SCHEMAS: dict[str, dict[str, Any]] = {
     "omnican.Pose2D": _object("omnican.Pose2D", x=_NUM, y=_NUM, theta=_NUM, heading_deg=_NUM),
-    "omnican.Twist": _object("omnican.Twist", command=_TWIST, measured=_TWIST, true=_TWIST),
+    "omnican.Twist": _object("omnican.Twist", command=_TWIST, measured=_TWIST,
+                             true=_maybe(_TWIST, "there is no simulator")),
     "omnican.Wheels": _object("omnican.Wheels", wheels={"type": "array", "items": {
         "type": "object", "properties": {
-            "index": _INT, "node_id": _INT, "axis": _INT, "state": _STR, "statusword": _INT,
+            "index": _INT, "node_id": _INT, "axis": _INT, "state": _STR,
+            "statusword": _maybe(_INT, "no statusword came yet"),
             "target_speed": _NUM, "actual_speed": _NUM, "travel": _NUM, "online": _BOOL,
-            "stale": _BOOL, "fault": _STR, "error": _STR, "current_a": _MAYBE_NUM,
-            "torque_pct": _MAYBE_NUM, "voltage_v": _MAYBE_NUM, "temperature_c": _MAYBE_NUM}}}),
-    "omnican.Status": _object("omnican.Status", enabled=_BOOL, state=_STR, stopped_reason=_STR,
-                              loop_hz=_NUM, late_fraction=_NUM, cycles=_INT, bus_load=_NUM,
-                              bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL,
-                              command_age_s=_NUM, can_state=_STR, can_tx_errors=_MAYBE_INT,
-                              can_rx_errors=_MAYBE_INT, estop=_BOOL, battery_v=_MAYBE_NUM),
+            "stale": _BOOL, "fault": _STR, "error": _STR,
+            "current_a": _maybe(_NUM, _BY_DRIVE), "torque_pct": _maybe(_NUM, _BY_DRIVE),
+            "voltage_v": _maybe(_NUM, _BY_DRIVE),
+            "temperature_c": _maybe(_NUM, _BY_DRIVE)}}}),
+    "omnican.Status": _object(
+        "omnican.Status", enabled=_BOOL, state=_STR, stopped_reason=_STR, loop_hz=_NUM,
+        late_fraction=_NUM, cycles=_INT,
+        bus_load=_maybe(_NUM, "the bitrate is unknown (a fraction of it)"),
+        bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL, command_age_s=_NUM,
+        can_state=_STR, can_tx_errors=_maybe(_INT, "the CAN controller does not say"),
+        can_rx_errors=_maybe(_INT, "the CAN controller does not say"), estop=_BOOL,
+        battery_v=_maybe(_NUM, "no drive measures its DC link")),
 }
 
 
@@ -366,6 +400,10 @@ ROS2, JSON = "ros2", "json"
 #: topic -> (schema name, kind): the state topics every front end may carry.
 TOPICS: dict[str, tuple[str, str]] = {
     "/odom": ("nav_msgs/msg/Odometry", ROS2),
+    # The odometry's pose and the path so far, as Foxglove's 3D panel draws them (it does
+    # not draw nav_msgs/msg/Odometry).
+    "/odom/pose": ("geometry_msgs/msg/PoseStamped", ROS2),
+    "/odom/path": ("nav_msgs/msg/Path", ROS2),
     "/tf": ("tf2_msgs/msg/TFMessage", ROS2),
     "/joint_states": ("sensor_msgs/msg/JointState", ROS2),
     "/diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", ROS2),

@@ -2,10 +2,11 @@
 same list of :class:`Message` for the ROS 2 bridge, the live view and the MCAP recorder.
 
 :class:`Telemetry` keeps what spans samples: the odometry covariance, carried from
-sample to sample (it grows with the distance rolled), and when diagnostics are due (once
-per ``diagnostics_period_s`` of the base's clock, and at once when a level or a message
-changes). A message's bytes (CDR for ROS 2 types, JSON for the rest) are made once, by
-the first front end that asks for them, and shared.
+sample to sample (it grows with the distance rolled), the path rolled so far
+(:mod:`~omnican.telemetry.trail`, published every ``trail.PERIOD_S``), and when
+diagnostics are due (once per ``diagnostics_period_s`` of the base's clock, and at once
+when a level or a message changes). A message's bytes (CDR for ROS 2 types, JSON for
+the rest) are made once, by the first front end that asks for them, and shared.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from omnican.kinematics import OmniKinematics
 from omnican.telemetry import messages as m
 from omnican.telemetry.covariance import OdomCovariance
 from omnican.telemetry.settings import TelemetrySettings
+from omnican.telemetry.trail import PERIOD_S as TRAIL_PERIOD_S
+from omnican.telemetry.trail import Trail
 
 Wants = Callable[[str], bool]
 
@@ -75,6 +78,9 @@ class Telemetry:
         self._diag_period_ns = round(settings.diagnostics_period_s * 1e9)
         self._diag_signature: tuple[tuple[int, str], ...] | None = None
         self._diag_ns = 0
+        self.trail = Trail()
+        self._trail_period_ns = round(TRAIL_PERIOD_S * 1e9)
+        self._trail_ns: int | None = None
 
     def messages(self, s: m.Sample, wants: Wants = _all, last: bool = False) -> list[Message]:
         """The messages of sample ``s`` on the topics ``wants`` accepts. ``last``: the
@@ -88,6 +94,15 @@ class Telemetry:
                 speeds = [w.actual_speed for w in s.wheels]
                 out.append(state_message("/odom", ns, m.odometry(
                     s, settings, cov.pose_covariance(), cov.twist_covariance(speeds))))
+            self.trail.add(ns, s.pose)  # every sample: the trail is whole when a viewer comes
+            if wants("/odom/pose"):
+                out.append(state_message("/odom/pose", ns, m.pose_stamped(
+                    ns, s.pose, settings.odom_frame)))
+            if wants("/odom/path") and (last or self._trail_ns is None
+                                        or ns - self._trail_ns >= self._trail_period_ns):
+                self._trail_ns = ns
+                out.append(state_message("/odom/path", ns, m.path(
+                    ns, self.trail.points, settings.odom_frame)))
             if wants("/tf"):
                 out.append(state_message("/tf", ns, m.transforms(s, settings)))
             if wants("/joint_states"):

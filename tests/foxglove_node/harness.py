@@ -37,10 +37,11 @@ def cache_dir() -> Path:
     return Path(base) / "omnican" / "foxglove-node"
 
 
-def node_modules() -> tuple[Path | None, str]:
-    """The node_modules holding the pinned client packages, installed on first use;
-    (None, why) where Node.js or npm is missing or the install fails. Returns (path, a
-    note on what it did)."""
+def node_modules(packages: Path = HERE) -> tuple[Path | None, str]:
+    """The node_modules holding the packages pinned in ``packages`` (a folder with a
+    package.json and package-lock.json: the client's, or app/ for the app's own code),
+    installed on first use; (None, why) where Node.js or npm is missing or the install
+    fails. Returns (path, a note on what it did)."""
     node, npm = shutil.which("node"), shutil.which("npm")
     if node is None or npm is None:
         return None, f"needs Node.js {NODE_MAJOR_MIN}+ and npm ({'node' if node is None else 'npm'} " \
@@ -53,7 +54,7 @@ def node_modules() -> tuple[Path | None, str]:
         return None, f"cannot run node: {exc}"
     if major < NODE_MAJOR_MIN:
         return None, f"needs Node.js {NODE_MAJOR_MIN} or later, found {version}"
-    files = [HERE / "package.json", HERE / "package-lock.json"]
+    files = [packages / "package.json", packages / "package-lock.json"]
     key = hashlib.sha256(b"".join(f.read_bytes() for f in files) + str(major).encode()
                          ).hexdigest()[:16]
     target = cache_dir() / f"node{major}-{key}"
@@ -79,12 +80,12 @@ def node_modules() -> tuple[Path | None, str]:
         if done.returncode != 0:
             shutil.rmtree(tmp, ignore_errors=True)
             tail = " | ".join((done.stderr or done.stdout).strip().splitlines()[-3:])
-            return None, f"cannot install the Foxglove client packages from npm: {tail}"
+            return None, f"cannot install the Foxglove packages of {packages.name}/ from npm: {tail}"
         seconds = time.monotonic() - t0
         (tmp / "omnican-ok").write_text(json.dumps({"install_s": round(seconds, 1)}))
         shutil.rmtree(target, ignore_errors=True)
         tmp.rename(target)
-    return modules, f"installed the Foxglove client packages in {seconds:.0f} s"
+    return modules, f"installed the Foxglove packages of {packages.name}/ in {seconds:.0f} s"
 
 
 class _Lines:
