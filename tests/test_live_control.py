@@ -24,7 +24,12 @@ from omnican.arbiter import CommandArbiter
 from omnican.config import ChassisSettings, load_config, with_live_limits
 from omnican.errors import ConfigError
 from omnican.live.control import Control, decode_twist, parameter_value
-from omnican.live.relay import offered_subprotocols, rewrite_protocol
+from omnican.live.relay import (
+    GRANT_CHANNEL_ID,
+    GRANT_PREFIX,
+    offered_subprotocols,
+    rewrite_protocol,
+)
 from omnican.live.settings import FoxgloveSettings, resolve
 from omnican.live.view import describe_control
 
@@ -143,7 +148,7 @@ def test_twists_are_read_from_json_and_cdr_stamped_or_not() -> None:
     ("json", "geometry_msgs/Twist", b'{"linear": [1, 2, 3]}', "linear must be an object"),
     ("json", "geometry_msgs/Twist", b'[0.1, 0, 0]', "want an object with linear and angular"),
     ("json", "geometry_msgs/Twist", b'{"linear": ', "not JSON"),
-    ("json", "std_msgs/String", b'{"data": "go"}', "want geometry_msgs/Twist, got std_msgs"),
+    ("json", "std_msgs/String", b'{"data": "go"}', "want geometry_msgs/Twist, got 'std_msgs/String'"),
     ("ros1", "geometry_msgs/Twist", b"\x00" * 48, "cannot read 'ros1' messages"),
     ("cdr", "geometry_msgs/Twist", b"\x00\x01\x00\x00\x00", "not a CDR geometry_msgs/msg/Twist"),
 ])
@@ -221,8 +226,19 @@ def twist(vx: float = 0.0, wz: float = 0.0) -> bytes:
     return _twist_json(linear={"x": vx, "y": 0, "z": 0}, angular={"x": 0, "y": 0, "z": wz})
 
 
-def control(base: StandInBase, timeout_s: float = 0.5) -> Control:
-    return Control(base, FoxgloveSettings(control=True), CommandArbiter(timeout_s))
+def vouch(c: Control, n: int) -> None:
+    """What the relay does for a client that may drive: its first message advertises a
+    channel named by a key the control gave it."""
+    c.on_client_advertise(client(n), channel(GRANT_CHANNEL_ID, topic=GRANT_PREFIX + c.grant()))
+
+
+def control(base: StandInBase, timeout_s: float = 0.5,
+            vouched: tuple[int, ...] = (1, 2, 3)) -> Control:
+    """A Control whose clients ``vouched`` came in through the relay and may drive."""
+    c = Control(base, FoxgloveSettings(control=True), CommandArbiter(timeout_s))
+    for n in vouched:
+        vouch(c, n)
+    return c
 
 
 def test_only_the_controller_moves_the_base_and_its_leaving_stops_it() -> None:
