@@ -10,6 +10,7 @@ import logging
 import math
 import shutil
 import ssl
+import string
 import subprocess
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -28,10 +29,12 @@ from omnican.live.control import Control, decode_twist, parameter_value
 from omnican.live.relay import (
     GRANT_CHANNEL_ID,
     GRANT_PREFIX,
+    given_token,
     offered_subprotocols,
     rewrite_protocol,
+    without_query,
 )
-from omnican.live.settings import FoxgloveSettings, resolve
+from omnican.live.settings import FoxgloveSettings, check_token, resolve
 from omnican.live.view import describe_control
 
 from .helpers import one_error_line
@@ -455,12 +458,14 @@ def test_an_oversized_message_is_refused_before_it_is_read(
         c.on_client_advertise(client(n), channel(n))
     c.on_client_advertise(client(3), channel(3, encoding="cdr"))
     c.on_message_data(client(1), 1, twist(0.2))
-    import omnican.live.control as control_module
-
     read: list[int] = []
     real_loads = json.loads
-    monkeypatch.setattr(control_module.json, "loads",
-                        lambda data, **kw: read.append(len(data)) or real_loads(data, **kw))
+
+    def loads(data: Any, **kw: Any) -> Any:
+        read.append(len(data))
+        return real_loads(data, **kw)
+
+    monkeypatch.setattr(json, "loads", loads)
     huge = b'{"linear": {"x": 0.1}, "pad": "' + b"x" * (16 << 20) + b'"}'
     c.on_message_data(client(2), 2, huge)
     c.on_message_data(client(3), 3, b"\x00" * (16 << 20))
@@ -558,6 +563,21 @@ def test_the_relay_reads_and_rewrites_the_offered_subprotocols() -> None:
     assert offered_subprotocols(rewritten) == ["foxglove.sdk.v1"]
     assert b"Sec-WebSocket-Key: abc\r\n" in rewritten and rewritten.endswith(b"\r\n\r\n")
     assert rewritten.startswith(b"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765\r\n")
+
+
+@given(st.text(alphabet=string.ascii_letters + string.digits + "-_.~!$'()*,;:@", min_size=1,
+               max_size=64), st.sampled_from(["/", "/ws", "/a/b"]), st.booleans())
+def test_the_token_is_read_from_the_url_or_a_header_and_not_passed_on(
+        token: str, path: str, in_url: bool) -> None:
+    first = f"GET {path}?x=1&token={token} HTTP/1.1" if in_url else f"GET {path} HTTP/1.1"
+    auth = "" if in_url else f"Authorization: Bearer {token}\r\n"
+    head = f"{first}\r\nHost: robot:8765\r\n{auth}Origin: file://\r\n\r\n".encode()
+    assert given_token(head) == token
+    check_token(token, "token")  # what a config may hold, a URL carries as it is
+    forwarded = without_query(head)
+    assert forwarded.split(b"\r\n", 1)[0] == f"GET {path} HTTP/1.1".encode()
+    assert forwarded.split(b"\r\n", 1)[1] == head.split(b"\r\n", 1)[1]
+    assert given_token(head.replace(b"token=", b"tokens=").replace(b"Bearer", b"Basic")) is None
 
 
 @pytest.fixture
@@ -860,8 +880,15 @@ def test_control_on_another_host_when_allowed_is_announced() -> None:
         service_names=lambda: ["/omnican/stop"], arbiter=CommandArbiter(0.5)))
     lines = describe_control(fake)  # type: ignore[arg-type]
     assert lines[0].startswith("Foxglove control on: Twists on /cmd_vel")
-    assert lines[1] == ("warning: anyone who reaches this host on port 8765 can drive the "
+    assert lines[1] == ("Foxglove clients: browsers from https://app.foxglove.dev, "
+                        "https://studio.foxglove.dev, file://, and programs; any of them may "
+                        "drive (--foxglove-token keeps it to those with it)")
+    assert lines[2] == ("warning: anyone who reaches this host on port 8765 can drive the "
                         "robot (--foxglove-allow-remote)")
+    fake.settings = replace(s, token="t", origins=("*",))
+    assert describe_control(fake)[1] == (  # type: ignore[arg-type]
+        "Foxglove clients: browsers from any web page, and programs; only a client with the "
+        "token drives (its URL ending /?token=...), the others watch")
 
 
 def test_an_unknown_foxglove_key_is_refused_by_the_config(tmp_path: Path) -> None:

@@ -234,6 +234,11 @@ def describe_control(view: LiveView) -> list[str]:
              f"services {', '.join(c.service_names())}, parameters {params}; one client "
              f"drives at a time, and the base stops when it leaves or sends nothing for "
              f"{c.arbiter.timeout_s:g} s"]
+    pages = "any web page" if "*" in s.origins else ", ".join(s.origins)
+    lines.append(f"Foxglove clients: browsers from {pages}, and programs; "
+                 + ("only a client with the token drives (its URL ending /?token=...), "
+                    "the others watch" if s.token is not None else
+                    "any of them may drive (--foxglove-token keeps it to those with it)"))
     if s.remote:
         lines.append(f"warning: anyone who reaches this host on port {view.port} can drive "
                      "the robot (--foxglove-allow-remote)")
