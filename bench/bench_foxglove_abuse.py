@@ -1,7 +1,8 @@
 """Can a hostile Foxglove client stall the wheels? The control loop at 100 Hz against the
 simulated base, its live view serving control (with a token), while one abusive client
-in another process does its worst for the whole run: nothing (quiet), 16,000,000-byte
-Twists (each ends its connection; it connects again), deeply nested JSON (100k ``[`` as a
+in another process does its worst for the whole run: nothing (quiet), 16 MB Twists (a
+16,000,000-character string for linear.x; each ends its connection, and it connects
+again), deeply nested JSON (100k ``[`` as a
 protocol message, 4,000 ``[`` as a Twist), long bad values (60 KB parameter values and
 service requests), or invalid protocol messages (5,000 a round). The abuser has the
 token, so what it sends reaches every check. Runs interleave, so the machine's load is
@@ -10,7 +11,9 @@ alike for all.
 Prints one JSON object per run and a last one per kind of abuse: the longest gap between
 two cycles (the worst run's, and the median over the rounds: a loaded machine's hiccups
 land in any run), the 99th percentile gap, late cycles, the process's memory growth
-(RSS), and the ratio of the longest gap to a quiet run's. The goal: within 2x.
+(RSS), the ratio of the longest gap to a quiet run's (the goal: within 2x), and a
+witness's longest gap: a process of its own that only sleeps 10 ms at a time, so a stall
+it sees too is the machine's, not the live view's.
 
 Run: ``python bench/bench_foxglove_abuse.py`` (``--seconds 8 --rounds 2 --rate 100``).
 """
@@ -59,7 +62,8 @@ def drain(ws, tag):
         if isinstance(m, str) and tag in m and "parameterValues" in m:
             return
 
-PAYLOAD = b"\x01" + (1).to_bytes(4, "little") + b"[" * 16_000_000
+PAYLOAD = (b"\x01" + (1).to_bytes(4, "little") + b'{"linear": {"x": "' + b"9" * 16_000_000
+           + b'"}}')  # a Twist whose number is a 16 MB string: parsed, it is a bad value
 BIG = bytes([0x82, 0x80 | 127]) + len(PAYLOAD).to_bytes(8, "big") + bytes(4) + PAYLOAD
 sent = 0
 while time.monotonic() < end:
@@ -92,6 +96,19 @@ while time.monotonic() < end:
         sent += 1
         time.sleep(0.05)
 print(sent)
+'''
+
+# A witness in a process of its own: its longest gap between 10 ms sleeps is the
+# machine's (a loaded machine stalls every process), not the live view's.
+WITNESS = r'''
+import sys, time
+end = time.monotonic() + float(sys.argv[1])
+last, worst = time.monotonic(), 0.0
+while (now := time.monotonic()) < end:
+    worst = max(worst, now - last)
+    last = now
+    time.sleep(0.01)
+print(round(1e3 * (worst - 0.01), 2))
 '''
 
 KINDS = ("quiet", "big", "deep", "values", "invalid")
@@ -127,6 +144,8 @@ def one_run(rate_hz: float, seconds: float, kind: str) -> dict[str, Any]:
             abuser = subprocess.Popen(
                 [sys.executable, "-c", ABUSER, f"{view.url}/?token={TOKEN}", kind,
                  str(seconds)], stdout=subprocess.PIPE, text=True)
+        witness = subprocess.Popen([sys.executable, "-c", WITNESS, str(seconds)],
+                                   stdout=subprocess.PIPE, text=True)
         starts.clear()
         late0, cycles0 = runner.late, base.status.cycles
         t0 = time.monotonic()
@@ -138,6 +157,7 @@ def one_run(rate_hz: float, seconds: float, kind: str) -> dict[str, Any]:
         if abuser is not None:
             out, _ = abuser.communicate(timeout=120)
             rounds = int(out.strip() or 0)
+        witness_gap = float(witness.communicate(timeout=60)[0].strip() or "nan")
         cycles = base.status.cycles - cycles0
         late = runner.late - late0
         gaps = sorted(b - a for a, b in itertools.pairwise(starts))
@@ -147,7 +167,8 @@ def one_run(rate_hz: float, seconds: float, kind: str) -> dict[str, Any]:
                     longest_gap_ms=round(1e3 * gaps[-1], 2) if gaps else None,
                     p99_gap_ms=round(1e3 * gaps[int(0.99 * (len(gaps) - 1))], 2)
                     if gaps else None,
-                    rss_growth_mb=round(rss_mb() - rss0, 1))
+                    rss_growth_mb=round(rss_mb() - rss0, 1),
+                    witness_longest_gap_ms=witness_gap)
 
 
 def main() -> None:
@@ -178,7 +199,9 @@ def main() -> None:
              median_longest_gap_ms=round(median, 2),
              median_ratio=round(median / quiet_median, 2) if quiet_median else None,
              p99_gap_ms=max(float(r["p99_gap_ms"] or 0.0) for r in runs[kind]),
-             rss_growth_mb=max(float(r["rss_growth_mb"]) for r in runs[kind]))
+             rss_growth_mb=max(float(r["rss_growth_mb"]) for r in runs[kind]),
+             witness_longest_gap_ms=max(float(r["witness_longest_gap_ms"])
+                                        for r in runs[kind]))
 
 
 if __name__ == "__main__":

@@ -706,6 +706,21 @@ def test_more_origins_from_the_config_and_flags() -> None:
             resolve(table, None)
 
 
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--foxglove-token", "has space"], "--foxglove-token: letters, digits and punctuation"),
+    (["--foxglove-origin", "evil.example"], "--foxglove-origin: want an origin such as"),
+])
+def test_a_bad_token_or_origin_flag_is_one_line(flags: list[str], message: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    from omnican.cli import main
+
+    code = main(["drive", "--sim", "--foxglove-control", "--duration", "0.2", *flags])
+    assert code == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert message in line and "has space" not in line
+
+
 def test_only_a_client_with_the_token_drives_and_the_sdk_port_never(guarded: Any) -> None:
     """Without the token a client watches: its Twist moves nothing and it is told why. With
     it (in the URL, as Foxglove's app can send it, or as a bearer header) it drives. A
