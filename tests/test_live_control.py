@@ -625,6 +625,21 @@ def test_a_browser_opening_the_address_is_told_what_it_is(view: Any) -> None:
         assert page.read().decode() == PAGE
 
 
+@given(st.ip_addresses(v=4), st.integers(1, 65535), st.integers(0, 2**32 - 1),
+       st.text(max_size=200))
+def test_the_sdk_lines_of_one_kind_of_mistake_are_one_kind(
+        address: Any, port: int, channel_id: int, detail: str) -> None:
+    from omnican.live.view import mistake_kind
+
+    invalid = mistake_kind(f"Invalid message from {address}:{port}: {detail}")
+    assert invalid == mistake_kind("Invalid message from 127.0.0.1:1: key must be a string")
+    unknown = mistake_kind(f"Client {address}:{port} attempted to subscribe to unknown "
+                           f"channel: {channel_id}")
+    assert unknown == mistake_kind("Client 10.0.0.1:80 attempted to subscribe to unknown "
+                                   "channel: 7")
+    assert invalid != unknown and len(invalid) <= 80
+
+
 @pytest.fixture
 def guarded(channel: str) -> Any:
     """A live view whose clients may drive a stand-in base, only with the token s3cret."""
