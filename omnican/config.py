@@ -230,6 +230,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "tls_cert": Key((str,), None, "PEM certificate (relative to the config file): serve "
                         "wss:// (a phone's browser needs it); with tls_key"),
         "tls_key": Key((str,), None, "PEM private key of tls_cert"),
+        "origins": Key((list,), None, "web pages (Origin) whose browsers may connect, e.g. "
+                       "[\"https://app.foxglove.dev\"], \"*\" any; default Foxglove's app "
+                       "(app. and studio.foxglove.dev) and desktop (file://); "
+                       "--foxglove-origin adds one"),
+        "token": Key((str,), None, "a secret a client must give to drive (ws://host:port/"
+                     "?token=...): without it, it may only watch; --foxglove-token"),
     },
 }
 

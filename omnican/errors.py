@@ -22,3 +22,38 @@ class DriveError(OmnicanError):
 
 class BusError(OmnicanError):
     """The CAN bus could not be opened or went down."""
+
+
+#: How much of a value an error message quotes (a client may send a megabyte).
+QUOTE_LIMIT = 40
+
+
+def quote(value: object, limit: int = QUOTE_LIMIT) -> str:
+    """``repr(value)`` for an error message, at most ``limit`` characters of it: a longer
+    one is cut and says how long it was, so a megabyte from a client is not echoed to the
+    log, a status message or a service's answer. The repr of a long container is never
+    built whole (only its first items)."""
+    if isinstance(value, (str, bytes, bytearray)):
+        text = repr(value[: limit + 1])
+        size = len(value)
+        unit = "characters" if isinstance(value, str) else "bytes"
+    elif isinstance(value, (list, tuple, dict, set, frozenset)):
+        text = _container_repr(value, limit)
+        size = len(value)
+        unit = "item" if size == 1 else "items"
+    else:
+        text = repr(value)
+        size, unit = len(text), "characters"
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}... ({size} {unit})"
+
+
+def _container_repr(value: object, limit: int) -> str:
+    """The repr of a container's first items, enough for ``limit`` characters."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxlevel, r.maxstring, r.maxother = 2, limit, limit
+    r.maxlist = r.maxtuple = r.maxdict = r.maxset = r.maxfrozenset = max(1, limit // 2)
+    return r.repr(value)

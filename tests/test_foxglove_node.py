@@ -13,6 +13,7 @@ server binds to 127.0.0.1.
 from __future__ import annotations
 
 import base64
+import json
 import re
 import socket
 import time
@@ -23,7 +24,7 @@ from typing import Any
 import pytest
 
 from . import terminal
-from .foxglove_node.harness import NodeClient, Omnican, json_line, node_modules
+from .foxglove_node.harness import NodeClient, Omnican, json_line, listening_ports, node_modules
 
 LEGACY, SDK = "foxglove.websocket.v1", "foxglove.sdk.v1"
 
@@ -72,10 +73,14 @@ class Session:
         self.clients: list[NodeClient] = []
         self.url = self.omnican.url()
 
-    def client(self, protocols: str = SDK) -> NodeClient:
-        c = NodeClient(self.modules, self.url, protocols)
+    def client(self, protocols: str = SDK, query: str = "", origin: str | None = None,
+               url: str | None = None, connect: bool = True) -> NodeClient:
+        """A Node client on ``url`` (default omnican's) + ``query`` (``/?token=...``), as
+        opened by a web page at ``origin``; with ``connect``, waits until it is."""
+        c = NodeClient(self.modules, (url or self.url) + query, protocols, origin)
         self.clients.append(c)
-        c.connected()
+        if connect:
+            c.connected()
         return c
 
     def close(self) -> None:
@@ -362,3 +367,111 @@ def test_teleop_takes_the_teleop_panel_and_its_stop_key_holds(modules: Path) -> 
         if client is not None:
             client.close()
         term.close()
+
+
+APP = "https://app.foxglove.dev"
+
+
+def test_only_the_foxglove_app_connects_and_only_with_the_token_does_it_drive(
+        modules: Path, sessions: list[Session], tmp_path: Path) -> None:
+    """``--foxglove-token``: pages other than Foxglove's app are refused at the door (403);
+    the app without the token may watch, and its Teleop panel's Twists are refused with
+    the reason; the SDK's own port, reachable on loopback past the relay, takes nothing
+    from anyone; the app with the token in the URL drives."""
+    s = start(sessions, modules, "drive", "--sim", "--config", config(tmp_path, 30.0),
+              "--foxglove-control", "--foxglove-token", "s3cret", "--foxglove",
+              f"127.0.0.1:{free_port()}", "--duration", "12", "--json")
+    for page in ("https://evil.example", "null", "http://localhost:8080"):
+        evil = s.client(origin=page, query="/?token=s3cret", connect=False)
+        assert evil.wait("refused")["status"] == 403
+    watcher = s.client(origin=APP)
+    watcher.send("advertise", encoding="json")
+    ch = watcher.wait("advertised")["channel"]
+    watcher.send("publish", channel=ch, twist=[0.0, 0.0, 1.0], rate_hz=10, seconds=1)
+    told = watcher.wait("status", lambda e: "may watch, not drive" in e["message"])["message"]
+    assert "s3cret" not in told and "?token=" in told
+    watcher.send("call", service="/omnican/sim/console", request={"command": "fault 2"})
+    assert "may watch, not call" in watcher.wait("failure")["message"]
+    watcher.wait("published", timeout=10)
+    ports = listening_ports(s.omnican.proc.pid) - {int(s.url.rsplit(":", 1)[1])}
+    if ports:  # Linux: the SDK's own port, past the relay
+        [inner] = ports
+        past = s.client(url=f"ws://127.0.0.1:{inner}", query="/?token=s3cret")
+        past.send("advertise", encoding="json")
+        ch = past.wait("advertised")["channel"]
+        past.send("publish", channel=ch, twist=[0.0, 0.0, 1.0], rate_hz=10, seconds=1)
+        past.send("setParameters", parameters=[{"name": "chassis.max_speed", "value": 0.01}],
+                  id="p")
+        assert past.wait("parameterValues")["parameters"][0]["value"] == "inf"
+        past.wait("published", timeout=10)
+    driver = s.client(LEGACY, origin=APP, query="/?token=s3cret")
+    driver.send("advertise", encoding="cdr")
+    ch = driver.wait("advertised")["channel"]
+    driver.send("publish", channel=ch, twist=[0.2, 0.0, 0.0], rate_hz=10, seconds=2)
+    driver.wait("published", timeout=10)
+    code, out = s.omnican.finish(timeout=40)
+    assert code == 0, out
+    truth = json_line(out)["true_pose"]
+    assert truth["x"] > 0.25  # the driver's 0.2 m/s for 2 s
+    assert abs(truth["theta"]) < 0.01  # nobody else's turn
+    assert "refused: a web page at 'https://evil.example'" in out
+
+
+def test_abusive_clients_stop_nothing_and_junk_from_the_driver_stops_at_once(
+        modules: Path, sessions: list[Session], tmp_path: Path) -> None:
+    """While one client drives: a bystander's 16 MB Twist ends the bystander's connection
+    and nothing else; 5,000 invalid messages give a few log lines; deep nesting and long
+    bad values are refused, quoted short, with no traceback. Then the driver's own deeply
+    nested Twist stops the base at once (the command timeout is 30 s)."""
+    s = start(sessions, modules, "drive", "--sim", "--config", config(tmp_path, 30.0),
+              "--foxglove-control", "--foxglove", f"127.0.0.1:{free_port()}",
+              "--duration", "60", "--json")
+    watcher = s.client()
+    watcher.send("subscribe", topic="/twist")
+
+    def commanded(timeout: float = 15.0, where: Any = lambda t: True) -> tuple[float, ...]:
+        watcher.forget("message")
+        e = watcher.wait("message", lambda e: e["topic"] == "/twist"
+                         and where(twist_of(e, "command")), timeout=timeout)
+        return twist_of(e, "command")
+
+    driver = s.client(LEGACY)
+    driver.send("advertise", encoding="json")
+    ch = driver.wait("advertised")["channel"]
+    driver.send("publish", channel=ch, twist=[0.2, 0.0, 0.0], rate_hz=10, seconds=5)
+    commanded(where=lambda t: t[0] == pytest.approx(0.2))
+    big = s.client()
+    big.send("advertise", encoding="json")
+    big_ch = big.wait("advertised")["channel"]
+    big.send("publish", channel=big_ch, fill="[", size=16_000_000)
+    big.wait("close", timeout=30)  # the relay ended its connection
+    flood = s.client()  # the SDK answers each with a status, and cuts it off when they pile up
+    flood.send("sendText", text="{not json", repeat=2500)
+    flood.send("sendText", text=json.dumps({"op": "subscribe", "subscriptions": [
+        {"id": 7, "channelId": 99999}]}), repeat=2500)
+    flood.wait("sent")
+    flood.wait("sent")
+    junk = s.client()
+    junk.send("advertise", encoding="json")
+    junk_ch = junk.wait("advertised")["channel"]
+    junk.send("publish", channel=junk_ch, fill="[", size=4000)  # nested too deeply
+    junk.send("setParameters", parameters=[{"name": "chassis.max_speed",
+                                            "value": "9" * 60_000}], id="long")
+    junk.wait("parameterValues", lambda e: e["id"] == "long", timeout=60)
+    junk.send("call", service="/omnican/reset_odometry", request={"x": "far" * 1000})
+    assert len(junk.wait("response")["data"]["message"]) < 200
+    assert commanded() == pytest.approx((0.2, 0.0, 0.0))  # still the driver's
+    assert all(len(m) < 300 for m in watcher.statuses())
+    # The driver's own junk: the base stops now, not after the 30 s timeout.
+    driver.wait("published", timeout=30)
+    assert commanded() == pytest.approx((0.2, 0.0, 0.0))  # the last command holds
+    driver.send("publish", channel=ch, raw=base64.b64encode(b"[" * 4000).decode(), seconds=0)
+    commanded(timeout=10.0, where=lambda t: t == (0.0, 0.0, 0.0))
+    code, out = s.omnican.finish(timeout=40, interrupt=True)
+    assert code == 130, out
+    assert "Traceback" not in out and "Callback failed" not in out
+    assert max(len(line) for line in out.splitlines() if not line.startswith("{")) < 400
+    mistakes = [line for line in out.splitlines()
+                if "Invalid message" in line or "unknown channel" in line]
+    assert 1 <= len(mistakes) <= 6, mistakes
+    assert "sent a 16000005-byte message (at most 65536): disconnected" in out

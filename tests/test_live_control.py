@@ -6,9 +6,11 @@ processes, with Foxglove's own client: tests/test_foxglove_node.py."""
 from __future__ import annotations
 
 import json
+import logging
 import math
 import shutil
 import ssl
+import string
 import subprocess
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -22,10 +24,17 @@ from hypothesis import strategies as st
 from omnican import Pose2D, Twist, default_config, rosmsg
 from omnican.arbiter import CommandArbiter
 from omnican.config import ChassisSettings, load_config, with_live_limits
-from omnican.errors import ConfigError
+from omnican.errors import ConfigError, quote
 from omnican.live.control import Control, decode_twist, parameter_value
-from omnican.live.relay import offered_subprotocols, rewrite_protocol
-from omnican.live.settings import FoxgloveSettings, resolve
+from omnican.live.relay import (
+    GRANT_CHANNEL_ID,
+    GRANT_PREFIX,
+    given_token,
+    offered_subprotocols,
+    rewrite_protocol,
+    without_query,
+)
+from omnican.live.settings import FoxgloveSettings, check_token, resolve
 from omnican.live.view import describe_control
 
 from .helpers import one_error_line
@@ -143,7 +152,7 @@ def test_twists_are_read_from_json_and_cdr_stamped_or_not() -> None:
     ("json", "geometry_msgs/Twist", b'{"linear": [1, 2, 3]}', "linear must be an object"),
     ("json", "geometry_msgs/Twist", b'[0.1, 0, 0]', "want an object with linear and angular"),
     ("json", "geometry_msgs/Twist", b'{"linear": ', "not JSON"),
-    ("json", "std_msgs/String", b'{"data": "go"}', "want geometry_msgs/Twist, got std_msgs"),
+    ("json", "std_msgs/String", b'{"data": "go"}', "want geometry_msgs/Twist, got 'std_msgs/String'"),
     ("ros1", "geometry_msgs/Twist", b"\x00" * 48, "cannot read 'ros1' messages"),
     ("cdr", "geometry_msgs/Twist", b"\x00\x01\x00\x00\x00", "not a CDR geometry_msgs/msg/Twist"),
 ])
@@ -221,8 +230,19 @@ def twist(vx: float = 0.0, wz: float = 0.0) -> bytes:
     return _twist_json(linear={"x": vx, "y": 0, "z": 0}, angular={"x": 0, "y": 0, "z": wz})
 
 
-def control(base: StandInBase, timeout_s: float = 0.5) -> Control:
-    return Control(base, FoxgloveSettings(control=True), CommandArbiter(timeout_s))
+def vouch(c: Control, n: int) -> None:
+    """What the relay does for a client that may drive: its first message advertises a
+    channel named by a key the control gave it."""
+    c.on_client_advertise(client(n), channel(GRANT_CHANNEL_ID, topic=GRANT_PREFIX + c.grant()))
+
+
+def control(base: StandInBase, timeout_s: float = 0.5,
+            vouched: tuple[int, ...] = (1, 2, 3)) -> Control:
+    """A Control whose clients ``vouched`` came in through the relay and may drive."""
+    c = Control(base, FoxgloveSettings(control=True), CommandArbiter(timeout_s))
+    for n in vouched:
+        vouch(c, n)
+    return c
 
 
 def test_only_the_controller_moves_the_base_and_its_leaving_stops_it() -> None:
@@ -360,6 +380,176 @@ def test_parameters_read_as_config_keys_and_refusals_keep_the_value() -> None:
     assert base.cfg.chassis.rate_hz == 100.0
 
 
+# ---------------------------------------------------------------- abusive clients
+
+
+@dataclass
+class StatusBoard:
+    """The SDK server's status messages, as Control sends them (to every client)."""
+
+    sent: list[str] = field(default_factory=list)
+
+    def publish_status(self, message: str, level: Any, status_id: str) -> None:
+        self.sent.append(message)
+
+    def remove_status(self, ids: list[str]) -> None:
+        pass
+
+
+def attached(c: Control) -> StatusBoard:
+    board = StatusBoard()
+    c._server, c._status_level = board, SimpleNamespace(Info="info", Warning="warning")
+    return board
+
+
+def test_a_client_the_relay_did_not_vouch_for_may_watch_only() -> None:
+    """No key from the relay (a client without the token, or one on the SDK's own port):
+    its Twists, service calls and parameter changes do nothing and it is told why; a key
+    the control did not give, or one used before, vouches for no one."""
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    base = StandInBase()
+    c = control(base, vouched=(1,))
+    board = attached(c)
+    c.on_client_advertise(client(2), channel(GRANT_CHANNEL_ID, topic=GRANT_PREFIX + "0" * 32))
+    key = c.grant()
+    vouch_3 = channel(GRANT_CHANNEL_ID, topic=GRANT_PREFIX + key)
+    c.on_client_advertise(client(3), vouch_3)
+    c.on_client_advertise(client(4), vouch_3)  # the same key again: used up
+    assert [c.may_drive(n) for n in (1, 2, 3, 4)] == [True, False, True, False]
+    for n in (2, 4):
+        c.on_client_advertise(client(n), channel(n))
+        c.on_message_data(client(n), n, twist(0.3))
+        with pytest.raises(ValueError, match=f"Foxglove client {n} may watch, not call "
+                                             "/omnican/stop"):
+            call(c, "/omnican/stop", n)
+        assert c.on_set_parameters(client(n), [SimpleNamespace(
+            name="chassis.max_speed", get_value=lambda: 0.1)])[0].get_value() == "inf"
+    assert base.calls == [] and base.cfg.chassis.max_speed == math.inf
+    assert any("Foxglove client 2 may watch, not drive" in m for m in board.sent)
+    assert {p.name for p in c.on_get_parameters(client(2), [])} >= {"chassis.max_speed"}
+    c.on_client_unadvertise(client(3), GRANT_CHANNEL_ID)  # it left: its id vouches no more
+    assert not c.may_drive(3)
+    c.on_client_advertise(client(1), channel(1))
+    c.on_message_data(client(1), 1, twist(0.2))
+    assert base.calls == [("velocity", (0.2, 0.0, 0.0))]
+
+
+def test_the_token_is_named_to_a_client_that_did_not_give_it() -> None:
+    base = StandInBase()
+    c = Control(base, FoxgloveSettings(control=True, token="s3cret"), CommandArbiter(0.5))
+    board = attached(c)
+    c.on_client_advertise(client(1), channel(1))
+    c.on_message_data(client(1), 1, twist(0.3))
+    assert board.sent == ["Foxglove client 1 may watch, not drive: only a client that "
+                          "connects with the token (ws://HOST:PORT/?token=...) through "
+                          "omnican's port may"]
+    assert "s3cret" not in board.sent[0]
+
+
+def test_an_oversized_message_is_refused_before_it_is_read(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 16 MB Twist or service request is not parsed at all (json.loads never sees it):
+    from a bystander it is ignored, from the driver it stops the base, as other junk."""
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    base = StandInBase()
+    c = control(base)
+    board = attached(c)
+    for n in (1, 2):
+        c.on_client_advertise(client(n), channel(n))
+    c.on_client_advertise(client(3), channel(3, encoding="cdr"))
+    c.on_message_data(client(1), 1, twist(0.2))
+    read: list[int] = []
+    real_loads = json.loads
+
+    def loads(data: Any, **kw: Any) -> Any:
+        read.append(len(data))
+        return real_loads(data, **kw)
+
+    monkeypatch.setattr(json, "loads", loads)
+    huge = b'{"linear": {"x": 0.1}, "pad": "' + b"x" * (16 << 20) + b'"}'
+    c.on_message_data(client(2), 2, huge)
+    c.on_message_data(client(3), 3, b"\x00" * (16 << 20))
+    assert base.calls == [("velocity", (0.2, 0.0, 0.0))]
+    c.on_message_data(client(1), 1, huge)
+    assert base.calls[-1] == ("stop", None)
+    with pytest.raises(ValueError, match=r"/omnican/reset_odometry: a request of 16777\d+ "
+                                         r"bytes \(at most 4096\): not read"):
+        call(c, "/omnican/reset_odometry", 1, {"x": 1.0, "pad": "x" * (16 << 20)})
+    assert read == []
+    assert all(len(m) < 300 for m in board.sent)
+    assert any("a message of 16777" in m and "the base stops" in m for m in board.sent)
+
+
+@pytest.mark.parametrize(("data", "why"), [
+    (b"[" * 4000, "nested too deeply"), (b'{"":' * 1020, "nested too deeply"),
+    (b"[" * 100_000, "not read"), (b'{"linear":' * 50_000, "not read")])
+def test_deep_nesting_is_junk_like_any_other(data: bytes, why: str) -> None:
+    """JSON nested deeper than Python's parser goes (a RecursionError inside json) is a
+    Twist that cannot be read: ignored from a bystander, a stop at once from the driver;
+    a service answers why. (Deeper still, it is too long to be read at all.)"""
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    base = StandInBase()
+    c = control(base)
+    c.on_client_advertise(client(1), channel(1))
+    c.on_client_advertise(client(2), channel(2, schema="geometry_msgs/TwistStamped"))
+    c.on_message_data(client(1), 1, twist(0.2))
+    c.on_message_data(client(2), 2, data)
+    assert base.calls == [("velocity", (0.2, 0.0, 0.0))]
+    c.on_message_data(client(1), 1, data)
+    assert base.calls[-1] == ("stop", None)
+    with pytest.raises(ValueError, match=why):
+        service = next(s for s in c._services(__import__("foxglove"))
+                       if s.name == "/omnican/reset_odometry")
+        service.handler(SimpleNamespace(encoding="json", payload=data, client_id=1))
+
+
+def test_a_long_bad_value_is_quoted_short_everywhere(caplog: pytest.LogCaptureFixture) -> None:
+    """A megabyte of a bad value comes back as a short prefix: in the log, in the status
+    message every client sees and in a service's answer."""
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    base = StandInBase()
+    c = control(base)
+    board = attached(c)
+    mega = "9" * 1_000_000 + "x"
+    caplog.set_level(logging.INFO)
+    c.on_set_parameters(client(1), [SimpleNamespace(name="chassis.max_speed",
+                                                    get_value=lambda: mega)])
+    c.on_set_parameters(client(1), [SimpleNamespace(name="chassis." + mega,
+                                                    get_value=lambda: 1.0)])
+    c.on_client_advertise(client(1), channel(1, schema=mega))
+    c.on_message_data(client(1), 1, twist(0.2))
+    c.on_client_advertise(client(2), channel(2))
+    c.on_message_data(client(2), 2, json.dumps({"linear": "y" * 3000}).encode())
+    for body in ({"x": "z" * 3000}, {"w" * 3000: 1}, ["v" * 3000]):
+        service = next(s for s in c._services(__import__("foxglove"))
+                       if s.name == "/omnican/reset_odometry")
+        request = SimpleNamespace(encoding="json", payload=json.dumps(body).encode(),
+                                  client_id=1)
+        try:
+            answer = json.loads(service.handler(request))["message"]
+        except ValueError as exc:  # the SDK's failure answer
+            answer = str(exc)
+        assert len(answer) < 200, answer[:300]
+    assert len(board.sent) >= 4
+    assert all(len(m) < 300 for m in board.sent), [m[:300] for m in board.sent]
+    assert all(len(r.getMessage()) < 300 for r in caplog.records)
+    assert any("999999999" in m and "1000001 characters" in m for m in board.sent)
+
+
+@given(st.one_of(st.text(), st.binary(), st.lists(st.text()), st.floats(), st.integers(),
+                 st.dictionaries(st.text(), st.text())), st.integers(8, 100))
+def test_quote_is_short_and_begins_as_the_repr_does(value: Any, limit: int) -> None:
+    text = quote(value, limit)
+    full = repr(value)
+    if len(full) <= limit:
+        assert text == full
+    else:
+        assert len(text) <= limit + 30
+        assert text.endswith(")") and "..." in text
+        if isinstance(value, (str, bytes)):
+            assert text.startswith(full[:limit])
+
+
 # ---------------------------------------------------------------- the relay
 
 REQUEST = (b"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765\r\nUpgrade: websocket\r\n"
@@ -373,6 +563,21 @@ def test_the_relay_reads_and_rewrites_the_offered_subprotocols() -> None:
     assert offered_subprotocols(rewritten) == ["foxglove.sdk.v1"]
     assert b"Sec-WebSocket-Key: abc\r\n" in rewritten and rewritten.endswith(b"\r\n\r\n")
     assert rewritten.startswith(b"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765\r\n")
+
+
+@given(st.text(alphabet=string.ascii_letters + string.digits + "-_.~!$'()*,;:@", min_size=1,
+               max_size=64), st.sampled_from(["/", "/ws", "/a/b"]), st.booleans())
+def test_the_token_is_read_from_the_url_or_a_header_and_not_passed_on(
+        token: str, path: str, in_url: bool) -> None:
+    first = f"GET {path}?x=1&token={token} HTTP/1.1" if in_url else f"GET {path} HTTP/1.1"
+    auth = "" if in_url else f"Authorization: Bearer {token}\r\n"
+    head = f"{first}\r\nHost: robot:8765\r\n{auth}Origin: file://\r\n\r\n".encode()
+    assert given_token(head) == token
+    check_token(token, "token")  # what a config may hold, a URL carries as it is
+    forwarded = without_query(head)
+    assert forwarded.split(b"\r\n", 1)[0] == f"GET {path} HTTP/1.1".encode()
+    assert forwarded.split(b"\r\n", 1)[1] == head.split(b"\r\n", 1)[1]
+    assert given_token(head.replace(b"token=", b"tokens=").replace(b"Bearer", b"Basic")) is None
 
 
 @pytest.fixture
@@ -418,6 +623,197 @@ def test_a_browser_opening_the_address_is_told_what_it_is(view: Any) -> None:
     with urllib.request.urlopen(view.url.replace("ws://", "http://"), timeout=5) as page:
         assert page.status == 200
         assert page.read().decode() == PAGE
+
+
+@given(st.ip_addresses(v=4), st.integers(1, 65535), st.integers(0, 2**32 - 1),
+       st.text(max_size=200))
+def test_the_sdk_lines_of_one_kind_of_mistake_are_one_kind(
+        address: Any, port: int, channel_id: int, detail: str) -> None:
+    from omnican.live.view import mistake_kind
+
+    invalid = mistake_kind(f"Invalid message from {address}:{port}: {detail}")
+    assert invalid == mistake_kind("Invalid message from 127.0.0.1:1: key must be a string")
+    unknown = mistake_kind(f"Client {address}:{port} attempted to subscribe to unknown "
+                           f"channel: {channel_id}")
+    assert unknown == mistake_kind("Client 10.0.0.1:80 attempted to subscribe to unknown "
+                                   "channel: 7")
+    assert invalid != unknown and len(invalid) <= 80
+
+
+@pytest.fixture
+def guarded(channel: str) -> Any:
+    """A live view whose clients may drive a stand-in base, only with the token s3cret."""
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    from omnican.live import LiveView
+    from omnican.sim import SimulatedBase
+
+    cfg = default_config(bus={"interface": "virtual", "channel": channel})
+    base = StandInBase()
+    settings = FoxgloveSettings(port=0, control=True, token="s3cret")
+    c = Control(base, settings, CommandArbiter(60.0))
+    with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
+            LiveView(feed, control=c, settings=settings) as v:
+        yield v, base
+
+
+def _open(url: str, **options: Any) -> Any:
+    from websockets.sync.client import connect
+
+    ws = connect(url, subprotocols=["foxglove.sdk.v1"], open_timeout=5,  # type: ignore[list-item]
+                 max_size=None, **options).__enter__()
+    assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
+    return ws
+
+
+def _drive(ws: Any, vx: float, channel_id: int = 1) -> None:
+    """Advertise /cmd_vel and publish one JSON Twist, as the Teleop panel does."""
+    ws.send(json.dumps({"op": "advertise", "channels": [{
+        "id": channel_id, "topic": "/cmd_vel", "encoding": "json",
+        "schemaName": "geometry_msgs/Twist"}]}))
+    ws.send(b"\x01" + channel_id.to_bytes(4, "little") + twist(vx))
+
+
+def _round_trip(ws: Any, tag: str) -> list[dict[str, Any]]:
+    """Every text message up to the answer to a getParameters (the server has handled
+    all that came before it)."""
+    ws.send(json.dumps({"op": "getParameters", "parameterNames": [], "id": tag}))
+    seen = []
+    while True:
+        data = ws.recv(timeout=10)
+        if isinstance(data, str):
+            seen.append(json.loads(data))
+            if seen[-1].get("op") == "parameterValues" and seen[-1].get("id") == tag:
+                return seen
+
+
+@pytest.mark.parametrize(("origin", "allowed"), [
+    (None, True), ("https://app.foxglove.dev", True), ("https://studio.foxglove.dev", True),
+    ("file://", True), ("https://evil.example", False), ("null", False),
+    ("http://127.0.0.1:8080", False), ("https://app.foxglove.dev.evil.example", False)])
+def test_only_the_foxglove_app_and_programs_may_connect(guarded: Any, origin: str | None,
+                                                       allowed: bool) -> None:
+    """A browser says which web page opened the connection: only Foxglove's app (and its
+    desktop build, file://) gets in, not any page the operator happens to visit."""
+    from websockets.exceptions import InvalidStatus
+
+    view, base = guarded
+    headers = {"Origin": origin} if origin is not None else {}
+    if not allowed:
+        with pytest.raises(InvalidStatus, match="403"):
+            _open(view.url + "/?token=s3cret", additional_headers=headers)
+        return
+    with _open(view.url + "/?token=s3cret", additional_headers=headers) as ws:
+        _drive(ws, 0.2)
+        _round_trip(ws, "done")
+    assert base.calls[0] == ("velocity", (0.2, 0.0, 0.0))
+
+
+def test_more_origins_from_the_config_and_flags() -> None:
+    s = resolve({"origins": ["http://localhost:8080/"]}, None, origins=["HTTPS://Lab.Example"])
+    assert s.origin_allowed("http://localhost:8080") and s.origin_allowed("https://lab.example")
+    assert not s.origin_allowed("https://app.foxglove.dev")  # the table's list replaces it
+    assert s.origin_allowed(None)
+    assert resolve({"origins": ["*"]}, None).origin_allowed("https://anything.example")
+    for table, message in (({"origins": ["app.foxglove.dev"]}, "want an origin such as"),
+                           ({"token": "has space"}, "foxglove.token: letters, digits"),
+                           ({"token": ""}, "foxglove.token: want a non-empty text")):
+        with pytest.raises(ConfigError, match=message):
+            resolve(table, None)
+
+
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--foxglove-token", "has space"], "--foxglove-token: letters, digits and punctuation"),
+    (["--foxglove-origin", "evil.example"], "--foxglove-origin: want an origin such as"),
+])
+def test_a_bad_token_or_origin_flag_is_one_line(flags: list[str], message: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    from omnican.cli import main
+
+    code = main(["drive", "--sim", "--foxglove-control", "--duration", "0.2", *flags])
+    assert code == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert message in line and "has space" not in line
+
+
+def test_only_a_client_with_the_token_drives_and_the_sdk_port_never(guarded: Any) -> None:
+    """Without the token a client watches: its Twist moves nothing and it is told why. With
+    it (in the URL, as Foxglove's app can send it, or as a bearer header) it drives. A
+    wrong one is refused at the door. The SDK's own port, on loopback past the relay and
+    its checks, takes no command from anyone, token or not."""
+    from websockets.exceptions import InvalidStatus
+
+    view, base = guarded
+    with _open(view.url) as ws:
+        _drive(ws, 0.5)
+        statuses = [m["message"] for m in _round_trip(ws, "w") if m.get("op") == "status"]
+    assert base.calls == []
+    assert any("may watch, not drive" in m for m in statuses), statuses
+    with _open(f"ws://127.0.0.1:{view._server.port}/?token=s3cret") as ws:
+        _drive(ws, 0.5)
+        ws.send(json.dumps({"op": "setParameters", "id": "p", "parameters": [
+            {"name": "chassis.max_speed", "value": 0.01}]}))
+        _round_trip(ws, "inner")
+    assert base.calls == [] and base.cfg.chassis.max_speed == math.inf
+    with pytest.raises(InvalidStatus, match="403"):
+        _open(view.url + "/?token=guess")
+    with _open(view.url, additional_headers={"Authorization": "Bearer s3cret"}) as ws:
+        _drive(ws, 0.1)
+        _round_trip(ws, "b")
+    with _open(view.url + "/?token=s3cret") as ws:
+        _drive(ws, 0.2)
+        _round_trip(ws, "q")
+    assert [v for k, v in base.calls if k == "velocity"] == [(0.1, 0.0, 0.0), (0.2, 0.0, 0.0)]
+
+
+@pytest.mark.parametrize("fragments", [1, 100])
+def test_an_oversized_message_ends_the_connection_unread(guarded: Any,
+                                                        fragments: int) -> None:
+    """A 16 MB message (or 100 fragments of 1 KB each, one message) from a client ends its
+    connection at the relay, before the server holds or reads any of it; the driver
+    leaving so stops the base."""
+    from websockets.exceptions import ConnectionClosed
+
+    view, base = guarded
+    ws = _open(view.url + "/?token=s3cret")
+    _drive(ws, 0.2)
+    _round_trip(ws, "driving")
+    assert base.calls == [("velocity", (0.2, 0.0, 0.0))]
+    size = 16_000_000 if fragments == 1 else 1024  # (the SDK itself takes frames < 16 MiB)
+    body = b"\x01" + (1).to_bytes(4, "little") + b"[" * size
+    with pytest.raises(ConnectionClosed):
+        if fragments == 1:
+            ws.send(body)
+        else:
+            ws.send([body] * fragments)
+        _round_trip(ws, "after")
+    ws.close()
+    # the SDK says the client left: the base stops (it got nothing of the message)
+    deadline = 200
+    while base.calls[-1] != ("stop", None) and deadline:
+        import time
+
+        time.sleep(0.05)
+        deadline -= 1
+    assert base.calls == [("velocity", (0.2, 0.0, 0.0)), ("stop", None)]
+
+
+def test_protocol_mistakes_are_logged_once_in_a_while(guarded: Any,
+                                                     caplog: pytest.LogCaptureFixture) -> None:
+    """5,000 invalid messages: a handful of log lines, not 5,000 ERRORs."""
+    view, _ = guarded
+    caplog.set_level(logging.INFO)
+    with _open(view.url) as ws:
+        for batch in range(25):  # reading the server's answers (a status each) in between
+            for i in range(100):
+                ws.send("{not json")
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": batch * 100 + i + 1, "channelId": 99999}]}))
+            _round_trip(ws, f"batch {batch}")
+    mistakes = [r for r in caplog.records if "not json" in r.getMessage().lower()
+                or "Invalid message" in r.getMessage() or "unknown channel" in r.getMessage()]
+    assert 2 <= len(mistakes) <= 6, [r.getMessage() for r in mistakes]
+    assert all(r.levelno == logging.WARNING for r in mistakes)
 
 
 def make_certificate(tmp_path: Path) -> tuple[Path, Path]:
@@ -514,8 +910,15 @@ def test_control_on_another_host_when_allowed_is_announced() -> None:
         service_names=lambda: ["/omnican/stop"], arbiter=CommandArbiter(0.5)))
     lines = describe_control(fake)  # type: ignore[arg-type]
     assert lines[0].startswith("Foxglove control on: Twists on /cmd_vel")
-    assert lines[1] == ("warning: anyone who reaches this host on port 8765 can drive the "
+    assert lines[1] == ("Foxglove clients: browsers from https://app.foxglove.dev, "
+                        "https://studio.foxglove.dev, file://, and programs; any of them may "
+                        "drive (--foxglove-token keeps it to those with it)")
+    assert lines[2] == ("warning: anyone who reaches this host on port 8765 can drive the "
                         "robot (--foxglove-allow-remote)")
+    fake.settings = replace(s, token="t", origins=("*",))
+    assert describe_control(fake)[1] == (  # type: ignore[arg-type]
+        "Foxglove clients: browsers from any web page, and programs; only a client with the "
+        "token drives (its URL ending /?token=...), the others watch")
 
 
 def test_an_unknown_foxglove_key_is_refused_by_the_config(tmp_path: Path) -> None:

@@ -256,6 +256,14 @@ def add_foxglove_arguments(parser: argparse.ArgumentParser, control: bool = True
         parser.add_argument("--foxglove-allow-remote", action="store_true", default=None,
                             help="allow --foxglove-control on a host other than loopback "
                                  "(anyone who reaches it can drive the robot)")
+        parser.add_argument("--foxglove-token", metavar="TOKEN", default=None,
+                            help="only a client that gives TOKEN (ws://HOST:PORT/?token=TOKEN) "
+                                 "may drive; the others watch ([foxglove] token keeps it out "
+                                 "of the process list)")
+    parser.add_argument("--foxglove-origin", metavar="ORIGIN", action="append", default=[],
+                        help="also let browsers on this web page connect (the Origin header, "
+                             "e.g. http://localhost:8080; * any); default Foxglove's app and "
+                             "desktop, and programs that send no Origin")
 
 
 def foxglove_settings(args: argparse.Namespace, cfg: ChassisConfig) -> Any:
@@ -269,6 +277,8 @@ def foxglove_settings(args: argparse.Namespace, cfg: ChassisConfig) -> Any:
 
     return resolve(cfg.foxglove, address, control=control,
                    allow_remote=getattr(args, "foxglove_allow_remote", None),
+                   token=getattr(args, "foxglove_token", None),
+                   origins=getattr(args, "foxglove_origin", None) or (),
                    origin=str(cfg.source) if cfg.source else "config")
 
 

@@ -22,6 +22,13 @@ is on (``--foxglove-control``).
 While one client drives, only it may recover, reset odometry, change a parameter or
 inject a fault. The SDK calls these methods on its own threads; none of them blocks the
 control loop.
+
+Only a client the relay vouched for (:mod:`omnican.live.relay`: its web page allowed, the
+token given when one is set) may do any of this; the others, and whoever reaches the SDK's
+own port past the relay, may watch and read the parameters, nothing more. Every message is
+measured before it is read (:data:`TWIST_LIMIT`, :data:`REQUEST_LIMIT`), a value quoted
+back is cut short (:func:`omnican.errors.quote`), and JSON nested too deeply is refused as
+any other junk is.
 """
 
 from __future__ import annotations
@@ -29,14 +36,16 @@ from __future__ import annotations
 import json
 import logging
 import math
+import secrets
 import threading
 from dataclasses import dataclass
 from typing import Any
 
 from omnican.arbiter import CommandArbiter
 from omnican.config import LIVE_LIMITS
-from omnican.errors import OmnicanError
+from omnican.errors import OmnicanError, quote
 from omnican.kinematics import Twist
+from omnican.live.relay import GRANT_CHANNEL_ID, GRANT_PREFIX
 from omnican.live.settings import FoxgloveSettings
 from omnican.logthrottle import Throttle
 from omnican.odometry import Pose2D
@@ -50,6 +59,13 @@ PARAMETERS = tuple(f"chassis.{key}" for key in LIVE_LIMITS)
 SERVICE_STOP, SERVICE_RECOVER = "/omnican/stop", "/omnican/recover"
 SERVICE_RESET, SERVICE_CONSOLE = "/omnican/reset_odometry", "/omnican/sim/console"
 _STATUS_DRIVER, _STATUS_REFUSED = "omnican.control", "omnican.control.refused"
+#: The largest Twist message read (a TwistStamped in JSON with a long frame id is a few
+#: hundred bytes), and the largest service request (a console command, a pose).
+TWIST_LIMIT = REQUEST_LIMIT = 4096
+#: The longest parameter value read as text ("inf", "0.25").
+PARAMETER_TEXT_LIMIT = 64
+_CONSOLE_LINE_MAX = 200
+_GRANTS_PENDING_MAX = 256  # keys given to the relay and not yet used (connections opening)
 
 _OBJECT = '{"type": "object"}'
 _REPLY = ('{"type": "object", "properties": {"success": {"type": "boolean"}, '
@@ -62,9 +78,9 @@ _COMMAND = ('{"type": "object", "properties": {"command": {"type": "string"}}, '
 
 def _number(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{where} must be a number, got {value!r}")
+        raise ValueError(f"{where} must be a number, got {quote(value)}")
     if not math.isfinite(value):
-        raise ValueError(f"{where} must be finite, got {value!r}")
+        raise ValueError(f"{where} must be finite, got {quote(value)}")
     return float(value)
 
 
@@ -72,13 +88,20 @@ def _reject_constant(word: str) -> Any:
     raise ValueError(f"not a finite number: {word}")
 
 
+def _check_size(data: bytes, limit: int, what: str) -> None:
+    if len(data) > limit:
+        raise ValueError(f"{what} of {len(data)} bytes (at most {limit}): not read")
+
+
 def _json(data: bytes) -> Any:
     """JSON as the protocol defines it: NaN and Infinity (which Python's json reads) are
-    not numbers there."""
+    not numbers there. Nesting deeper than Python's recursion allows is refused."""
     try:
         return json.loads(bytes(data), parse_constant=_reject_constant)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"not JSON: {exc}") from None
+        raise ValueError(f"not JSON: {quote(str(exc), 80)}") from None
+    except RecursionError:
+        raise ValueError("not JSON this program reads: nested too deeply") from None
 
 
 def decode_twist(encoding: str, schema_name: str, data: bytes) -> Twist:
@@ -87,7 +110,9 @@ def decode_twist(encoding: str, schema_name: str, data: bytes) -> Twist:
     another encoding, a field missing or not a finite number."""
     stamped = TWIST_TYPES.get(schema_name)
     if stamped is None:
-        raise ValueError(f"want geometry_msgs/Twist, got {schema_name or 'no schema name'}")
+        raise ValueError("want geometry_msgs/Twist, got "
+                         f"{quote(schema_name) if schema_name else 'no schema name'}")
+    _check_size(data, TWIST_LIMIT, "a message")
     typename = "geometry_msgs/msg/TwistStamped" if stamped else "geometry_msgs/msg/Twist"
     if encoding == "json":
         msg = _json(data)
@@ -99,7 +124,7 @@ def decode_twist(encoding: str, schema_name: str, data: bytes) -> Twist:
         except Exception as exc:  # rosbags says little of a short or damaged buffer
             raise ValueError(f"not a CDR {typename}: {type(exc).__name__}") from None
     else:
-        raise ValueError(f"cannot read {encoding!r} messages (json or cdr)")
+        raise ValueError(f"cannot read {quote(encoding)} messages (json or cdr)")
     if stamped:
         msg = msg.get("twist") if isinstance(msg, dict) else None
     if not isinstance(msg, dict):
@@ -108,7 +133,7 @@ def decode_twist(encoding: str, schema_name: str, data: bytes) -> Twist:
     for group, axis in (("linear", "x"), ("linear", "y"), ("angular", "z")):
         vector = msg.get(group, {})
         if not isinstance(vector, dict):
-            raise ValueError(f"{group} must be an object, got {vector!r}")
+            raise ValueError(f"{group} must be an object, got {quote(vector)}")
         parts.append(_number(vector.get(axis, 0.0), f"{group}.{axis}"))
     return Twist(*parts)
 
@@ -117,16 +142,18 @@ def parameter_value(name: str, value: Any) -> float | int:
     """A parameter's new value as a limit: a number as it came, or "inf" (also numbers
     as text: the Parameters panel edits a text value as text). ValueError if neither."""
     if isinstance(value, str):
+        if len(value) > PARAMETER_TEXT_LIMIT:
+            raise ValueError(f"{name}: must be a number, got {quote(value)}")
         text = value.strip().lower()
         try:
             number = math.inf if text in ("inf", "infinity") else float(text)
         except ValueError:
-            raise ValueError(f"{name}: must be a number, got {value!r}") from None
+            raise ValueError(f"{name}: must be a number, got {quote(value)}") from None
         if math.isnan(number):
-            raise ValueError(f"{name}: must be a number, got {value!r}")
+            raise ValueError(f"{name}: must be a number, got {quote(value)}")
         return number
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{name}: must be a number, got {value!r}")
+        raise ValueError(f"{name}: must be a number, got {quote(value)}")
     return value
 
 
@@ -155,12 +182,44 @@ class Control:
         self._driver: str | None = None  # who drove last (for the status message)
         self._closed = False
         self._throttle = Throttle(logger)
+        self._grants: set[str] = set()  # keys given to the relay, not yet used
+        self._drivers: set[int] = set()  # clients the relay vouched for
         self.twists = 0  # commands that reached the base
         self.refused = 0  # commands refused (someone else drives, or unreadable)
 
     @staticmethod
     def source(client_id: int) -> str:
         return f"Foxglove client {client_id}"
+
+    # ------------------------------------------------------------ who may drive
+
+    def grant(self) -> str:
+        """A one-time key by which the relay vouches for a connection that may drive
+        (:func:`omnican.live.relay.grant_frame`)."""
+        key = secrets.token_hex(16)
+        with self._lock:
+            if len(self._grants) >= _GRANTS_PENDING_MAX:
+                self._grants.pop()  # a connection that never reached the server
+            self._grants.add(key)
+        return key
+
+    def may_drive(self, client_id: int) -> bool:
+        with self._lock:
+            return client_id in self._drivers
+
+    def _watcher(self, client_id: int, what: str) -> str | None:
+        """None if the client may drive; else the reason it may not do ``what``, told
+        to it (at most every few seconds) and logged."""
+        if self.may_drive(client_id):
+            return None
+        source = self.source(client_id)
+        why = (f"{source} may watch, not {what}: only a client that connects with the "
+               "token (ws://HOST:PORT/?token=...) through omnican's port may"
+               if self.settings.token is not None else
+               f"{source} may watch, not {what}: it did not connect through omnican's port")
+        if self._throttle.log(logging.WARNING, ("watcher", client_id), "%s", why):
+            self._status("Warning", why, _STATUS_REFUSED)
+        return why
 
     def _now(self) -> float:
         now: float = self.base.clock.now()
@@ -205,12 +264,24 @@ class Control:
     # ------------------------------------------------------------ client channels
 
     def on_client_advertise(self, client: Any, channel: Any) -> None:
+        if channel.topic.startswith(GRANT_PREFIX):
+            key = channel.topic[len(GRANT_PREFIX):]
+            with self._lock:
+                vouched = key in self._grants
+                self._grants.discard(key)
+                if vouched:
+                    self._drivers.add(client.id)
+            if not vouched:
+                self._throttle.log(logging.WARNING, ("grant", client.id), "%s: a key the "
+                                   "relay did not give: it may only watch",
+                                   self.source(client.id))
+            return
         with self._lock:
             self._channels[(client.id, channel.id)] = _Channel(
                 channel.topic, channel.encoding, channel.schema_name)
         if channel.topic == self.settings.cmd_vel_topic:
             logger.info("%s advertises %s (%s, %s)", self.source(client.id), channel.topic,
-                        channel.schema_name, channel.encoding)
+                        quote(channel.schema_name), quote(channel.encoding))
 
     def on_client_unadvertise(self, client: Any, client_channel_id: int) -> None:
         """A channel ends: unadvertised, or its client left (the SDK unadvertises every
@@ -218,6 +289,8 @@ class Control:
         gone: the base stops at once, and control is free."""
         topic = self.settings.cmd_vel_topic
         with self._lock:
+            if client_channel_id == GRANT_CHANNEL_ID:
+                self._drivers.discard(client.id)  # it left
             gone = self._channels.pop((client.id, client_channel_id), None)
             still = any(c.topic == topic for (cid, _), c in self._channels.items()
                         if cid == client.id)
@@ -237,6 +310,9 @@ class Control:
         with self._lock:
             channel = self._channels.get((client.id, client_channel_id))
         if channel is None or channel.topic != self.settings.cmd_vel_topic or self._closed:
+            return
+        if self._watcher(client.id, "drive"):
+            self.refused += 1
             return
         source, now = self.source(client.id), self._now()
         try:
@@ -323,13 +399,15 @@ class Control:
     def on_set_parameters(self, client: Any, parameters: list[Any],
                           request_id: str | None = None) -> list[Any]:
         source = self.source(client.id)
+        if self._watcher(client.id, "change a parameter"):
+            return [self._parameter(p.name) for p in parameters if p.name in PARAMETERS]
         holder = self.arbiter.may_act(source, self._now())
         names = []
         for p in parameters:
             name = p.name
             if name not in PARAMETERS:
-                self._status("Warning", f"{source}: no parameter {name} (the parameters: "
-                             f"{', '.join(PARAMETERS)})", "omnican.parameters")
+                self._status("Warning", f"{source}: no parameter {quote(name)} (the "
+                             f"parameters: {', '.join(PARAMETERS)})", "omnican.parameters")
                 continue
             names.append(name)
             old = getattr(self.base.cfg.chassis, name.split(".", 1)[1])
@@ -343,7 +421,8 @@ class Control:
                 self.base.set_limits(**{name.split(".", 1)[1]: value})
             except (ValueError, OmnicanError) as exc:
                 reason = str(exc).removeprefix("live: ")
-                logger.warning("%s: refused %s = %r: %s", source, name, p.get_value(), reason)
+                logger.warning("%s: refused %s = %s: %s", source, name, quote(p.get_value()),
+                               reason)
                 self._status("Warning", f"{source}: refused {reason}; {name} stays {old:g}",
                              "omnican.parameters")
                 continue
@@ -378,12 +457,17 @@ class Control:
 
     def _handler(self, name: str, fn: Any) -> Any:
         def handle(request: Any) -> bytes:
+            # A ValueError is the SDK's failure answer to the caller, with its message.
+            refused = self._watcher(request.client_id, f"call {name}")
+            if refused:
+                raise ValueError(refused)
             if request.encoding != "json":
-                raise ValueError(f"{name} takes JSON, got {request.encoding!r}")
+                raise ValueError(f"{name} takes JSON, got {quote(request.encoding)}")
+            _check_size(request.payload, REQUEST_LIMIT, f"{name}: a request")
             payload = bytes(request.payload)
             body = _json(payload) if payload.strip() else {}
             if not isinstance(body, dict):
-                raise ValueError(f"{name} takes a JSON object, got {body!r}")
+                raise ValueError(f"{name} takes a JSON object, got {quote(body)}")
             source = self.source(request.client_id)
             if self._closed:
                 ok, message = False, "the base is closing"
@@ -423,7 +507,7 @@ class Control:
             return False, refused
         unknown = sorted(set(body) - {"x", "y", "theta"})
         if unknown:
-            return False, f"unknown field {unknown[0]!r} (x, y, theta)"
+            return False, f"unknown field {quote(unknown[0])} (x, y, theta)"
         try:
             pose = Pose2D(*(_number(body.get(k, 0.0), k) for k in ("x", "y", "theta")))
         except ValueError as exc:
@@ -440,6 +524,8 @@ class Control:
         line = body.get("command")
         if not isinstance(line, str) or not line.strip():
             return False, 'give a console command: {"command": "fault 2"} (help lists them)'
+        if len(line) > _CONSOLE_LINE_MAX:
+            return False, f"a console command of {len(line)} characters: too long"
         if line.split()[0].lower() in ("quit", "exit"):
             return False, "quit is the terminal's: not from Foxglove"
         reply = console.command(self.sim, line) or ""

@@ -20,16 +20,18 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from omnican import rosmsg, telemetry
 from omnican.arbiter import CommandArbiter
-from omnican.errors import ConfigError
+from omnican.errors import ConfigError, quote
 from omnican.live.control import PARAMETERS, Control
 from omnican.live.relay import Relay, tls_context
 from omnican.live.settings import DEFAULT_HOST, DEFAULT_PORT, FoxgloveSettings, parse_address
+from omnican.logthrottle import Throttle
 from omnican.telemetry import Feed, Message
 
 logger = logging.getLogger(__name__)
@@ -59,21 +61,35 @@ _LEFT_WORDS = ("Connection reset", "closing handshake", "Broken pipe", "os error
                "os error 32")
 
 
-# What the SDK logs as an ERROR each time a client breaks the protocol (it tells the
-# client so in a status message): a debug line here, or one client floods the log.
-_CLIENT_MISTAKES = ("Received message for unknown channel",)
+# The SDK's logger of what one client does (its protocol mistakes among it, an ERROR line
+# each: "Invalid message from ...", "... attempted to subscribe to unknown channel").
+_CLIENT_LOGGER = "foxglove.websocket.connected_client"
+_MISTAKE_LINE = 200  # characters of such a line kept (a client's words may be in it)
+
+
+def mistake_kind(text: str) -> str:
+    """What a line of the SDK's says with the client's address and the numbers left out:
+    lines of one kind are logged once every few seconds."""
+    return re.sub(r"\d+", "N", text.split(": ", 2)[0] if "Invalid message" in text else text)[:80]
 
 
 class _ViewerLeft(logging.Filter):
     """Turns the SDK's ERROR "Error receiving from client ...: Connection reset ..." into
-    an INFO line that a viewer left, and a client's protocol mistakes into DEBUG lines;
-    other records pass as they are."""
+    an INFO line that a viewer left, and its lines about a client's protocol mistakes into
+    WARNING lines, each kind at most once every few seconds (a count of the others with
+    the next); other records pass as they are."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.mistakes = Throttle(logger)
 
     def filter(self, record: logging.LogRecord) -> bool:
         text = record.getMessage()
-        if record.levelno >= logging.ERROR and text.startswith(_CLIENT_MISTAKES):
-            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
-            return logging.getLogger(record.name).isEnabledFor(logging.DEBUG)
+        left = "from client" in text and any(w in text for w in _LEFT_WORDS)
+        if record.name == _CLIENT_LOGGER and record.levelno >= logging.WARNING and not left:
+            self.mistakes.warning(mistake_kind(text), "Foxglove: %s",
+                                  quote(text, _MISTAKE_LINE).strip("'\""))
+            return False
         if record.levelno >= logging.ERROR and "from client" in text and any(
                 w in text for w in _LEFT_WORDS):
             client = text.split("from client", 1)[1].split(":", 2)
@@ -135,7 +151,9 @@ class LiveView:
         except Exception as exc:  # the SDK raises its own error kinds
             raise ConfigError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         try:
-            self._relay = Relay(host, port, int(self._server.port), tls)
+            self._relay = Relay(host, port, int(self._server.port), tls,
+                                origin_allowed=s.origin_allowed, token=s.token,
+                                grant=control.grant if control is not None else None)
         except OSError as exc:
             self._server.stop()
             why = exc.strerror or str(exc)
@@ -202,6 +220,7 @@ class LiveView:
             self.control.close()  # clients leaving now (the relay closing) change nothing
         self._relay.close()
         self._server.stop()
+        _VIEWER_LEFT.mistakes.flush()  # how many a client's mistakes went unlogged
 
     def __enter__(self) -> LiveView:
         return self
@@ -221,6 +240,11 @@ def describe_control(view: LiveView) -> list[str]:
              f"services {', '.join(c.service_names())}, parameters {params}; one client "
              f"drives at a time, and the base stops when it leaves or sends nothing for "
              f"{c.arbiter.timeout_s:g} s"]
+    pages = "any web page" if "*" in s.origins else ", ".join(s.origins)
+    lines.append(f"Foxglove clients: browsers from {pages}, and programs; "
+                 + ("only a client with the token drives (its URL ending /?token=...), "
+                    "the others watch" if s.token is not None else
+                    "any of them may drive (--foxglove-token keeps it to those with it)"))
     if s.remote:
         lines.append(f"warning: anyone who reaches this host on port {view.port} can drive "
                      "the robot (--foxglove-allow-remote)")

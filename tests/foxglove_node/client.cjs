@@ -1,15 +1,18 @@
 // A Foxglove client on Foxglove's own libraries, driven by the tests one JSON line at a
 // time on stdin; it prints what it sees as JSON lines on stdout.
 //
-//   node client.cjs URL [SUBPROTOCOL,...]
+//   node client.cjs URL [SUBPROTOCOL,...] [ORIGIN]
 //
+// ORIGIN: the Origin header a browser would send (the web page that opened the
+// connection); none by default, as a desktop app or a program.
 // @foxglove/ws-protocol's FoxgloveClient speaks the protocol; Twists go out as the
 // Foxglove app's Teleop panel sends them: JSON, or CDR written by
 // @foxglove/rosmsg2-serialization from the ROS 1 definitions of geometry_msgs/Twist.
 // Commands (stdin): advertise, publish, unadvertise, call, getParameters,
-// setParameters, subscribe, close. Events (stdout): open, serverInfo, advertise,
-// advertiseServices, status, removeStatus, advertised, published, response, failure,
-// parameterValues, message, error, close.
+// setParameters, subscribe, sendText (raw protocol text, junk included), close.
+// Events (stdout): open, refused (the HTTP status of a refused connection), serverInfo,
+// advertise, advertiseServices, status, removeStatus, advertised, published, sent,
+// response, failure, parameterValues, message, error, close.
 "use strict";
 
 const readline = require("node:readline");
@@ -18,7 +21,7 @@ const { FoxgloveClient } = require("@foxglove/ws-protocol");
 const { MessageWriter } = require("@foxglove/rosmsg2-serialization");
 const { ros1 } = require("@foxglove/rosmsg-msgs-common");
 
-const [url, protocols = FoxgloveClient.SUPPORTED_SUBPROTOCOL] = process.argv.slice(2);
+const [url, protocols = FoxgloveClient.SUPPORTED_SUBPROTOCOL, origin] = process.argv.slice(2);
 
 function emit(event, fields = {}) {
   process.stdout.write(JSON.stringify({ event, ...fields }) + "\n");
@@ -32,7 +35,11 @@ const subscriptions = new Map(); // subscription id -> topic
 const pending = new Map(); // call id -> service name
 let nextCall = 1;
 
-const ws = new WebSocket(url, protocols.split(","));
+const ws = new WebSocket(url, protocols.split(","), origin ? { origin } : {});
+ws.on("unexpected-response", (req, res) => {
+  emit("refused", { status: res.statusCode });
+  process.exit(0);
+});
 const client = new FoxgloveClient({ ws });
 
 client.on("open", () => emit("open", { protocol: ws.protocol }));
@@ -92,9 +99,11 @@ const commands = {
     channels.set(id, encoding);
     emit("advertised", { channel: id, topic, encoding });
   },
-  publish({ channel, twist, rate_hz = 10, seconds = 0, raw }) {
+  publish({ channel, twist, rate_hz = 10, seconds = 0, raw, fill, size = 0 }) {
+    // fill, size: a message of size bytes, fill repeated (a bystander's 16 MB Twist)
     const encoding = channels.get(channel);
-    const data = raw !== undefined ? new Uint8Array(Buffer.from(raw, "base64")) : twistBytes(encoding, twist);
+    const data = fill !== undefined ? new Uint8Array(Buffer.alloc(size, fill))
+      : raw !== undefined ? new Uint8Array(Buffer.from(raw, "base64")) : twistBytes(encoding, twist);
     let count = 0;
     const send = () => { client.sendMessage(channel, data); count += 1; };
     send();
@@ -122,6 +131,10 @@ const commands = {
   },
   setParameters({ parameters, id = "set" }) {
     client.setParameters(parameters, id);
+  },
+  sendText({ text, repeat = 1 }) {
+    for (let i = 0; i < repeat; i += 1) ws.send(text);
+    emit("sent", { count: repeat });
   },
   subscribe({ topic }) {
     const ch = topics.get(topic);

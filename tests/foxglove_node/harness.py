@@ -9,6 +9,7 @@ files and Node's major version), never into the repository.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -118,11 +119,14 @@ class _Lines:
 
 
 class NodeClient:
-    """client.cjs connected to ``url``, offering ``protocols`` (comma-separated)."""
+    """client.cjs connected to ``url``, offering ``protocols`` (comma-separated), as if
+    opened by a web page at ``origin`` (None: not a browser)."""
 
-    def __init__(self, modules: Path, url: str, protocols: str) -> None:
+    def __init__(self, modules: Path, url: str, protocols: str,
+                 origin: str | None = None) -> None:
         env = {**os.environ, "NODE_PATH": str(modules)}
-        self.proc = subprocess.Popen(["node", str(CLIENT), url, protocols],
+        self.proc = subprocess.Popen(["node", str(CLIENT), url, protocols,
+                                      *([origin] if origin else [])],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, env=env)
         assert self.proc.stdout is not None
@@ -272,3 +276,25 @@ def json_line(output: str) -> dict[str, Any]:
             result: dict[str, Any] = json.loads(line)
             return result
     raise AssertionError(f"no JSON in:\n{output}")
+
+
+def listening_ports(pid: int) -> set[int]:
+    """The TCP ports process ``pid`` listens on at 127.0.0.1 (Linux /proc; empty
+    elsewhere): the relay's and the SDK server's own, behind it."""
+    inodes = set()
+    try:
+        for fd in Path(f"/proc/{pid}/fd").iterdir():
+            with contextlib.suppress(OSError):
+                target = os.readlink(fd)
+                if target.startswith("socket:["):
+                    inodes.add(target[8:-1])
+        lines = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    except OSError:
+        return set()
+    ports = set()
+    for line in lines:
+        fields = line.split()
+        local, state, inode = fields[1], fields[3], fields[9]
+        if state == "0A" and inode in inodes and local.startswith("0100007F:"):
+            ports.add(int(local.split(":")[1], 16))
+    return ports
