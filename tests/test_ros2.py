@@ -4,6 +4,7 @@ real (simulated) chassis over an in-memory transport."""
 
 from __future__ import annotations
 
+import collections
 import math
 import re
 import threading
@@ -248,11 +249,14 @@ def test_twist_from_msg_keeps_the_planar_part(v: list[float]) -> None:
 
 
 class MemoryTransport:
-    """Transport for the tests: publishers record, subscriptions are called directly."""
+    """Transport for the tests: publishers record; what a test delivers waits, serialised
+    as DDS carries it, in each reader's history (keep-last, its depth) until the bridge
+    polls."""
 
     def __init__(self) -> None:
         self.published: dict[str, list[Any]] = {}
-        self.subscribers: dict[str, tuple[type, Callable[[Any], None]]] = {}
+        self.readers: dict[str, tuple[type, collections.deque[Any]]] = {}
+        self.discovered: list[Any] = []
         self.qos: dict[str, Any] = {}
         self.lock = threading.Lock()
         self.closed = False
@@ -268,15 +272,38 @@ class MemoryTransport:
                 self.published[topic].append(msg)
         return publish
 
-    def subscribe(self, topic: str, msg_type: type, qos: Any,
-                  callback: Callable[[Any], None]) -> None:
+    def reader(self, topic: str, msg_type: type, qos: Any) -> Callable[[], list[Any]]:
         self.qos[topic] = qos
-        self.subscribers[topic] = (msg_type, callback)
+        history: collections.deque[Any] = collections.deque(maxlen=qos.depth)
+        self.readers[topic] = (msg_type, history)
 
-    def deliver(self, topic: str, msg: Any) -> None:
-        msg_type, callback = self.subscribers[topic]
+        def take() -> list[Any]:
+            with self.lock:
+                got = list(history)
+                history.clear()
+            return got
+        return take
+
+    def deliver(self, topic: str, msg: Any, writer: int = 1) -> None:
+        from omnican.ros2.bridge import Received
+
+        msg_type, history = self.readers[topic]
         assert isinstance(msg, msg_type)
-        callback(msg)
+        self.deliver_raw(topic, msg.serialize(use_version_2=False), writer)
+
+    def deliver_raw(self, topic: str, data: bytes, writer: int = 1) -> None:
+        from omnican.ros2.bridge import Received
+
+        with self.lock:
+            self.readers[topic][1].append(Received(writer, data))
+
+    def writer_guid(self, topic: str, writer: int) -> str:
+        return f"{writer:032x}"
+
+    def publications(self) -> list[Any]:
+        with self.lock:
+            found, self.discovered = self.discovered, []
+        return found
 
     def last(self, topic: str) -> Any:
         with self.lock:
@@ -313,11 +340,12 @@ def test_bridge_drives_publishes_and_recovers(rig: tuple[SimulatedBase, Chassis]
 
     sim, base = rig
     t = MemoryTransport()
-    with Bridge(base, Ros2Settings(diagnostics_rate_hz=5.0), t, sim=sim) as bridge:
-        assert set(t.subscribers) == {"/cmd_vel", "/omnican/recover"}
+    with Bridge(base, Ros2Settings(diagnostics_rate_hz=5.0), t, sim=sim,
+                poll_thread=False) as bridge:
+        assert set(t.readers) == {"/cmd_vel", "/omnican/recover"}
         assert t.qos["/tf"].depth == TF_DEPTH and t.qos["/odom"].reliable
         def at_speed() -> bool:  # cmd_vel kept coming, as a nav stack sends it
-            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.5))
+            _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.5))
             odom = t.last("/odom")
             return odom is not None and \
                 odom.twist.twist.linear.x == pytest.approx(0.3, abs=0.02) and \
@@ -348,20 +376,26 @@ def test_bridge_drives_publishes_and_recovers(rig: tuple[SimulatedBase, Chassis]
         assert len(t.published["/diagnostics"]) > n_diag
         status = _status(t, "canopen node 2")
         assert "0x2310" in status.message and "over-current" in status.message
-        t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+        _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
         time.sleep(0.2)
         assert abs(sim.true_twist.vx) < 1e-3
         # Recover over the topic; the base is enabled again and the note says so.
-        t.deliver("/omnican/recover", msgs.Empty())
+        _send(t, bridge, "/omnican/recover", msgs.Empty())
         assert wait_for(lambda: base.status.enabled, 5.0)
         assert wait_for(lambda: bridge.recover_note is not None
                         and bridge.recover_note.startswith("ok"), 2.0)
         assert wait_for(lambda: _chassis_level(t) == model.OK, 2.0)
         # NaN commands are counted and refused; nothing moves.
-        t.deliver("/cmd_vel", _twist(math.nan, 0.0, 0.0))
+        _send(t, bridge, "/cmd_vel", _twist(math.nan, 0.0, 0.0))
         assert bridge.cmd_vel_rejected == 1
     rates = bridge.achieved_rates()
     assert rates["odom"] > 0 and rates["diagnostics"] > 0
+
+
+def _send(t: MemoryTransport, bridge: Any, topic: str, msg: Any, writer: int = 1) -> None:
+    """A sample arrives and the bridge polls (as its thread does every cycle)."""
+    t.deliver(topic, msg, writer)
+    bridge.poll()
 
 
 def _xyzw(q: Any) -> tuple[float, float, float, float]:
@@ -396,12 +430,13 @@ def test_stamped_cmd_vel_and_no_joint_states_without_a_radius(channel: str) -> N
     cfg = replace(cfg, wheels=tuple(replace(w, wheel_radius=None) for w in cfg.wheels))
     t = MemoryTransport()
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
-            Bridge(base, Ros2Settings(cmd_vel_stamped=True, publish_tf=False), t) as bridge:
+            Bridge(base, Ros2Settings(cmd_vel_stamped=True, publish_tf=False), t,
+                   poll_thread=False) as bridge:
         assert bridge.wheel_radii is None
         assert "/joint_states" not in t.published and "/tf" not in t.published
         stamped = msgs.TwistStamped(msgs.Header(), _twist(0.0, 0.2, 0.0))
         def at_speed() -> bool:
-            t.deliver("/cmd_vel", stamped)
+            _send(t, bridge, "/cmd_vel", stamped)
             return bool(sim.true_twist.vy == pytest.approx(0.2, abs=0.03))
 
         assert wait_for(at_speed, 10.0, step=0.02), sim.true_twist
@@ -418,21 +453,21 @@ def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Cha
     sim, base = rig
     arbiter = CommandArbiter(base.cfg.chassis.cmd_timeout_s)
     t = MemoryTransport()
-    with Bridge(base, Ros2Settings(), t, arbiter=arbiter) as bridge:
+    with Bridge(base, Ros2Settings(), t, arbiter=arbiter, poll_thread=False) as bridge:
         # The Foxglove client drives (a turn), sending as its Teleop panel does; every
         # cmd_vel between its commands is refused, however slowly this machine runs.
         for _ in range(10):
             assert arbiter.claim("Foxglove client 1", base.clock.now(),
                                  lambda: base.set_velocity(0.0, 0.0, 0.5)) is None
-            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+            _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
             time.sleep(0.02)
         assert bridge.cmd_vel_refused == 10
         assert sim.true_twist.vx == pytest.approx(0.0, abs=0.01)
         time.sleep(0.6)  # the Foxglove client sends nothing more: its hold lapses
 
         def driven_by_cmd_vel() -> bool:
-            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
-            return (arbiter.holder(base.clock.now()) == CMD_VEL_SOURCE and
+            _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
+            return ((arbiter.holder(base.clock.now()) or "").startswith(CMD_VEL_SOURCE) and
                     sim.true_twist.vx == pytest.approx(0.3, abs=0.03))
 
         assert wait_for(driven_by_cmd_vel, 10.0, step=0.02)
