@@ -40,7 +40,7 @@ from omnican.sim import SimulatedBase
 from omnican.telemetry import messages as model
 from omnican.telemetry.covariance import UNOBSERVED_VARIANCE, OdomCovariance
 
-from .helpers import one_error_line, sim_config, wait_for
+from .helpers import lockstep_rig, one_error_line, sim_config, wait_for
 
 names = st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True)
 
@@ -285,9 +285,7 @@ class MemoryTransport:
         return take
 
     def deliver(self, topic: str, msg: Any, writer: int = 1) -> None:
-        from omnican.ros2.bridge import Received
-
-        msg_type, history = self.readers[topic]
+        msg_type = self.readers[topic][0]
         assert isinstance(msg, msg_type)
         self.deliver_raw(topic, msg.serialize(use_version_2=False), writer)
 
@@ -595,3 +593,127 @@ def test_battery_state_is_published_at_its_rate_and_follows_the_battery(
     # before the first health values came (a health period: a few samples).
     battery, odom = len(t.published["/robot1/battery_state"]), len(t.published["/robot1/odom"])
     assert odom // 5 - 3 <= battery <= odom // 5 + 1
+
+
+# ------------------------------------------------------------ hostile and buggy publishers
+
+
+@pytest.fixture
+def stepped(channel: str) -> Iterator[tuple[Any, SimulatedBase, Chassis]]:
+    with lockstep_rig(channel) as r:
+        yield r
+
+
+def _bridge(base: Chassis, t: MemoryTransport, **settings: Any) -> Any:
+    from omnican.ros2.bridge import Bridge
+
+    return Bridge(base, Ros2Settings(**settings), t, poll_thread=False)
+
+
+def test_a_flood_costs_one_parsed_sample_per_publisher_and_poll(
+        stepped: tuple[Any, SimulatedBase, Chassis]) -> None:
+    """10,000 samples between two polls (a 10 kHz flood at 1 poll a second): the reader
+    keeps the newest few, the bridge parses only the newest and drives with it."""
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import CMD_VEL_DEPTH
+
+    clock, sim, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t) as bridge:
+        for k in range(10_000):
+            t.deliver("/cmd_vel", _twist(0.3 * k / 9_999, 0.0, 0.0))
+        bridge.poll()
+        assert bridge.cmd_vel_count == CMD_VEL_DEPTH  # taken, unparsed
+        assert bridge.cmd_vel_applied == 1  # parsed and applied: the newest only
+        for _ in range(40):  # a nav stack's 20 Hz, each time a burst of 100
+            for _ in range(100):
+                t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+            bridge.poll()
+            clock.sleep(0.05)
+        assert bridge.cmd_vel_applied == 41
+        assert sim.true_twist.vx == pytest.approx(0.3, abs=0.01)
+
+
+def test_oversized_and_broken_samples_are_refused_unread_and_quoted_short(
+        stepped: tuple[Any, SimulatedBase, Chassis], caplog: pytest.LogCaptureFixture) -> None:
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2 import msgs
+
+    clock, sim, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t, cmd_vel_stamped=True) as bridge:
+        # A TwistStamped with a 2 MB frame id; bytes that are no TwistStamped at all.
+        huge = msgs.TwistStamped(msgs.Header(frame_id="x" * 2_000_000), _twist(0.3, 0, 0))
+        t.deliver("/cmd_vel", huge, writer=7)
+        bridge.poll()
+        t.deliver_raw("/cmd_vel", b"\x00\x01\x00\x00" + b"\xff" * 20, writer=8)
+        bridge.poll()
+        clock.sleep(0.3)
+        assert bridge.cmd_vel_rejected == 2
+        assert sim.true_twist.vx == pytest.approx(0.0, abs=1e-6)
+    said = [r.getMessage() for r in caplog.records if "cmd_vel from" in r.getMessage()]
+    sizes = [int(m.group(1)) for m in map(re.compile(r"a (\d+)-byte sample").search, said) if m]
+    assert sizes and sizes[0] > 2_000_000, said
+    assert any("cannot be read as a geometry_msgs/msg/TwistStamped" in m for m in said), said
+    assert max(len(m) for m in said) < 300
+
+
+def test_one_publisher_drives_at_a_time(stepped: tuple[Any, SimulatedBase, Chassis],
+                                        caplog: pytest.LogCaptureFixture) -> None:
+    """Two cmd_vel publishers: the first drives, the second is ignored (and the log says
+    who drives) until the first has sent nothing for the command timeout."""
+    pytest.importorskip("cyclonedds")
+    clock, sim, base = stepped
+    caplog.set_level("INFO", logger="omnican.ros2.bridge")
+    t = MemoryTransport()
+    first, second = f"{1:032x}", f"{2:032x}"
+    with _bridge(base, t) as bridge:
+        for _ in range(30):  # both at 20 Hz, in the same poll
+            t.deliver("/cmd_vel", _twist(0.2, 0.0, 0.0), writer=1)
+            t.deliver("/cmd_vel", _twist(0.0, 0.2, 0.0), writer=2)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert sim.true_twist.vx == pytest.approx(0.2, abs=0.01)
+        assert sim.true_twist.vy == pytest.approx(0.0, abs=0.01)
+        assert bridge.cmd_vel_refused == 30
+        # The first stops; the second keeps sending: the base stops (the watchdog), then
+        # the second drives.
+        for _ in range(30):
+            t.deliver("/cmd_vel", _twist(0.0, 0.2, 0.0), writer=2)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert sim.true_twist.vx == pytest.approx(0.0, abs=0.01)
+        assert sim.true_twist.vy == pytest.approx(0.2, abs=0.01)
+    said = [r.getMessage() for r in caplog.records]
+    assert f"ROS 2 cmd_vel publisher {first} drives the base" in said
+    assert f"ROS 2 cmd_vel publisher {second} drives the base" in said
+    ignored = [m for m in said if m.startswith(f"cmd_vel from ROS 2 cmd_vel publisher {second} "
+                                               "ignored")]
+    assert ignored and f"publisher {first} is driving the base" in ignored[0]
+    assert len(ignored) <= 2  # throttled: not one line per sample
+
+
+@pytest.mark.parametrize(("stamped", "arrives", "hint"), [
+    (False, "geometry_msgs/msg/TwistStamped", "start with --cmd-vel-stamped"),
+    (True, "geometry_msgs/msg/Twist", "start without --cmd-vel-stamped"),
+    (False, "std_msgs/msg/String", "TwistStamped with --cmd-vel-stamped"),
+])
+def test_a_cmd_vel_publisher_of_another_type_is_named_once(
+        stepped: tuple[Any, SimulatedBase, Chassis], caplog: pytest.LogCaptureFixture,
+        stamped: bool, arrives: str, hint: str) -> None:
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import Publication
+
+    _, _, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t, cmd_vel_stamped=stamped) as bridge:
+        for _ in range(3):  # discovered again and again (e.g. its QoS changed)
+            t.discovered += [Publication("ab" * 16, "/cmd_vel", arrives),
+                             Publication("cd" * 16, "/other", arrives)]
+            for _ in range(10):
+                bridge.poll()
+    said = [r.getMessage() for r in caplog.records if "ab" * 16 in r.getMessage()]
+    assert len(said) == 1, said
+    assert arrives in said[0] and hint in said[0] and said[0].startswith("/cmd_vel:")
+    assert not any("cd" * 16 in r.getMessage() for r in caplog.records)
+    assert bridge.wrong_types == {"ab" * 16: arrives}

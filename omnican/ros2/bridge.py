@@ -66,6 +66,8 @@ MAX_POLL_HZ = 100.0
 MAX_CMD_BYTES = 1024
 #: Quoted values and texts from clients are cut to this many characters in the log.
 QUOTE_CHARS = 60
+#: At most this many writers of a wrong type are named (a hostile peer may make many).
+MAX_NAMED_WRITERS = 100
 CMD_VEL_SOURCE = "ROS 2 cmd_vel"  # what the other sources of commands are told
 
 
@@ -494,8 +496,8 @@ class Bridge:
         source = self._source(writer)
         self.cmd_vel_applied += 1
         if len(data) > MAX_CMD_BYTES:
-            self._reject(source, f"a {len(data)}-byte sample (a {self._type_name()} is at "
-                         f"most {MAX_CMD_BYTES} bytes here), not read")
+            self._reject(source, f"a {len(data)}-byte sample, not read (more than the "
+                         f"{MAX_CMD_BYTES} bytes a {self._type_name()} may have here)")
             return
         try:
             msg = self.cmd_type.deserialize(data)
@@ -543,10 +545,10 @@ class Bridge:
         for pub in self.transport.publications():
             if pub.topic != self._cmd_topic or pub.type_name == ours:
                 continue
-            self.wrong_types[pub.guid] = pub.type_name
-            if pub.guid in self._told_types:
+            if pub.guid in self._told_types or len(self._told_types) >= MAX_NAMED_WRITERS:
                 continue
             self._told_types.add(pub.guid)
+            self.wrong_types[pub.guid] = pub.type_name
             if pub.type_name.endswith("/TwistStamped"):
                 hint = "start with --cmd-vel-stamped (or [ros2] cmd_vel_stamped = true)"
             elif pub.type_name.endswith("/Twist"):
