@@ -285,8 +285,8 @@ class MemoryTransport:
         return take
 
     def deliver(self, topic: str, msg: Any, writer: int = 1) -> None:
-        msg_type = self.readers[topic][0]
-        assert isinstance(msg, msg_type)
+        msg_type: Any = self.readers[topic][0]
+        assert type(msg) is msg_type
         self.deliver_raw(topic, msg.serialize(use_version_2=False), writer)
 
     def deliver_raw(self, topic: str, data: bytes, writer: int = 1) -> None:
