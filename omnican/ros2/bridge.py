@@ -636,6 +636,8 @@ class Bridge:
                   for name, r in self.rates.items()]
         values += [{"key": "cmd_vel_received", "value": str(self.cmd_vel_count)},
                    {"key": "cmd_vel_rejected", "value": str(self.cmd_vel_rejected)},
+                   {"key": "cmd_vel_handled", "value": str(self.cmd_vel_applied)},
+                   {"key": "cmd_vel_polls", "value": str(self._polls)},
                    {"key": "cmd_vel_ignored", "value": str(self.cmd_vel_refused)},
                    {"key": "cmd_vel_last_driver", "value": self._driver or ""},
                    {"key": "last_recover", "value": self.recover_note or ""}]
