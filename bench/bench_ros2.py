@@ -174,7 +174,7 @@ def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
             starts.append(now)
             cycle(now)
 
-        runner.cycle = timed  # type: ignore[method-assign]
+        runner.cycle = timed
         bridge = Bridge(base, settings, transport, sim=sim).start()
         child = subprocess.Popen([sys.executable, __file__, "--flooder", str(domain),
                                   str(rate_hz), str(seconds)], stdout=subprocess.PIPE,
@@ -185,7 +185,13 @@ def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
         n0 = len(starts)
         t0 = time.monotonic()
         got0 = bridge.cmd_vel_count
-        handled0 = getattr(bridge, "cmd_vel_applied", 0)
+        handled0 = getattr(bridge, "cmd_vel_parsed", bridge.cmd_vel_count)
+        vx: list[float] = []
+        while child.poll() is None and time.monotonic() < t0 + seconds + 30:
+            vx.append(sim.true_twist.vx)  # the base's speed meanwhile, once a second
+            time.sleep(1.0)
+            if time.monotonic() > t0 + seconds + 0.5:
+                break
         sent = json.loads(child.stdout.readline() or "{}")
         child.wait(timeout=30)
         elapsed = time.monotonic() - t0
@@ -199,9 +205,9 @@ def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
             "loop_gaps_over_2_periods": sum(g > 2 * runner.period_s for g in gaps),
             "late_cycles": runner.late - late0, "cycles": len(window),
             "cmd_vel_received": bridge.cmd_vel_count - got0,
-            "cmd_vel_parsed": getattr(bridge, "cmd_vel_applied", bridge.cmd_vel_count) - handled0,
+            "cmd_vel_parsed": getattr(bridge, "cmd_vel_parsed", bridge.cmd_vel_count) - handled0,
             "stopped_reason": status.stopped_reason,
-            "true_vx": round(sim.true_twist.vx, 3),
+            "true_vx_each_s": [round(v, 3) for v in vx],
         }
         bridge.close()
         transport.close()

@@ -624,13 +624,13 @@ def test_a_flood_costs_one_parsed_sample_per_publisher_and_poll(
             t.deliver("/cmd_vel", _twist(0.3 * k / 9_999, 0.0, 0.0))
         bridge.poll()
         assert bridge.cmd_vel_count == CMD_VEL_DEPTH  # taken, unparsed
-        assert bridge.cmd_vel_applied == 1  # parsed and applied: the newest only
+        assert bridge.cmd_vel_parsed == 1  # parsed and applied: the newest only
         for _ in range(40):  # a nav stack's 20 Hz, each time a burst of 100
             for _ in range(100):
                 t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
             bridge.poll()
             clock.sleep(0.05)
-        assert bridge.cmd_vel_applied == 41
+        assert bridge.cmd_vel_parsed == 41
         assert sim.true_twist.vx == pytest.approx(0.3, abs=0.01)
 
 
@@ -691,6 +691,37 @@ def test_one_publisher_drives_at_a_time(stepped: tuple[Any, SimulatedBase, Chass
                                                "ignored")]
     assert ignored and f"publisher {first} is driving the base" in ignored[0]
     assert len(ignored) <= 2  # throttled: not one line per sample
+
+
+def test_many_publishers_cost_no_more_than_a_few(
+        stepped: tuple[Any, SimulatedBase, Chassis]) -> None:
+    """200 other writers beside the one driving: each poll parses the driver's sample and
+    refuses the others unread; while no one drives, a few are parsed a poll."""
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import MAX_PARSED_PER_POLL
+
+    clock, sim, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t) as bridge:
+        for _ in range(20):
+            t.deliver("/cmd_vel", _twist(0.2, 0.0, 0.0), writer=1)
+            for w in range(2, 202):
+                t.deliver("/cmd_vel", _twist(0.0, -0.2, 0.0), writer=w)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert bridge.cmd_vel_parsed <= 20 + MAX_PARSED_PER_POLL  # the first poll's race
+        assert sim.true_twist.vy == pytest.approx(0.0, abs=0.01)
+        # No one drives: the first poll parses a few, one of them takes control, and from
+        # then on it alone is parsed.
+        clock.sleep(1.0)
+        parsed = bridge.cmd_vel_parsed
+        for _ in range(10):
+            for w in range(2, 202):
+                t.deliver("/cmd_vel", _twist(0.0, -0.2, 0.0), writer=w)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert bridge.cmd_vel_parsed - parsed <= 10 + MAX_PARSED_PER_POLL
+        assert sim.true_twist.vy == pytest.approx(-0.2, abs=0.01)
 
 
 @pytest.mark.parametrize(("stamped", "arrives", "hint"), [

@@ -220,8 +220,8 @@ def _print_summary(bridge: Any) -> None:
     refused = (f", {bridge.cmd_vel_refused} ignored: another publisher or client drove"
                if bridge.cmd_vel_refused else "")
     rejected = f", {bridge.cmd_vel_rejected} refused" if bridge.cmd_vel_rejected else ""
-    print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel ({bridge.cmd_vel_applied}"
-          f" newest of a poll handled{refused}{rejected})", flush=True)
+    print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel ({bridge.cmd_vel_parsed} "
+          f"parsed: a publisher's newest at each poll{refused}{rejected})", flush=True)
     from omnican.ros2.bridge import quote
 
     for guid, type_name in bridge.wrong_types.items():

@@ -66,6 +66,9 @@ MAX_POLL_HZ = 100.0
 MAX_CMD_BYTES = 1024
 #: Quoted values and texts from clients are cut to this many characters in the log.
 QUOTE_CHARS = 60
+#: At most this many samples are parsed a poll: the driver's, and while no one drives,
+#: those of a few others that may take control (so many writers cost no more than few).
+MAX_PARSED_PER_POLL = 4
 #: At most this many writers of a wrong type are named (a hostile peer may make many).
 MAX_NAMED_WRITERS = 100
 CMD_VEL_SOURCE = "ROS 2 cmd_vel"  # what the other sources of commands are told
@@ -449,7 +452,7 @@ class Bridge:
             self._wanted.add("/sim/true_pose")
 
         self.cmd_vel_count = 0  # samples taken from DDS
-        self.cmd_vel_applied = 0  # the newest of a publisher's samples, handled
+        self.cmd_vel_parsed = 0  # the newest of a publisher's samples, parsed
         self.cmd_vel_rejected = 0
         self.cmd_vel_refused = 0  # ignored: another source held control
         self.wrong_types: dict[str, str] = {}  # cmd_vel writers of another type: guid -> type
@@ -477,8 +480,19 @@ class Bridge:
             for r in received:  # oldest first: the last of each writer stays
                 newest.pop(r.writer, None)
                 newest[r.writer] = r.data
-            for writer, data in newest.items():
-                self._on_cmd_vel(writer, data)
+            now = self.base.clock.now()
+            holder = self.arbiter.holder(now)
+            parsed = 0
+            # The driver's sample first; another's only while no one drives (then it is
+            # parsed to see whether it may take control), a few a poll at most.
+            for writer in sorted(newest, key=lambda w: self._source(w) != holder):
+                source = self._source(writer)
+                other = self.arbiter.may_act(source, now)
+                if other is not None:
+                    self._refuse(source, other)
+                elif parsed < MAX_PARSED_PER_POLL:
+                    parsed += 1
+                    self._on_cmd_vel(source, newest[writer])
             if self._take_recover():
                 self._on_recover()
 
@@ -492,9 +506,8 @@ class Bridge:
             self._writers[writer] = name
         return name
 
-    def _on_cmd_vel(self, writer: int, data: bytes) -> None:
-        source = self._source(writer)
-        self.cmd_vel_applied += 1
+    def _on_cmd_vel(self, source: str, data: bytes) -> None:
+        self.cmd_vel_parsed += 1
         if len(data) > MAX_CMD_BYTES:
             self._reject(source, f"a {len(data)}-byte sample, not read (more than the "
                          f"{MAX_CMD_BYTES} bytes a {self._type_name()} may have here)")
@@ -520,15 +533,18 @@ class Bridge:
         except DriveError:
             return  # closing
         if holder is not None:  # someone else drives (another publisher, a Foxglove client)
-            self.cmd_vel_refused += 1
-            self._throttle.warning(("refused", source), "cmd_vel from %s ignored: %s is "
-                                   "driving the base (one publisher at a time; it drives "
-                                   "once %s has sent nothing for %g s)", source, holder,
-                                   holder, self.arbiter.timeout_s)
+            self._refuse(source, holder)
             return
         if self._driver != source:
             self._driver = source
             logger.info("%s drives the base", source)
+
+    def _refuse(self, source: str, holder: str) -> None:
+        self.cmd_vel_refused += 1
+        self._throttle.warning(("refused", source), "cmd_vel from %s ignored: %s is driving "
+                               "the base (one publisher at a time; it drives once %s has "
+                               "sent nothing for %g s)", source, holder, holder,
+                               self.arbiter.timeout_s)
 
     def _reject(self, source: str, why: str) -> None:
         self.cmd_vel_rejected += 1
@@ -636,7 +652,7 @@ class Bridge:
                   for name, r in self.rates.items()]
         values += [{"key": "cmd_vel_received", "value": str(self.cmd_vel_count)},
                    {"key": "cmd_vel_rejected", "value": str(self.cmd_vel_rejected)},
-                   {"key": "cmd_vel_handled", "value": str(self.cmd_vel_applied)},
+                   {"key": "cmd_vel_parsed", "value": str(self.cmd_vel_parsed)},
                    {"key": "cmd_vel_polls", "value": str(self._polls)},
                    {"key": "cmd_vel_ignored", "value": str(self.cmd_vel_refused)},
                    {"key": "cmd_vel_last_driver", "value": self._driver or ""},
