@@ -126,6 +126,8 @@ def test_cyclone_config_layers() -> None:
     assert parts[1] == "file:///etc/cyclone.xml"  # the user's file between ours
     first = ElementTree.fromstring(parts[0])
     assert first.findtext("Domain/Compatibility/IgnoreTypeInformation") == EPROSIMA_VENDOR_ID
+    # A sample over 64 KB (a 16 MB TwistStamped) is dropped by Cyclone, unread by Python.
+    assert first.findtext("Domain/Internal/MaxSampleSize") == "65536B"
     last = ElementTree.fromstring(parts[2])
     assert last.find("Domain/General/Interfaces/NetworkInterface").get("name") == "eth0"
     assert last.findtext("Domain/General/AllowMulticast") == "false"

@@ -163,6 +163,16 @@ def test_a_twist_stamped_publisher_on_a_twist_cmd_vel_is_named(netns: NetNs,
 
 
 @pytest.mark.ros2_interop
+def test_a_16mb_cmd_vel_is_dropped_before_python_sees_it(netns: NetNs, tmp_path: Path) -> None:
+    """16 MB TwistStamped samples (a Twist is under 1 KB): Cyclone drops them as they
+    arrive (omnican's MaxSampleSize), nothing moves, and sane samples drive after."""
+    r, out = _abuse(netns, tmp_path, 46, ["oversized"], ("--cmd-vel-stamped",))
+    assert r["after_huge_twist"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-3), out
+    assert r["sane_twist"] == pytest.approx([0.2, 0.0, 0.0], abs=0.05), out
+    assert "dropping oversize" in out and "> 65536" in out, out
+
+
+@pytest.mark.ros2_interop
 def test_two_cmd_vel_publishers_one_drives(netns: NetNs, tmp_path: Path) -> None:
     """Two publishers on cmd_vel: the first drives; the second is ignored until the first
     has been silent for the command timeout, and the log names who drives."""

@@ -4,6 +4,7 @@
     python abuse_check.py flood SECONDS RATE_HZ   Twist(0.3, 0, 0) as fast as RATE_HZ
     python abuse_check.py stamped                 TwistStamped on a Twist cmd_vel
     python abuse_check.py two                     two publishers: vx, then vy
+    python abuse_check.py oversized               16 MB TwistStamped samples, then sane ones
 
 Prints one JSON object per line: {"event": "ready", ...}, then {"event": "done",
 "results": {...}}. It only acts and records; the test judges.
@@ -33,9 +34,9 @@ class Peer:
         self.node = node
         self.odom = []
         self.diag = []
-        node.create_subscription(Odometry, "/odom", lambda m: self.odom.append(m), 10)
+        node.create_subscription(Odometry, "/odom", self.odom.append, 10)
         node.create_subscription(DiagnosticArray, "/diagnostics",
-                                 lambda m: self.diag.append(m), 10)
+                                 self.diag.append, 10)
 
     def spin_for(self, seconds):
         end = time.monotonic() + seconds
@@ -131,6 +132,28 @@ def stamped(peer):
     return results
 
 
+def oversized(peer):
+    pub = peer.node.create_publisher(TwistStamped, "/cmd_vel", 10)
+    ok = peer.spin_until(lambda: pub.get_subscription_count() > 0 and peer.odom, 30.0)
+    emit({"event": "ready", "ok": ok})
+    results = {"ok": ok}
+    if not ok:
+        return results
+    huge = TwistStamped()
+    huge.header.frame_id = "x" * (16 << 20)
+    huge.twist = twist(0.5, 0.0, 0.0)
+    for _ in range(3):
+        pub.publish(huge)
+        peer.spin_for(0.3)
+    results["after_huge_twist"] = peer.twist()
+    sane = TwistStamped()
+    sane.header.frame_id = "base_link"
+    sane.twist = twist(0.2, 0.0, 0.0)
+    pace(peer, 2.0, 20.0, lambda: pub.publish(sane))
+    results["sane_twist"] = peer.twist()
+    return results
+
+
 def two(peer):
     first = peer.node.create_publisher(Twist, "/cmd_vel", 10)
     second = peer.node.create_publisher(Twist, "/cmd_vel", 10)
@@ -166,6 +189,8 @@ def main():
             results = flood(peer, float(sys.argv[2]), float(sys.argv[3]))
         elif mode == "stamped":
             results = stamped(peer)
+        elif mode == "oversized":
+            results = oversized(peer)
         else:
             results = two(peer)
     finally:
