@@ -579,7 +579,7 @@ class Bridge:
     def _on_recover(self) -> None:
         with self._recover_lock:
             if self._recover_thread is not None and self._recover_thread.is_alive():
-                logger.info("recover: already under way")
+                self._throttle.log(logging.INFO, "recover", "recover: already under way")
                 return
             self._recover_thread = threading.Thread(target=self.recover,
                                                     name="omnican-ros2-recover", daemon=True)
