@@ -159,6 +159,23 @@ def flooder(domain: int, rate_hz: float, seconds: float) -> None:
     del writer, dp, dom
 
 
+def thread_cpu_s() -> dict[str, float]:
+    """CPU seconds of each of this process's threads, by name (Linux /proc), summed."""
+    out: dict[str, float] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    python_names = {str(t.native_id): t.name for t in threading.enumerate()}
+    for task in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{task}/stat") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        name = python_names.get(task) or stat[stat.index("(") + 1:stat.rindex(")")]
+        fields = stat[stat.rindex(")") + 2:].split()
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
 def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
     from omnican.ros2.bridge import DdsTransport
 
@@ -182,6 +199,7 @@ def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
         assert child.stdout is not None
         ready = child.stdout.readline().strip() == "ready"
         late0 = runner.late
+        cpu0 = thread_cpu_s()
         n0 = len(starts)
         t0 = time.monotonic()
         got0 = bridge.cmd_vel_count
@@ -195,6 +213,7 @@ def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
         sent = json.loads(child.stdout.readline() or "{}")
         child.wait(timeout=30)
         elapsed = time.monotonic() - t0
+        cpu = {k: v - cpu0.get(k, 0.0) for k, v in thread_cpu_s().items()}
         window = starts[n0:]
         gaps = [b - a for a, b in itertools.pairwise(window)]
         status = base.status
@@ -208,6 +227,9 @@ def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
             "cmd_vel_parsed": getattr(bridge, "cmd_vel_parsed", bridge.cmd_vel_count) - handled0,
             "stopped_reason": status.stopped_reason,
             "true_vx_each_s": [round(v, 3) for v in vx],
+            "cpu_percent_by_thread": {k: round(v / elapsed * 100, 1)
+                                      for k, v in sorted(cpu.items(), key=lambda kv: -kv[1])
+                                      if v / elapsed >= 0.01},
         }
         bridge.close()
         transport.close()

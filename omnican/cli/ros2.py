@@ -1,6 +1,7 @@
 """omnican ros2: the base as a ROS 2 node, over DDS, without a ROS installation.
 
-Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped); publishes odom
+Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped; one publisher drives at a
+time, the newest of its samples taken up to 100 times a second); publishes odom
 (nav_msgs/Odometry), tf (odom -> base_link), joint_states and diagnostics; an
 std_msgs/Empty on ~/recover clears a latched stop. Needs cyclonedds (the ros2 extra).
 
