@@ -167,6 +167,7 @@ def test_a_16mb_cmd_vel_is_dropped_before_python_sees_it(netns: NetNs, tmp_path:
     """16 MB TwistStamped samples (a Twist is under 1 KB): Cyclone drops them as they
     arrive (omnican's MaxSampleSize), nothing moves, and sane samples drive after."""
     r, out = _abuse(netns, tmp_path, 46, ["oversized"], ("--cmd-vel-stamped",))
+    assert r["huge_acked"] == [True, True, True], out  # they reached omnican
     assert r["after_huge_twist"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-3), out
     assert r["sane_twist"] == pytest.approx([0.2, 0.0, 0.0], abs=0.05), out
     assert "dropping oversize" in out and "> 65536" in out, out

@@ -18,6 +18,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
+from rclpy.duration import Duration
 
 
 def emit(obj):
@@ -142,9 +143,13 @@ def oversized(peer):
     huge = TwistStamped()
     huge.header.frame_id = "x" * (16 << 20)
     huge.twist = twist(0.5, 0.0, 0.0)
+    acked = []
     for _ in range(3):
         pub.publish(huge)
+        # Reliable: omnican's Cyclone has it (and dropped it) once it is acknowledged.
+        acked.append(pub.wait_for_all_acked(Duration(seconds=10)))
         peer.spin_for(0.3)
+    results["huge_acked"] = acked
     results["after_huge_twist"] = peer.twist()
     sane = TwistStamped()
     sane.header.frame_id = "base_link"
