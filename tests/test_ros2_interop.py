@@ -6,6 +6,9 @@ joint_states and diagnostics, sees an injected drive fault there and clears it o
 (tests/ros2_interop/scenario.py). PyPI has no tf2_msgs wheel: tf is read by a Cyclone
 reader of our own beside the rclpy node.
 
+Hostile and buggy publishers (tests/ros2_interop/abuse_check.py, rclpy on Jazzy): a
+10 kHz cmd_vel flood, a TwistStamped on a Twist cmd_vel, 16 MB samples, two publishers.
+
 Loopback only: every DDS process runs in a private network namespace that has nothing
 but loopback, with loopback-only DDS configurations on top; without such a namespace
 the tests are skipped.
