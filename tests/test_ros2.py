@@ -750,3 +750,23 @@ def test_a_cmd_vel_publisher_of_another_type_is_named_once(
     assert arrives in said[0] and hint in said[0] and said[0].startswith("/cmd_vel:")
     assert not any("cd" * 16 in r.getMessage() for r in caplog.records)
     assert bridge.wrong_types == {"ab" * 16: arrives}
+
+
+@settings(deadline=None)
+@given(st.one_of(st.text(max_size=5000), st.floats(allow_nan=True), st.integers()))
+def test_quoted_values_stay_short(value: Any) -> None:
+    from omnican.ros2.bridge import QUOTE_CHARS, quote
+
+    text = quote(value)
+    assert len(text) <= QUOTE_CHARS + 40
+    if len(repr(value) if not isinstance(value, str) else value) <= QUOTE_CHARS:
+        assert text == repr(value)
+
+
+@settings(deadline=None)
+@given(names, names)
+def test_ros_type_names_from_dds_names(package: str, message: str) -> None:
+    from omnican.ros2.bridge import ros_type_name
+
+    assert ros_type_name(f"{package}::msg::dds_::{message}_") == f"{package}/msg/{message}"
+    assert ros_type_name(f"{package}::{message}") == f"{package}::{message}"  # not ROS 2's
