@@ -4,6 +4,7 @@ real (simulated) chassis over an in-memory transport."""
 
 from __future__ import annotations
 
+import collections
 import math
 import re
 import threading
@@ -39,7 +40,7 @@ from omnican.sim import SimulatedBase
 from omnican.telemetry import messages as model
 from omnican.telemetry.covariance import UNOBSERVED_VARIANCE, OdomCovariance
 
-from .helpers import one_error_line, sim_config, wait_for
+from .helpers import lockstep_rig, one_error_line, sim_config, wait_for
 
 names = st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True)
 
@@ -125,6 +126,8 @@ def test_cyclone_config_layers() -> None:
     assert parts[1] == "file:///etc/cyclone.xml"  # the user's file between ours
     first = ElementTree.fromstring(parts[0])
     assert first.findtext("Domain/Compatibility/IgnoreTypeInformation") == EPROSIMA_VENDOR_ID
+    # A sample over 64 KB (a 16 MB TwistStamped) is dropped by Cyclone, unread by Python.
+    assert first.findtext("Domain/Internal/MaxSampleSize") == "65536B"
     last = ElementTree.fromstring(parts[2])
     assert last.find("Domain/General/Interfaces/NetworkInterface").get("name") == "eth0"
     assert last.findtext("Domain/General/AllowMulticast") == "false"
@@ -248,11 +251,14 @@ def test_twist_from_msg_keeps_the_planar_part(v: list[float]) -> None:
 
 
 class MemoryTransport:
-    """Transport for the tests: publishers record, subscriptions are called directly."""
+    """Transport for the tests: publishers record; what a test delivers waits, serialised
+    as DDS carries it, in each reader's history (keep-last, its depth) until the bridge
+    polls."""
 
     def __init__(self) -> None:
         self.published: dict[str, list[Any]] = {}
-        self.subscribers: dict[str, tuple[type, Callable[[Any], None]]] = {}
+        self.readers: dict[str, tuple[type, collections.deque[Any]]] = {}
+        self.discovered: list[Any] = []
         self.qos: dict[str, Any] = {}
         self.lock = threading.Lock()
         self.closed = False
@@ -268,15 +274,36 @@ class MemoryTransport:
                 self.published[topic].append(msg)
         return publish
 
-    def subscribe(self, topic: str, msg_type: type, qos: Any,
-                  callback: Callable[[Any], None]) -> None:
+    def reader(self, topic: str, msg_type: type, qos: Any) -> Callable[[], list[Any]]:
         self.qos[topic] = qos
-        self.subscribers[topic] = (msg_type, callback)
+        history: collections.deque[Any] = collections.deque(maxlen=qos.depth)
+        self.readers[topic] = (msg_type, history)
 
-    def deliver(self, topic: str, msg: Any) -> None:
-        msg_type, callback = self.subscribers[topic]
-        assert isinstance(msg, msg_type)
-        callback(msg)
+        def take() -> list[Any]:
+            with self.lock:
+                got = list(history)
+                history.clear()
+            return got
+        return take
+
+    def deliver(self, topic: str, msg: Any, writer: int = 1) -> None:
+        msg_type: Any = self.readers[topic][0]
+        assert type(msg) is msg_type
+        self.deliver_raw(topic, msg.serialize(use_version_2=False), writer)
+
+    def deliver_raw(self, topic: str, data: bytes, writer: int = 1) -> None:
+        from omnican.ros2.bridge import Received
+
+        with self.lock:
+            self.readers[topic][1].append(Received(writer, data))
+
+    def writer_guid(self, topic: str, writer: int) -> str:
+        return f"{writer:032x}"
+
+    def publications(self) -> list[Any]:
+        with self.lock:
+            found, self.discovered = self.discovered, []
+        return found
 
     def last(self, topic: str) -> Any:
         with self.lock:
@@ -313,11 +340,12 @@ def test_bridge_drives_publishes_and_recovers(rig: tuple[SimulatedBase, Chassis]
 
     sim, base = rig
     t = MemoryTransport()
-    with Bridge(base, Ros2Settings(diagnostics_rate_hz=5.0), t, sim=sim) as bridge:
-        assert set(t.subscribers) == {"/cmd_vel", "/omnican/recover"}
+    with Bridge(base, Ros2Settings(diagnostics_rate_hz=5.0), t, sim=sim,
+                poll_thread=False) as bridge:
+        assert set(t.readers) == {"/cmd_vel", "/omnican/recover"}
         assert t.qos["/tf"].depth == TF_DEPTH and t.qos["/odom"].reliable
         def at_speed() -> bool:  # cmd_vel kept coming, as a nav stack sends it
-            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.5))
+            _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.5))
             odom = t.last("/odom")
             return odom is not None and \
                 odom.twist.twist.linear.x == pytest.approx(0.3, abs=0.02) and \
@@ -348,20 +376,26 @@ def test_bridge_drives_publishes_and_recovers(rig: tuple[SimulatedBase, Chassis]
         assert len(t.published["/diagnostics"]) > n_diag
         status = _status(t, "canopen node 2")
         assert "0x2310" in status.message and "over-current" in status.message
-        t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+        _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
         time.sleep(0.2)
         assert abs(sim.true_twist.vx) < 1e-3
         # Recover over the topic; the base is enabled again and the note says so.
-        t.deliver("/omnican/recover", msgs.Empty())
+        _send(t, bridge, "/omnican/recover", msgs.Empty())
         assert wait_for(lambda: base.status.enabled, 5.0)
         assert wait_for(lambda: bridge.recover_note is not None
                         and bridge.recover_note.startswith("ok"), 2.0)
         assert wait_for(lambda: _chassis_level(t) == model.OK, 2.0)
         # NaN commands are counted and refused; nothing moves.
-        t.deliver("/cmd_vel", _twist(math.nan, 0.0, 0.0))
+        _send(t, bridge, "/cmd_vel", _twist(math.nan, 0.0, 0.0))
         assert bridge.cmd_vel_rejected == 1
     rates = bridge.achieved_rates()
     assert rates["odom"] > 0 and rates["diagnostics"] > 0
+
+
+def _send(t: MemoryTransport, bridge: Any, topic: str, msg: Any, writer: int = 1) -> None:
+    """A sample arrives and the bridge polls (as its thread does every cycle)."""
+    t.deliver(topic, msg, writer)
+    bridge.poll()
 
 
 def _xyzw(q: Any) -> tuple[float, float, float, float]:
@@ -396,12 +430,13 @@ def test_stamped_cmd_vel_and_no_joint_states_without_a_radius(channel: str) -> N
     cfg = replace(cfg, wheels=tuple(replace(w, wheel_radius=None) for w in cfg.wheels))
     t = MemoryTransport()
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
-            Bridge(base, Ros2Settings(cmd_vel_stamped=True, publish_tf=False), t) as bridge:
+            Bridge(base, Ros2Settings(cmd_vel_stamped=True, publish_tf=False), t,
+                   poll_thread=False) as bridge:
         assert bridge.wheel_radii is None
         assert "/joint_states" not in t.published and "/tf" not in t.published
         stamped = msgs.TwistStamped(msgs.Header(), _twist(0.0, 0.2, 0.0))
         def at_speed() -> bool:
-            t.deliver("/cmd_vel", stamped)
+            _send(t, bridge, "/cmd_vel", stamped)
             return bool(sim.true_twist.vy == pytest.approx(0.2, abs=0.03))
 
         assert wait_for(at_speed, 10.0, step=0.02), sim.true_twist
@@ -418,21 +453,21 @@ def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Cha
     sim, base = rig
     arbiter = CommandArbiter(base.cfg.chassis.cmd_timeout_s)
     t = MemoryTransport()
-    with Bridge(base, Ros2Settings(), t, arbiter=arbiter) as bridge:
+    with Bridge(base, Ros2Settings(), t, arbiter=arbiter, poll_thread=False) as bridge:
         # The Foxglove client drives (a turn), sending as its Teleop panel does; every
         # cmd_vel between its commands is refused, however slowly this machine runs.
         for _ in range(10):
             assert arbiter.claim("Foxglove client 1", base.clock.now(),
                                  lambda: base.set_velocity(0.0, 0.0, 0.5)) is None
-            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+            _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
             time.sleep(0.02)
         assert bridge.cmd_vel_refused == 10
         assert sim.true_twist.vx == pytest.approx(0.0, abs=0.01)
         time.sleep(0.6)  # the Foxglove client sends nothing more: its hold lapses
 
         def driven_by_cmd_vel() -> bool:
-            t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
-            return (arbiter.holder(base.clock.now()) == CMD_VEL_SOURCE and
+            _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
+            return ((arbiter.holder(base.clock.now()) or "").startswith(CMD_VEL_SOURCE) and
                     sim.true_twist.vx == pytest.approx(0.3, abs=0.03))
 
         assert wait_for(driven_by_cmd_vel, 10.0, step=0.02)
@@ -560,3 +595,178 @@ def test_battery_state_is_published_at_its_rate_and_follows_the_battery(
     # before the first health values came (a health period: a few samples).
     battery, odom = len(t.published["/robot1/battery_state"]), len(t.published["/robot1/odom"])
     assert odom // 5 - 3 <= battery <= odom // 5 + 1
+
+
+# ------------------------------------------------------------ hostile and buggy publishers
+
+
+@pytest.fixture
+def stepped(channel: str) -> Iterator[tuple[Any, SimulatedBase, Chassis]]:
+    with lockstep_rig(channel) as r:
+        yield r
+
+
+def _bridge(base: Chassis, t: MemoryTransport, **settings: Any) -> Any:
+    from omnican.ros2.bridge import Bridge
+
+    return Bridge(base, Ros2Settings(**settings), t, poll_thread=False)
+
+
+def test_a_flood_costs_one_parsed_sample_per_publisher_and_poll(
+        stepped: tuple[Any, SimulatedBase, Chassis]) -> None:
+    """10,000 samples between two polls (a 10 kHz flood at 1 poll a second): the reader
+    keeps the newest few, the bridge parses only the newest and drives with it."""
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import CMD_VEL_DEPTH
+
+    clock, sim, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t) as bridge:
+        for k in range(10_000):
+            t.deliver("/cmd_vel", _twist(0.3 * k / 9_999, 0.0, 0.0))
+        bridge.poll()
+        assert bridge.cmd_vel_count == CMD_VEL_DEPTH  # taken, unparsed
+        assert bridge.cmd_vel_parsed == 1  # parsed and applied: the newest only
+        for _ in range(40):  # a nav stack's 20 Hz, each time a burst of 100
+            for _ in range(100):
+                t.deliver("/cmd_vel", _twist(0.3, 0.0, 0.0))
+            bridge.poll()
+            clock.sleep(0.05)
+        assert bridge.cmd_vel_parsed == 41
+        assert sim.true_twist.vx == pytest.approx(0.3, abs=0.01)
+
+
+def test_oversized_and_broken_samples_are_refused_unread_and_quoted_short(
+        stepped: tuple[Any, SimulatedBase, Chassis], caplog: pytest.LogCaptureFixture) -> None:
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2 import msgs
+
+    clock, sim, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t, cmd_vel_stamped=True) as bridge:
+        # A TwistStamped with a 2 MB frame id; bytes that are no TwistStamped at all.
+        huge = msgs.TwistStamped(msgs.Header(frame_id="x" * 2_000_000), _twist(0.3, 0, 0))
+        t.deliver("/cmd_vel", huge, writer=7)
+        bridge.poll()
+        t.deliver_raw("/cmd_vel", b"\x00\x01\x00\x00" + b"\xff" * 20, writer=8)
+        bridge.poll()
+        clock.sleep(0.3)
+        assert bridge.cmd_vel_rejected == 2
+        assert sim.true_twist.vx == pytest.approx(0.0, abs=1e-6)
+    said = [r.getMessage() for r in caplog.records if "cmd_vel from" in r.getMessage()]
+    sizes = [int(m.group(1)) for m in map(re.compile(r"a (\d+)-byte sample").search, said) if m]
+    assert sizes and sizes[0] > 2_000_000, said
+    assert any("cannot be read as a geometry_msgs/msg/TwistStamped" in m for m in said), said
+    assert max(len(m) for m in said) < 300
+
+
+def test_one_publisher_drives_at_a_time(stepped: tuple[Any, SimulatedBase, Chassis],
+                                        caplog: pytest.LogCaptureFixture) -> None:
+    """Two cmd_vel publishers: the first drives, the second is ignored (and the log says
+    who drives) until the first has sent nothing for the command timeout."""
+    pytest.importorskip("cyclonedds")
+    clock, sim, base = stepped
+    caplog.set_level("INFO", logger="omnican.ros2.bridge")
+    t = MemoryTransport()
+    first, second = f"{1:032x}", f"{2:032x}"
+    with _bridge(base, t) as bridge:
+        for _ in range(30):  # both at 20 Hz, in the same poll
+            t.deliver("/cmd_vel", _twist(0.2, 0.0, 0.0), writer=1)
+            t.deliver("/cmd_vel", _twist(0.0, 0.2, 0.0), writer=2)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert sim.true_twist.vx == pytest.approx(0.2, abs=0.01)
+        assert sim.true_twist.vy == pytest.approx(0.0, abs=0.01)
+        assert bridge.cmd_vel_refused == 30
+        # The first stops; the second keeps sending: the base stops (the watchdog), then
+        # the second drives.
+        for _ in range(30):
+            t.deliver("/cmd_vel", _twist(0.0, 0.2, 0.0), writer=2)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert sim.true_twist.vx == pytest.approx(0.0, abs=0.01)
+        assert sim.true_twist.vy == pytest.approx(0.2, abs=0.01)
+    said = [r.getMessage() for r in caplog.records]
+    assert f"ROS 2 cmd_vel publisher {first} drives the base" in said
+    assert f"ROS 2 cmd_vel publisher {second} drives the base" in said
+    ignored = [m for m in said if m.startswith(f"cmd_vel from ROS 2 cmd_vel publisher {second} "
+                                               "ignored")]
+    assert ignored and f"publisher {first} is driving the base" in ignored[0]
+    assert len(ignored) <= 2  # throttled: not one line per sample
+
+
+def test_many_publishers_cost_no_more_than_a_few(
+        stepped: tuple[Any, SimulatedBase, Chassis]) -> None:
+    """200 other writers beside the one driving: each poll parses the driver's sample and
+    refuses the others unread; while no one drives, a few are parsed a poll."""
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import MAX_PARSED_PER_POLL
+
+    clock, sim, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t) as bridge:
+        for _ in range(20):
+            t.deliver("/cmd_vel", _twist(0.2, 0.0, 0.0), writer=1)
+            for w in range(2, 202):
+                t.deliver("/cmd_vel", _twist(0.0, -0.2, 0.0), writer=w)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert bridge.cmd_vel_parsed <= 20 + MAX_PARSED_PER_POLL  # the first poll's race
+        assert sim.true_twist.vy == pytest.approx(0.0, abs=0.01)
+        # No one drives: the first poll parses a few, one of them takes control, and from
+        # then on it alone is parsed.
+        clock.sleep(1.0)
+        parsed = bridge.cmd_vel_parsed
+        for _ in range(10):
+            for w in range(2, 202):
+                t.deliver("/cmd_vel", _twist(0.0, -0.2, 0.0), writer=w)
+            bridge.poll()
+            clock.sleep(0.05)
+        assert bridge.cmd_vel_parsed - parsed <= 10 + MAX_PARSED_PER_POLL
+        assert sim.true_twist.vy == pytest.approx(-0.2, abs=0.01)
+
+
+@pytest.mark.parametrize(("stamped", "arrives", "hint"), [
+    (False, "geometry_msgs/msg/TwistStamped", "start with --cmd-vel-stamped"),
+    (True, "geometry_msgs/msg/Twist", "start without --cmd-vel-stamped"),
+    (False, "std_msgs/msg/String", "TwistStamped with --cmd-vel-stamped"),
+])
+def test_a_cmd_vel_publisher_of_another_type_is_named_once(
+        stepped: tuple[Any, SimulatedBase, Chassis], caplog: pytest.LogCaptureFixture,
+        stamped: bool, arrives: str, hint: str) -> None:
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import Publication
+
+    _, _, base = stepped
+    t = MemoryTransport()
+    with _bridge(base, t, cmd_vel_stamped=stamped) as bridge:
+        for _ in range(3):  # discovered again and again (e.g. its QoS changed)
+            t.discovered += [Publication("ab" * 16, "/cmd_vel", arrives),
+                             Publication("cd" * 16, "/other", arrives)]
+            for _ in range(10):
+                bridge.poll()
+    said = [r.getMessage() for r in caplog.records if "ab" * 16 in r.getMessage()]
+    assert len(said) == 1, said
+    assert arrives in said[0] and hint in said[0] and said[0].startswith("/cmd_vel:")
+    assert not any("cd" * 16 in r.getMessage() for r in caplog.records)
+    assert bridge.wrong_types == {"ab" * 16: arrives}
+
+
+@settings(deadline=None)
+@given(st.one_of(st.text(max_size=5000), st.floats(allow_nan=True), st.integers()))
+def test_quoted_values_stay_short(value: Any) -> None:
+    from omnican.ros2.bridge import QUOTE_CHARS, quote
+
+    text = quote(value)
+    assert len(text) <= QUOTE_CHARS + 40
+    if len(repr(value) if not isinstance(value, str) else value) <= QUOTE_CHARS:
+        assert text == repr(value)
+
+
+@settings(deadline=None)
+@given(names, names)
+def test_ros_type_names_from_dds_names(package: str, message: str) -> None:
+    from omnican.ros2.bridge import ros_type_name
+
+    assert ros_type_name(f"{package}::msg::dds_::{message}_") == f"{package}/msg/{message}"
+    assert ros_type_name(f"{package}::{message}") == f"{package}::{message}"  # not ROS 2's

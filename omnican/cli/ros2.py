@@ -1,6 +1,7 @@
 """omnican ros2: the base as a ROS 2 node, over DDS, without a ROS installation.
 
-Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped); publishes odom
+Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped; one publisher drives at a
+time, the newest of its samples taken up to 100 times a second); publishes odom
 (nav_msgs/Odometry), tf (odom -> base_link), joint_states and diagnostics; an
 std_msgs/Empty on ~/recover clears a latched stop. Needs cyclonedds (the ros2 extra).
 
@@ -198,7 +199,8 @@ def _print_startup(bridge: Any, network: str, timeout_s: float) -> None:
     out.append(f"{s.topic('diagnostics')} {s.diagnostics_rate_hz:g} Hz")
     out.append(f"{s.topic('battery_state')} {s.battery_state_rate_hz:g} Hz")
     print(f"ROS 2 node {node} on DDS domain {s.domain_id} ({network})", flush=True)
-    print(f"  in:  {s.topic('cmd_vel')} ({cmd_type}; stop after {timeout_s:g} s without), "
+    print(f"  in:  {s.topic('cmd_vel')} ({cmd_type}; one publisher at a time; stop after "
+          f"{timeout_s:g} s without), "
           f"{s.topic('recover')} (std_msgs/Empty: recover)", flush=True)
     print(f"  out: {', '.join(out)}", flush=True)
     if bridge.wheel_radii is None:
@@ -216,9 +218,15 @@ def _print_startup(bridge: Any, network: str, timeout_s: float) -> None:
 def _print_summary(bridge: Any) -> None:
     rates = bridge.achieved_rates()
     parts = ", ".join(f"{name} {hz:.1f} Hz" for name, hz in rates.items() if hz > 0)
-    refused = (f" ({bridge.cmd_vel_refused} ignored: a Foxglove client drove)"
+    refused = (f", {bridge.cmd_vel_refused} ignored: another publisher or client drove"
                if bridge.cmd_vel_refused else "")
-    print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel{refused}", flush=True)
+    rejected = f", {bridge.cmd_vel_rejected} refused" if bridge.cmd_vel_rejected else ""
+    print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel ({bridge.cmd_vel_parsed} "
+          f"parsed: a publisher's newest at each poll{refused}{rejected})", flush=True)
+    from omnican.ros2.bridge import quote
+
+    for guid, type_name in bridge.wrong_types.items():
+        print(f"not received: cmd_vel publisher {guid} sent {quote(type_name)}", flush=True)
     if bridge.sim is not None:
         p = bridge.sim.true_pose
         print(f"true pose x={p.x:.4f} y={p.y:.4f} theta={p.theta:.4f} (simulated)", flush=True)

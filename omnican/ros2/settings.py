@@ -27,6 +27,10 @@ from omnican.errors import ConfigError
 #: matching by type name, which is how ROS 2 itself matches types.
 EPROSIMA_VENDOR_ID = "1.15"
 
+#: Cyclone drops a sample larger than this as it arrives (with a warning), before any of
+#: it reaches Python: omnican takes commands of well under 1 KB and sends nothing near it.
+MAX_SAMPLE_BYTES = 65536
+
 #: The highest DDS domain id whose ports fit the RTPS port formula (ROS 2's limit too).
 MAX_DOMAIN_ID = 232
 
@@ -234,8 +238,9 @@ def parse_remap(text: str) -> tuple[str, str]:
 def cyclone_config(s: Ros2Settings, env_uri: str | None = None,
                    read_file: Callable[[str], str] | None = None) -> str:
     """The configuration string for ``cyclonedds.domain.Domain``: omnican's compatibility
-    settings first, then the user's ``CYCLONEDDS_URI`` (files or XML, which may override
-    them), then what ``[ros2]`` or the command line said about the network (which wins).
+    settings and its sample size limit (:data:`MAX_SAMPLE_BYTES`) first, then the user's
+    ``CYCLONEDDS_URI`` (files or XML, which may override them), then what ``[ros2]`` or
+    the command line said about the network (which wins).
 
     Cyclone reads a comma-separated list of XML fragments and file names (``file://``
     URIs too), later ones overriding earlier ones, which is the form ``CYCLONEDDS_URI``
@@ -249,7 +254,8 @@ def cyclone_config(s: Ros2Settings, env_uri: str | None = None,
     parts = [_domain_xml(
         "<Compatibility>"
         f"<IgnoreTypeInformation>{EPROSIMA_VENDOR_ID}</IgnoreTypeInformation>"
-        "</Compatibility>")]
+        "</Compatibility>"
+        f"<Internal><MaxSampleSize>{MAX_SAMPLE_BYTES}B</MaxSampleSize></Internal>")]
     if env_uri and env_uri.strip():
         drop = (_INTERFACE_TAGS if s.interface is not None else frozenset()) | (
             _PEER_TAGS if s.peers else frozenset())
@@ -377,6 +383,7 @@ def describe_network(s: Ros2Settings) -> str:
 __all__ = [
     "EPROSIMA_VENDOR_ID",
     "MAX_DOMAIN_ID",
+    "MAX_SAMPLE_BYTES",
     "TOPIC_KEYS",
     "Ros2Settings",
     "cyclone_config",
