@@ -361,6 +361,54 @@ def test_teleop_at_80x24_keeps_the_newest_events_in_view(
     assert any("base stopped: node 1 fault" in line for line in events), text  # the newest
 
 
+def _events_of(frame: list[str]) -> list[str]:
+    at = next((i for i, line in enumerate(frame) if "─ events ─" in line), None)
+    assert at is not None, "no events panel on the screen:\n" + "\n".join(frame)
+    return frame[at:]
+
+
+def test_teleop_at_80x24_keeps_events_in_view_through_stops_and_drops_a_stale_refusal(
+        served: tuple[SimulatedBase, Path]) -> None:
+    """Issue 31 items 6 and 12: a low battery, r (refused), a fault and the e-stop at
+    80x24. The status wrapped onto three lines with the old "recover failed" beside the
+    newer stop and the events went off screen; the header did not say which bus, and the
+    e-stop's release spoke of recover() rather than the key."""
+    sim, toml = served
+    toml.write_text(toml.read_text().replace('layout = "b21"',
+                                             'layout = "b21"\nheartbeat_timeout_factor = 10.0')
+                    + "[power]\nwarn_v = 22.0\ncutoff_v = 20.0\n\n[estop]\nbit = 16\n")
+    term = Pty("teleop", "--config", str(toml), columns=80, lines=24)
+    try:
+        frame = term.wait_for_frame("RUNNING", timeout=30)
+        url = toml.read_text().split('channel = "')[1].split('"')[0]
+        assert f"base on remote {url}" in frame[0], "\n".join(frame)
+        sim.set_battery(19.0)
+        term.wait_for_frame("STOPPED: battery low", timeout=20)
+        term.keys("r")
+        frame = term.wait_for_frame("recover refused")
+        assert not any("recover failed: recover" in line for line in frame), "\n".join(frame)
+        sim.drives[1].inject_fault(0x2310)
+        sim.estop(True)
+        frame = term.wait_for_frame("STOPPED: e-stop pressed")
+        term.read(1.0)  # the events of the e-stop have all come in
+        frame = term.frame()
+        text = "\n".join(frame)
+        assert len(frame) <= 24 and max(len(line) for line in frame) <= 80, text
+        assert "recover refused" not in text, text  # it spoke of the battery stop
+        status = [i for i, line in enumerate(frame) if line.startswith("STOPPED")]
+        assert len(status) == 1 and "press r" in " ".join(frame[status[0]:status[0] + 2]), text
+        assert any("e-stop" in line for line in _events_of(frame)), text  # the newest
+        sim.estop(False)
+        frame = term.wait_for_frame("e-stop released")
+        assert any("e-stop released: press r to start the base again" in line
+                   for line in _events_of(frame)), "\n".join(frame)
+        assert "recover()" not in "\n".join(frame)
+        term.keys("\x1b")
+        assert term.exit_code() == 0
+    finally:
+        term.close()
+
+
 # ---------------------------------------------------------------- 9: --record formats
 
 

@@ -17,6 +17,7 @@ import io
 import logging
 import math
 import os
+import re
 import select
 import sys
 import termios
@@ -90,6 +91,13 @@ def beyond_limits(speed: float, turn: float, keys: TeleopModel) -> list[str]:
     return out
 
 
+def bus_name(bus: Any) -> str:
+    """The bus as the header names it: ``remote ws://127.0.0.1:54701/``, ``socketcan can0``."""
+    if not bus:
+        return "python-can's configured bus"
+    return " ".join(str(bus[k]) for k in ("interface", "channel") if bus.get(k) is not None)
+
+
 def read_keys(fd: int, timeout: float) -> list[str]:
     """Keys typed within ``timeout`` s; arrow keys become i , l j; a lone Esc is Esc."""
     ready, _, _ = select.select([fd], [], [], timeout)
@@ -126,6 +134,11 @@ def cbreak(fd: int) -> Iterator[None]:
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
 
 
+# The library names its call ("e-stop released: recover() starts the base again"); here
+# the user's move is a key.
+API_TO_KEYS = re.compile(r"recover\(\) starts( |$)")
+
+
 class _Events(logging.Handler):
     """Log records go to the dashboard instead of over it."""
 
@@ -134,7 +147,8 @@ class _Events(logging.Handler):
         self.lines: collections.deque[str] = collections.deque(maxlen=5)
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.lines.append(f"{time.strftime('%H:%M:%S')} {record.getMessage()}")
+        text = API_TO_KEYS.sub(r"press r to start\1", record.getMessage())
+        self.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
 
 
 @contextlib.contextmanager
@@ -298,8 +312,6 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
         status = Text("RUNNING", style="bold green")
     else:
         status = Text("starting...", style="yellow")
-    if note:
-        status.append(f"   {note}", style="yellow")
     settings = Text(wrap_phrases([f"speed {keys.speed:.2f} m/s", f"turn {keys.turn:.2f} rad/s",
                                   f"key timeout {keys.timeout_s:g} s",
                                   f"last key {keys.last_input!r}"], width, 3))
@@ -310,12 +322,21 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     body: list[RenderableType] = [header, grid,
                                   Panel(wheel_panel, title=f"wheels ({WHEEL_UNITS})",
                                         title_align="left"),
-                                  status, settings, help_text]
-    if st.warnings:
-        body.append(Text("\n".join(st.warnings), style="yellow"))
+                                  status]
+    # A note and each warning on one line of its own, cut rather than wrapped: beside
+    # the stop reason they wrapped it onto three lines and pushed the events off screen.
+    if note:
+        body.append(Text(note, style="yellow", no_wrap=True, overflow="ellipsis"))
+    body += [settings, help_text]
+    body += [Text(w, style="yellow", no_wrap=True, overflow="ellipsis") for w in st.warnings]
     if events.lines:
         lines = list(events.lines)
         if height is not None:  # the newest events that fit below the rest (2: the frame)
+            # The key help (in --help too) and the speeds give way before the newest event.
+            for spare in (help_text, settings):
+                if height - _height(body, width) - 2 >= 1:
+                    break
+                body.remove(spare)
             room = max(1, height - _height(body, width) - 2)
             lines = lines[-room:]
         body.append(Panel(Text("\n".join(lines), no_wrap=True, overflow="ellipsis"),
@@ -348,10 +369,13 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
     ``arbiter`` (Foxglove may drive too) the keys command only while they move the base
     and no one else drives; a stop key stops the base whoever drives."""
     note = ""
+    note_stop: str | None = None  # the stop a failed recover's note speaks of
     source = "the gamepad" if pad is not None else "the terminal's keys"
     held = False
     while not keys.quit_requested:
         now = time.monotonic()
+        if note_stop is not None and base.status.stopped_reason != note_stop:
+            note, note_stop = "", None  # a newer stop (or none): the old refusal is stale
         for key in read_keys(fd, LOOP_S if pad is None else LOOP_S / 2):
             stop = keys.press(key, now).intent is Intent.STOP
             if note.startswith("stopped "):
@@ -370,7 +394,9 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
                     base.recover()
                     note = ""
             except OmnicanError as exc:
-                note = f"recover failed: {exc}"
+                said = str(exc)
+                note = said if said.startswith("recover") else f"recover failed: {said}"
+                note_stop = base.status.stopped_reason
         if pad is not None:  # the pad moves; the keys still quit, recover and scale
             command = pad_command(pad, keys, LOOP_S / 2)
             shown = note or pad.status_text()
@@ -412,7 +438,7 @@ def run(args: argparse.Namespace) -> int:
             for line in beyond_limits(args.speed, args.turn, keys):
                 print(f"omnican: warning: {line}", file=sys.stderr, flush=True)
                 events.lines.append(f"{time.strftime('%H:%M:%S')} warning: {line}")
-        where = "simulated base" if s.sim else "base"
+        where = "simulated base" if s.sim else f"base on {bus_name(s.cfg.bus)}"
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"
         if pad is not None:
