@@ -19,11 +19,12 @@ import math
 import os
 import re
 import select
+import signal
 import sys
 import termios
 import time
 import tty
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from rich.console import Console, Group, RenderableType
@@ -124,14 +125,31 @@ def read_keys(fd: int, timeout: float) -> list[str]:
 
 
 @contextlib.contextmanager
-def cbreak(fd: int) -> Iterator[None]:
-    """Keys without Enter and without echo; Ctrl-C still interrupts."""
+def cbreak(fd: int, on_suspend: Callable[[], None] | None = None) -> Iterator[None]:
+    """Keys without Enter and without echo; Ctrl-C still interrupts. Ctrl-Z does not
+    suspend (``on_suspend`` is told): stopped, teleop would leave the drives without the
+    host's heartbeat and come back to a terminal the shell had reset, deaf to its keys.
+    A SIGCONT (after a SIGSTOP from elsewhere) puts the keys back without Enter."""
     old = termios.tcgetattr(fd)
+
+    def suspend(signum: int, frame: Any) -> None:
+        if on_suspend is not None:
+            on_suspend()
+
+    def resumed(signum: int, frame: Any) -> None:
+        with contextlib.suppress(termios.error, OSError):
+            if os.tcgetpgrp(fd) == os.getpgrp():  # in the foreground: it owns the terminal
+                tty.setcbreak(fd)
+
+    saved = {signal.SIGTSTP: signal.signal(signal.SIGTSTP, suspend),
+             signal.SIGCONT: signal.signal(signal.SIGCONT, resumed)}
     try:
         tty.setcbreak(fd)
         yield
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
 
 
 # The library names its call ("e-stop released: recover() starts the base again"); here
@@ -148,6 +166,9 @@ class _Events(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         text = API_TO_KEYS.sub(r"press r to start\1", record.getMessage())
+        self.say(text)
+
+    def say(self, text: str) -> None:
         self.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
 
 
@@ -167,6 +188,9 @@ def logs_into(handler: logging.Handler) -> Iterator[None]:
         root.handlers = saved
         ours.setLevel(saved_level)
 
+
+SUSPEND_REFUSED = ("Ctrl-Z: teleop does not suspend (the drives would lose this host's "
+                   "heartbeat); Esc quits")
 
 # The key help under the dashboard, in phrases that are never broken across lines.
 HELP_PHRASES = ("u i o / j k l / m , .  move", "Shift: strafe", "q/z w/x e/c: speeds",
@@ -456,8 +480,8 @@ def run(args: argparse.Namespace) -> int:
 
         with Chassis.open(s.cfg, record=args.record) as base, \
                 watch(base, s.sim, fox, announce=announce, arbiter=arbiter) as view, \
-                cbreak(fd), logs_into(events), Live(console=console, screen=True,
-                                                    auto_refresh=False, transient=True) as live:
+                cbreak(fd, lambda: events.say(SUSPEND_REFUSED)), logs_into(events), \
+                Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
             if view is not None:
                 title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
             try:
