@@ -818,3 +818,56 @@ def test_readme_has_a_first_power_on_checklist() -> None:
                  "Ctrl-C", "wheel", "0.05 m/s = target"):
         assert step in section, step
 
+
+
+# ---------------------------------------------------------------- issue 31 item 20
+
+
+def _driving_client(port: int, sim) -> subprocess.Popen[str]:  # type: ignore[no-untyped-def]
+    """``omnican drive`` in a process of its own, on ``sim``'s hub, once the base moves."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "omnican", "drive", "-i", "remote", "-c",
+         f"ws://127.0.0.1:{port}/", "--vx", "0.1", "--duration", "120"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    start, end = sim.true_x(), time.monotonic() + 60
+    while sim.true_x() <= start + 0.005 and proc.poll() is None and time.monotonic() < end:
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.communicate()
+    return proc
+
+
+def test_sim_ends_a_killed_client_quietly(sim_port: int) -> None:
+    """kill -9 of a client made `omnican sim` print 52 lines and three chained tracebacks."""
+    from .test_faults_process import SimProcess
+
+    sim = SimProcess(sim_port)
+    client = _driving_client(sim_port, sim)
+    client.kill()
+    client.communicate(timeout=10)
+    time.sleep(1.0)  # the hub notices the reset connection
+    assert sim.command("pose").startswith("true pose")  # the simulator runs on
+    out, err = sim.proc.communicate("quit\n", timeout=30)
+    sim.proc.stdout = sim.proc.stderr = sim.proc.stdin = None
+    assert "Traceback" not in err and "Error" not in err, err
+    assert err.strip() == "", err
+
+
+def test_drive_says_a_stop_once_and_that_the_simulator_went_away(sim_port: int) -> None:
+    """drive printed each stop reason twice (a warning and the error); after the simulator
+    was SIGTERMed it blamed node 1's heartbeat rather than the bus that went away."""
+    from .test_faults_process import SimProcess
+
+    sim = SimProcess(sim_port)
+    client = _driving_client(sim_port, sim)
+    sim.command("fault 2")
+    _, err = client.communicate(timeout=60)
+    assert client.returncode == 1, err
+    said = [line for line in err.splitlines() if "base stopped: node 2 fault" in line]
+    assert len(said) == 1 and said[0].startswith("omnican: error:"), err
+
+    client = _driving_client(sim_port, sim)  # a new run recovers the drives
+    sim.proc.terminate()
+    _, err = client.communicate(timeout=60)
+    assert client.returncode == 1, err
+    assert "base stopped: CAN bus down" in err and "heartbeat lost" not in err, err
+    assert len([line for line in err.splitlines() if "base stopped" in line]) == 1, err
