@@ -10,6 +10,7 @@ import os
 import re
 import select
 import shutil
+import signal
 import subprocess
 import sys
 import termios
@@ -436,6 +437,22 @@ def test_teleop_ctrl_z_then_fg_still_takes_keys_without_enter() -> None:
     finally:
         with contextlib.suppress(OSError):
             term.keys("exit\n")
+        term.close()
+
+
+def test_drive_fast_stopped_by_ctrl_c_reports_no_false_heartbeat_errors() -> None:
+    """Issue 31 item 9: SIGTERM (or Ctrl-C) under --fast printed three false "EMCY 0x8130
+    heartbeat error" warnings: the control cycle it interrupted had left the clock."""
+    term = terminal.Pty("drive", "--sim", "--fast", "--vx", "0.1", "--duration", "100000")
+    try:
+        term.wait_for("%", timeout=60)  # the progress bar: the base is driving
+        term.read(2.0)
+        term.proc.send_signal(signal.SIGTERM)
+        assert term.exit_code(timeout=60) == 143
+        screen = term.read(0.3)
+        assert "terminated: the base stopped here" in screen, screen[-2000:]
+        assert "EMCY" not in screen and "0x8130" not in screen, screen[-2000:]
+    finally:
         term.close()
 
 
