@@ -846,7 +846,7 @@ def test_sim_ends_a_killed_client_quietly(sim_port: int) -> None:
     client.communicate(timeout=10)
     time.sleep(1.0)  # the hub notices the reset connection
     assert sim.command("pose").startswith("true pose")  # the simulator runs on
-    out, err = sim.proc.communicate("quit\n", timeout=30)
+    _, err = sim.proc.communicate("quit\n", timeout=30)
     sim.proc.stdout = sim.proc.stderr = sim.proc.stdin = None
     assert "Traceback" not in err and "Error" not in err, err
     assert err.strip() == "", err
@@ -871,3 +871,101 @@ def test_drive_says_a_stop_once_and_that_the_simulator_went_away(sim_port: int) 
     assert client.returncode == 1, err
     assert "base stopped: CAN bus down" in err and "heartbeat lost" not in err, err
     assert len([line for line in err.splitlines() if "base stopped" in line]) == 1, err
+
+
+# ---------------------------------------------------------------- issue 31 item 11
+
+
+def test_sim_telemetry_queues_frames_only_while_a_front_end_watches(channel: str) -> None:
+    """`omnican sim --foxglove` with no app attached queued every frame its drives heard,
+    and on quit said "telemetry dropped ... frames (a front end fell behind)"."""
+    import threading
+
+    import can
+
+    from omnican.telemetry.messages import CAN_RX
+
+    from .helpers import sim_config
+
+    class Probe(can.Listener):  # the notifier calls its listeners in turn, this one last
+        def __init__(self) -> None:
+            self.seen = 0
+            self.got = threading.Event()
+
+        def on_message_received(self, msg: can.Message) -> None:
+            if msg.arbitration_id == 0x5AA:
+                self.seen += 1
+                if self.seen % 20 == 0:
+                    self.got.set()
+
+    class Watcher:
+        def __init__(self) -> None:
+            self.frames = threading.Event()
+
+        def wants(self, topic: str) -> bool:
+            return True
+
+        def publish(self, messages: list) -> None:  # type: ignore[type-arg]
+            if any(msg.topic == CAN_RX for msg in messages):
+                self.frames.set()
+
+    cfg = sim_config(channel)
+    probe = Probe()
+    with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
+            can.Bus(interface="virtual", channel=channel) as other:
+        assert sim.network.notifier is not None
+        sim.network.notifier.add_listener(probe)
+        for _ in range(20):
+            other.send(can.Message(arbitration_id=0x5AA, data=b"\x01", is_extended_id=False))
+        assert probe.got.wait(10)
+        assert not [f for f in feed.frames.queue if f[1] == 0x5AA]  # no one to take them
+        watcher = Watcher()
+        feed.add(watcher)
+        probe.got.clear()
+        for _ in range(20):
+            other.send(can.Message(arbitration_id=0x5AA, data=b"\x02", is_extended_id=False))
+        assert probe.got.wait(10)
+        assert watcher.frames.wait(10)  # a front end still gets the frames
+        feed.remove(watcher)
+        sim.network.notifier.remove_listener(probe)
+    assert feed.frames.dropped == 0
+
+
+@pytest.mark.parametrize("speed", ["1e9", "-21", "20.5"])
+def test_the_console_refuses_a_push_no_wheel_reaches(channel: str, speed: str) -> None:
+    """`push 1 1e9` was accepted, and the dashboard then showed theta 193551 rad."""
+    from omnican.sim.console import command
+
+    from .helpers import sim_config
+
+    with SimulatedBase.from_config(sim_config(channel)) as sim:
+        reply = command(sim, f"push 1 {speed}") or ""
+        assert reply.startswith("error: push takes -20 to 20 m/s at the rim"), reply
+        assert sim.drives[0].axes[0].pushed_counts_s is None
+        assert command(sim, "push 1 -20") == "node 1: pushed at -20 m/s"
+
+
+def test_sim_console_prompts_a_person_at_a_terminal() -> None:
+    term = Pty("sim", "--serve", "127.0.0.1:0")
+    try:
+        term.wait_for("type a command here")
+        term.read(0.5)
+        assert term.read(0.1).rstrip("\r\n").endswith("> "), term.read(0.1)[-300:]
+        term.keys("pose\n")
+        term.wait_for("true pose")
+        term.read(0.3)
+        assert term.read(0.1).endswith("true pose x=0.0000 y=0.0000 theta=0.0000\r\n> ")
+        term.keys("quit\n")
+        assert term.exit_code(timeout=30) == 0
+    finally:
+        term.close()
+
+
+def test_ros2_help_lists_every_console_command_and_battery_state() -> None:
+    from omnican.sim.console import COMMANDS
+
+    code, out, _ = run_main(["ros2", "--help"])
+    assert code == 0
+    for syntax, _ in COMMANDS:
+        assert syntax in out, (syntax, out)
+    assert "recover" in out and "battery_state" in out

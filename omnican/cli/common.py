@@ -432,6 +432,10 @@ def serve_lines(handle: Callable[[str], str | None], duration: float | None) -> 
     ends or Ctrl-C; stdin closing (e.g. < /dev/null) keeps it running."""
     end = time.monotonic() + duration if duration else None
     stdin_open = not sys.stdin.closed
+    # A prompt for a person at a terminal (a script piping commands reads replies only).
+    prompt = "> " if stdin_open and sys.stdin.isatty() else ""
+    if prompt:
+        print(prompt, end="", flush=True)
     try:
         while end is None or time.monotonic() < end:
             timeout = 0.2 if end is None else max(0.0, min(0.2, end - time.monotonic()))
@@ -450,5 +454,7 @@ def serve_lines(handle: Callable[[str], str | None], duration: float | None) -> 
                 break
             if reply:
                 print(reply, flush=True)
+            if prompt:
+                print(prompt, end="", flush=True)
     except KeyboardInterrupt:
         pass
