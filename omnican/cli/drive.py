@@ -131,7 +131,8 @@ def legs(args: argparse.Namespace) -> list[Leg] | None:
 
 def execute(base: Chassis, plan: list[Leg]) -> motion.MotionResult:
     """Run the plan with a progress bar on a terminal."""
-    with progress_bar(motion.nominal_duration(plan)) as bar:
+    c = base.cfg.chassis
+    with progress_bar(motion.nominal_duration(plan, c.max_accel, c.max_angular_accel)) as bar:
         return motion.run(base, plan, bar)
 
 
