@@ -350,7 +350,9 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
           Chassis.open(s.cfg, record=record, clock=s.clock) as base,
           _sample_truth(s.sim) as truth):
         try:
-            with progress_bar(motion.nominal_duration(plan)) as bar:
+            c = s.cfg.chassis
+            with progress_bar(motion.nominal_duration(plan, c.max_accel,
+                                                      c.max_angular_accel)) as bar:
                 motion.run(base, plan, bar)
         except motion.BaseStoppedError as exc:
             print(f"omnican: warning: base stopped: {exc}", file=sys.stderr)
