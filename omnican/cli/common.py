@@ -229,11 +229,21 @@ def check_front_ends(cfg: ChassisConfig) -> ChassisConfig:
         from omnican.ros2.settings import from_table
 
         from_table(cfg.ros2, origin)
+        check_joint_names(cfg, origin)
     if cfg.foxglove is not None:
         from omnican.live.settings import resolve
 
         resolve(cfg.foxglove, None, origin=origin, check_sdk=False)
     return cfg
+
+
+def check_joint_names(cfg: ChassisConfig, origin: str) -> None:
+    """[ros2] joint_names: one per wheel (the telemetry every command builds refuses
+    others; check-config passed them)."""
+    names = (cfg.ros2 or {}).get("joint_names")
+    if names is not None and len(names) != len(cfg.wheels):
+        raise ConfigError(f"{origin}: ros2.joint_names: {len(names)} names for "
+                          f"{len(cfg.wheels)} wheels (one per [[wheel]], in order)")
 
 
 FOXGLOVE_CONTROL_HELP = (
