@@ -3,9 +3,10 @@
 One row per CAN id seen: frame count, rate (frames/s over the last second), and the
 last frame's signals, decoded with the DBC (--dbc; default: one built from --config
 for that robot's drives, else the bundled omnican.dbc, which describes the demo base,
-nodes 1-3) or shown as raw hex for ids it does not describe. Below the table, the
-bus load: worst-case bits per second (bit stuffing included) and, when the bitrate
-is known ([bus] bitrate or -b), its share of it.
+nodes 1-3) or shown as raw hex for ids it does not describe. With the table (above
+it in a terminal, below it in plain text), the bus load: worst-case bits per second
+(bit stuffing included) and, when the bitrate is known ([bus] bitrate or -b), its
+share of it.
 
 The monitor only listens. Under --sim nothing else would be on the virtual bus,
 so it also opens the simulated base and drives it slowly in a circle, to have
