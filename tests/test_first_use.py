@@ -704,7 +704,8 @@ def test_plot_of_a_closed_path_shows_start_end_and_what_the_marks_mean(square_re
     assert start.get_zorder() > end.get_zorder()
     assert start.get_markersize() > end.get_markersize() and start.get_markerfacecolor() == "none"
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert "ground truth end" in labels and "heading at the start and the end" in labels
+    assert "ground truth end" in labels and "heading at the start" in labels
+    assert "heading at the end" in labels
 
 
 def test_plot_state_chart_ends_in_the_state_the_summary_names(square_replay) -> None:  # type: ignore[no-untyped-def]
