@@ -142,12 +142,20 @@ class SimClock(Clock):
                 if task.cancelled:
                     continue
                 self._t = max(self._t, min(task.due, end))
-                if self.speed is not None:
-                    self._wait_real(self._t)
-                task.step(self._t)
-                if not task.cancelled:
-                    task.advance()
-                    heapq.heappush(tasks, task)
+                started = False
+                try:
+                    if self.speed is not None:
+                        self._wait_real(self._t)
+                    started = True
+                    task.step(self._t)
+                finally:
+                    # A KeyboardInterrupt (Ctrl-C, SIGTERM) raised in the task or in the
+                    # wait must not drop it from the clock: a control cycle dropped so
+                    # stopped the host's heartbeat while the drives' time went on.
+                    if not task.cancelled:
+                        if started:
+                            task.advance()
+                        heapq.heappush(tasks, task)
             self._t = end
             if self.speed is not None:
                 self._wait_real(end)

@@ -94,19 +94,36 @@ def signal_name(entry: Entry) -> str:
     return "".join(w[:1].upper() + w[1:] for w in words) or f"Object{entry.index:04X}"
 
 
-def _conversion(choices: dict[int, str] | None) -> BaseConversion:
+def _conversion(choices: dict[int, str] | None, scale: float = 1) -> BaseConversion:
     table: OrderedDict[int, str | NamedSignalValue] | None = (
         OrderedDict(sorted(choices.items())) if choices else None)
-    return BaseConversion.factory(scale=1, offset=0, choices=table)
+    return BaseConversion.factory(scale=scale, offset=0, choices=table)
 
 
 def _signal(name: str, start: int, bits: int, signed: bool, receivers: list[str],
             unit: str | None = None, comment: str | None = None,
-            choices: dict[int, str] | None = None) -> Signal:
+            choices: dict[int, str] | None = None, scale: float = 1) -> Signal:
     lo, hi = value_range(bits, signed)
     return Signal(name=name, start=start, length=bits, byte_order="little_endian",
-                  is_signed=signed, conversion=_conversion(choices), minimum=lo, maximum=hi,
-                  unit=unit, comment=comment, receivers=receivers)
+                  is_signed=signed, conversion=_conversion(choices, scale),
+                  minimum=round(lo * scale, 9), maximum=round(hi * scale, 9), unit=unit,
+                  comment=comment, receivers=receivers)
+
+
+#: Units of what the drives report, in the config's scales (health reads).
+HEALTH_UNITS = {"current": "A", "voltage": "V", "temperature": "degC"}
+
+
+def _health_scale(layout: NodeLayout, entry: Entry) -> tuple[float, str] | None:
+    """The config's scale and unit of a vendor object read as health (e.g. a motor
+    temperature 0x2100 in 0.1 degC: without it the DBC showed MotorTemperature=250)."""
+    health = getattr(layout, "health", None)
+    for read in health.reads if health is not None else ():
+        e = read.entry
+        if ((e.index, e.subindex) == (entry.index, entry.subindex) and read.scale is not None
+                and read.quantity in HEALTH_UNITS):
+            return float(read.scale), HEALTH_UNITS[read.quantity]
+    return None
 
 
 def pdo_message(layout: NodeLayout, pdo: PlannedPdo, tx: bool, rate_hz: float) -> Message:
@@ -122,11 +139,16 @@ def pdo_message(layout: NodeLayout, pdo: PlannedPdo, tx: bool, rate_hz: float) -
         if any(s.name == name for s in signals):  # e.g. two axes of one drive
             name = f"{name}_{entry.index:04X}sub{entry.subindex}"
         obj = entry.obj
+        unit = UNITS.get(obj) if obj is not None else None
+        scale: float = 1
+        if unit is None and tx:  # a vendor object: the config may say what it counts in
+            scaled = _health_scale(layout, entry)
+            if scaled is not None:
+                scale, unit = scaled
         signals.append(_signal(
-            name, f.start_bit, f.bits, f.signed, [receiver],
-            unit=UNITS.get(obj) if obj is not None else None,
+            name, f.start_bit, f.bits, f.signed, [receiver], unit=unit,
             comment=f"{entry.name} ({entry.address})",
-            choices=CHOICES.get(obj) if obj is not None else None))
+            choices=CHOICES.get(obj) if obj is not None else None, scale=scale))
     return Message(
         frame_id=codec.cob_id,
         name=f"{kind}{pdo.number}_node{layout.node_id}",

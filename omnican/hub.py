@@ -8,6 +8,7 @@ with ``interface = "remote"``, ``channel = "ws://127.0.0.1:<port>/"``.
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import logging
 import socket
@@ -47,6 +48,17 @@ def _handler_class() -> type:
                 logger.info("hub client went away: %s", exc)
                 self.running = False
                 self.bus.shutdown()
+
+        def terminate(self, exc: BaseException) -> None:
+            # A client killed mid-session (kill -9) resets its socket: there is no one
+            # to send the close frame to, and trying chained two more tracebacks on it.
+            if isinstance(exc, OSError):
+                logger.info("hub client went away: %s", exc)
+                return
+            try:
+                super().terminate(exc)
+            except OSError as gone:
+                logger.info("hub client went away: %s (%s)", gone, exc)
 
     class Handler(ClientRequestHandler):  # type: ignore[misc]
         def start_websocket(self) -> None:
@@ -115,6 +127,12 @@ class LoopbackHub:
         self._server.shutdown()
         self._server.server_close()
         self._thread.join(timeout=2.0)
+        # Hang up on every client: its bus goes away now, so it says the bus went down
+        # rather than, a moment later, that the drives fell silent.
+        for session in list(self._server.clients):
+            session.running = False
+            with contextlib.suppress(OSError):
+                session._ws.close(1001, "the hub closed")
         # Client handlers end when their peers hang up; give them a moment.
         deadline = time.monotonic() + wait_clients_s
         while self._server.clients and time.monotonic() < deadline:

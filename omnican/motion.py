@@ -243,8 +243,37 @@ def fit_to_limits(plan: Sequence[Leg], cfg: ChassisConfig) -> tuple[list[Leg], l
     return out, clamps
 
 
-def nominal_duration(plan: Sequence[Leg]) -> float:
-    return sum(leg.seconds for leg in plan)
+# A goal leg's creep onto its goal and stop on it (settle()), about (simulated base).
+SETTLE_ESTIMATE_S = 0.25
+
+
+def leg_duration(leg: Leg, max_accel: float = math.inf,
+                 max_angular_accel: float = math.inf) -> float:
+    """What ``leg`` should take (s): a timed leg its ``seconds``; a goal leg also the
+    ramp up at the acceleration limit and the slower one down onto the goal
+    (:data:`APPROACH_MARGIN`), and the stop on it. Infinite limits: ``seconds``."""
+    if not leg.is_goal:
+        return leg.seconds
+    if leg.distance is not None:
+        goal, speed, accel = leg.distance, leg.twist.linear_speed, max_accel
+    else:
+        goal, speed, accel = leg.angle or 0.0, abs(leg.twist.wz), max_angular_accel
+    if not (accel > 0 and math.isfinite(accel)):
+        return leg.seconds
+    down = accel * APPROACH_MARGIN
+    ramps = speed * speed / (2 * accel) + speed * speed / (2 * down)  # m (or rad) on ramps
+    if goal >= ramps:
+        moving = goal / speed + speed / (2 * accel) + speed / (2 * down)
+    else:  # never at full speed: up and straight back down
+        peak = math.sqrt(2 * goal * accel * down / (accel + down))
+        moving = peak / accel + peak / down
+    return moving + SETTLE_ESTIMATE_S
+
+
+def nominal_duration(plan: Sequence[Leg], max_accel: float = math.inf,
+                     max_angular_accel: float = math.inf) -> float:
+    """What ``plan`` should take (s), its goal legs' ramps included given the limits."""
+    return sum(leg_duration(leg, max_accel, max_angular_accel) for leg in plan)
 
 
 # ---------------------------------------------------------------- running
@@ -308,19 +337,28 @@ def run(base: Base, plan: Sequence[Leg], progress: ProgressCallback | None = Non
     Goal legs stop on their goal before the next leg starts. Raises
     :class:`BaseStoppedError` when the base stops itself; a KeyboardInterrupt passes
     through (the caller's ``with Chassis`` block stops the base)."""
-    total = nominal_duration(plan)
+    limits = base.cfg.chassis
+    durations = [leg_duration(leg, limits.max_accel, limits.max_angular_accel)
+                 for leg in plan]
     clock = _clock(base)
     start = clock.now()
     measured = Twist()
     reference = base.pose  # where the plan says the base is
+    leg_index, leg_start = 0, 0.0  # the leg under way, and when it began (s from start)
 
     def report(label: str) -> None:
+        # The total: the legs done as they took, this one as expected (or as long as it
+        # takes), the rest as expected: 100 % only when the motion is over.
         if progress is not None:
-            progress(clock.now() - start, total, label)
+            done = clock.now() - start
+            total = (leg_start + max(durations[leg_index],
+                                     done - leg_start + SETTLE_ESTIMATE_S)
+                     + sum(durations[leg_index + 1:]))
+            progress(done, total, label)
 
-    limits = base.cfg.chassis
     lag_s = LAG_CYCLES / limits.rate_hz + DRIVE_LAG_S
-    for leg in plan:
+    for leg_index, leg in enumerate(plan):  # noqa: B007 (report() reads it)
+        leg_start = clock.now() - start
         end = clock.now() + leg.timeout_s
         if not leg.is_goal:
             while clock.now() < end:
@@ -355,7 +393,9 @@ def run(base: Base, plan: Sequence[Leg], progress: ProgressCallback | None = Non
     elapsed = clock.now() - start
     _check(base)
     settle(base)
-    report("done")
+    if progress is not None:
+        done = clock.now() - start
+        progress(done, done, "done")
     return MotionResult(measured, elapsed)
 
 

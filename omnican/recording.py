@@ -9,10 +9,12 @@ and a writer thread of its own turns them into lines; a full queue drops and cou
 
 from __future__ import annotations
 
+import bisect
 import collections
 import contextlib
 import importlib
 import logging
+import math
 import struct
 import threading
 from collections.abc import Iterator, Sequence
@@ -92,6 +94,11 @@ class LogRecorder(can.Listener):
     # for every few frames.
     BATCH_FRAMES = 1024
     WRITE_EVERY_S = 0.2
+    # Frames come from two threads (the loop's sent frames, the Notifier's received ones)
+    # and reach the queue a little out of time order: the newest this long are held for
+    # the next batch, so that each batch is written in time order (a candump .log went
+    # back by up to 0.34 ms on 16 of 3,115 lines).
+    REORDER_S = 0.05
 
     def __init__(self, path: Path) -> None:
         try:
@@ -101,6 +108,8 @@ class LogRecorder(can.Listener):
         self.path = path
         self.dropped = 0
         self._queue: collections.deque[can.Message | SentFrame] = collections.deque()
+        self._held: list[can.Message | SentFrame] = []  # the newest, for the next batch
+        self._last_t = -math.inf  # the timestamp written last
         self._wake = threading.Event()
         self._closing = False
         self._thread = threading.Thread(target=self._write_loop, name="omnican-recorder",
@@ -130,18 +139,37 @@ class LogRecorder(can.Listener):
             self._wake.clear()
             self._drain()
             if self._closing:
-                self._drain()
+                self._drain(final=True)
                 return
 
-    def _drain(self) -> None:
-        queue = self._queue
+    def _in_time_order(self, final: bool) -> list[can.Message | SentFrame]:
+        """What is queued and held, sorted by time; the newest REORDER_S are held back
+        (unless ``final``); a frame older than one already written gets that one's time."""
+        queue, batch = self._queue, self._held
+        while queue:
+            batch.append(queue.popleft())
+        batch.sort(key=_stamp)
+        self._held = []
+        if not final and batch:
+            cut = bisect.bisect_right(batch, _stamp(batch[-1]) - self.REORDER_S, key=_stamp)
+            batch, self._held = batch[:cut], batch[cut:]
+        out: list[can.Message | SentFrame] = []
+        for item in batch:
+            t = _stamp(item)
+            if t < self._last_t:  # later than REORDER_S: written at the last time, not back
+                out.append(_restamped(item, self._last_t))
+            else:
+                self._last_t = t
+                out.append(item)
+        return out
+
+    def _drain(self, final: bool = False) -> None:
         writer = self._writer
         # candump's .log, the default: lines made here and written a batch at a time
         # (python-can's writer makes the same line, one write per frame).
         log = writer if type(writer) is can.CanutilsLogWriter else None
         lines: list[str] = []
-        while queue:
-            item = queue.popleft()
+        for item in self._in_time_order(final):
             if self._writer is None:
                 continue
             if log is not None:
@@ -206,6 +234,19 @@ class LogRecorder(can.Listener):
 
 
 SentFrame = tuple[float, int, bytes, Any]  # timestamp, COB-ID, data, channel
+
+
+def _stamp(item: can.Message | SentFrame) -> float:
+    return (item.timestamp or 0.0) if isinstance(item, can.Message) else item[0]
+
+
+def _restamped(item: can.Message | SentFrame, t: float) -> can.Message | SentFrame:
+    if not isinstance(item, can.Message):
+        return (t, *item[1:])
+    return can.Message(timestamp=t, arbitration_id=item.arbitration_id,
+                       is_extended_id=item.is_extended_id, is_remote_frame=item.is_remote_frame,
+                       is_error_frame=item.is_error_frame, dlc=item.dlc, data=item.data,
+                       is_rx=item.is_rx, channel=item.channel, is_fd=item.is_fd)
 
 
 def sent_message(frame: SentFrame) -> can.Message:

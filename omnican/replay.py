@@ -102,6 +102,9 @@ class EmcyEvent:
         return "error reset" if self.code == 0 else describe_emcy(self.code)
 
 
+_TPDO_BASES = (0x180, 0x280, 0x380, 0x480)  # the COB-IDs of TPDO1-4, less the node id
+
+
 @dataclass(frozen=True)
 class Replay:
     """A decoded recording. Times are seconds from the first frame; speeds m/s at the
@@ -126,6 +129,8 @@ class Replay:
     syncs: int  # every SYNC in the recording
     reboots: tuple[tuple[float, int], ...]  # (t, node id): boot-ups the host did not ask for
     node_frames: int  # frames from or to the configured nodes (0: wrong config?)
+    #: the configured nodes the recording has frames from (a heartbeat, an EMCY, a TPDO)
+    nodes_heard: frozenset[int] = frozenset()
     cut: str | None = None  # cut short or damaged: what was read and what not (cut_note)
     #: what the drives reported: quantity ("current" A, "torque" %, "voltage" V,
     #: "temperature" degC) -> per wheel (times, values); empty arrays where none came
@@ -311,6 +316,7 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
     reseed: set[int] = set()  # wheels whose drive rebooted since the SYNC
     syncs = 0
     node_frames = 0
+    heard: set[int] = set()  # configured nodes that sent anything
 
     def close_sync() -> None:
         """The chassis' rule: integrate the SYNC's samples only if every wheel answered.
@@ -340,6 +346,8 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
             continue
         if cob in slots:
             node_frames += 1
+            if cob & 0x780 in _TPDO_BASES:
+                heard.add(cob & 0x7F)
             codec, read = slots[cob]
             values = codec.unpack(data)
             if values is None:
@@ -369,11 +377,13 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         node = cob - EMCY_BASE
         if node in node_ids and len(data) >= 3:
             node_frames += 1
+            heard.add(node)
             emcy.append(EmcyEvent(t, node, int.from_bytes(bytes(data[:2]), "little"), data[2]))
             continue
         node = cob - HEARTBEAT_BASE
         if node in node_ids and data:
             node_frames += 1
+            heard.add(node)
             # boot-up: the counter restarts, the travel continues
             if data[0] & NMT_STATE_MASK == NmtState.BOOT_UP:
                 if node in booted and node not in reset:
@@ -417,6 +427,7 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         reboots=tuple(reboots),
         health=health.arrays(),
         node_frames=node_frames,
+        nodes_heard=frozenset(heard),
     )
 
 

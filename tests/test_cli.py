@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import logging
@@ -9,6 +10,7 @@ import os
 import re
 import select
 import shutil
+import signal
 import subprocess
 import sys
 import termios
@@ -409,6 +411,47 @@ def test_drive_in_the_background_of_a_terminal_runs_to_the_end() -> None:
         text = term.read(0.2)
         assert "rc=0" in text, text[-2000:]
         assert re.search(r"^pose x=\S+ y=\S+ theta=\S+", text, re.M)
+    finally:
+        term.close()
+
+
+@pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash for job control")
+def test_teleop_ctrl_z_then_fg_still_takes_keys_without_enter() -> None:
+    """Issue 31 item 7: Ctrl-Z then fg left teleop deaf (the shell had reset the terminal:
+    keys echoed and arrived only after Enter, Esc did not quit). In an interactive shell,
+    with job control as a user has it."""
+    term = terminal.Pty(argv=["bash", "--norc", "--noprofile", "-i"])
+    try:
+        term.keys(f"PS1='$ '; {sys.executable} -m omnican teleop --sim; echo rc=$?\n")
+        term.wait_for_frame("RUNNING", timeout=60)
+        term.keys("\x1a")  # Ctrl-Z
+        term.wait_for_frame("Ctrl-Z: teleop does not suspend")
+        term.keys("fg\n")  # what a user types next (keys to teleop when it stayed)
+        term.read(0.5)
+        term.screen = ""
+        term.keys("i")
+        term.wait_for_frame("last key 'i'")
+        term.keys("\x1b")
+        term.wait_for("rc=0")
+        assert re.search(r"pose x=\S+ y=\S+ theta=\S+", term.read(0.2))
+    finally:
+        with contextlib.suppress(OSError):
+            term.keys("exit\n")
+        term.close()
+
+
+def test_drive_fast_stopped_by_ctrl_c_reports_no_false_heartbeat_errors() -> None:
+    """Issue 31 item 9: SIGTERM (or Ctrl-C) under --fast printed three false "EMCY 0x8130
+    heartbeat error" warnings: the control cycle it interrupted had left the clock."""
+    term = terminal.Pty("drive", "--sim", "--fast", "--vx", "0.1", "--duration", "100000")
+    try:
+        term.wait_for("%", timeout=60)  # the progress bar: the base is driving
+        term.read(2.0)
+        term.proc.send_signal(signal.SIGTERM)
+        assert term.exit_code(timeout=60) == 143
+        screen = term.read(0.3)
+        assert "terminated: the base stopped here" in screen, screen[-2000:]
+        assert "EMCY" not in screen and "0x8130" not in screen, screen[-2000:]
     finally:
         term.close()
 

@@ -245,3 +245,32 @@ def test_sim_with_bus_arguments(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 # ------------------------------------------------------------------ pieces
+
+
+def test_the_live_table_fits_100x30_with_the_bus_load_on_top() -> None:
+    """Issue 31 item 10: at 100x30 the table was cut with '...' and the bus load, the
+    headline figure, stayed hidden until exit; long signal lists folded rows."""
+    import io
+
+    from rich.console import Console
+
+    from omnican.cli.monitor import rich_table
+    from omnican.traffic import DEFAULT_DBC, TrafficCounter, load_dbc
+
+    counter = TrafficCounter(load_dbc(DEFAULT_DBC), 500_000)
+    ids = [0x080, *(base + n for base in (0x181, 0x281, 0x301, 0x381, 0x481, 0x581, 0x601,
+                                          0x701) for n in (1, 2, 3)), 0x123, 0x124, 0x125]
+    for can_id in ids:
+        counter.on_message_received(can.Message(arbitration_id=can_id, data=bytes(8),
+                                                is_extended_id=False))
+    snap = counter.snapshot()
+    assert len(snap.rows) > 30 - 8  # more ids than fit
+    out = io.StringIO()
+    console = Console(file=out, width=100, height=30, color_system=None)
+    console.print(rich_table(snap, "omnican monitor (live, 1.0 s) on x", "?", 30, 100))
+    lines = out.getvalue().rstrip("\n").split("\n")
+    assert len(lines) <= 30 and max(len(line) for line in lines) <= 100, out.getvalue()
+    assert lines[1].startswith("bus load:") and "% of 500 kbit/s" in lines[1]
+    rows = [line for line in lines if re.match(r"│ 0x[0-9A-F]{3} ", line)]
+    assert len(rows) == 30 - 8 and all(line.endswith("│") for line in rows), out.getvalue()
+    assert lines[-1].startswith(f"... {len(snap.rows) - len(rows)} more ids")

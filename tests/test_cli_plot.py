@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import itertools
 import json
 import re
 from dataclasses import dataclass
@@ -203,3 +204,57 @@ def test_a_recording_of_another_base_is_exit_2(recording: Recording, tmp_path: P
     assert one_error_line(capsys.readouterr().err) == (
         f"omnican: error: {recording.path}: no frames of nodes 21, 22, 23 (recorded on another "
         "base? give its --config)")
+
+
+# ---------------------------------------------------------------- issue 31 item 16
+
+
+@pytest.fixture(scope="module")
+def zlac_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("plot") / "zlac.log"
+    config = Path(__file__).resolve().parents[1] / "examples" / "zlac8015d.toml"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["drive", "--sim", "--fast", "--config", str(config), "--vx", "0.2",
+                     "--duration", "0.5", "--record", str(path)]) == 0
+    return path
+
+
+def test_a_recording_that_does_not_match_the_config_is_said_so(
+        zlac_recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A ZLAC recording plotted without its --config drew a 157,000 V DC link, speeds of
+    0.0001 m/s and an empty trajectory, and exited 0."""
+    out = tmp_path / "z.png"
+    assert main(["plot", str(zlac_recording), "-o", str(out)]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert f"{zlac_recording}: the recording does not match the config: node 3 of the " \
+           "config sent no frame" in line and "give its --config" in line, line
+    assert not out.exists()
+    config = Path(__file__).resolve().parents[1] / "examples" / "zlac8015d.toml"
+    assert main(["plot", str(zlac_recording), "-o", str(out), "--config", str(config)]) == 0
+
+
+def test_identical_traces_stay_visible_and_the_legend_arrows_match(
+        zlac_recording: Path) -> None:
+    """One DC link feeds every wheel: wheel 0's voltage was drawn under wheel 2's and could
+    not be seen. The legend's heading arrow was grey; the arrows drawn are green and red."""
+    from matplotlib.colors import to_rgba
+
+    from omnican.config import load_config
+
+    config = Path(__file__).resolve().parents[1] / "examples" / "zlac8015d.toml"
+    rep = replay.load(zlac_recording, load_config(config))
+    fig = plot_cli.build_figure(rep, "zlac")
+    voltage = next(ax for ax in fig.get_axes() if ax.get_ylabel() == "voltage (V)")
+    lines = [line for line in voltage.get_lines() if line.get_label().startswith("wheel")]
+    assert len(lines) == 3
+    assert lines[0].get_ydata().tolist() == lines[2].get_ydata().tolist()  # one DC link
+    for under, over in itertools.pairwise(lines):
+        # a line drawn over another is narrower: the one under shows at its edges
+        assert over.get_zorder() > under.get_zorder()
+        assert over.get_linewidth() < under.get_linewidth() - 1.0
+    traj = fig.get_axes()[0]
+    handles, labels = traj.get_legend_handles_labels()
+    colours = {label: to_rgba(h.get_color()) for h, label in zip(handles, labels, strict=True)
+               if label.startswith("heading")}
+    assert colours == {"heading at the start": to_rgba("green"),
+                       "heading at the end": to_rgba("red")}

@@ -53,6 +53,33 @@ def test_cancelled_tasks_stop_and_sleep_inside_a_task_is_refused() -> None:
         clock.sleep(0.02)
 
 
+@given(interrupt_at=st.integers(min_value=1, max_value=30),
+       others=st.integers(min_value=0, max_value=2))
+@settings(max_examples=40, deadline=None)
+def test_a_ctrl_c_inside_a_task_leaves_every_task_on_the_clock(interrupt_at: int,
+                                                              others: int) -> None:
+    """Issue 31 item 9: Ctrl-C or SIGTERM under --fast lands inside a task (the control
+    cycle, a simulated drive's); the task it interrupted was dropped from the clock, so the
+    host's heartbeat stopped while the drives' time went on (false EMCY 0x8130)."""
+    clock = SimClock()
+    calls: list[float] = []
+
+    def cycle(now: float) -> None:
+        calls.append(now)
+        if len(calls) == interrupt_at:
+            raise KeyboardInterrupt
+
+    clock.every(0.01, cycle)
+    for _ in range(others):
+        clock.every(0.003, lambda now: None)
+    with pytest.raises(KeyboardInterrupt):
+        clock.sleep(1.0)
+    at = clock.now()
+    clock.sleep(0.1)  # what the stop does after the interrupt: the cycle still runs
+    assert len(calls) == interrupt_at + 10
+    assert calls[interrupt_at:] == pytest.approx([at + 0.01 * (i + 1) for i in range(10)])
+
+
 def test_run_until_stops_when_done_or_at_the_timeout() -> None:
     clock = SimClock()
     assert clock.run_until(lambda: clock.now() >= 0.05, 1.0)

@@ -75,7 +75,10 @@ def test_every_planned_pdo_of_nodes_1_to_3_is_in_the_dbc(db: Any) -> None:
             assert signal.length == entry.bits, what
             assert signal.is_signed == entry.signed, what
             assert signal.byte_order == "little_endian", what
-            assert signal.scale == 1 and signal.offset == 0, what
+            # raw values, but a vendor object the config gives a scale for (0x2100 in
+            # 0.1 degC): in that unit
+            scale = 0.1 if entry.index == 0x2100 else 1
+            assert signal.scale == scale and signal.offset == 0, what
             start += entry.bits
         # 100 Hz SYNC: every SYNC 10 ms, the health TPDOs every 20th
         assert message.cycle_time == (10 * pdo.trans_type if pdo.cyclic else None), where
@@ -98,7 +101,7 @@ def test_pdo_signals_have_clear_names_and_units(db: Any) -> None:
         0x380: ("TPDO3", [("CurrentActual", 0, 16, True, "permille"),
                           ("TorqueActual", 16, 16, True, "permille"),
                           ("DcLinkVoltage", 32, 32, False, "mV")]),
-        0x480: ("TPDO4", [("MotorTemperature", 0, 16, True, None),
+        0x480: ("TPDO4", [("MotorTemperature", 0, 16, True, "degC"),
                           ("ErrorRegister", 16, 8, False, None),
                           ("DigitalInputs", 24, 32, False, None)]),
     }
@@ -229,7 +232,8 @@ def _check_message_is_the_codec(message: Any, codec: PdoCodec, values: list[int]
         where = f"{message.name}.{signal.name}"
         assert (signal.start, signal.length, signal.is_signed) == \
             (f.start_bit, f.bits, f.signed), where
-        assert (signal.minimum, signal.maximum) == (f.lo, f.hi), where
+        assert (signal.minimum, signal.maximum) == pytest.approx(
+            (f.lo * signal.scale, f.hi * signal.scale)), where
         assert signal.byte_order == "little_endian", where
     packed = codec.pack(values)
     by_name = {s.name: v for s, v in zip(message.signals, values, strict=True)}
@@ -294,3 +298,13 @@ def test_any_pdos_message_is_its_codec(fields: list[tuple[int, bool, bool]], tx:
     message = pdo_message(SimpleNamespace(node_id=1), pdo, tx, 100.0)  # type: ignore[arg-type]
     _check_message_is_the_codec(message, codec,
                                 [data.draw(st.integers(lo, hi)) for lo, hi in codec.ranges])
+
+
+def test_a_motor_temperature_reads_in_degrees(db: Any) -> None:
+    """Issue 31 item 17: the DBC and monitor showed MotorTemperature=250 for 25.0 degC
+    (0x2100 counts 0.1 degC, as the demo config says)."""
+    message = db.get_message_by_frame_id(0x481)
+    raw = (250).to_bytes(2, "little", signed=True) + bytes(message.length - 2)
+    decoded = message.decode(raw, decode_choices=False)
+    assert decoded["MotorTemperature"] == pytest.approx(25.0)
+    assert message.get_signal_by_name("MotorTemperature").unit == "degC"

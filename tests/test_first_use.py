@@ -361,6 +361,54 @@ def test_teleop_at_80x24_keeps_the_newest_events_in_view(
     assert any("base stopped: node 1 fault" in line for line in events), text  # the newest
 
 
+def _events_of(frame: list[str]) -> list[str]:
+    at = next((i for i, line in enumerate(frame) if "─ events ─" in line), None)
+    assert at is not None, "no events panel on the screen:\n" + "\n".join(frame)
+    return frame[at:]
+
+
+def test_teleop_at_80x24_keeps_events_in_view_through_stops_and_drops_a_stale_refusal(
+        served: tuple[SimulatedBase, Path]) -> None:
+    """Issue 31 items 6 and 12: a low battery, r (refused), a fault and the e-stop at
+    80x24. The status wrapped onto three lines with the old "recover failed" beside the
+    newer stop and the events went off screen; the header did not say which bus, and the
+    e-stop's release spoke of recover() rather than the key."""
+    sim, toml = served
+    toml.write_text(toml.read_text().replace('layout = "b21"',
+                                             'layout = "b21"\nheartbeat_timeout_factor = 10.0')
+                    + "[power]\nwarn_v = 22.0\ncutoff_v = 20.0\n\n[estop]\nbit = 16\n")
+    term = Pty("teleop", "--config", str(toml), columns=80, lines=24)
+    try:
+        frame = term.wait_for_frame("RUNNING", timeout=30)
+        url = toml.read_text().split('channel = "')[1].split('"')[0]
+        assert f"base on remote {url}" in frame[0], "\n".join(frame)
+        sim.set_battery(19.0)
+        term.wait_for_frame("STOPPED: battery low", timeout=20)
+        term.keys("r")
+        frame = term.wait_for_frame("recover refused")
+        assert not any("recover failed: recover" in line for line in frame), "\n".join(frame)
+        sim.drives[1].inject_fault(0x2310)
+        sim.estop(True)
+        frame = term.wait_for_frame("STOPPED: e-stop pressed")
+        term.read(1.0)  # the events of the e-stop have all come in
+        frame = term.frame()
+        text = "\n".join(frame)
+        assert len(frame) <= 24 and max(len(line) for line in frame) <= 80, text
+        assert "recover refused" not in text, text  # it spoke of the battery stop
+        status = [i for i, line in enumerate(frame) if line.startswith("STOPPED")]
+        assert len(status) == 1 and "press r" in " ".join(frame[status[0]:status[0] + 2]), text
+        assert any("e-stop" in line for line in _events_of(frame)), text  # the newest
+        sim.estop(False)
+        frame = term.wait_for_frame("e-stop released")
+        assert any("e-stop released: press r to start the base again" in line
+                   for line in _events_of(frame)), "\n".join(frame)
+        assert "recover()" not in "\n".join(frame)
+        term.keys("\x1b")
+        assert term.exit_code() == 0
+    finally:
+        term.close()
+
+
 # ---------------------------------------------------------------- 9: --record formats
 
 
@@ -656,7 +704,8 @@ def test_plot_of_a_closed_path_shows_start_end_and_what_the_marks_mean(square_re
     assert start.get_zorder() > end.get_zorder()
     assert start.get_markersize() > end.get_markersize() and start.get_markerfacecolor() == "none"
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert "ground truth end" in labels and "heading at the start and the end" in labels
+    assert "ground truth end" in labels and "heading at the start" in labels
+    assert "heading at the end" in labels
 
 
 def test_plot_state_chart_ends_in_the_state_the_summary_names(square_replay) -> None:  # type: ignore[no-untyped-def]
@@ -770,3 +819,154 @@ def test_readme_has_a_first_power_on_checklist() -> None:
                  "Ctrl-C", "wheel", "0.05 m/s = target"):
         assert step in section, step
 
+
+
+# ---------------------------------------------------------------- issue 31 item 20
+
+
+def _driving_client(port: int, sim) -> subprocess.Popen[str]:  # type: ignore[no-untyped-def]
+    """``omnican drive`` in a process of its own, on ``sim``'s hub, once the base moves."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "omnican", "drive", "-i", "remote", "-c",
+         f"ws://127.0.0.1:{port}/", "--vx", "0.1", "--duration", "120"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    start, end = sim.true_x(), time.monotonic() + 60
+    while sim.true_x() <= start + 0.005 and proc.poll() is None and time.monotonic() < end:
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.communicate()
+    return proc
+
+
+def test_sim_ends_a_killed_client_quietly(sim_port: int) -> None:
+    """kill -9 of a client made `omnican sim` print 52 lines and three chained tracebacks."""
+    from .test_faults_process import SimProcess
+
+    sim = SimProcess(sim_port)
+    client = _driving_client(sim_port, sim)
+    client.kill()
+    client.communicate(timeout=10)
+    time.sleep(1.0)  # the hub notices the reset connection
+    assert sim.command("pose").startswith("true pose")  # the simulator runs on
+    _, err = sim.proc.communicate("quit\n", timeout=30)
+    sim.proc.stdout = sim.proc.stderr = sim.proc.stdin = None
+    assert "Traceback" not in err and "Error" not in err, err
+    assert err.strip() == "", err
+
+
+def test_drive_says_a_stop_once_and_that_the_simulator_went_away(sim_port: int) -> None:
+    """drive printed each stop reason twice (a warning and the error); after the simulator
+    was SIGTERMed it blamed node 1's heartbeat rather than the bus that went away."""
+    from .test_faults_process import SimProcess
+
+    sim = SimProcess(sim_port)
+    client = _driving_client(sim_port, sim)
+    sim.command("fault 2")
+    _, err = client.communicate(timeout=60)
+    assert client.returncode == 1, err
+    said = [line for line in err.splitlines() if "base stopped: node 2 fault" in line]
+    assert len(said) == 1 and said[0].startswith("omnican: error:"), err
+
+    client = _driving_client(sim_port, sim)  # a new run recovers the drives
+    sim.proc.terminate()
+    _, err = client.communicate(timeout=60)
+    assert client.returncode == 1, err
+    assert "base stopped: CAN bus down" in err and "heartbeat lost" not in err, err
+    assert len([line for line in err.splitlines() if "base stopped" in line]) == 1, err
+
+
+# ---------------------------------------------------------------- issue 31 item 11
+
+
+def test_sim_telemetry_queues_frames_only_while_a_front_end_watches(channel: str) -> None:
+    """`omnican sim --foxglove` with no app attached queued every frame its drives heard,
+    and on quit said "telemetry dropped ... frames (a front end fell behind)"."""
+    import threading
+
+    import can
+
+    from omnican.telemetry.messages import CAN_RX
+
+    from .helpers import sim_config
+
+    class Probe(can.Listener):  # the notifier calls its listeners in turn, this one last
+        def __init__(self) -> None:
+            self.seen = 0
+            self.got = threading.Event()
+
+        def on_message_received(self, msg: can.Message) -> None:
+            if msg.arbitration_id == 0x5AA:
+                self.seen += 1
+                if self.seen % 20 == 0:
+                    self.got.set()
+
+    class Watcher:
+        def __init__(self) -> None:
+            self.frames = threading.Event()
+
+        def wants(self, topic: str) -> bool:
+            return True
+
+        def publish(self, messages: list) -> None:  # type: ignore[type-arg]
+            if any(msg.topic == CAN_RX for msg in messages):
+                self.frames.set()
+
+    cfg = sim_config(channel)
+    probe = Probe()
+    with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
+            can.Bus(interface="virtual", channel=channel) as other:
+        assert sim.network.notifier is not None
+        sim.network.notifier.add_listener(probe)
+        for _ in range(20):
+            other.send(can.Message(arbitration_id=0x5AA, data=b"\x01", is_extended_id=False))
+        assert probe.got.wait(10)
+        assert not [f for f in feed.frames.queue if f[1] == 0x5AA]  # no one to take them
+        watcher = Watcher()
+        feed.add(watcher)
+        probe.got.clear()
+        for _ in range(20):
+            other.send(can.Message(arbitration_id=0x5AA, data=b"\x02", is_extended_id=False))
+        assert probe.got.wait(10)
+        assert watcher.frames.wait(10)  # a front end still gets the frames
+        feed.remove(watcher)
+        sim.network.notifier.remove_listener(probe)
+    assert feed.frames.dropped == 0
+
+
+@pytest.mark.parametrize("speed", ["1e9", "-21", "20.5"])
+def test_the_console_refuses_a_push_no_wheel_reaches(channel: str, speed: str) -> None:
+    """`push 1 1e9` was accepted, and the dashboard then showed theta 193551 rad."""
+    from omnican.sim.console import command
+
+    from .helpers import sim_config
+
+    with SimulatedBase.from_config(sim_config(channel)) as sim:
+        reply = command(sim, f"push 1 {speed}") or ""
+        assert reply.startswith("error: push takes -20 to 20 m/s at the rim"), reply
+        assert sim.drives[0].axes[0].pushed_counts_s is None
+        assert command(sim, "push 1 -20") == "node 1: pushed at -20 m/s"
+
+
+def test_sim_console_prompts_a_person_at_a_terminal() -> None:
+    term = Pty("sim", "--serve", "127.0.0.1:0")
+    try:
+        term.wait_for("type a command here")
+        term.read(0.5)
+        assert term.read(0.1).rstrip("\r\n").endswith("> "), term.read(0.1)[-300:]
+        term.keys("pose\n")
+        term.wait_for("true pose")
+        term.read(0.3)
+        assert term.read(0.1).endswith("true pose x=0.0000 y=0.0000 theta=0.0000\r\n> ")
+        term.keys("quit\n")
+        assert term.exit_code(timeout=30) == 0
+    finally:
+        term.close()
+
+
+def test_ros2_help_lists_every_console_command_and_battery_state() -> None:
+    from omnican.sim.console import COMMANDS
+
+    code, out, _ = run_main(["ros2", "--help"])
+    assert code == 0
+    for syntax, _ in COMMANDS:
+        assert syntax in out, (syntax, out)
+    assert "recover" in out and "battery_state" in out

@@ -92,7 +92,8 @@ def check_file(path: str, bitrate_arg: int | None) -> int:
         return EXIT_USAGE
     c = cfg.chassis
     kin = cfg.kinematics()
-    print(f"{cfg.source}: OK")
+    too_high = bus_load_problem(cfg, layouts, bitrate_arg)
+    print(f"{cfg.source}: {'FAILED: ' + too_high if too_high else 'OK'}")
     print(f"  base: {len(cfg.wheels)} wheels at {list(kin.angles_deg)} deg, radius "
           f"{', '.join(f'{r:g}' for r in sorted(set(kin.base_radius)))} m; loop {c.rate_hz:g} Hz, "
           f"watchdog {c.cmd_timeout_s:g} s")
@@ -102,8 +103,7 @@ def check_file(path: str, bitrate_arg: int | None) -> int:
         wheels = ", ".join(f"wheel {a.wheel_index} (axis {a.wheel.axis})" for a in layout.axes)
         print(f"  node {layout.node_id}: {layout.eds.name}, mode {layout.mode.short}, {wheels}")
         if not layout.has_consumer:
-            print("    warning: no heartbeat consumer (1016h): this drive will not stop by "
-                  "itself if the host dies")
+            print(f"    {host_loss_line(layout)}")
         for line in layout.plan.describe():
             print(f"    {line}")
         refused = layout.refused_plan
@@ -143,6 +143,57 @@ def check_file(path: str, bitrate_arg: int | None) -> int:
         print(f"  if the drives refuse what their EDS marks not PDO-mappable: {worst} worst-case "
               "bits per cycle; " + _fits(worst, hb, c.rate_hz, bitrates))
     return EXIT_OK
+
+
+def bus_load_problem(cfg: ChassisConfig, layouts: list[NodeLayout],
+                     bitrate_arg: int | None) -> str | None:
+    """The bus load's verdict ahead of the details, for the file's first line: it said
+    "OK" and then, lines later, "bus load 518 % TOO HIGH" (exit 2). None: it fits, or
+    no bitrate is known (a bitrate that is no number is reported where it is read)."""
+    from omnican.layout import cycle_bits, heartbeat_bits_per_s
+
+    bitrate = bitrate_arg or (cfg.bus or {}).get("bitrate")
+    try:
+        rate = float(bitrate) if bitrate and not isinstance(bitrate, bool) else 0.0
+    except (TypeError, ValueError):
+        return None
+    if not (math.isfinite(rate) and rate > 0):
+        return None
+    c = cfg.chassis
+    per_s = (cycle_bits(layout.plan for layout in layouts) * c.rate_hz
+             + heartbeat_bits_per_s(cfg)
+             + sum(layout.health.bits_per_s(c.rate_hz) for layout in layouts))
+    load = per_s / rate
+    if load <= 0.8:
+        return None
+    return f"bus load {load:.0%} at {rate / 1000:g} kbit/s (above 80 %)"
+
+
+#: Vendor objects that stop a drive once the bus falls silent, by the EDS's product name
+#: and (index, subindex): what the drive does instead of consuming the host's heartbeat.
+COMMUNICATION_WATCHDOGS: dict[tuple[str, int, int], str] = {
+    # ZLTECH ZLAC8015D: "Offline Communication Parameter", ms without frames; 0 = off
+    ("ZLAC8015", 0x2000, 0): "ms",
+}
+
+
+def host_loss_line(layout: NodeLayout) -> str:
+    """What a drive without a heartbeat consumer (1016h) does if the host dies: nothing
+    (a warning), or stop on its own CAN watchdog where the config sets one."""
+    product = (layout.dictionary.device_information.product_name or "").strip()
+    for write in layout.settings_writes:
+        unit = COMMUNICATION_WATCHDOGS.get((product, write.entry.index, write.entry.subindex))
+        if unit is None:
+            continue
+        if write.value > 0:
+            return (f"no heartbeat consumer (1016h); its CAN watchdog {write.entry.name} "
+                    f"({write.entry.address}) = {write.value} {unit} stops it when the bus "
+                    "falls silent (as when the host dies)")
+        return (f"warning: no heartbeat consumer (1016h), and its CAN watchdog "
+                f"{write.entry.name} ({write.entry.address}) is 0 (off): this drive will not "
+                "stop by itself if the host dies")
+    return ("warning: no heartbeat consumer (1016h): this drive will not stop by itself if "
+            "the host dies")
 
 
 def health_lines(layout: NodeLayout) -> list[str]:

@@ -229,11 +229,21 @@ def check_front_ends(cfg: ChassisConfig) -> ChassisConfig:
         from omnican.ros2.settings import from_table
 
         from_table(cfg.ros2, origin)
+        check_joint_names(cfg, origin)
     if cfg.foxglove is not None:
         from omnican.live.settings import resolve
 
         resolve(cfg.foxglove, None, origin=origin, check_sdk=False)
     return cfg
+
+
+def check_joint_names(cfg: ChassisConfig, origin: str) -> None:
+    """[ros2] joint_names: one per wheel (the telemetry every command builds refuses
+    others; check-config passed them)."""
+    names = (cfg.ros2 or {}).get("joint_names")
+    if names is not None and len(names) != len(cfg.wheels):
+        raise ConfigError(f"{origin}: ros2.joint_names: {len(names)} names for "
+                          f"{len(cfg.wheels)} wheels (one per [[wheel]], in order)")
 
 
 FOXGLOVE_CONTROL_HELP = (
@@ -442,6 +452,10 @@ def serve_lines(handle: Callable[[str], str | None], duration: float | None) -> 
     ends or Ctrl-C; stdin closing (e.g. < /dev/null) keeps it running."""
     end = time.monotonic() + duration if duration else None
     stdin_open = not sys.stdin.closed
+    # A prompt for a person at a terminal (a script piping commands reads replies only).
+    prompt = "> " if stdin_open and sys.stdin.isatty() else ""
+    if prompt:
+        print(prompt, end="", flush=True)
     try:
         while end is None or time.monotonic() < end:
             timeout = 0.2 if end is None else max(0.0, min(0.2, end - time.monotonic()))
@@ -460,5 +474,7 @@ def serve_lines(handle: Callable[[str], str | None], duration: float | None) -> 
                 break
             if reply:
                 print(reply, flush=True)
+            if prompt:
+                print(prompt, end="", flush=True)
     except KeyboardInterrupt:
         pass

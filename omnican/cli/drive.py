@@ -14,14 +14,17 @@ services, parameters), then prints the same.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import logging
 import math
 import sys
+from collections.abc import Iterator
 from dataclasses import asdict
 from typing import Any
 
 from omnican import motion
-from omnican.chassis import Chassis
+from omnican.chassis import Chassis, supervisor
 from omnican.cli.common import (
     EXIT_FAILURE,
     EXIT_OK,
@@ -128,7 +131,8 @@ def legs(args: argparse.Namespace) -> list[Leg] | None:
 
 def execute(base: Chassis, plan: list[Leg]) -> motion.MotionResult:
     """Run the plan with a progress bar on a terminal."""
-    with progress_bar(motion.nominal_duration(plan)) as bar:
+    c = base.cfg.chassis
+    with progress_bar(motion.nominal_duration(plan, c.max_accel, c.max_angular_accel)) as bar:
         return motion.run(base, plan, bar)
 
 
@@ -198,8 +202,39 @@ def wheels_json(wheels: Any) -> list[dict[str, Any]]:
              else None} for w in wheels]
 
 
+class _StopSaidOnce(logging.Filter):
+    """The library warns "base stopped: <reason>" when a stop latches, and drive ends
+    such a run with an error naming the same stop: held back here so that each stop is
+    said once. A stop the error does not name (the run ended otherwise) is said on exit."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.held: list[logging.LogRecord] = []
+        self.said = False
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage().startswith("base stopped: "):
+            self.held.append(record)
+            return False
+        return True
+
+
+@contextlib.contextmanager
+def _stop_said_once() -> Iterator[_StopSaidOnce]:
+    logger = supervisor.logger  # the one that says a stop latched
+    hold = _StopSaidOnce()
+    logger.addFilter(hold)
+    try:
+        yield hold
+    finally:
+        logger.removeFilter(hold)
+        if not hold.said:
+            for record in hold.held:
+                logger.handle(record)
+
+
 def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]) -> int:
-    with session(args) as s:
+    with session(args) as s, _stop_said_once() as stops:
         fox = foxglove_settings(args, s.cfg)
         control = fox is not None and fox.control
         if given is None and not control:
@@ -224,6 +259,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
                 result = execute(base, plan) if plan else take_commands(base, args.duration)
             except motion.BaseStoppedError as exc:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
+                stops.said = True
                 if args.json:
                     seen["pose"] = pose_dict(base.pose)
                     seen["wheels"] = wheels_json(base.wheels)

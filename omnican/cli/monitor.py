@@ -3,9 +3,10 @@
 One row per CAN id seen: frame count, rate (frames/s over the last second), and the
 last frame's signals, decoded with the DBC (--dbc; default: one built from --config
 for that robot's drives, else the bundled omnican.dbc, which describes the demo base,
-nodes 1-3) or shown as raw hex for ids it does not describe. Below the table, the
-bus load: worst-case bits per second (bit stuffing included) and, when the bitrate
-is known ([bus] bitrate or -b), its share of it.
+nodes 1-3) or shown as raw hex for ids it does not describe. With the table (above
+it in a terminal, below it in plain text), the bus load: worst-case bits per second
+(bit stuffing included) and, when the bitrate is known ([bus] bitrate or -b), its
+share of it.
 
 The monitor only listens. Under --sim nothing else would be on the virtual bus,
 so it also opens the simulated base and drives it slowly in a circle, to have
@@ -104,25 +105,49 @@ def plain_table(snap: TrafficSnapshot, title: str, no_bitrate: str) -> str:
     return "\n".join(out)
 
 
-def rich_table(snap: TrafficSnapshot, title: str, no_bitrate: str) -> Any:
+# Lines of the screen besides the rows: the title, two of bus load, the table's top
+# border, header and rule, its bottom border, and the line that counts rows left out.
+_FRAME_LINES = 8
+
+
+def rich_table(snap: TrafficSnapshot, title: str, no_bitrate: str,
+               height: int | None = None, width: int | None = None) -> Any:
+    """The title, the bus load (the headline, above the table: a table taller than the
+    screen hid it until exit) and one line per id, as many as fit ``height`` lines."""
+    from rich.console import Group
     from rich.table import Table
     from rich.text import Text
 
-    caption = Text("\n".join(load_lines(snap, no_bitrate)))
-    table = Table(title=Text(title, style="bold"), caption=caption, title_justify="left",
-                  caption_justify="left")
-    table.add_column(HEADERS[0], style="bold", no_wrap=True)
-    table.add_column(HEADERS[1], no_wrap=True)
-    table.add_column(HEADERS[2], justify="right", no_wrap=True)
-    table.add_column(HEADERS[3], justify="right", no_wrap=True)
-    table.add_column(HEADERS[4], overflow="fold")
-    for r in snap.rows:
+    table = Table()
+    rows = snap.rows
+    # The short columns keep their widths; the signals give way (one line a row).
+    widths = [max([len(HEADERS[0])] + [len(r.id_text) for r in rows]),
+              min(22, max([len(HEADERS[1])] + [len(r.name or "?") for r in rows])),
+              max([len(HEADERS[2])] + [len(str(r.count)) for r in rows]),
+              max([len(HEADERS[3])] + [len(f"{r.rate:.1f}") for r in rows])]
+    table.add_column(HEADERS[0], style="bold", no_wrap=True, width=widths[0])
+    table.add_column(HEADERS[1], no_wrap=True, overflow="ellipsis", width=widths[1])
+    table.add_column(HEADERS[2], justify="right", no_wrap=True, width=widths[2])
+    table.add_column(HEADERS[3], justify="right", no_wrap=True, width=widths[3])
+    # 6 borders and a space either side of each of the 5 columns
+    signals_width = None if width is None else max(10, width - sum(widths) - 16)
+    table.add_column(HEADERS[4], no_wrap=True, overflow="ellipsis", width=signals_width)
+    room = len(rows) if height is None else max(1, height - _FRAME_LINES)
+    shown = rows if len(rows) <= room else rows[:room]
+    for r in shown:
         style = "" if r.known else "dim"
         table.add_row(r.id_text, Text(r.name or "?", style="cyan" if r.known else "dim"),
                       str(r.count), f"{r.rate:.1f}", Text(r.signals, style=style))
-    if not snap.rows:
+    if not rows:
         table.add_row("", Text("(no frames seen)", style="dim"), "", "", "")
-    return table
+    parts: list[Any] = [Text(title, style="bold", no_wrap=True, overflow="ellipsis")]
+    parts += [Text(line, no_wrap=True, overflow="ellipsis") for line in load_lines(snap,
+                                                                                   no_bitrate)]
+    parts.append(table)
+    if len(shown) < len(rows):
+        parts.append(Text(f"... {len(rows) - len(shown)} more ids (a taller terminal shows "
+                          "them)", style="dim"))
+    return Group(*parts)
 
 
 class _Display:
@@ -157,8 +182,9 @@ class _Display:
 
     def show(self, snap: TrafficSnapshot, final: bool = False) -> None:
         if self._live is not None:
-            self._live.update(rich_table(snap, self.title(snap, final), self.no_bitrate),
-                              refresh=True)
+            self._live.update(rich_table(snap, self.title(snap, final), self.no_bitrate,
+                                         self._live.console.height,
+                                         self._live.console.width), refresh=True)
         elif not self.tty:
             print(plain_table(snap, self.title(snap, final), self.no_bitrate) + "\n", flush=True)
 

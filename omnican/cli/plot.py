@@ -167,12 +167,13 @@ def build_figure(rep: replay.Replay, title: str,
         span = max(float(poses[:, 0].max() - poses[:, 0].min()),
                    float(poses[:, 1].max() - poses[:, 1].min()), 0.05)
         arrow = 0.08 * span  # heading arrows at the start and the end
-        for k, colour in ((0, "green"), (len(poses) - 1, "red")):
+        for k, colour, when in ((0, "green", "start"), (len(poses) - 1, "red", "end")):
             x, y, th = poses[k]
             ax.annotate("", xy=(x + arrow * math.cos(th), y + arrow * math.sin(th)), xytext=(x, y),
                         arrowprops={"arrowstyle": "->", "color": colour, "lw": 1.5})
-        ax.plot([], [], marker=r"$\rightarrow$", ms=12, color="grey", ls="none",
-                label="heading at the start and the end")
+            # in the legend as drawn: the start's arrow green, the end's red
+            ax.plot([], [], marker=r"$\rightarrow$", ms=12, color=colour, ls="none",
+                    label=f"heading at the {when}")
     else:
         ax.text(0.5, 0.5, "no complete position samples", transform=ax.transAxes,
                 ha="center", va="center")
@@ -217,8 +218,10 @@ def build_figure(rep: replay.Replay, title: str,
         hax = fig.add_subplot(grid[n + k, 1], sharex=first)
         for i, (times, values) in enumerate(rep.health[quantity]):
             if len(times):
-                hax.plot(times, values, lw=1.1, color=f"C{i}", label=f"wheel {i}",
-                         drawstyle="steps-post")
+                # Each wheel narrower than the one before and drawn over it: wheels that
+                # report the same values (one DC link) show as bands, not one hiding another.
+                hax.plot(times, values, lw=overlap_width(i, n), color=f"C{i}",
+                         label=f"wheel {i}", drawstyle="steps-post", zorder=2 + i * 0.01)
         title, unit = HEALTH_PANELS[quantity]
         hax.set_ylabel(unit, fontsize=9)
         hax.set_title(title, loc="left")
@@ -263,6 +266,11 @@ def build_figure(rep: replay.Replay, title: str,
                    fontsize=8, frameon=False)
     sax.set_xlim(0.0, end)
     return fig
+
+
+def overlap_width(i: int, n: int, narrowest: float = 1.1, step: float = 1.6) -> float:
+    """Line width of wheel ``i`` of ``n`` in a panel where their lines may coincide."""
+    return narrowest + step * (n - 1 - i)
 
 
 def time_axis_end(duration: float) -> float:
@@ -350,11 +358,25 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
           Chassis.open(s.cfg, record=record, clock=s.clock) as base,
           _sample_truth(s.sim) as truth):
         try:
-            with progress_bar(motion.nominal_duration(plan)) as bar:
+            c = s.cfg.chassis
+            with progress_bar(motion.nominal_duration(plan, c.max_accel,
+                                                      c.max_angular_accel)) as bar:
                 motion.run(base, plan, bar)
         except motion.BaseStoppedError as exc:
             print(f"omnican: warning: base stopped: {exc}", file=sys.stderr)
     return replay.load(record, s.cfg), truth
+
+
+def config_mismatch(rep: replay.Replay, cfg: Any) -> str | None:
+    """Why ``rep`` cannot be of the base ``cfg`` describes, or None: a configured node
+    never heard from while no SYNC had every wheel's position (a ZLAC recording read
+    with the demo config decoded a 157,000 V DC link and drew no trajectory)."""
+    missing = sorted(set(cfg.nodes()) - rep.nodes_heard)
+    if not missing or rep.complete_syncs:
+        return None
+    nodes = ", ".join(str(n) for n in missing)
+    return (f"node{'s' if len(missing) > 1 else ''} {nodes} of the config sent no frame, and "
+            f"none of its {rep.syncs} SYNCs has every wheel's position")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -383,6 +405,10 @@ def run(args: argparse.Namespace) -> int:
             nodes = ", ".join(str(n) for n in sorted(cfg.nodes()))
             raise UsageError(f"{args.recording}: no frames of nodes {nodes} (recorded on another "
                              "base? give its --config)")
+        mismatch = config_mismatch(rep, cfg)
+        if mismatch:
+            raise UsageError(f"{args.recording}: the recording does not match the config: "
+                             f"{mismatch} (recorded on another base? give its --config)")
         name = Path(args.recording).name
     fig = build_figure(rep, args.title or f"omnican: {name}", truth)
     try:

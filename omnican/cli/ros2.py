@@ -2,18 +2,9 @@
 
 Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped; one publisher drives at a
 time, the newest of its samples taken up to 100 times a second); publishes odom
-(nav_msgs/Odometry), tf (odom -> base_link), joint_states and diagnostics; an
-std_msgs/Empty on ~/recover clears a latched stop. Needs cyclonedds (the ros2 extra).
-
-Lines on stdin while it runs:
-
-    recover             clear a latched stop (as ~/recover does)
-    quit
-  under --sim also:
-    fault NODE [CODE]   EMCY + FAULT (default 0x2310 over-current)
-    reboot NODE         boot-up, defaults restored, position counter reset
-    heartbeat NODE off|on
-    pose                print the ground-truth pose
+(nav_msgs/Odometry), tf (odom -> base_link), joint_states, diagnostics and
+battery_state (sensor_msgs/BatteryState); an std_msgs/Empty on ~/recover clears a
+latched stop. Needs cyclonedds (the ros2 extra).
 """
 
 from __future__ import annotations
@@ -40,9 +31,22 @@ from omnican.errors import ConfigError
 from omnican.live import prepare, watch
 
 
+def stdin_help() -> str:
+    """The lines ros2 takes on stdin: its own, and under --sim every one of omnican sim's
+    (made from the console's own list, so that the two never differ)."""
+    from omnican.sim.console import commands_help
+
+    sim = "\n".join(f"    {line}" for line in commands_help().splitlines()
+                    if not line.startswith("quit"))
+    return ("Lines on stdin while it runs:\n\n"
+            "    recover  clear a latched stop (as ~/recover does)\n"
+            "    quit\n"
+            f"  under --sim also (as in omnican sim):\n{sim}\n")
+
+
 def add_subparser(sub: Any) -> None:
     p = sub.add_parser("ros2", help="run the base as a ROS 2 node (DDS; no ROS install)",
-                       description=__doc__,
+                       description=f"{__doc__}\n{stdin_help()}",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     node = p.add_argument_group("ROS 2 (override [ros2] of the config)")
     node.add_argument("--namespace", metavar="NS", help="node namespace, e.g. /robot1")

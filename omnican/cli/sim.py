@@ -115,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
                   flush=True)
             with watch(None, sim, args.foxglove, announce=lambda t: print(t, flush=True)):
                 serve(sim, args.duration)
+            if hub is not None:  # its clients see the bus go before the drives go quiet
+                hub.close()
     finally:
         if hub is not None:
             hub.close()

@@ -17,12 +17,14 @@ import io
 import logging
 import math
 import os
+import re
 import select
+import signal
 import sys
 import termios
 import time
 import tty
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from rich.console import Console, Group, RenderableType
@@ -90,6 +92,13 @@ def beyond_limits(speed: float, turn: float, keys: TeleopModel) -> list[str]:
     return out
 
 
+def bus_name(bus: Any) -> str:
+    """The bus as the header names it: ``remote ws://127.0.0.1:54701/``, ``socketcan can0``."""
+    if not bus:
+        return "python-can's configured bus"
+    return " ".join(str(bus[k]) for k in ("interface", "channel") if bus.get(k) is not None)
+
+
 def read_keys(fd: int, timeout: float) -> list[str]:
     """Keys typed within ``timeout`` s; arrow keys become i , l j; a lone Esc is Esc."""
     ready, _, _ = select.select([fd], [], [], timeout)
@@ -116,14 +125,36 @@ def read_keys(fd: int, timeout: float) -> list[str]:
 
 
 @contextlib.contextmanager
-def cbreak(fd: int) -> Iterator[None]:
-    """Keys without Enter and without echo; Ctrl-C still interrupts."""
+def cbreak(fd: int, on_suspend: Callable[[], None] | None = None) -> Iterator[None]:
+    """Keys without Enter and without echo; Ctrl-C still interrupts. Ctrl-Z does not
+    suspend (``on_suspend`` is told): stopped, teleop would leave the drives without the
+    host's heartbeat and come back to a terminal the shell had reset, deaf to its keys.
+    A SIGCONT (after a SIGSTOP from elsewhere) puts the keys back without Enter."""
     old = termios.tcgetattr(fd)
+
+    def suspend(signum: int, frame: Any) -> None:
+        if on_suspend is not None:
+            on_suspend()
+
+    def resumed(signum: int, frame: Any) -> None:
+        with contextlib.suppress(termios.error, OSError):
+            if os.tcgetpgrp(fd) == os.getpgrp():  # in the foreground: it owns the terminal
+                tty.setcbreak(fd)
+
+    saved = {signal.SIGTSTP: signal.signal(signal.SIGTSTP, suspend),
+             signal.SIGCONT: signal.signal(signal.SIGCONT, resumed)}
     try:
         tty.setcbreak(fd)
         yield
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+
+
+# The library names its call ("e-stop released: recover() starts the base again"); here
+# the user's move is a key.
+API_TO_KEYS = re.compile(r"recover\(\) starts( |$)")
 
 
 class _Events(logging.Handler):
@@ -134,7 +165,11 @@ class _Events(logging.Handler):
         self.lines: collections.deque[str] = collections.deque(maxlen=5)
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.lines.append(f"{time.strftime('%H:%M:%S')} {record.getMessage()}")
+        text = API_TO_KEYS.sub(r"press r to start\1", record.getMessage())
+        self.say(text)
+
+    def say(self, text: str) -> None:
+        self.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
 
 
 @contextlib.contextmanager
@@ -153,6 +188,9 @@ def logs_into(handler: logging.Handler) -> Iterator[None]:
         root.handlers = saved
         ours.setLevel(saved_level)
 
+
+SUSPEND_REFUSED = ("Ctrl-Z: teleop does not suspend (the drives would lose this host's "
+                   "heartbeat); Esc quits")
 
 # The key help under the dashboard, in phrases that are never broken across lines.
 HELP_PHRASES = ("u i o / j k l / m , .  move", "Shift: strafe", "q/z w/x e/c: speeds",
@@ -298,8 +336,6 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
         status = Text("RUNNING", style="bold green")
     else:
         status = Text("starting...", style="yellow")
-    if note:
-        status.append(f"   {note}", style="yellow")
     settings = Text(wrap_phrases([f"speed {keys.speed:.2f} m/s", f"turn {keys.turn:.2f} rad/s",
                                   f"key timeout {keys.timeout_s:g} s",
                                   f"last key {keys.last_input!r}"], width, 3))
@@ -310,12 +346,21 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     body: list[RenderableType] = [header, grid,
                                   Panel(wheel_panel, title=f"wheels ({WHEEL_UNITS})",
                                         title_align="left"),
-                                  status, settings, help_text]
-    if st.warnings:
-        body.append(Text("\n".join(st.warnings), style="yellow"))
+                                  status]
+    # A note and each warning on one line of its own, cut rather than wrapped: beside
+    # the stop reason they wrapped it onto three lines and pushed the events off screen.
+    if note:
+        body.append(Text(note, style="yellow", no_wrap=True, overflow="ellipsis"))
+    body += [settings, help_text]
+    body += [Text(w, style="yellow", no_wrap=True, overflow="ellipsis") for w in st.warnings]
     if events.lines:
         lines = list(events.lines)
         if height is not None:  # the newest events that fit below the rest (2: the frame)
+            # The key help (in --help too) and the speeds give way before the newest event.
+            for spare in (help_text, settings):
+                if height - _height(body, width) - 2 >= 1:
+                    break
+                body.remove(spare)
             room = max(1, height - _height(body, width) - 2)
             lines = lines[-room:]
         body.append(Panel(Text("\n".join(lines), no_wrap=True, overflow="ellipsis"),
@@ -348,10 +393,13 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
     ``arbiter`` (Foxglove may drive too) the keys command only while they move the base
     and no one else drives; a stop key stops the base whoever drives."""
     note = ""
+    note_stop: str | None = None  # the stop a failed recover's note speaks of
     source = "the gamepad" if pad is not None else "the terminal's keys"
     held = False
     while not keys.quit_requested:
         now = time.monotonic()
+        if note_stop is not None and base.status.stopped_reason != note_stop:
+            note, note_stop = "", None  # a newer stop (or none): the old refusal is stale
         for key in read_keys(fd, LOOP_S if pad is None else LOOP_S / 2):
             stop = keys.press(key, now).intent is Intent.STOP
             if note.startswith("stopped "):
@@ -370,7 +418,9 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
                     base.recover()
                     note = ""
             except OmnicanError as exc:
-                note = f"recover failed: {exc}"
+                said = str(exc)
+                note = said if said.startswith("recover") else f"recover failed: {said}"
+                note_stop = base.status.stopped_reason
         if pad is not None:  # the pad moves; the keys still quit, recover and scale
             command = pad_command(pad, keys, LOOP_S / 2)
             shown = note or pad.status_text()
@@ -412,7 +462,7 @@ def run(args: argparse.Namespace) -> int:
             for line in beyond_limits(args.speed, args.turn, keys):
                 print(f"omnican: warning: {line}", file=sys.stderr, flush=True)
                 events.lines.append(f"{time.strftime('%H:%M:%S')} warning: {line}")
-        where = "simulated base" if s.sim else "base"
+        where = "simulated base" if s.sim else f"base on {bus_name(s.cfg.bus)}"
         nodes = ", ".join(str(n) for n in s.cfg.nodes())
         title = f"omnican teleop - {where}, nodes {nodes}"
         if pad is not None:
@@ -430,8 +480,8 @@ def run(args: argparse.Namespace) -> int:
 
         with Chassis.open(s.cfg, record=args.record) as base, \
                 watch(base, s.sim, fox, announce=announce, arbiter=arbiter) as view, \
-                cbreak(fd), logs_into(events), Live(console=console, screen=True,
-                                                    auto_refresh=False, transient=True) as live:
+                cbreak(fd, lambda: events.say(SUSPEND_REFUSED)), logs_into(events), \
+                Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
             if view is not None:
                 title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
             try:

@@ -273,15 +273,25 @@ class SimulatedBase:
 
         self.scheduler.add(tick)
         notifier = self.network.notifier
-        if notifier is not None:
-            notifier.add_listener(feed.frames)
+
+        def frames_while_watched(active: bool) -> None:
+            # Frames queue only while a front end takes them: with none attached they
+            # filled the queue and, on quit, read as one that fell behind.
+            if notifier is None:
+                return
+            if active:
+                notifier.add_listener(feed.frames)
+            else:
+                with contextlib.suppress(ValueError):
+                    notifier.remove_listener(feed.frames)
+                feed.frames.queue.clear()
+
+        feed.on_active = frames_while_watched
         try:
             yield feed
         finally:
             self.scheduler.remove(tick)
-            if notifier is not None:
-                with contextlib.suppress(ValueError):
-                    notifier.remove_listener(feed.frames)
+            frames_while_watched(False)
             feed.close()
 
     # ------------------------------------------------------------ lifecycle

@@ -34,6 +34,8 @@ COMMANDS = (
     ("help", "list the commands"),
     ("quit", "stop the simulator"),
 )
+#: the fastest push: far beyond any wheel of a base, short of a meaningless pose
+PUSH_LIMIT_M_S = 20.0
 _NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw")
 _WHEEL_VERBS = ("jam", "push", "free", "lift", "land", "ferror")
 
@@ -104,6 +106,9 @@ def _wheel_command(sim: SimulatedBase, verb: str, rest: list[str]) -> str:
         return f"{name}: {said}"
     if verb == "push":
         speed = _number(rest[1], "m/s at the rim")
+        if abs(speed) > PUSH_LIMIT_M_S:  # 1e9 m/s made the pose a meaningless 193551 rad
+            raise ValueError(f"push takes -{PUSH_LIMIT_M_S:g} to {PUSH_LIMIT_M_S:g} m/s at "
+                             f"the rim, got {rest[1]!r}")
         drive.push(speed, axis)
         return f"{name}: pushed at {speed:g} m/s"
     if rest[1].lower() == "off":
