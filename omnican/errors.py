@@ -56,4 +56,13 @@ def _container_repr(value: object, limit: int) -> str:
     r = reprlib.Repr()
     r.maxlevel, r.maxstring, r.maxother = 2, limit, limit
     r.maxlist = r.maxtuple = r.maxdict = r.maxset = r.maxfrozenset = max(1, limit // 2)
-    return r.repr(value)
+    if not isinstance(value, dict):
+        return r.repr(value)
+    # reprlib sorts a dict's keys; a client's dict is quoted in the order it was sent.
+    items = []
+    for i, (key, item) in enumerate(value.items()):
+        if i == r.maxdict:
+            items.append("...")
+            break
+        items.append(f"{r.repr(key)}: {r.repr(item)}")
+    return "{" + ", ".join(items) + "}"
