@@ -73,11 +73,16 @@ class Key:
         """The range as an error message says it: "0.001-60", "-720 to 720"."""
         if self.range is None:
             return "a finite number"
-        lo, hi = self.range
-        text = f"{lo:g}-{hi:g}" if lo >= 0 else f"{lo:g} to {hi:g}"
+        lo, hi = (_bound_text(x) for x in self.range)
+        text = f"{lo}-{hi}" if self.range[0] >= 0 else f"{lo} to {hi}"
         if self.signed:
-            text = f"{lo:g} to {hi:g} in magnitude (either sign)"
+            text = f"{lo} to {hi} in magnitude (either sign)"
         return text + (" or inf" if self.inf_ok else "")
+
+
+def _bound_text(x: float) -> str:
+    """A range's bound as people write it: 1000000, not 1e+06; 1e+12 stays."""
+    return str(int(x)) if x == int(x) and abs(x) < 1e7 else f"{x:g}"
 
 
 def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float,
@@ -95,7 +100,7 @@ def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float,
 _SPEED = (0.001, MAX_SPEED_SENSE)
 _ACCEL = (0.001, MAX_ACCEL_SENSE)
 _DECEL = (0.001, 2 * MAX_ACCEL_SENSE)  # the default is twice the acceleration
-_WAIT = (0.001, 60.0)  # s
+_WAIT = (0.01, 60.0)  # s: a CAN round trip and a scheduler's tick fit the lowest
 _RATE = (0.01, 5000.0)  # Hz
 _SCALE = (1e-6, 1e12)  # units per SI unit, either sign
 _ROS_RATE = (0.01, 1000.0)  # Hz, a topic's publish rate
@@ -116,6 +121,15 @@ _UNLIMITED_OK = ("max_speed", "max_angular_speed")  # inf: no such limit
 # Tables a front end reads and checks itself (the base ignores them): [gamepad] is
 # omnican.gamepad_model's.
 FRONT_END_SECTIONS = ("gamepad",)
+
+#: The keys of the free-form [bus] table that omnican reads itself (the bus load): their
+#: type and range (CAN's nominal bitrates run from 10 kbit/s down to what some
+#: controllers allow, 1 kbit/s, up to 1 Mbit/s; a CAN FD data phase up to 12 Mbit/s).
+BUS_KEYS: dict[str, Key] = {
+    "bitrate": Key((int,), None, "bit/s of the bus (nominal)", range=(1000, 1_000_000)),
+    "data_bitrate": Key((int,), None, "bit/s of a CAN FD data phase",
+                        range=(1000, 12_000_000)),
+}
 
 # Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
 SCHEMA: dict[str, dict[str, Key]] = {
@@ -153,7 +167,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "sdo_retries": Key((int,), 3, "an SDO request unanswered within sdo_timeout_s is sent "
                            "again, up to this many times", range=(0, 20)),
         "boot_timeout_s": Key(_NUM, 2.0, "wait for a drive's boot-up after NMT reset",
-                              range=_WAIT),
+                              range=(0.1, 60.0)),
         "enable_timeout_s": Key(_NUM, 1.0, "bring a drive to OPERATION ENABLED within this",
                                 range=_WAIT),
         "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
@@ -665,6 +679,8 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")
+    if bus is not None:
+        _check_bus_numbers(r, bus)
     if "chassis" not in data:
         raise r.fail("chassis", "missing section")
     c = r.table("chassis", data["chassis"], "chassis")
@@ -783,6 +799,25 @@ def _parse_settings(r: _Reader, where: str, raw: Any) -> tuple[VendorSetting, ..
             raise r.fail(f"{where}.sdo[{k}].value", f"must be finite, got {value!r}")
         out.append(VendorSetting(t["object"], value, kind))
     return tuple(out)
+
+
+def _check_bus_numbers(r: _Reader, bus: Mapping[str, Any]) -> None:
+    """The [bus] keys of :data:`BUS_KEYS`, when given: integers within their range (the
+    rest of the table is python-can's to check)."""
+    for key, spec in BUS_KEYS.items():
+        if key not in bus:
+            continue
+        value = bus[key]
+        if isinstance(value, bool) or not isinstance(value, spec.types):
+            raise r.fail(f"bus.{key}", f"must be an integer number of bit/s, e.g. 500000, "
+                         f"got {_short(value)}")
+        r.in_range(f"bus.{key}", spec, value)
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, at most 40 characters of it."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:37]}..."
 
 
 def _check_limit(r: _Reader, key: str, value: Any) -> float:
@@ -1035,5 +1070,8 @@ def load_config(path: str | Path, check_eds: bool = True) -> ChassisConfig:
         data = tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        raise ConfigError(f"{p}: not a robot config: arrays or tables nested too deeply") \
+            from None
     cfg = parse_config(data, origin=str(p), base_dir=p.resolve().parent, check_eds=check_eds)
     return replace(cfg, source=p)
