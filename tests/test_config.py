@@ -423,8 +423,6 @@ def test_a_number_beyond_its_range_is_refused_with_the_range(
 def test_check_config_refuses_out_of_range_numbers_in_one_line(tmp_path: Path) -> None:
     """The command a user runs says the same, exit 2, and never "OK" (issue: 1e-300 and
     1e300 timeouts were accepted, then failed at run time or at close)."""
-    from omnican.cli import main
-
     for key, text, expected in (
             ("sdo_timeout_s", "1e-300", "chassis.sdo_timeout_s: must be 0.01-60, got 1e-300"),
             ("boot_timeout_s", "1e300", "chassis.boot_timeout_s: must be 0.1-60, got 1e+300"),
@@ -435,7 +433,6 @@ def test_check_config_refuses_out_of_range_numbers_in_one_line(tmp_path: Path) -
         assert proc.returncode == 2, proc
         assert proc.stdout == ""
         assert proc.stderr.strip().splitlines() == [f"omnican: error: {path}: {expected}"]
-    assert main is not None
 
 
 def _run_cli(argv: list[str]) -> Any:
@@ -443,7 +440,7 @@ def _run_cli(argv: list[str]) -> Any:
     import sys
 
     return subprocess.run([sys.executable, "-m", "omnican", *argv], capture_output=True,
-                          text=True, timeout=120)
+                          text=True, timeout=120, check=False)
 
 
 @pytest.mark.parametrize(("decel", "message"), [
@@ -468,7 +465,7 @@ def test_the_stop_floor_follows_the_speed_limits(tmp_path: Path) -> None:
     """A lower speed limit lowers the floor: a gentle stop is fine on a slow base."""
     slow = GOOD.replace("[chassis]\n", "[chassis]\nstop_decel = 0.2\nmax_speed = 0.4\n")
     assert load_config(write(tmp_path, slow)).chassis.stop_decel == 0.2
-    with pytest.raises(ConfigError, match="at least 0.25 m/s"):
+    with pytest.raises(ConfigError, match=r"at least 0\.25 m/s"):
         load_config(write(tmp_path, slow.replace("max_speed = 0.4", "max_speed = 0.5")))
 
 
