@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from omnican import Chassis, Pose2D, default_config, load_config
+from omnican import Chassis, Pose2D, Twist, default_config, load_config
 from omnican.cia402 import State
 from omnican.cli import main
 from omnican.errors import ConfigError
@@ -560,3 +560,25 @@ def test_battery_state_is_published_at_its_rate_and_follows_the_battery(
     # before the first health values came (a health period: a few samples).
     battery, odom = len(t.published["/robot1/battery_state"]), len(t.published["/robot1/odom"])
     assert odom // 5 - 3 <= battery <= odom // 5 + 1
+
+
+def test_absurd_cmd_vel_values_are_refused_as_from_every_front_end(
+        rig: tuple[SimulatedBase, Chassis], caplog: pytest.LogCaptureFixture) -> None:
+    """A Twist of 1e308 drove at the wheel limit, three of them moved nothing (the
+    scaling overflowed): the base refuses a value beyond sense (the check Foxglove's
+    commands get too), the bridge counts it and says why, and no command reaches the
+    base."""
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import Bridge
+
+    _, base = rig
+    t = MemoryTransport()
+    with caplog.at_level("WARNING", logger="omnican"), \
+            Bridge(base, Ros2Settings(), t) as bridge:
+        for twist in (_twist(1e308, 0.0, 0.0), _twist(0.0, -1e308, 0.0),
+                      _twist(0.0, 0.0, 1e9)):
+            t.deliver("/cmd_vel", twist)
+        assert bridge.cmd_vel_rejected == 3
+        assert base.command == Twist()
+    assert "cmd_vel ignored: velocity command refused: vx 1e+308 m/s is beyond any " \
+           "wheeled base" in caplog.text
