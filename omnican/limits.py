@@ -86,7 +86,8 @@ def pose_problem(x: float, y: float, theta: float) -> str | None:
 # (the limiter moves linear and angular by one common factor, so the stop takes the
 # longer of the two times, and each is within the bound), and the drives' quick stop,
 # at twice that, stops a wheel from max_wheel_speed within MAX_STOP_S / 2 (a wheel's rim
-# speed is at most the body's linear speed plus its radius times the angular speed).
+# speed is at most the body's linear speed plus its radius times the angular speed, and
+# drive/setup.py counts a radius of 0.5 m).
 # MAX_STOP_S is 2 s: the defaults (2 x the accelerations, 1 m/s at the rims) stop the
 # demo base from its top speed in 0.7 s linear, 0.9 s spinning; 2 s is three times that,
 # room for a heavy base with gentle ramps, and still a stop a person beside the robot
