@@ -38,7 +38,9 @@ class CommandArbiter:
               ) -> str | None:
         """``source`` wants to command at ``now``: None if it may (it holds control from
         here on; ``send``, the command, runs before anyone can take control away), else
-        the name of the source that holds control (or that stopped this one)."""
+        the name of the source that holds control (or that stopped this one). A command
+        the base refuses (``send`` raises, e.g. ValueError for a value beyond sense)
+        takes no control: the error goes to the caller, nothing else changes."""
         with self._lock:
             stopped = self._stopped.get(source)
             if stopped is not None:
@@ -49,9 +51,9 @@ class CommandArbiter:
             holder = self._current(now)
             if holder is not None and holder != source:
                 return holder
-            self._holder, self._last = source, now
             if send is not None:
                 send()
+            self._holder, self._last = source, now
             return None
 
     def stop_by(self, source: str, now: float, stop: Callable[[], None] | None = None

@@ -22,7 +22,14 @@ from omnican import heartbeat
 from omnican.cia402 import Mode
 from omnican.errors import ConfigError
 from omnican.kinematics import LAYOUTS, OmniKinematics
-from omnican.limits import VelocityLimits
+from omnican.limits import (
+    MAX_ACCEL_SENSE,
+    MAX_SPEED_SENSE,
+    MAX_STOP_S,
+    VelocityLimits,
+    stop_decel_floor,
+    top_speeds,
+)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -54,11 +61,49 @@ class Key:
     required: bool = False
     #: (other key, factor): left out, the key is ``factor`` x the other key's value.
     scaled: tuple[str, float] | None = None
+    #: (lowest, highest) a number may be, both allowed; None: any finite number. Beyond
+    #: it a value has no physical sense for a base (or overflows what it feeds): refused.
+    range: tuple[float, float] | None = None
+    #: inf is allowed too (no such limit).
+    inf_ok: bool = False
+    #: ``range`` bounds the magnitude; the sign is free (a polarity), zero is not.
+    signed: bool = False
+
+    def range_text(self) -> str:
+        """The range as an error message says it: "0.001-60", "-720 to 720"."""
+        if self.range is None:
+            return "a finite number"
+        lo, hi = (_bound_text(x) for x in self.range)
+        text = f"{lo}-{hi}" if self.range[0] >= 0 else f"{lo} to {hi}"
+        if self.signed:
+            text = f"{lo} to {hi} in magnitude (either sign)"
+        return text + (" or inf" if self.inf_ok else "")
 
 
-def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float) -> Key:
+def _bound_text(x: float) -> str:
+    """A range's bound as people write it: 1000000, not 1e+06; 1e+12 stays."""
+    return str(int(x)) if x == int(x) and abs(x) < 1e7 else f"{x:g}"
+
+
+def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float,
+            range: tuple[float, float] | None = None) -> Key:
     """A key whose default is ``factor`` x key ``of`` of the same table (said in its doc)."""
-    return Key(types, None, f"{doc}; default {factor:g} x {of}", scaled=(of, factor))
+    return Key(types, None, f"{doc}; default {factor:g} x {of}", scaled=(of, factor),
+               range=range)
+
+
+# The ranges of the numeric keys (Key.range): what a base can physically have, wide
+# enough for any real robot. Speeds and accelerations share omnican.limits' bounds of
+# sense (a command beyond them is refused too); times go from a millisecond to what a
+# person would still wait for; a stop deceleration also has a floor that depends on the
+# speed limits (omnican.limits.MAX_STOP_S, checked once the wheels are known).
+_SPEED = (0.001, MAX_SPEED_SENSE)
+_ACCEL = (0.001, MAX_ACCEL_SENSE)
+_DECEL = (0.001, 2 * MAX_ACCEL_SENSE)  # the default is twice the acceleration
+_WAIT = (0.01, 60.0)  # s: a CAN round trip and a scheduler's tick fit the lowest
+_RATE = (0.01, 5000.0)  # Hz
+_SCALE = (1e-6, 1e12)  # units per SI unit, either sign
+_ROS_RATE = (0.01, 1000.0)  # Hz, a topic's publish rate
 
 
 _NUM = (int, float)
@@ -82,81 +127,113 @@ _UNLIMITED_OK = ("max_speed", "max_angular_speed")  # inf: no such limit
 # omnican.gamepad_model's.
 FRONT_END_SECTIONS = ("gamepad",)
 
+#: The keys of the free-form [bus] table that omnican reads itself (the bus load): their
+#: type and range (CAN's nominal bitrates run from 10 kbit/s down to what some
+#: controllers allow, 1 kbit/s, up to 1 Mbit/s; a CAN FD data phase up to 12 Mbit/s).
+BUS_KEYS: dict[str, Key] = {
+    "bitrate": Key((int,), None, "bit/s of the bus (nominal)", range=(1000, 1_000_000)),
+    "data_bitrate": Key((int,), None, "bit/s of a CAN FD data phase",
+                        range=(1000, 12_000_000)),
+}
+
 # Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
 SCHEMA: dict[str, dict[str, Key]] = {
     "chassis": {
         "layout": Key((str,), None, "wheel preset: \"b21\" (180, -60, 60 deg) or \"a12\" "
                       "(0, 120, -120 deg); omit and give angle_deg per wheel instead"),
-        "base_radius": Key(_NUM, None, "m, base centre to wheel contact point", required=True),
-        "rate_hz": Key(_NUM, 100.0, "control loop and SYNC rate"),
+        "base_radius": Key(_NUM, None, "m, base centre to wheel contact point", required=True,
+                           range=(0.01, 10.0)),
+        "rate_hz": Key(_NUM, 100.0, "control loop and SYNC rate", range=(1.0, 5000.0)),
         "rt_priority": Key((int,), 50, "SCHED_FIFO priority 1-99 of the control loop thread "
                            "(its thread alone) where the process may: root, CAP_SYS_NICE or "
                            "RLIMIT_RTPRIO; elsewhere normal priority and a note; 0: never"),
-        "cmd_timeout_s": Key(_NUM, 0.5, "no command for this long -> controlled stop"),
-        "max_wheel_speed": Key(_NUM, 1.0, "m/s at the rim; commands are desaturated to it"),
-        "max_speed": Key(_NUM, math.inf, "m/s, body linear speed (vector norm)"),
-        "max_angular_speed": Key(_NUM, math.inf, "rad/s, body angular speed"),
-        "max_accel": Key(_NUM, 1.0, "m/s^2, body linear acceleration"),
-        "max_angular_accel": Key(_NUM, 3.0, "rad/s^2, body angular acceleration"),
-        "stop_decel": _scaled(_NUM, "m/s^2 for a stop command", "max_accel", 2.0),
-        "stop_angular_decel": _scaled(_NUM, "rad/s^2 for a stop", "max_angular_accel", 2.0),
+        "cmd_timeout_s": Key(_NUM, 0.5, "no command for this long -> controlled stop",
+                             range=_WAIT),
+        "max_wheel_speed": Key(_NUM, 1.0, "m/s at the rim; commands are desaturated to it",
+                               range=_SPEED),
+        "max_speed": Key(_NUM, math.inf, "m/s, body linear speed (vector norm)", range=_SPEED,
+                         inf_ok=True),
+        "max_angular_speed": Key(_NUM, math.inf, "rad/s, body angular speed", range=_SPEED,
+                                 inf_ok=True),
+        "max_accel": Key(_NUM, 1.0, "m/s^2, body linear acceleration", range=_ACCEL),
+        "max_angular_accel": Key(_NUM, 3.0, "rad/s^2, body angular acceleration",
+                                 range=_ACCEL),
+        "stop_decel": _scaled(_NUM, "m/s^2 for a stop command (and every other stop); at "
+                              "least the top speed / 2 s", "max_accel", 2.0, _DECEL),
+        "stop_angular_decel": _scaled(_NUM, "rad/s^2 for a stop; at least the top angular "
+                                      "speed / 2 s", "max_angular_accel", 2.0, _DECEL),
         "mode": Key((str,), None, "\"pv\", \"csv\" or \"vl\"; default: pv, or what 6502h offers"),
-        "host_node_id": Key((int,), 127, "node id of this host's heartbeat (0x700 + id)"),
-        "heartbeat_ms": Key((int,), 100, "heartbeat period of host and drives, ms"),
+        "host_node_id": Key((int,), 127, "node id of this host's heartbeat (0x700 + id)",
+                            range=(1, 127)),
+        "heartbeat_ms": Key((int,), 100, "heartbeat period of host and drives, ms",
+                            range=(1, 65535)),
         "heartbeat_timeout_factor": Key(_NUM, 3.0, "a heartbeat is lost after this many "
                                         "periods and half a period more: that many lost in a "
-                                        "row stop the base, one fewer never does"),
-        "sdo_timeout_s": Key(_NUM, 0.3, "one SDO request's wait for its answer"),
+                                        "row stop the base, one fewer never does",
+                                        range=(1.0, 100.0)),
+        "sdo_timeout_s": Key(_NUM, 0.3, "one SDO request's wait for its answer", range=_WAIT),
         "sdo_retries": Key((int,), 3, "an SDO request unanswered within sdo_timeout_s is sent "
-                           "again, up to this many times"),
-        "boot_timeout_s": Key(_NUM, 2.0, "wait for a drive's boot-up after NMT reset"),
-        "enable_timeout_s": Key(_NUM, 1.0, "bring a drive to OPERATION ENABLED within this"),
+                           "again, up to this many times", range=(0, 20)),
+        "boot_timeout_s": Key(_NUM, 2.0, "wait for a drive's boot-up after NMT reset",
+                              range=(0.1, 60.0)),
+        "enable_timeout_s": Key(_NUM, 1.0, "bring a drive to OPERATION ENABLED within this",
+                                range=_WAIT),
         "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
                            "them anyway (warning; a drive that refuses runs on its own mapping, "
                            "and what that lacks goes by SDO every cycle), \"eds\" sends them by "
                            "SDO every cycle, \"sdo\" sends targets and positions by SDO every "
                            "cycle"),
         "health_rate_hz": Key(_NUM, 5.0, "how often each drive's current, torque, voltage, "
-                              "temperature, error register and e-stop input are read"),
+                              "temperature, error register and e-stop input are read",
+                              range=_RATE),
         "tracking_error": Key(_NUM, 0.1, "m/s: a wheel whose measured speed stays this far "
                               "outside what its target was over the last tracking_lag_s "
-                              "latches a stop (inf: never)"),
-        "tracking_time_s": Key(_NUM, 0.5, "for this long"),
+                              "latches a stop (inf: never)", range=_SPEED, inf_ok=True),
+        "tracking_time_s": Key(_NUM, 0.5, "for this long", range=_WAIT),
         "tracking_lag_s": Key(_NUM, 0.3, "how far a wheel's measured speed may lag its target "
-                              "(speed window, drive ramp and velocity loop)"),
+                              "(speed window, drive ramp and velocity loop)", range=_WAIT),
         "lifted_wheel": Key((str,), "warn", "a wheel off the ground (or without its roller), "
                             "found from its current against its siblings': \"warn\" (a status "
                             "warning naming it), \"stop\" (a stop naming it) or \"off\""),
     },
     "wheel": {
-        "node_id": Key((int,), None, "CANopen node id 1-127", required=True),
-        "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)"),
+        "node_id": Key((int,), None, "CANopen node id 1-127", required=True, range=(1, 127)),
+        "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)", range=(0, 7)),
         "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
         "velocity_scale": Key(_NUM, None, "drive velocity units per m/s at the rim; sign = "
-                              "polarity"),
-        "position_scale": Key(_NUM, None, "encoder position units per m of rim travel"),
-        "gear_ratio": Key(_NUM, None, "motor turns per wheel turn (instead of the scales)"),
-        "encoder_cpr": Key(_NUM, None, "encoder counts per motor turn (instead of the scales)"),
-        "wheel_radius": Key(_NUM, None, "m, wheel radius (instead of the scales)"),
+                              "polarity", range=_SCALE, signed=True),
+        "position_scale": Key(_NUM, None, "encoder position units per m of rim travel",
+                              range=_SCALE, signed=True),
+        "gear_ratio": Key(_NUM, None, "motor turns per wheel turn (instead of the scales)",
+                          range=(0.001, 1e5)),
+        "encoder_cpr": Key(_NUM, None, "encoder counts per motor turn (instead of the scales)",
+                           range=(1.0, 1e9)),
+        "wheel_radius": Key(_NUM, None, "m, wheel radius (instead of the scales)",
+                            range=(0.001, 10.0)),
         "velocity_unit": Key((str,), "counts/s", "drive velocity unit when deriving the scales: "
                              + ", ".join(VELOCITY_UNITS)),
         "invert": Key((bool,), False, "reverse the wheel's direction (negates both scales)"),
-        "angle_deg": Key(_NUM, None, "wheel position angle from +x, CCW (instead of layout)"),
-        "drive_angle_deg": Key(_NUM, None, "drive direction; default angle_deg + 90"),
+        "angle_deg": Key(_NUM, None, "wheel position angle from +x, CCW (instead of layout)",
+                         range=(-720.0, 720.0)),
+        "drive_angle_deg": Key(_NUM, None, "drive direction; default angle_deg + 90",
+                               range=(-720.0, 720.0)),
         "base_radius": Key(_NUM, None, "m, this wheel's distance from the centre; default "
-                           "[chassis] base_radius"),
+                           "[chassis] base_radius", range=(0.01, 10.0)),
         "mode": Key((str,), None, "this wheel's mode; default [chassis] mode"),
         "current": Key((str,), "0x6078", "object with the motor current: \"0xIIII:SS\", "
                        "\"0xIIII\" (this axis's copy) or the EDS entry's name; \"\" for none"),
         "current_scale": Key(_NUM, None, "A per unit of current; default: 6078h's per mille "
-                             "of the rated current 6075h, read at startup"),
+                             "of the rated current 6075h, read at startup", range=_SCALE,
+                             signed=True),
         "torque": Key((str,), "0x6077", "object with the torque, per mille of the rated "
                       "torque; \"\" for none"),
         "voltage": Key((str,), "0x6079", "object with the DC link voltage; \"\" for none"),
-        "voltage_scale": Key(_NUM, 0.001, "V per unit of voltage (6079h: mV)"),
+        "voltage_scale": Key(_NUM, 0.001, "V per unit of voltage (6079h: mV)", range=_SCALE,
+                             signed=True),
         "temperature": Key((str,), None, "object with a temperature (vendor-specific, e.g. "
                            "\"0x2032:01\" or its EDS name); default none"),
-        "temperature_scale": Key(_NUM, 1.0, "degC per unit of temperature"),
+        "temperature_scale": Key(_NUM, 1.0, "degC per unit of temperature", range=_SCALE,
+                                 signed=True),
         "sdo": Key((list,), None, "vendor settings: [[wheel.sdo]] tables written in "
                    "PRE-OPERATIONAL at every configuration (below)"),
     },
@@ -170,51 +247,58 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
     # Read by the base when present: a low battery warns, then stops the base.
     "power": {
-        "warn_v": Key(_NUM, None, "V: the DC link below this warns (status, diagnostics)"),
+        "warn_v": Key(_NUM, None, "V: the DC link below this warns (status, diagnostics)",
+                      range=(0.1, 2000.0)),
         "cutoff_v": Key(_NUM, None, "V: below this for delay_s, a controlled stop "
-                        "(recover() refuses until it is back above cutoff_v + hysteresis_v)"),
-        "hysteresis_v": Key(_NUM, 0.5, "V a warning or cutoff needs to clear"),
+                        "(recover() refuses until it is back above cutoff_v + hysteresis_v)",
+                        range=(0.1, 2000.0)),
+        "hysteresis_v": Key(_NUM, 0.5, "V a warning or cutoff needs to clear",
+                            range=(0.0, 100.0)),
         "delay_s": Key(_NUM, 1.0, "below a threshold this long before it counts (a sag "
-                       "while accelerating does not)"),
+                       "while accelerating does not)", range=(0.0, 60.0)),
     },
     # An e-stop (or a drive's safe torque off) as a stop reason.
     "estop": {
         "object": Key((str,), "0x60FD", "object with the e-stop: a digital input (60FDh), "
                       "the statusword (0x6041, a drive's STO bit) or a vendor object"),
-        "bit": Key((int,), None, "bit of it that shows the e-stop pressed", required=True),
+        "bit": Key((int,), None, "bit of it that shows the e-stop pressed", required=True,
+                   range=(0, 31)),
         "active_low": Key((bool,), False, "pressed when the bit is clear (a normally closed "
                           "loop)"),
-        "node_id": Key((int,), None, "the drive whose input it is; default every node"),
+        "node_id": Key((int,), None, "the drive whose input it is; default every node",
+                       range=(1, 127)),
     },
     # Read by `omnican ros2` (omnican/ros2/settings.py checks the values).
     "ros2": {
         "namespace": Key((str,), "", "ROS 2 namespace of the node and its relative topics"),
         "node_name": Key((str,), "omnican", "ROS 2 node name (~/ topics live under it)"),
-        "domain_id": Key((int,), None, "DDS domain 0-232; default: ROS_DOMAIN_ID, else 0"),
+        "domain_id": Key((int,), None, "DDS domain 0-232; default: ROS_DOMAIN_ID, else 0",
+                         range=(0, 232)),
         "cmd_vel_topic": Key((str,), "cmd_vel", "velocity commands in (Twist)"),
         "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of Twist"),
         "cmd_vel_timeout_s": Key(_NUM, None, "no cmd_vel for this long -> stop; default "
-                                 "[chassis] cmd_timeout_s"),
+                                 "[chassis] cmd_timeout_s", range=_WAIT),
         "odom_topic": Key((str,), "odom", "nav_msgs/Odometry out"),
         "odom_frame": Key((str,), "odom", "frame of the odometry pose"),
         "base_frame": Key((str,), "base_link", "frame of the base (odometry child frame)"),
-        "odom_rate_hz": Key(_NUM, 50.0, "odom and tf publish rate"),
+        "odom_rate_hz": Key(_NUM, 50.0, "odom and tf publish rate", range=_ROS_RATE),
         "publish_tf": Key((bool,), True, "publish the odom -> base_link transform"),
         "tf_topic": Key((str,), "/tf", "tf2_msgs/TFMessage out"),
         "joint_states_topic": Key((str,), "joint_states", "sensor_msgs/JointState out"),
-        "joint_states_rate_hz": Key(_NUM, 50.0, "joint_states publish rate"),
+        "joint_states_rate_hz": Key(_NUM, 50.0, "joint_states publish rate", range=_ROS_RATE),
         "joint_names": Key((list,), None, "one joint name per wheel; default wheel_0_joint, "
                            "wheel_1_joint, ..."),
         "wheel_radius": Key(_NUM, None, "m, for joint angles; default the wheels' "
-                            "wheel_radius (no joint_states without one)"),
+                            "wheel_radius (no joint_states without one)", range=(0.001, 10.0)),
         "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
-        "diagnostics_rate_hz": Key(_NUM, 1.0, "diagnostics rate (and at once on a change)"),
+        "diagnostics_rate_hz": Key(_NUM, 1.0, "diagnostics rate (and at once on a change)",
+                                   range=_ROS_RATE),
         "battery_state_topic": Key((str,), "battery_state", "sensor_msgs/BatteryState out: the "
                                    "drives' DC link (when they report one)"),
-        "battery_state_rate_hz": Key(_NUM, 1.0, "battery_state publish rate"),
+        "battery_state_rate_hz": Key(_NUM, 1.0, "battery_state publish rate", range=_ROS_RATE),
         "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
         "odom_slip": Key(_NUM, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
-                         "(covariances)"),
+                         "(covariances)", range=(0.0, 0.99)),
         "interface": Key((str,), None, "DDS network interface name or address; default all"),
         "peers": Key((list,), None, "unicast discovery peers (addresses or host names)"),
         "multicast": Key((bool,), True, "DDS multicast discovery"),
@@ -558,8 +642,21 @@ class _Reader:
                 raise self.fail(f"{where}.{key}", f"must be {kind}, got {value!r}")
             if isinstance(value, float) and math.isnan(value):
                 raise self.fail(f"{where}.{key}", "must be a number, got nan")
+            self.in_range(f"{where}.{key}", spec, value)
             out[key] = value
         return out
+
+    def in_range(self, where: str, spec: Key, value: Any) -> None:
+        """A number within its key's :attr:`Key.range` (inf where the key allows it)."""
+        if spec.range is None or isinstance(value, bool) or not isinstance(value, _NUM):
+            return
+        lo, hi = spec.range
+        v = abs(value) if spec.signed else value
+        if math.isinf(value) and spec.inf_ok and value > 0:
+            return
+        if not lo <= v <= hi:
+            shown = f"{value:.6g}" if isinstance(value, float) else str(value)
+            raise self.fail(where, f"must be {spec.range_text()}, got {shown}")
 
     def positive(self, where: str, value: Any, allow_inf: bool = False) -> float:
         v = float(value)
@@ -601,6 +698,8 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")
+    if bus is not None:
+        _check_bus_numbers(r, bus)
     if "chassis" not in data:
         raise r.fail("chassis", "missing section")
     c = r.table("chassis", data["chassis"], "chassis")
@@ -672,6 +771,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         cfg.kinematics()
     except ConfigError as exc:
         raise r.fail("wheel geometry", str(exc)) from None
+    _check_stop_bound(r, cfg, data["chassis"].keys())
     if check_eds:
         check_eds_files(cfg, r.origin)
     return cfg
@@ -726,19 +826,53 @@ def _parse_settings(r: _Reader, where: str, raw: Any) -> tuple[VendorSetting, ..
     return tuple(out)
 
 
+def _check_bus_numbers(r: _Reader, bus: Mapping[str, Any]) -> None:
+    """The [bus] keys of :data:`BUS_KEYS`, when given: integers within their range (the
+    rest of the table is python-can's to check)."""
+    for key, spec in BUS_KEYS.items():
+        if key not in bus:
+            continue
+        value = bus[key]
+        if isinstance(value, bool) or not isinstance(value, spec.types):
+            raise r.fail(f"bus.{key}", f"must be an integer number of bit/s, e.g. 500000, "
+                         f"got {_short(value)}")
+        r.in_range(f"bus.{key}", spec, value)
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, at most 40 characters of it."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:37]}..."
+
+
 def _check_limit(r: _Reader, key: str, value: Any) -> float:
-    """A limit's value as a config's [chassis] table must give it: a positive number,
-    inf only where the key allows it."""
-    return r.positive(f"chassis.{key}", value, allow_inf=key in _UNLIMITED_OK)
+    """A limit's value as a config's [chassis] table must give it: a positive number
+    within its range, inf only where the key allows it."""
+    v = r.positive(f"chassis.{key}", value, allow_inf=key in _UNLIMITED_OK)
+    r.in_range(f"chassis.{key}", SCHEMA["chassis"][key], value)
+    return v
+
+
+#: Live limits a higher value of which makes the base safer (a shorter stop); for the
+#: others a lower value does.
+_SAFER_HIGHER = ("stop_decel", "stop_angular_decel")
+_UNITS = {"max_speed": "m/s", "max_wheel_speed": "m/s", "max_angular_speed": "rad/s",
+          "max_accel": "m/s^2", "stop_decel": "m/s^2", "max_angular_accel": "rad/s^2",
+          "stop_angular_decel": "rad/s^2"}
 
 
 def with_live_limits(settings: ChassisSettings, changes: Mapping[str, Any],
-                     origin: str = "live") -> ChassisSettings:
+                     origin: str = "live", configured: ChassisSettings | None = None
+                     ) -> ChassisSettings:
     """``settings`` with ``changes`` (:data:`LIVE_LIMITS` keys -> values), each checked as
     a config file's [chassis] key is checked (its type, then its range). Each key changes
     only itself (a stop deceleration stays what it is when max_accel changes). Raises
     :class:`ConfigError` naming the key and why, e.g. ``live: chassis.max_accel: must be a
-    positive number, got -1``."""
+    positive number, got -1``.
+
+    ``configured``: the settings the base was opened with. A live value may only make
+    the base safer than those: never a higher speed or acceleration, never a lower stop
+    deceleration (a longer stop) than they have."""
     r = _Reader(origin)
     values: dict[str, Any] = {}
     for key, value in changes.items():
@@ -752,7 +886,44 @@ def with_live_limits(settings: ChassisSettings, changes: Mapping[str, Any],
         if isinstance(value, float) and math.isnan(value):
             raise r.fail(where, "must be a number, got nan")
         values[key] = _check_limit(r, key, value)
+        if configured is not None:
+            _check_safer(r, key, values[key], getattr(configured, key))
     return replace(settings, **values)
+
+
+def _check_safer(r: _Reader, key: str, value: float, configured: float) -> None:
+    """A live ``value`` of ``key`` no less safe than the ``configured`` one."""
+    unit = _UNITS[key]
+    if key in _SAFER_HIGHER:
+        if value < configured:
+            raise r.fail(f"chassis.{key}", f"at least {configured:g} {unit}, the value the "
+                         "base was opened with (a live value may only shorten a stop; "
+                         f"lower it in the config), got {value:g}")
+    elif value > configured:
+        raise r.fail(f"chassis.{key}", f"at most {configured:g} {unit}, the value the base "
+                     "was opened with (a live value may only make the base safer; raise it "
+                     f"in the config), got {value:g}")
+
+
+def _check_stop_bound(r: _Reader, cfg: ChassisConfig, given: Iterable[str]) -> None:
+    """The stop decelerations stop the base from its top speed within MAX_STOP_S (see
+    omnican.limits for where that floor comes from)."""
+    limits, kin = cfg.limits(), cfg.kinematics()
+    top = top_speeds(limits, kin)
+    floor = stop_decel_floor(limits, kin)
+    c = cfg.chassis
+    for key, of, unit, speed, low in (
+            ("stop_decel", "max_speed or max_wheel_speed", "m/s", top[0], floor[0]),
+            ("stop_angular_decel", "max_angular_speed or max_wheel_speed", "rad/s", top[1],
+             floor[1])):
+        value = getattr(c, key)
+        if value < low * (1 - 1e-9):
+            scaled = SCHEMA["chassis"][key].scaled
+            derived = f" ({scaled[1]:g} x {scaled[0]})" if scaled and key not in given else ""
+            raise r.fail(f"chassis.{key}", f"{value:g}{derived} would stop the base from its top "
+                         f"speed {speed:.3g} {unit} in {speed / value:.3g} s; every stop must "
+                         f"end within {MAX_STOP_S:g} s: at least {low:.3g} {unit}^2 (or lower "
+                         f"{of})")
 
 
 def _foxglove_table(r: _Reader, data: Any, base_dir: Path | None) -> dict[str, Any]:
@@ -924,5 +1095,8 @@ def load_config(path: str | Path, check_eds: bool = True) -> ChassisConfig:
         data = tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        raise ConfigError(f"{p}: not a robot config: arrays or tables nested too deeply") \
+            from None
     cfg = parse_config(data, origin=str(p), base_dir=p.resolve().parent, check_eds=check_eds)
     return replace(cfg, source=p)

@@ -24,7 +24,7 @@ from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig
 from omnican.errors import OmnicanError
 from omnican.kinematics import Twist
-from omnican.limits import VelocityLimiter, clamp_twist, desaturate_twist
+from omnican.limits import VelocityLimiter, clamp_twist, command_problem, desaturate_twist
 from omnican.odometry import Pose2D
 
 logger = logging.getLogger(__name__)
@@ -187,6 +187,17 @@ def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,
         linear = t.linear_speed * k
         return Twist(linear * math.cos(body), linear * math.sin(body), 0.0)
     return t.scaled(k)
+
+
+def plan_problem(plan: Sequence[Leg]) -> str | None:
+    """Why a plan cannot be driven at all, or None: a twist with a value beyond any
+    wheeled base (:func:`omnican.limits.command_problem`, what
+    :meth:`Chassis.set_velocity` refuses). Within that, fit_to_limits scales it."""
+    for leg in plan:
+        problem = command_problem(leg.twist.vx, leg.twist.vy, leg.twist.wz)
+        if problem is not None:
+            return problem
+    return None
 
 
 def feasible(twist: Twist, cfg: ChassisConfig) -> Twist:

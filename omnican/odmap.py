@@ -251,7 +251,12 @@ def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:
     (:func:`omnican.edscheck.dictionary_problems`); a missing, unreadable or impossible
     file is a :class:`ConfigError` of one line naming the file and the object."""
     p = Path(path)
-    if not p.is_file():
+    try:
+        found = p.is_file()
+    except OSError as exc:  # a name longer than the file system allows, say
+        shown = str(p) if len(str(p)) <= 80 else f"{str(p)[:60]}... ({len(str(p))} characters)"
+        raise ConfigError(f"cannot read EDS file {shown}: {exc.strerror or exc}") from None
+    if not found:
         raise ConfigError(f"EDS file not found: {p}")
     try:
         dictionary = od.import_od(str(p), node_id)

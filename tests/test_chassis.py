@@ -234,8 +234,8 @@ def test_limits_change_live_from_the_next_cycle(rig: tuple[SimulatedBase, Chassi
     sim, base = rig
     drive_for(base, 1.0, vx=0.4)
     assert sim.true_twist.vx == pytest.approx(0.4, abs=0.02)
-    settings = base.set_limits(max_speed=0.15, max_accel=2.0)
-    assert (settings.max_speed, settings.max_accel) == (0.15, 2.0)
+    settings = base.set_limits(max_speed=0.15, max_accel=0.8)
+    assert (settings.max_speed, settings.max_accel) == (0.15, 0.8)
     assert base.cfg.chassis is settings
     drive_for(base, 0.6, vx=0.4)
     assert sim.true_twist.vx == pytest.approx(0.15, abs=0.01)
@@ -256,6 +256,12 @@ def test_limits_change_live_from_the_next_cycle(rig: tuple[SimulatedBase, Chassi
     ({"max_sped": 1.0}, "live: chassis.max_sped: unknown key"),
     ({"max_wheel_speed": 1.5}, "chassis.max_wheel_speed: at most 1 m/s, the value the base "
                                "was opened with"),
+    ({"max_accel": 1.5}, "chassis.max_accel: at most 1 m/s^2, the value the base was opened "
+                         "with"),
+    ({"stop_decel": 0.5}, "chassis.stop_decel: at least 2 m/s^2, the value the base was "
+                          "opened with (a live value may only shorten a stop"),
+    ({"stop_angular_decel": 1e-6}, "chassis.stop_angular_decel: must be 0.001-200, got 1e-06"),
+    ({"max_speed": 1e9}, "live: chassis.max_speed: must be 0.001-100 or inf, got 1e+09"),
 ])
 def test_a_refused_limit_says_why_and_changes_nothing(
         rig: tuple[SimulatedBase, Chassis], changes: dict[str, Any], message: str) -> None:

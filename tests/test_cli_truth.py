@@ -233,6 +233,9 @@ def test_the_sim_banner_lists_the_commands() -> None:
 @pytest.mark.parametrize(("argv", "message"), [
     (["drive", "--square", "1", "--duration", "2"], "--duration is not used with --square"),
     (["drive", "--sim", "--heading-deg", "90"], "--heading-deg needs --speed"),
+    (["drive", "--sim", "--vx", "1e308"], "motion refused: vx 1e+308 m/s is beyond any wheeled "
+                                          "base (at most 100"),
+    (["drive", "--sim", "--speed", "1e200"], "motion refused: vx 1e+200 m/s is beyond"),
     (["drive", "--sim"], "give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega, "
                          "--square SIDE, or --foxglove-control to take it from Foxglove"),
     (["drive", "--sim", "--duration", "2"], "give a motion"),

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from omnican import OmniKinematics, Twist, VelocityLimiter, VelocityLimits
-from omnican.limits import longest_stop_s
+from omnican.limits import desaturate_twist, longest_stop_s
 
 KIN = OmniKinematics.from_layout("b21", base_radius=0.19)
 LIMITS = VelocityLimits(
@@ -163,3 +163,89 @@ def test_no_stop_ramp_outlasts_the_longest_stop(vx: float, vy: float, wz: float,
         limiter.step(Twist(), dt)
         t += dt
         assert t <= bound + dt
+
+
+# ---------------------------------------------------------------- the stop in bounded time
+
+_decel = st.floats(1e-300, 1e3)
+_wheel = st.floats(0.05, 5.0)
+
+
+@given(st.builds(Twist, st.floats(-100, 100), st.floats(-100, 100), st.floats(-100, 100)),
+       _decel, _decel, _wheel, st.sampled_from([0.001, 0.01, 0.05]))
+@settings(max_examples=60)
+def test_a_stop_ends_within_max_stop_s_whatever_the_decelerations(
+        command: Twist, lin: float, ang: float, wheel: float, dt: float) -> None:
+    """From whatever the limiter outputs, a stop reaches zero within MAX_STOP_S (and one
+    step), be the stop decelerations 1e-300 or the limits unlimited."""
+    from omnican.limits import MAX_STOP_S
+
+    limits = VelocityLimits(max_linear_accel=1e3, max_angular_accel=1e3,
+                            stop_linear_decel=lin, stop_angular_decel=ang,
+                            max_wheel_speed=wheel)
+    lim = VelocityLimiter(limits, KIN)
+    for _ in range(200):
+        lim.step(command, 0.01)
+    assert lim.stop_time_s() <= MAX_STOP_S + 1e-9
+    steps = 0
+    while not lim.output.is_zero():
+        lim.step(Twist(), dt)
+        steps += 1
+        assert steps * dt <= MAX_STOP_S + dt + 1e-9, lim.output
+
+
+@given(st.floats(0.05, 5.0), st.builds(Twist, st.floats(-3, 3), st.floats(-3, 3),
+                                       st.floats(-8, 8)))
+def test_top_speeds_bound_every_twist_the_wheels_allow(wheel: float, t: Twist) -> None:
+    """b21 at the wheel limit w: 4/3 w linear (two wheels +w, one -w), w / R spinning;
+    no twist within the wheel limit is faster."""
+    from omnican.limits import top_speeds
+
+    lin, ang = top_speeds(VelocityLimits(max_wheel_speed=wheel), KIN)
+    assert lin == pytest.approx(4.0 / 3.0 * wheel)
+    assert ang == pytest.approx(wheel / 0.19)
+    feasible = desaturate_twist(t, KIN, wheel)
+    assert feasible.linear_speed <= lin + 1e-9 and abs(feasible.wz) <= ang + 1e-9
+
+
+def test_lowering_the_limits_while_fast_keeps_the_stop_bounded() -> None:
+    """Limits lowered while the output is above them: the stop from there still ends
+    within MAX_STOP_S."""
+    from omnican.limits import MAX_STOP_S
+
+    lim = VelocityLimiter(VelocityLimits(max_wheel_speed=5.0, stop_linear_decel=1e-9,
+                                         stop_angular_decel=1e-9), KIN)
+    lim.step(Twist(3.0, 0.0, 0.0), 1.0)
+    lim.limits = VelocityLimits(max_linear=0.01, max_wheel_speed=5.0, stop_linear_decel=1e-9,
+                                stop_angular_decel=1e-9)
+    assert lim.stop_time_s() <= MAX_STOP_S
+
+
+@pytest.mark.parametrize(("twist", "problem"), [
+    ((1e308, 0.0, 0.0), "vx 1e+308 m/s is beyond any wheeled base (at most 100"),
+    ((0.0, -101.0, 0.0), "vy -101 m/s is beyond any wheeled base"),
+    ((0.0, 0.0, 1e9), "wz 1e+09 rad/s is beyond any wheeled base"),
+    ((math.nan, 0.0, 0.0), "vx must be a finite number, got nan"),
+    ((0.0, 0.0, -math.inf), "wz must be a finite number, got -inf"),
+])
+def test_a_command_beyond_sense_is_refused_with_the_reason(
+        twist: tuple[float, float, float], problem: str) -> None:
+    from omnican.limits import command_problem
+
+    assert (command_problem(*twist) or "").startswith(problem)
+
+
+@given(st.floats(-100, 100), st.floats(-100, 100), st.floats(-100, 100))
+def test_a_command_within_sense_is_taken(vx: float, vy: float, wz: float) -> None:
+    from omnican.limits import command_problem
+
+    assert command_problem(vx, vy, wz) is None
+
+
+def test_a_pose_beyond_sense_is_refused() -> None:
+    from omnican.limits import pose_problem
+
+    assert pose_problem(1e308, 0.0, 0.0) == ("x 1e+308 m is beyond 1e+06 m (the motion "
+                                             "added to it would be lost to rounding)")
+    assert pose_problem(0.0, 0.0, math.nan) == "theta must be a finite number, got nan"
+    assert pose_problem(-1e6, 1e6, 1e3) is None

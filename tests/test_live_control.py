@@ -944,3 +944,98 @@ def test_control_needs_an_sdk_that_says_when_a_client_leaves(
     assert resolve({}, None).control is False  # watching only: no such need
     monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.30.3")
     assert resolve({"control": True}, None).control is True
+
+
+# ---------------------------------------------------------------- against a real base
+
+
+@pytest.fixture
+def real(channel: str) -> Any:
+    """Control of a real Chassis (lock-step, on simulated drives): (clock, sim, base,
+    control), as ``--foxglove-control`` wires them."""
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    from omnican import Chassis
+    from omnican.clock import SimClock
+    from omnican.sim import SimulatedBase
+
+    from .helpers import sim_config
+
+    cfg = sim_config(channel)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
+            Chassis.open(cfg, clock=clock) as base:
+        c = Control(base, FoxgloveSettings(control=True),
+                    CommandArbiter(cfg.chassis.cmd_timeout_s))
+        for n in (1, 2, 3):  # came in through the relay: they may drive
+            vouch(c, n)
+        yield clock, sim, base, c
+
+
+def _set(c: Control, client_id: int, name: str, value: Any) -> Any:
+    [p] = c.on_set_parameters(client(client_id), [SimpleNamespace(name=name,
+                                                                  get_value=lambda: value)])
+    return p.get_value()
+
+
+def test_a_parameter_cannot_make_the_base_unstoppable_or_faster(real: Any) -> None:
+    """Issue: with nobody driving, a client set stop_decel and stop_angular_decel to
+    1e-6; the driving client then left and the base was still at 0.2 m/s two seconds
+    later. A live value may only make the base safer than its config: a lower stop
+    deceleration, a higher speed or acceleration are refused (the old value stays), a
+    safer one is taken, and the driver leaving stops the base at once."""
+    from .helpers import still
+
+    clock, sim, base, c = real
+    configured = base.cfg.chassis
+    assert _set(c, 2, "chassis.stop_decel", 1e-6) == configured.stop_decel
+    assert _set(c, 2, "chassis.stop_angular_decel", 0.5) == configured.stop_angular_decel
+    assert _set(c, 2, "chassis.max_accel", 5.0) == configured.max_accel
+    assert _set(c, 2, "chassis.max_wheel_speed", 2.0) == configured.max_wheel_speed
+    assert _set(c, 2, "chassis.max_speed", 1e9) == "inf"
+    assert base.cfg.chassis == configured
+    assert _set(c, 2, "chassis.max_speed", 0.25) == 0.25  # slower: safer, taken
+    assert _set(c, 2, "chassis.stop_decel", 4.0) == 4.0  # a shorter stop: taken
+    c.on_client_advertise(client(1), channel(1))
+    end = clock.now() + 1.5
+    while clock.now() < end:
+        c.on_message_data(client(1), 1, twist(0.6))
+        clock.sleep(0.02)
+    assert sim.true_twist.vx == pytest.approx(0.25, abs=0.01)  # the lower limit holds
+    c.on_client_unadvertise(client(1), 1)  # the driver leaves
+    # 0.25 m/s at 4 m/s^2: 63 ms; a few cycles for the wheels' own lag.
+    assert wait_for_sim(clock, lambda: still(sim), 0.3), sim.true_twist
+
+
+def wait_for_sim(clock: Any, pred: Any, timeout: float) -> bool:
+    return bool(clock.run_until(pred, timeout, 0.01))
+
+
+def test_absurd_values_from_a_client_are_refused_with_the_reason(real: Any) -> None:
+    """Issue: a Twist of 1e308 drove at the wheel limit, three of them moved nothing,
+    reset_odometry took x = 1e308, max_speed took 1e9. The base refuses each (one
+    check, in the library), the client is told why, and nothing moves."""
+    from .helpers import still
+
+    clock, sim, base, c = real
+    statuses: list[str] = []
+    c._server = SimpleNamespace(publish_status=lambda m, *_: statuses.append(m),
+                                remove_status=lambda *_: None)
+    c._status_level = SimpleNamespace(Warning="Warning", Info="Info")
+    c.on_client_advertise(client(1), channel(1))
+    for _ in range(3):
+        c.on_message_data(client(1), 1, _twist_json(linear={"x": 1e308, "y": 0, "z": 0},
+                                                    angular={"x": 0, "y": 0, "z": 0}))
+        clock.sleep(0.1)
+    assert still(sim) and base.command == Twist()
+    assert c.twists == 0 and c.refused == 3
+    assert "vx 1e+308 m/s is beyond any wheeled base" in statuses[-1]
+    assert c.arbiter.holder(clock.now()) is None  # a refused command takes no control
+    reply = call(c, "/omnican/reset_odometry", 1, {"x": 1e308})
+    assert reply == {"success": False, "message": "odometry reset refused: x 1e+308 m is "
+                     "beyond 1e+06 m (the motion added to it would be lost to rounding)"}
+    assert base.pose == Pose2D()
+    assert call(c, "/omnican/reset_odometry", 1, {"x": 2.0})["success"]
+    assert base.pose == Pose2D(2.0, 0.0, 0.0)
+    c.on_message_data(client(1), 1, twist(0.3))  # a sane one drives
+    clock.sleep(0.5)
+    assert sim.true_twist.vx == pytest.approx(0.3, abs=0.02)

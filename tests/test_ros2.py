@@ -20,7 +20,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from omnican import Chassis, Pose2D, default_config, load_config
+from omnican import Chassis, Pose2D, Twist, default_config, load_config
 from omnican.cia402 import State
 from omnican.cli import main
 from omnican.errors import ConfigError
@@ -102,9 +102,9 @@ def test_ros2_table_from_toml(tmp_path: Path) -> None:
     ('odom_topic = "2odom"', "ros2.odom_topic: invalid topic name"),
     ('base_frame = "/base_link"', "ros2.base_frame: must be a tf2 frame id"),
     ('base_frame = "odom"', "ros2.base_frame: must differ from odom_frame"),
-    ("odom_rate_hz = 0", "ros2.odom_rate_hz: must be a rate"),
-    ("odom_slip = 1.5", "ros2.odom_slip: must be in [0, 1)"),
-    ("wheel_radius = -1", "ros2.wheel_radius: must be a positive number"),
+    ("odom_rate_hz = 0", "ros2.odom_rate_hz: must be 0.01-1000, got 0"),
+    ("odom_slip = 1.5", "ros2.odom_slip: must be 0-0.99, got 1.5"),
+    ("wheel_radius = -1", "ros2.wheel_radius: must be 0.001-10, got -1"),
     ("joint_names = [1, 2, 3]", "ros2.joint_names: must be an array of strings"),
     ('joint_names = ["a", "a", "b"]', "ros2.joint_names: must be distinct"),
     ('publish_tf = "yes"', "ros2.publish_tf: must be bool"),
@@ -759,7 +759,7 @@ def test_quoted_values_stay_short(value: Any) -> None:
 
     text = quote(value)
     assert len(text) <= QUOTE_CHARS + 40
-    if len(repr(value) if not isinstance(value, str) else value) <= QUOTE_CHARS:
+    if len(repr(value)) <= QUOTE_CHARS:
         assert text == repr(value)
 
 
@@ -770,3 +770,25 @@ def test_ros_type_names_from_dds_names(package: str, message: str) -> None:
 
     assert ros_type_name(f"{package}::msg::dds_::{message}_") == f"{package}/msg/{message}"
     assert ros_type_name(f"{package}::{message}") == f"{package}::{message}"  # not ROS 2's
+
+
+def test_absurd_cmd_vel_values_are_refused_as_from_every_front_end(
+        rig: tuple[SimulatedBase, Chassis], caplog: pytest.LogCaptureFixture) -> None:
+    """A Twist of 1e308 drove at the wheel limit, three of them moved nothing (the
+    scaling overflowed): the base refuses a value beyond sense (the check Foxglove's
+    commands get too), the bridge counts it and says why, and no command reaches the
+    base."""
+    pytest.importorskip("cyclonedds")
+    from omnican.ros2.bridge import Bridge
+
+    _, base = rig
+    t = MemoryTransport()
+    with caplog.at_level("WARNING", logger="omnican"), \
+            Bridge(base, Ros2Settings(), t, poll_thread=False) as bridge:
+        for twist in (_twist(1e308, 0.0, 0.0), _twist(0.0, -1e308, 0.0),
+                      _twist(0.0, 0.0, 1e9)):
+            t.deliver("/cmd_vel", twist)
+            bridge.poll()
+        assert bridge.cmd_vel_rejected == 3
+        assert base.command == Twist()
+    assert "velocity command refused: vx 1e+308 m/s is beyond any wheeled base" in caplog.text

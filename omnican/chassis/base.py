@@ -36,9 +36,10 @@ from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, ChassisSettings, with_live_limits
 from omnican.drive import DriveNode
-from omnican.errors import ConfigError, DriveError
+from omnican.errors import DriveError
 from omnican.kinematics import Twist
 from omnican.layout import node_layouts
+from omnican.limits import MAX_STOP_S, command_problem, pose_problem
 from omnican.odometry import Pose2D
 from omnican.recording import open_recording, records_state
 from omnican.state import ChassisStatus, WheelState
@@ -78,7 +79,7 @@ class Chassis:
         loop.runner = self._runner
         self._own_sinks: list[Any] = []  # telemetry sinks open() made (a recording)
         self._limits_lock = threading.Lock()
-        self._opened_wheel_speed = cfg.chassis.max_wheel_speed
+        self._configured = cfg.chassis  # what a live limit may only make safer
         self._closed = False
         self._close_lock = threading.Lock()
         self._guards_signals = False
@@ -195,10 +196,13 @@ class Chassis:
     def set_velocity(self, vx: float, vy: float, wz: float) -> None:
         """Command a body velocity (m/s, m/s, rad/s); it lapses after ``cmd_timeout_s``.
 
-        Raises ValueError for NaN/inf (nothing changes); DriveError if the base is closed."""
+        Raises ValueError for NaN/inf or a value beyond any wheeled base (beyond
+        :data:`omnican.limits.MAX_SPEED_SENSE`; nothing changes then); DriveError if the
+        base is closed. Within that, a command beyond the limits drives at them."""
         twist = Twist(float(vx), float(vy), float(wz))
-        if not twist.is_finite():
-            raise ValueError(f"velocity command must be finite, got {twist}")
+        problem = command_problem(twist.vx, twist.vy, twist.wz)
+        if problem is not None:
+            raise ValueError(f"velocity command refused: {problem}")
         if self._closed:
             raise DriveError("the base is closed")
         self._loop.command = (twist, self.clock.now())
@@ -261,21 +265,18 @@ class Chassis:
     def set_limits(self, **changes: float) -> ChassisSettings:
         """Change velocity limits while the base runs: the [chassis] keys of
         :data:`omnican.config.LIVE_LIMITS` (``max_speed=0.3``, ``max_accel=0.5``, ...),
-        each checked as the config checks it. They take effect at the next control cycle;
-        ``max_wheel_speed`` may not go above what the base was opened with (the cycle
-        guards the wheels with that value). Returns the settings now in force (also
-        ``base.cfg.chassis``).
+        each checked as the config checks it. They take effect at the next control cycle.
+        A live value may only make the base safer than the config it was opened with: no
+        speed or acceleration above the config's, no stop deceleration below it (every
+        stop keeps the config's bounded stop time). Returns the settings now in force
+        (also ``base.cfg.chassis``).
 
         Raises ConfigError (a ValueError) naming the key and why; nothing changes then."""
         with self._limits_lock:
             if self._closed:
                 raise DriveError("the base is closed")
-            settings = with_live_limits(self.cfg.chassis, changes)
-            if settings.max_wheel_speed > self._opened_wheel_speed:
-                raise ConfigError(f"live: chassis.max_wheel_speed: at most "
-                                  f"{self._opened_wheel_speed:g} m/s, the value the base was "
-                                  f"opened with (raise it in the config), got "
-                                  f"{settings.max_wheel_speed:g}")
+            settings = with_live_limits(self.cfg.chassis, changes,
+                                        configured=self._configured)
             cfg = replace(self.cfg, chassis=settings)
             limits, limiter = cfg.limits(), self._loop.limiter
 
@@ -287,8 +288,14 @@ class Chassis:
         return settings
 
     def reset_pose(self, pose: Pose2D | None = None) -> None:
-        """Set the odometry pose (default: origin)."""
+        """Set the odometry pose (default: origin).
+
+        Raises ValueError for a pose no base can have (NaN, inf, beyond
+        :data:`omnican.limits.MAX_POSE_SENSE`); the pose stays then."""
         target = pose if pose is not None else Pose2D()
+        problem = pose_problem(target.x, target.y, target.theta)
+        if problem is not None:
+            raise ValueError(f"odometry reset refused: {problem}")
         loop = self._loop
         loop.call_soon(lambda: loop.odometry.reset(target))
         deadline = self.clock.now() + 1.0
@@ -396,10 +403,9 @@ class Chassis:
     def _controlled_shutdown(self, decelerate: bool = True) -> None:
         loop, clock = self._loop, self.clock
         loop.command = (Twist(), -float("inf"))
-        s = self.cfg.chassis
-        out = loop.limiter.output
-        speed = max(abs(out.linear_speed), abs(out.wz) * max(loop.kinematics.base_radius))
-        deadline = clock.now() + speed / s.stop_decel + 0.5
+        # The limiter's stop ramp is bounded (limits.MAX_STOP_S) whatever the limits say:
+        # so is this wait; the drives are disabled after it, stopped or not.
+        deadline = clock.now() + min(loop.limiter.stop_time_s(), MAX_STOP_S) + 0.5
         while decelerate and clock.now() < deadline:
             if loop.speeds_settled:
                 break

@@ -97,7 +97,16 @@ def add_subparser(sub: Any) -> None:
 
 def legs(args: argparse.Namespace) -> list[Leg] | None:
     """The motion as legs (None: no motion given, for Foxglove to drive); bad
-    combinations are usage errors."""
+    combinations, and values beyond any wheeled base (the base's own check), are usage
+    errors."""
+    plan = _legs(args)
+    problem = motion.plan_problem(plan or [])
+    if problem is not None:
+        raise UsageError(f"motion refused: {problem}")
+    return plan
+
+
+def _legs(args: argparse.Namespace) -> list[Leg] | None:
     cartesian = any(v is not None for v in (args.vx, args.vy, args.wz))
     polar = any(v is not None for v in (args.speed, args.heading_deg, args.omega))
     if args.square is not None:

@@ -317,6 +317,9 @@ class Control:
         source, now = self.source(client.id), self._now()
         try:
             twist = decode_twist(channel.encoding, channel.schema_name, data)
+            # The base checks the values (Chassis.set_velocity: beyond sense, refused).
+            holder = self.arbiter.claim(source, now, lambda: self.base.set_velocity(
+                twist.vx, twist.vy, twist.wz))
         except ValueError as exc:
             self.refused += 1
             mine = self.arbiter.may_act(source, now) is None
@@ -329,8 +332,6 @@ class Control:
                 self._status("Warning", f"{source}: {channel.topic}: {exc}: {what}",
                              _STATUS_REFUSED)
             return
-        holder = self.arbiter.claim(source, now, lambda: self.base.set_velocity(
-            twist.vx, twist.vy, twist.wz))
         if holder is not None:
             self.refused += 1
             with self._lock:
@@ -510,9 +511,9 @@ class Control:
             return False, f"unknown field {quote(unknown[0])} (x, y, theta)"
         try:
             pose = Pose2D(*(_number(body.get(k, 0.0), k) for k in ("x", "y", "theta")))
+            self.base.reset_pose(pose)  # the base refuses a pose beyond sense
         except ValueError as exc:
             return False, str(exc)
-        self.base.reset_pose(pose)
         return True, f"odometry reset to x={pose.x:g} y={pose.y:g} theta={pose.theta:g}"
 
     def _console(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from omnican.arbiter import CommandArbiter
 from omnican.errors import ConfigError, DriveError
+from omnican.errors import quote as _quote
 from omnican.kinematics import Twist
 from omnican.logthrottle import Throttle
 from omnican.ros2.settings import Ros2Settings, cyclone_config, dds_topic, resolve_name
@@ -288,11 +289,8 @@ def ros_type_name(dds_name: str) -> str:
 
 
 def quote(value: object, limit: int = QUOTE_CHARS) -> str:
-    """``repr(value)`` cut to about ``limit`` characters, saying how long it was."""
-    text = value if isinstance(value, str) else repr(value)
-    if len(text) <= limit:
-        return text if not isinstance(value, str) else repr(value)
-    return f"{text[:limit]!r}... ({len(text)} characters)"
+    """``repr(value)`` cut to ``limit`` characters (:func:`omnican.errors.quote`)."""
+    return _quote(value, limit)
 
 
 @contextlib.contextmanager
