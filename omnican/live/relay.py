@@ -203,11 +203,16 @@ async def _pump_frames(reader: asyncio.StreamReader, writer: asyncio.StreamWrite
     except (ConnectionError, OSError, asyncio.IncompleteReadError):
         pass
     finally:
-        with contextlib.suppress(Exception):
-            if writer.can_write_eof():
-                writer.write_eof()
-            else:
-                writer.close()
+        _end(writer)
+
+
+def _end(writer: asyncio.StreamWriter) -> None:
+    """Pass the end of one direction on: half-close where the transport can, else close."""
+    with contextlib.suppress(Exception):
+        if writer.can_write_eof():
+            writer.write_eof()
+        else:
+            writer.close()
 
 
 def _answer(status: str, text: str) -> bytes:
@@ -235,11 +240,7 @@ async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> N
     except (ConnectionError, OSError, asyncio.IncompleteReadError):
         pass
     finally:
-        with contextlib.suppress(Exception):
-            if writer.can_write_eof():
-                writer.write_eof()
-            else:
-                writer.close()
+        _end(writer)
 
 
 class Relay:
