@@ -56,6 +56,21 @@ def loop_thread(base: Chassis) -> threading.Thread:
     return runner.thread
 
 
+def cycle_starts(base: Chassis) -> list[float]:
+    """The start time of each control cycle from now on: the runner's cycle, wrapped to
+    note when it began (the list grows while the base runs)."""
+    runner = base._runner
+    starts: list[float] = []
+    cycle = runner.cycle
+
+    def timed(now: float) -> None:
+        starts.append(now)
+        cycle(now)
+
+    runner.cycle = timed
+    return starts
+
+
 def thread_cpu(thread: threading.Thread) -> float:
     """CPU seconds a thread has used (Linux per-thread clock)."""
     assert thread.ident is not None

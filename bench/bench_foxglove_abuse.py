@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_chassis import config, emit
+from bench_chassis import config, cycle_starts, emit
 
 from omnican import Chassis
 from omnican.live import FoxgloveSettings, watch
@@ -127,14 +127,7 @@ def one_run(rate_hz: float, seconds: float, kind: str) -> dict[str, Any]:
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
             contextlib.ExitStack() as stack:
         runner = base._runner
-        starts: list[float] = []
-        cycle = runner.cycle
-
-        def timed(now: float) -> None:
-            starts.append(now)
-            cycle(now)
-
-        runner.cycle = timed
+        starts = cycle_starts(base)
         view = stack.enter_context(watch(base, sim, settings))
         assert view is not None
         time.sleep(1.0)  # set-up done

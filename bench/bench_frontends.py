@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_chassis import config, emit
+from bench_chassis import config, cycle_starts, emit
 from bench_record import _Watcher
 
 from omnican import Chassis
@@ -35,14 +35,7 @@ def one_run(rate_hz: float, seconds: float, frontends: bool, tmp: Path) -> dict[
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=record) as base, \
             contextlib.ExitStack() as stack:
         runner = base._runner
-        starts: list[float] = []
-        cycle = runner.cycle
-
-        def timed(now: float) -> None:
-            starts.append(now)
-            cycle(now)
-
-        runner.cycle = timed
+        starts = cycle_starts(base)
         messages = None
         if frontends:
             from omnican.live import watch

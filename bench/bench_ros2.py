@@ -27,6 +27,8 @@ import uuid
 from collections.abc import Callable
 from typing import Any
 
+from bench_chassis import cycle_starts
+
 from omnican import Chassis, default_config
 from omnican.ros2 import msgs
 from omnican.ros2.bridge import Bridge, TopicQos
@@ -184,14 +186,7 @@ def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
     transport = DdsTransport(settings)
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
         runner = base._runner
-        starts: list[float] = []
-        cycle = runner.cycle
-
-        def timed(now: float) -> None:
-            starts.append(now)
-            cycle(now)
-
-        runner.cycle = timed
+        starts = cycle_starts(base)
         bridge = Bridge(base, settings, transport, sim=sim).start()
         child = subprocess.Popen([sys.executable, __file__, "--flooder", str(domain),
                                   str(rate_hz), str(seconds)], stdout=subprocess.PIPE,
