@@ -25,7 +25,8 @@ from omnican.limits import MAX_STOP_S
 from omnican.sim import SimulatedBase
 
 from .helpers import drive_for, one_error_line, sim_config, still, wait_for
-from .test_faults_process import SimProcess, free_port
+from .test_faults_process import SimProcess
+from .test_health_process import sim as sim_process  # noqa: F401 (the fixture, reused)
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"stop_decel": 1e-9, "stop_angular_decel": 1e-9}  # an endless stop, as given
@@ -107,19 +108,8 @@ def test_a_config_with_a_tiny_deceleration_is_refused_before_anything_moves(
     assert proc.stdout == ""
 
 
-@pytest.fixture
-def sim_process() -> Iterator[tuple[SimProcess, int]]:
-    port = free_port()
-    process = SimProcess(port)
-    try:
-        yield process, port
-    finally:
-        while SimProcess.started:
-            SimProcess.started.pop().kill()
-
-
 def test_a_base_stops_in_bounded_time_against_another_process(
-        sim_process: tuple[SimProcess, int]) -> None:
+        sim_process: tuple[SimProcess, int]) -> None:  # noqa: F811 (the fixture)
     """The base in this process, given 1e-9 decelerations in code, drives the drives of
     ``omnican sim`` in another: the stop, the watchdog's stop and closing each leave the
     simulator's true pose still (it rolled on at 0.3 m/s before)."""
