@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import codecs
 import fcntl
 import os
 import re
@@ -37,6 +38,9 @@ class Pty:
                                      preexec_fn=controlling_terminal)  # noqa: PLW1509
         os.close(slave)
         self.screen = ""
+        # One decoder for the whole stream: a character whose bytes two reads split
+        # (a box-drawing line, 3 bytes each) must not become two replacement characters.
+        self._decoder = codecs.getincrementaldecoder("utf-8")("replace")
 
     def read(self, timeout: float = 0.2) -> str:
         end = time.monotonic() + timeout
@@ -44,7 +48,7 @@ class Pty:
             ready, _, _ = select.select([self.master], [], [], 0.05)
             if ready:
                 try:
-                    chunk = os.read(self.master, 65536).decode("utf-8", "replace")
+                    chunk = self._decoder.decode(os.read(self.master, 65536))
                 except OSError:
                     break
                 self.screen += chunk
