@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from omnican import Odometry, OmniKinematics, Twist
-from omnican.limits import VelocityLimiter, VelocityLimits
+from omnican.core.limits import VelocityLimiter, VelocityLimits
 
 
 def rate(fn, n: int, repeat: int = 5) -> float:  # type: ignore[no-untyped-def]

@@ -53,7 +53,7 @@ from bench_chassis import config, notifier_threads, percentile, thread_cpu
 
 from omnican import Chassis
 from omnican.clock import SimClock
-from omnican.lockstep import LockstepBus
+from omnican.io.lockstep import LockstepBus
 from omnican.sim import SimulatedBase
 
 LATE = 0.2  # of a period

@@ -153,7 +153,7 @@ def _hand_loop(cfg: Any, clock: Any, kind: str) -> Iterator[tuple[Any, Any]]:
 
     import canopen
 
-    from omnican.lockstep import LockstepBus, listeners_receiver
+    from omnican.io.lockstep import LockstepBus, listeners_receiver
 
     channel = str(cfg.bus["channel"])
     net = canopen.Network()

@@ -18,7 +18,8 @@ import statistics
 import time
 import uuid
 
-from omnican import Chassis, default_config, motion
+from omnican import Chassis, default_config
+from omnican.command import motion
 from omnican.errors import OmnicanError
 from omnican.sim import SimClock, SimulatedBase
 from omnican.sim.link import LossyLink

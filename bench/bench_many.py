@@ -26,7 +26,7 @@ from typing import Any
 from bench_chassis import config, loop_thread, thread_cpu
 
 from omnican import Chassis
-from omnican.layout import heartbeat_bits_per_s, max_rate_hz
+from omnican.plan.node import heartbeat_bits_per_s, max_rate_hz
 from omnican.sim import SimulatedBase
 
 BITRATE = 1_000_000

@@ -79,10 +79,10 @@ def bench_sent_frame(tmp: Path) -> None:
     import uuid
 
     from omnican import default_config
-    from omnican.bus import CanBus
     from omnican.clock import REAL_TIME
-    from omnican.mcap_record import McapRecorder
-    from omnican.recording import LogRecorder
+    from omnican.io.bus import CanBus
+    from omnican.record.can_log import LogRecorder
+    from omnican.record.mcap import McapRecorder
     from omnican.telemetry import Feed, TelemetrySettings
 
     n = 20_000

@@ -24,6 +24,18 @@ class BusError(OmnicanError):
     """The CAN bus could not be opened or went down."""
 
 
+class GamepadError(OmnicanError):
+    """No usable gamepad."""
+
+
+class RecordingError(ConfigError):
+    """A recording that cannot be read: missing, unreadable, unknown format, empty."""
+
+
+class BaseStoppedError(OmnicanError):
+    """The base stopped itself (a fault, a lost drive) during the motion."""
+
+
 #: How much of a value an error message quotes (a client may send a megabyte).
 QUOTE_LIMIT = 40
 

@@ -29,7 +29,6 @@ settings.load_profile("omnican")
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
-VENDOR_EDS = Path(__file__).resolve().parents[1] / "examples" / "eds"  # shipped as examples
 
 
 @pytest.fixture
@@ -77,10 +76,9 @@ def no_leaked_virtual_channels() -> Iterator[None]:
 def served(channel: str, tmp_path: Path) -> Iterator[tuple[Any, Path]]:
     """Simulated drives in this process behind a loopback hub, and a config file that
     reaches them from another process (``interface = "remote"``)."""
-    from omnican.hub import LoopbackHub
+    from omnican.io.hub import LoopbackHub
     from omnican.sim import SimulatedBase
-
-    from .helpers import sim_config
+    from tests.support.helpers import sim_config
 
     cfg = sim_config(channel)
     with SimulatedBase.from_config(cfg) as sim, LoopbackHub(channel, port=0) as hub:

@@ -123,7 +123,7 @@ def test_a_lockstep_peer_receives_the_frame_as_sent(can_id: int, data: bytes, ex
     stamped with the clock's wall time when it was sent."""
     import can
 
-    from omnican.lockstep import LockstepBus
+    from omnican.io.lockstep import LockstepBus
 
     clock = SimClock()
     clock.sleep(later)

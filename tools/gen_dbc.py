@@ -1,8 +1,8 @@
 """Generate ``dbc/omnican.dbc``: the CAN frames of the demo base (nodes 1-3 on the
 bundled EDS) for cantools, ``omnican monitor`` and ``cantools decode``.
 
-The frames come from ``omnican.dbcgen`` (the plan omnican configures), so the file stays
-derivable from the bundled EDS; ``tests/test_dbc.py`` fails when the two drift apart.
+The frames come from ``omnican.plan.dbc`` (the plan omnican configures), so the file stays
+derivable from the bundled EDS; ``tests/plan/test_dbc.py`` fails when the two drift apart.
 
 Usage::
 
@@ -18,7 +18,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from omnican.dbcgen import build_database, dbc_text
+from omnican.plan.dbc import build_database, dbc_text
 
 DBC_PATH = Path(__file__).resolve().parent.parent / "omnican" / "dbc" / "omnican.dbc"
 

@@ -11,7 +11,7 @@ the format the app exports and its *Import from file...* reads (``configById`` a
 ``layout`` tree of splits), which Foxglove Studio 1.x and Lichtblick read too. The SDK's
 own ``Layout.to_json()`` is another format (a tree of containers, for Foxglove's layout
 API) that those apps do not import. ``python tools/gen_foxglove_layout.py`` writes it;
-``--check`` exits 1 if the file in the repository differs (tests/test_live.py runs the
+``--check`` exits 1 if the file in the repository differs (tests/live/test_view.py runs the
 same check).
 """
 
@@ -150,7 +150,7 @@ def panels() -> Any:
 
     # Proportions: at the window the app was tried in (about 1180 x 970 px of panels) the
     # drive states show all five rows (64 px each) and the diagnostics all five statuses
-    # on one line each; tests/test_foxglove_app.py checks.
+    # on one line each; tests/interop/test_foxglove_app.py checks.
     live = split("row",
                  (1.0, split("column", (1.3, scene()), (1.0, path))),
                  (1.3, split("column", (0.8, speeds), (0.8, twist()), (1.1, states()))),

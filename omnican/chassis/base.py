@@ -26,23 +26,23 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from omnican.bus import CanBus
 from omnican.chassis import realtime
 from omnican.chassis.cycle import ControlCycle
 from omnican.chassis.health import HealthMonitor
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
 from omnican.chassis.signals import guard
+from omnican.chassis.state import ChassisStatus, WheelState
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, ChassisSettings, with_live_limits
+from omnican.core.kinematics import Twist
+from omnican.core.limits import MAX_STOP_S, command_problem, pose_problem
+from omnican.core.odometry import Pose2D
 from omnican.drive import DriveNode
 from omnican.errors import DriveError
-from omnican.kinematics import Twist
-from omnican.layout import node_layouts
-from omnican.limits import MAX_STOP_S, command_problem, pose_problem
-from omnican.odometry import Pose2D
-from omnican.recording import open_recording, records_state
-from omnican.state import ChassisStatus, WheelState
+from omnican.io.bus import CanBus
+from omnican.plan.node import node_layouts
+from omnican.record.can_log import open_recording, records_state
 from omnican.telemetry.feed import Feed
 
 logger = logging.getLogger("omnican.chassis")
@@ -110,7 +110,7 @@ class Chassis:
             bus: ``can.Bus`` arguments overriding ``cfg.bus``.
             record: record the bus to this file: a python-can log (.log/.asc/.blf: the
                 frames), or .mcap (the frames and the robot's state); or a recorder
-                (:mod:`omnican.recording`) or telemetry sink, closed with the base.
+                (:mod:`omnican.record.can_log`) or telemetry sink, closed with the base.
             handle_signals: in the main thread, turn SIGTERM into SystemExit so the
                 ``with`` block unwinds and the drives are disabled, and keep a second
                 SIGINT/SIGTERM from cutting that stop short.
@@ -197,7 +197,7 @@ class Chassis:
         """Command a body velocity (m/s, m/s, rad/s); it lapses after ``cmd_timeout_s``.
 
         Raises ValueError for NaN/inf or a value beyond any wheeled base (beyond
-        :data:`omnican.limits.MAX_SPEED_SENSE`; nothing changes then); DriveError if the
+        :data:`omnican.core.limits.MAX_SPEED_SENSE`; nothing changes then); DriveError if the
         base is closed. Within that, a command beyond the limits drives at them."""
         twist = Twist(float(vx), float(vy), float(wz))
         problem = command_problem(twist.vx, twist.vy, twist.wz)
@@ -291,7 +291,7 @@ class Chassis:
         """Set the odometry pose (default: origin).
 
         Raises ValueError for a pose no base can have (NaN, inf, beyond
-        :data:`omnican.limits.MAX_POSE_SENSE`); the pose stays then."""
+        :data:`omnican.core.limits.MAX_POSE_SENSE`); the pose stays then."""
         target = pose if pose is not None else Pose2D()
         problem = pose_problem(target.x, target.y, target.theta)
         if problem is not None:

@@ -18,21 +18,21 @@ import queue
 from collections.abc import Callable
 from typing import Any
 
-from omnican.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
+from omnican.chassis.state import Snapshot
 from omnican.chassis.supervisor import NodeSupervisor
-from omnican.cia301 import HEARTBEAT_BASE, NmtState
-from omnican.cia402 import ENABLED_BITS as _ENABLED_BITS
-from omnican.cia402 import ENABLED_MASK as _ENABLED_MASK
 from omnican.clock import Clock
 from omnican.config import ChassisConfig
+from omnican.core.encoder import SPEED_WINDOW_S
+from omnican.core.kinematics import Twist
+from omnican.core.limits import VelocityLimiter
+from omnican.core.odometry import Odometry
 from omnican.drive import AxisIO, DriveNode
-from omnican.encoder import SPEED_WINDOW_S
-from omnican.heartbeat import HeartbeatSchedule
-from omnican.kinematics import Twist
-from omnican.layout import cycle_bits
-from omnican.limits import VelocityLimiter
-from omnican.odometry import Odometry
-from omnican.state import Snapshot
+from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
+from omnican.plan.node import cycle_bits
+from omnican.protocol.cia301 import HEARTBEAT_BASE, NmtState
+from omnican.protocol.cia402 import ENABLED_BITS as _ENABLED_BITS
+from omnican.protocol.cia402 import ENABLED_MASK as _ENABLED_MASK
+from omnican.protocol.heartbeat import HeartbeatSchedule
 from omnican.telemetry.feed import Feed
 from omnican.telemetry.settings import TelemetrySettings
 
@@ -341,6 +341,6 @@ class ControlCycle:
 
 def _database(cfg: ChassisConfig) -> Any:
     """The base's DBC, for decoded frames (cantools: imported when a front end wants them)."""
-    from omnican.dbcgen import database_for
+    from omnican.plan.dbc import database_for
 
     return database_for(cfg)

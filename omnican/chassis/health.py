@@ -1,10 +1,10 @@
 """What the drives report and what the wheels do, checked a few dozen times a second on
 the loop thread by the supervisor (never by the control cycle itself):
 
-- each wheel against its target (:mod:`omnican.tracking`), from the targets and
+- each wheel against its target (:mod:`omnican.core.tracking`), from the targets and
   measured speeds the cycle already has, and the following error a drive reports
   (statusword bit 13 in pv and csv);
-- each wheel's current against its siblings' (:mod:`omnican.lift`): one off the ground
+- each wheel's current against its siblings' (:mod:`omnican.core.lift`): one off the ground
   (or without its roller) warns, or stops the base (``chassis.lifted_wheel``);
 - each wheel of a stopped base (latched, or a drive out of OPERATION ENABLED) whose
   drive is still energised: one that turns, or whose drive pushes against its zero
@@ -12,8 +12,8 @@ the loop thread by the supervisor (never by the control cycle itself):
   named;
 - the e-stop input (``[estop]``): pressed, it is the stop's reason, and ``recover()``
   refuses while it is held;
-- the battery (``[power]``, :mod:`omnican.battery`): a warning, then a controlled stop;
-- the CAN controller (:mod:`omnican.canstate`): bus-off is a stop's reason, and
+- the battery (``[power]``, :mod:`omnican.chassis.battery`): a warning, then a controlled stop;
+- the CAN controller (:mod:`omnican.protocol.can_state`): bus-off is a stop's reason, and
   ``recover()`` refuses until the controller is restarted;
 - the health values themselves (:mod:`omnican.drive.health`): the round-robin SDO reads
   are sent from here, and the values each wheel shows are made here, a tuple handed to
@@ -27,19 +27,19 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-from omnican import cia402
-from omnican.battery import BatteryMonitor, base_voltage
-from omnican.bus import CanBus
-from omnican.cia402 import Mode, State
+from omnican.chassis.battery import BatteryMonitor, base_voltage
+from omnican.chassis.state import no_health
 from omnican.config import ChassisConfig
+from omnican.core.lift import LiftDetector
+from omnican.core.limits import longest_stop_s
+from omnican.core.tracking import ZERO_M_S, StandstillWatch, TrackingDetector
 from omnican.drive import DriveNode
 from omnican.drive.health import NodeHealth
-from omnican.healthplan import HealthRead
-from omnican.lift import LiftDetector
-from omnican.limits import longest_stop_s
-from omnican.odmap import Obj
-from omnican.state import no_health
-from omnican.tracking import ZERO_M_S, StandstillWatch, TrackingDetector
+from omnican.io.bus import CanBus
+from omnican.plan.health import HealthRead
+from omnican.protocol import cia402
+from omnican.protocol.cia402 import Mode, State
+from omnican.protocol.object_map import Obj
 
 logger = logging.getLogger("omnican.chassis")
 
@@ -158,7 +158,7 @@ class HealthMonitor:
         #: why recover() may not clear the stop now (an e-stop held, bus-off), or None
         self.estop_held: str | None = None
         self.bus_off: str | None = None
-        #: what each snapshot carries until the next check (see omnican.state.no_health)
+        #: what each snapshot carries until the next check (see omnican.chassis.state.no_health)
         self.values: tuple[tuple[tuple[Any, ...], ...], tuple[Any, ...]] = no_health(len(axes))
 
     def check(self, now: float, sup: Latches) -> None:

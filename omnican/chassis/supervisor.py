@@ -22,18 +22,24 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
-from omnican import cia402
-from omnican.bus import CanBus
 from omnican.chassis.health import HealthMonitor
-from omnican.cia301 import NMT_COB_ID, NMT_COMMAND_NAMES, NmtCommand, NmtState, nmt_state_name
-from omnican.cia402 import ENABLED_BITS as _ENABLED_BITS
-from omnican.cia402 import ENABLED_MASK as _ENABLED_MASK
-from omnican.cia402 import Command, State, describe_emcy
 from omnican.clock import Clock
 from omnican.drive import DriveNode
 from omnican.errors import DriveError, OmnicanError
-from omnican.logthrottle import Throttle
-from omnican.sdocycle import SDO_REQUEST_BASE, download_request
+from omnican.io.bus import CanBus
+from omnican.log_throttle import Throttle
+from omnican.protocol import cia402
+from omnican.protocol.cia301 import (
+    NMT_COB_ID,
+    NMT_COMMAND_NAMES,
+    NmtCommand,
+    NmtState,
+    nmt_state_name,
+)
+from omnican.protocol.cia402 import ENABLED_BITS as _ENABLED_BITS
+from omnican.protocol.cia402 import ENABLED_MASK as _ENABLED_MASK
+from omnican.protocol.cia402 import Command, State, describe_emcy
+from omnican.protocol.sdo_cycle import SDO_REQUEST_BASE, download_request
 
 logger = logging.getLogger("omnican.chassis")
 

@@ -35,8 +35,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from omnican import calibration, motion, replay
-from omnican.calibration import Correction, FitResult, FitRun
+from omnican.analysis import calibration
+from omnican.analysis.calibration import Correction, FitResult, FitRun
 from omnican.cli.common import (
     EXIT_FAILURE,
     EXIT_OK,
@@ -51,9 +51,11 @@ from omnican.cli.common import (
     progress_bar,
     session,
 )
+from omnican.command import motion
 from omnican.config import WHEEL_EDS, ChassisConfig
-from omnican.errors import ConfigError
-from omnican.odometry import Pose2D
+from omnican.core.odometry import Pose2D
+from omnican.errors import BaseStoppedError, ConfigError
+from omnican.record import replay
 
 DEFAULT_SIM_SCALE_ERROR = 0.03
 DEFAULT_SIM_RADIUS_ERROR = 0.02
@@ -261,7 +263,7 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
                                 f"{poses[1].distance_to(poses[0]):.4f}): ", _parse_distance)
             with progress_bar(spin.seconds) as bar:
                 motion.run(base, [spin], bar)
-        except motion.BaseStoppedError as exc:
+        except BaseStoppedError as exc:
             raise _RunError(f"base stopped: {exc}") from None
         poses.append(base.pose)
         if sim is not None:

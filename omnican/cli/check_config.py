@@ -20,7 +20,7 @@ from omnican.config import ChassisConfig, load_config, reference_rows
 from omnican.errors import ConfigError
 
 if TYPE_CHECKING:
-    from omnican.layout import NodeLayout
+    from omnican.plan.node import NodeLayout
 
 
 def add_subparser(sub: Any) -> None:
@@ -44,7 +44,7 @@ def key_reference() -> str:
 
 
 def layouts_or_problems(cfg: ChassisConfig) -> tuple[list[NodeLayout], list[str]]:
-    from omnican.layout import NodeLayout
+    from omnican.plan.node import NodeLayout
 
     layouts, problems = [], []
     for node_id, wheels in cfg.nodes().items():
@@ -79,8 +79,8 @@ def scale_lines(cfg: ChassisConfig) -> list[str]:
 
 def check_file(path: str, bitrate_arg: int | None) -> int:
     """Check one file and print its result; the exit status it earns."""
-    from omnican.layout import cycle_bits, heartbeat_bits_per_s
-    from omnican.pdoplan import frame_bits
+    from omnican.plan.node import cycle_bits, heartbeat_bits_per_s
+    from omnican.plan.pdo import frame_bits
     try:
         cfg = check_front_ends(load_config(path))
     except ConfigError as exc:
@@ -150,7 +150,7 @@ def bus_load_problem(cfg: ChassisConfig, layouts: list[NodeLayout],
     """The bus load's verdict ahead of the details, for the file's first line: it said
     "OK" and then, lines later, "bus load 518 % TOO HIGH" (exit 2). None: it fits, or
     no bitrate is known (a bitrate that is no number is reported where it is read)."""
-    from omnican.layout import cycle_bits, heartbeat_bits_per_s
+    from omnican.plan.node import cycle_bits, heartbeat_bits_per_s
 
     bitrate = bitrate_arg or (cfg.bus or {}).get("bitrate")
     try:
@@ -199,7 +199,7 @@ def host_loss_line(layout: NodeLayout) -> str:
 def health_lines(layout: NodeLayout) -> list[str]:
     """What a node reports of its health and how it is read; its e-stop; its vendor
     settings."""
-    from omnican.healthplan import PER_AXIS
+    from omnican.plan.health import PER_AXIS
 
     lines = []
     for axis in layout.axes:
@@ -238,7 +238,7 @@ def _unit(read: Any) -> str:
 
 def _fits(bits: int, hb_bits_per_s: float, rate_hz: float, bitrates: list[int]) -> str:
     """Bus load at ``rate_hz`` and the highest rate within 80 %, per bitrate."""
-    from omnican.layout import max_rate_hz
+    from omnican.plan.node import max_rate_hz
     return "; ".join(
         f"bus load {(bits * rate_hz + hb_bits_per_s) / b:.0%} at {b // 1000} kbit/s, highest "
         f"rate within 80 %: {math.floor(max_rate_hz(bits, hb_bits_per_s, b, 0.8))} Hz"

@@ -25,7 +25,7 @@ from omnican.errors import ConfigError
 
 if TYPE_CHECKING:
     from omnican.config import ChassisConfig
-    from omnican.odometry import Pose2D
+    from omnican.core.odometry import Pose2D
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C

@@ -23,7 +23,6 @@ from collections.abc import Iterator
 from dataclasses import asdict
 from typing import Any
 
-from omnican import motion
 from omnican.chassis import Chassis, supervisor
 from omnican.cli.common import (
     EXIT_FAILURE,
@@ -45,11 +44,12 @@ from omnican.cli.common import (
     rounded,
     session,
 )
-from omnican.errors import ConfigError, OmnicanError
-from omnican.kinematics import Twist
+from omnican.command import motion
+from omnican.command.motion import Leg
+from omnican.core.kinematics import Twist
+from omnican.core.odometry import Pose2D
+from omnican.errors import BaseStoppedError, ConfigError, OmnicanError
 from omnican.live import prepare, watch
-from omnican.motion import Leg
-from omnican.odometry import Pose2D
 
 DEFAULT_DURATION_S = 1.0
 _BOTH_DRIVE = ("--foxglove-control takes the motion from Foxglove: give no motion, only "
@@ -266,7 +266,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
                 watch(base, s.sim, fox, announce=_note):
             try:
                 result = execute(base, plan) if plan else take_commands(base, args.duration)
-            except motion.BaseStoppedError as exc:
+            except BaseStoppedError as exc:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
                 stops.said = True
                 if args.json:

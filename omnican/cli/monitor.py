@@ -27,6 +27,13 @@ import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+from omnican.analysis.traffic import (
+    DEFAULT_DBC,
+    TrafficCounter,
+    TrafficSnapshot,
+    listening,
+    load_dbc,
+)
 from omnican.cli.common import (
     EXIT_OK,
     add_bus_arguments,
@@ -35,7 +42,6 @@ from omnican.cli.common import (
     positive_float,
     session,
 )
-from omnican.traffic import DEFAULT_DBC, TrafficCounter, TrafficSnapshot, listening, load_dbc
 
 logger = logging.getLogger(__name__)
 
@@ -232,7 +238,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.dbc:
         db = load_dbc(args.dbc)
     elif args.config:  # this robot's own frames: vendor mappings decode under their names
-        from omnican.dbcgen import build_database
+        from omnican.plan.dbc import build_database
 
         db = build_database(configured)
     else:
@@ -250,7 +256,7 @@ def _run(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
             more = []
             if args.record:  # what the monitor hears, recorded
-                from omnican.recording import recording_frames
+                from omnican.record.can_log import recording_frames
 
                 more.append(stack.enter_context(recording_frames(args.record, s.cfg)))
             stack.enter_context(listening(bus_kwargs, monitor, *more))

@@ -24,8 +24,6 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from omnican import motion, replay
-from omnican.cia402 import State
 from omnican.cli.common import (
     EXIT_OK,
     UsageError,
@@ -39,7 +37,11 @@ from omnican.cli.common import (
     progress_bar,
     session,
 )
-from omnican.odometry import Pose2D
+from omnican.command import motion
+from omnican.core.odometry import Pose2D
+from omnican.errors import BaseStoppedError
+from omnican.protocol.cia402 import State
+from omnican.record import replay
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -348,7 +350,7 @@ def _sample_truth(sim: Any,
 
 def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
                                                                 list[tuple[float, float]]]:
-    from omnican.calibration import truth_options
+    from omnican.analysis.calibration import truth_options
     from omnican.chassis import Chassis
 
     cfg = load(args)
@@ -362,7 +364,7 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
             with progress_bar(motion.nominal_duration(plan, c.max_accel,
                                                       c.max_angular_accel)) as bar:
                 motion.run(base, plan, bar)
-        except motion.BaseStoppedError as exc:
+        except BaseStoppedError as exc:
             print(f"omnican: warning: base stopped: {exc}", file=sys.stderr)
     return replay.load(record, s.cfg), truth
 

@@ -14,7 +14,6 @@ import os
 from dataclasses import replace
 from typing import Any
 
-from omnican.arbiter import CommandArbiter
 from omnican.cli.common import (
     EXIT_OK,
     UsageError,
@@ -27,6 +26,7 @@ from omnican.cli.common import (
     serve_lines,
     session,
 )
+from omnican.command.arbiter import CommandArbiter
 from omnican.errors import ConfigError
 from omnican.live import prepare, watch
 

@@ -16,10 +16,10 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from omnican.cia402 import MODE_NAMES
+from omnican.analysis.scan import FoundNode, check, scan
 from omnican.cli.common import EXIT_FAILURE, EXIT_OK, add_bus_arguments, positive_float, session
-from omnican.layout import node_layouts
-from omnican.scan import FoundNode, check, scan
+from omnican.plan.node import node_layouts
+from omnican.protocol.cia402 import MODE_NAMES
 
 
 def add_subparser(sub: Any) -> None:

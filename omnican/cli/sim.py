@@ -28,7 +28,7 @@ from omnican.cli.common import (
     positive_float,
     serve_lines,
 )
-from omnican.hub import DEFAULT_PORT, LoopbackHub
+from omnican.io.hub import DEFAULT_PORT, LoopbackHub
 from omnican.live import foxglove_address, prepare, watch
 from omnican.sim import SimulatedBase
 from omnican.sim.console import COMMANDS, command, commands_help

@@ -33,9 +33,7 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-from omnican.arbiter import CommandArbiter
 from omnican.chassis import Chassis
-from omnican.cia402 import State
 from omnican.cli.common import (
     UsageError,
     add_bus_arguments,
@@ -47,11 +45,13 @@ from omnican.cli.common import (
     positive_float,
     session,
 )
+from omnican.command.arbiter import CommandArbiter
+from omnican.command.teleop import ESC, Intent, TeleopModel, key_help
+from omnican.core.kinematics import Twist
 from omnican.errors import OmnicanError
-from omnican.gamepad import Gamepad, config_table, pad_command, teleop_model_for
-from omnican.kinematics import Twist
+from omnican.gamepad.device import Gamepad, config_table, pad_command, teleop_model_for
 from omnican.live import prepare, watch
-from omnican.teleop_model import ESC, Intent, TeleopModel, key_help
+from omnican.protocol.cia402 import State
 
 # The last byte of an arrow key's escape sequence -> the key it stands for.
 ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}  # up, down, right, left

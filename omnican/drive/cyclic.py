@@ -18,14 +18,15 @@ from typing import Protocol
 import can
 import canopen
 
-from omnican.bus import prepared_message
-from omnican.cia301 import abort_text
 from omnican.clock import Clock
 from omnican.config import ChassisSettings, WheelConfig
 from omnican.drive.stage import StageDriver
-from omnican.odmap import AxisObjects, Entry
-from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer, frame_bits
-from omnican.sdocycle import (
+from omnican.io.bus import prepared_message
+from omnican.plan.codec import PdoCodec
+from omnican.plan.pdo import NodePlan, PlannedPdo, SdoTransfer, frame_bits
+from omnican.protocol.cia301 import abort_text
+from omnican.protocol.object_map import AxisObjects, Entry
+from omnican.protocol.sdo_cycle import (
     SDO_REQUEST_BASE,
     Answer,
     AnswerKind,
@@ -33,7 +34,6 @@ from omnican.sdocycle import (
     parse_answer,
     upload_request,
 )
-from omnican.wire import PdoCodec
 
 logger = logging.getLogger("omnican.drive")
 

@@ -2,7 +2,7 @@
 receiving thread: values copied, nothing else) and the round-robin expedited SDO reads
 of the rest, one request at a time, sent on the loop thread at the health-check rate.
 
-The plan is :mod:`omnican.healthplan`'s; :class:`NodeHealth` keeps the newest raw value
+The plan is :mod:`omnican.plan.health`'s; :class:`NodeHealth` keeps the newest raw value
 of each object and when it came, and says what each wheel's values are in SI units.
 A value older than :data:`STALE_PERIODS` health periods is unknown (None): a drive that
 went silent shows nothing rather than its last current.
@@ -17,9 +17,9 @@ from typing import Any
 import canopen
 
 from omnican.clock import Clock
-from omnican.healthplan import HealthPlan, HealthRead
-from omnican.sdocycle import SDO_REQUEST_BASE, Answer, AnswerKind, upload_request
-from omnican.wire import PdoCodec
+from omnican.plan.codec import PdoCodec
+from omnican.plan.health import HealthPlan, HealthRead
+from omnican.protocol.sdo_cycle import SDO_REQUEST_BASE, Answer, AnswerKind, upload_request
 
 logger = logging.getLogger("omnican.drive")
 

@@ -21,18 +21,18 @@ import can
 import canopen
 from canopen.emcy import EmcyError
 
-from omnican import cia402, heartbeat
-from omnican.cia301 import HEARTBEAT_BASE, NMT_STATE_MASK, NmtState
 from omnican.clock import REAL_TIME, Clock
 from omnican.drive.cyclic import AxisIO, CyclicIO, EpochSource, SdoCounts
 from omnican.drive.health import NodeHealth
 from omnican.drive.sdoclient import CheckedRemoteNode
 from omnican.drive.setup import NodeSetup
 from omnican.drive.stage import StageDriver
-from omnican.healthplan import HealthPlan
-from omnican.layout import NodeLayout
-from omnican.logthrottle import Throttle
-from omnican.pdoplan import NodePlan
+from omnican.log_throttle import Throttle
+from omnican.plan.health import HealthPlan
+from omnican.plan.node import NodeLayout
+from omnican.plan.pdo import NodePlan
+from omnican.protocol import cia402, heartbeat
+from omnican.protocol.cia301 import HEARTBEAT_BASE, NMT_STATE_MASK, NmtState
 
 logger = logging.getLogger("omnican.drive")
 

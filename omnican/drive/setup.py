@@ -2,7 +2,7 @@
 
 :meth:`NodeSetup.configure` (blocking, bounded, on the opening thread or a
 re-configuration worker): NMT reset communication and the boot-up (asked again when
-lost), the PDO plan of :mod:`omnican.pdoplan` (or, for a drive that refuses it, its own
+lost), the PDO plan of :mod:`omnican.plan.pdo` (or, for a drive that refuses it, its own
 mapping, restored by another reset communication; objects that mapping lacks go by
 expedited SDO every cycle), mode, ramps, heartbeat producer and consumer, 6007h, then
 NMT OPERATIONAL. Two devices answering as one node are refused before the start.
@@ -23,8 +23,18 @@ import can
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from omnican import cia402, heartbeat
-from omnican.cia301 import (
+from omnican.clock import Clock
+from omnican.config import ChassisSettings
+from omnican.drive.cyclic import AxisIO
+from omnican.drive.health import NodeHealth
+from omnican.drive.sdoclient import SdoTooSlowError
+from omnican.drive.stage import StageDriver
+from omnican.errors import DriveError
+from omnican.plan.health import HealthPlan
+from omnican.plan.node import NodeLayout
+from omnican.plan.pdo import NodePlan, PlannedPdo, SdoTransfer
+from omnican.protocol import cia402, heartbeat
+from omnican.protocol.cia301 import (
     COB_ID_INVALID,
     COB_ID_MASK,
     CONSUMER_HEARTBEAT_TIME,
@@ -38,18 +48,8 @@ from omnican.cia301 import (
     NmtState,
     abort_text,
 )
-from omnican.cia402 import Command, Mode, State
-from omnican.clock import Clock
-from omnican.config import ChassisSettings
-from omnican.drive.cyclic import AxisIO
-from omnican.drive.health import NodeHealth
-from omnican.drive.sdoclient import SdoTooSlowError
-from omnican.drive.stage import StageDriver
-from omnican.errors import DriveError
-from omnican.healthplan import HealthPlan
-from omnican.layout import NodeLayout
-from omnican.odmap import Entry, Obj, entry_at, obj_name
-from omnican.pdoplan import NodePlan, PlannedPdo, SdoTransfer
+from omnican.protocol.cia402 import Command, Mode, State
+from omnican.protocol.object_map import Entry, Obj, entry_at, obj_name
 
 
 class Node(Protocol):

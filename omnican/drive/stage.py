@@ -8,9 +8,9 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from omnican import cia402
-from omnican.cia402 import Command, State
-from omnican.odmap import Entry
+from omnican.protocol import cia402
+from omnican.protocol.cia402 import Command, State
+from omnican.protocol.object_map import Entry
 
 logger = logging.getLogger("omnican.drive")
 

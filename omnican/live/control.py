@@ -4,7 +4,7 @@ is on (``--foxglove-control``).
 - **Twists** on the control topic (``/cmd_vel``; Foxglove's Teleop panel), as JSON or CDR,
   ``geometry_msgs/Twist`` or ``TwistStamped``: each goes to :meth:`Chassis.set_velocity`,
   so the same limits and watchdog apply as to every other command. One controller at a
-  time (:class:`~omnican.arbiter.CommandArbiter`): the first client that publishes holds
+  time (:class:`~omnican.command.arbiter.CommandArbiter`): the first client that publishes holds
   control until it leaves or sends nothing for ``cmd_timeout_s``; another client's
   commands are ignored and a status message says who is driving. The base stops at once
   when the controlling client leaves. A Twist that cannot be read (NaN, a wrong type)
@@ -41,14 +41,14 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from omnican.arbiter import CommandArbiter
+from omnican.command.arbiter import CommandArbiter
 from omnican.config import LIVE_LIMITS
+from omnican.core.kinematics import Twist
+from omnican.core.odometry import Pose2D
 from omnican.errors import OmnicanError, quote
-from omnican.kinematics import Twist
 from omnican.live.relay import GRANT_CHANNEL_ID, GRANT_PREFIX
 from omnican.live.settings import FoxgloveSettings
-from omnican.logthrottle import Throttle
-from omnican.odometry import Pose2D
+from omnican.log_throttle import Throttle
 
 logger = logging.getLogger(__name__)
 
@@ -117,10 +117,10 @@ def decode_twist(encoding: str, schema_name: str, data: bytes) -> Twist:
     if encoding == "json":
         msg = _json(data)
     elif encoding == "cdr":
-        from omnican import rosmsg
+        from omnican.telemetry import cdr
 
         try:
-            msg = rosmsg.decode(typename, bytes(data))
+            msg = cdr.decode(typename, bytes(data))
         except Exception as exc:  # rosbags says little of a short or damaged buffer
             raise ValueError(f"not a CDR {typename}: {type(exc).__name__}") from None
     else:

@@ -43,7 +43,7 @@ from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 from omnican.errors import quote
-from omnican.logthrottle import Throttle
+from omnican.log_throttle import Throttle
 
 logger = logging.getLogger(__name__)
 

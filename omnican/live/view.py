@@ -25,14 +25,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from omnican import rosmsg, telemetry
-from omnican.arbiter import CommandArbiter
+from omnican import telemetry
+from omnican.command.arbiter import CommandArbiter
 from omnican.errors import ConfigError, quote
 from omnican.live.control import PARAMETERS, Control
 from omnican.live.relay import Relay, tls_context
 from omnican.live.settings import DEFAULT_HOST, DEFAULT_PORT, FoxgloveSettings, parse_address
-from omnican.logthrottle import Throttle
-from omnican.telemetry import Feed, Message
+from omnican.log_throttle import Throttle
+from omnican.telemetry import Feed, Message, cdr
 
 logger = logging.getLogger(__name__)
 
@@ -49,9 +49,9 @@ def prepare(cfg: Any) -> None:
         import foxglove  # noqa: F401
     except ImportError:
         return  # LiveView says what to install
-    from omnican.dbcgen import database_for
+    from omnican.plan.dbc import database_for
 
-    rosmsg.typestore()
+    cdr.typestore()
     database_for(cfg)
 
 
@@ -190,7 +190,7 @@ class LiveView:
                                     context=self._ctx)
         return foxglove.Channel(
             topic, schema=foxglove.Schema(name=schema, encoding="ros2msg",
-                                          data=rosmsg.msgdef(schema).encode()),
+                                          data=cdr.msgdef(schema).encode()),
             message_encoding="cdr", context=self._ctx)
 
     @property

@@ -6,7 +6,7 @@ takes what arrived at most :data:`MAX_POLL_HZ` times a second (the control rate,
 lower), up to the reader's depth each time, and applies only the newest sample of each
 publisher. A flood costs DDS's receive thread (C, without the GIL) and at most
 ``depth x rate`` samples a second here, whoever sends it. One publisher drives at a
-time (:class:`~omnican.arbiter.CommandArbiter`, shared with Foxglove's clients when
+time (:class:`~omnican.command.arbiter.CommandArbiter`, shared with Foxglove's clients when
 ``--foxglove-control`` is on): another is ignored, and told so in the log, until the
 first has sent nothing for the command timeout. A publisher of another type on the
 cmd_vel topic (DDS does not connect it) is named in the log once, from DDS discovery.
@@ -36,11 +36,11 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from omnican.arbiter import CommandArbiter
+from omnican.command.arbiter import CommandArbiter
+from omnican.core.kinematics import Twist
 from omnican.errors import ConfigError, DriveError
 from omnican.errors import quote as _quote
-from omnican.kinematics import Twist
-from omnican.logthrottle import Throttle
+from omnican.log_throttle import Throttle
 from omnican.ros2.settings import Ros2Settings, cyclone_config, dds_topic, resolve_name
 from omnican.telemetry import Message
 

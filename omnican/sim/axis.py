@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 
 from canopen import objectdictionary as od
 
-from omnican import cia402
-from omnican.cia402 import Mode, State
-from omnican.odmap import AxisObjects, Entry, Obj
+from omnican.protocol import cia402
+from omnican.protocol.cia402 import Mode, State
+from omnican.protocol.object_map import AxisObjects, Entry, Obj
 from omnican.sim import motor
 from omnican.sim.pdo import Getter, read_uint
 from omnican.sim.stage import PowerStage

@@ -22,12 +22,12 @@ import numpy.typing as npt
 
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, WheelConfig
+from omnican.core.kinematics import OmniKinematics, Twist
+from omnican.core.odometry import Odometry, Pose2D
 from omnican.errors import BusError, ConfigError
-from omnican.kinematics import OmniKinematics, Twist
-from omnican.lockstep import LockstepBus
-from omnican.network import Network
-from omnican.odmap import Obj
-from omnican.odometry import Odometry, Pose2D
+from omnican.io.lockstep import LockstepBus
+from omnican.io.network import Network
+from omnican.protocol.object_map import Obj
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.health import QUANTITIES, EstopInput
 from omnican.sim.scheduler import SimScheduler
@@ -256,7 +256,7 @@ class SimulatedBase:
         """The simulator's own telemetry, for a front end without a base (``omnican sim
         --foxglove``): its ground truth at the state rate of its clock, and the frames
         its drives hear."""
-        from omnican.dbcgen import database_for
+        from omnican.plan.dbc import database_for
         from omnican.telemetry import Feed, TelemetrySettings
 
         cfg = self.cfg
@@ -326,7 +326,7 @@ def _health_wiring(cfg: ChassisConfig, true_scale: Sequence[float]) -> dict[int,
     """Per node, what the drives need to report as ``cfg`` reads them: each axis's counts
     per metre (the motor current follows the wheel's motion), the vendor objects the
     config names and their units, and where the e-stop is wired."""
-    from omnican.layout import node_layouts
+    from omnican.plan.node import node_layouts
 
     out: dict[int, dict[str, Any]] = {}
     for layout in node_layouts(cfg):

@@ -17,7 +17,7 @@ power stage's reactions into EMCY frames and motor commands, and adds fault inje
 (faults, silence, reboots; a jammed, pushed or lifted wheel, a following error, the
 supply voltage, the e-stop).
 
-Multi-axis drives work in both layouts omnican supports (see :mod:`omnican.odmap`):
+Multi-axis drives work in both layouts omnican supports (see :mod:`omnican.protocol.object_map`):
 axes at 0x800 offsets have a power stage each; sub-indexed axes share one.
 
 Threads: frames are handled on the network's Notifier thread; a
@@ -38,8 +38,10 @@ from canopen import objectdictionary as od
 from canopen.objectdictionary import SIGNED_TYPES
 from canopen.sdo.exceptions import SdoAbortedError
 
-from omnican import cia402
-from omnican.cia301 import (
+from omnican.clock import REAL_TIME, Clock
+from omnican.config import WHEEL_EDS
+from omnican.protocol import cia402
+from omnican.protocol.cia301 import (
     DEVICE_TYPE,
     EMCY_NO_ERROR,
     ERROR_REGISTER,
@@ -50,10 +52,8 @@ from omnican.cia301 import (
     ERROR_REGISTER_VOLTAGE,
     SDO_ABORT_VALUE_RANGE,
 )
-from omnican.cia402 import State
-from omnican.clock import REAL_TIME, Clock
-from omnican.config import WHEEL_EDS
-from omnican.odmap import AxisObjects, Obj
+from omnican.protocol.cia402 import State
+from omnican.protocol.object_map import AxisObjects, Obj
 from omnican.sim.axis import DEFAULT_TAU_S, AxisGroup, Motion, group_axes, supported_modes
 from omnican.sim.health import DEFAULT_COUNTS_PER_M, DriveHealth, EstopInput
 from omnican.sim.node import SimNode

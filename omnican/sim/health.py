@@ -22,8 +22,8 @@ from functools import partial
 
 from canopen import objectdictionary as od
 
-from omnican import cia402
-from omnican.odmap import Entry, Obj, entry_at
+from omnican.protocol import cia402
+from omnican.protocol.object_map import Entry, Obj, entry_at
 from omnican.sim import electrical
 from omnican.sim.axis import DEFAULT_TAU_S, Axis, AxisGroup
 from omnican.sim.pdo import Getter, read_uint

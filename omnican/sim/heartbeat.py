@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from canopen import objectdictionary as od
 
-from omnican.cia301 import CONSUMER_HEARTBEAT_TIME, MAX_NODE_ID, PRODUCER_HEARTBEAT_TIME
+from omnican.protocol.cia301 import CONSUMER_HEARTBEAT_TIME, MAX_NODE_ID, PRODUCER_HEARTBEAT_TIME
 from omnican.sim.pdo import Getter, read_uint
 
 

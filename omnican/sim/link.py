@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import can
 
 from omnican.clock import SimClock
-from omnican.lockstep import LockstepBus
+from omnican.io.lockstep import LockstepBus
 
 TO_DRIVES, TO_HOST = "to_drives", "to_host"
 

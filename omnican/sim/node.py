@@ -29,8 +29,9 @@ import canopen
 from canopen import objectdictionary as od
 from canopen.sdo.exceptions import SdoAbortedError
 
-from omnican.bus import prepared_message
-from omnican.cia301 import (
+from omnican.clock import Clock
+from omnican.io.bus import prepared_message
+from omnican.protocol.cia301 import (
     COB_ID_MASK,
     COMMUNICATION_PROFILE,
     CONSUMER_HEARTBEAT_TIME,
@@ -53,7 +54,6 @@ from omnican.cia301 import (
     NmtCommand,
     NmtState,
 )
-from omnican.clock import Clock
 from omnican.sim.heartbeat import Heartbeat
 from omnican.sim.pdo import check_mapping_write, read_uint
 from omnican.sim.process_data import ProcessData

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from canopen import objectdictionary as od
 from canopen.sdo.exceptions import SdoAbortedError
 
-from omnican.cia301 import (
+from omnican.protocol.cia301 import (
     COB_ID_INVALID,
     COB_ID_MASK,
     MAX_PDOS,

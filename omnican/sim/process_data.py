@@ -22,7 +22,7 @@ from typing import Any
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError
 
-from omnican.cia301 import RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP
+from omnican.protocol.cia301 import RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP
 from omnican.sim.pdo import PdoConfig, read_pdos
 
 logger = logging.getLogger(__name__)

@@ -2,7 +2,7 @@
 
 What a drive does with a controlword, an internal fault, a quick stop and a lost
 master (6007h), and the statusword bits that show its state. The transitions are the
-tables of :mod:`omnican.cia402`; this module adds what a device adds to them: the
+tables of :mod:`omnican.protocol.cia402`; this module adds what a device adds to them: the
 fault reset on the rising edge of bit 7, a fault whose cause persists, a power stage
 that cannot enable, and the quick stop option code (605Ah) that decides whether
 QUICK STOP ACTIVE ends by itself.
@@ -19,9 +19,9 @@ import enum
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from omnican import cia402
-from omnican.cia301 import EMCY_HEARTBEAT
-from omnican.cia402 import State
+from omnican.protocol import cia402
+from omnican.protocol.cia301 import EMCY_HEARTBEAT
+from omnican.protocol.cia402 import State
 
 #: 605Ah when the drive has none: slow down on the quick stop ramp, then disable.
 DEFAULT_QUICK_STOP_OPTION = 2

@@ -20,8 +20,8 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from omnican.kinematics import OmniKinematics
-from omnican.odometry import Pose2D
+from omnican.core.kinematics import OmniKinematics
+from omnican.core.odometry import Pose2D
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -19,9 +19,9 @@ import threading
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from omnican.chassis.state import Snapshot
 from omnican.clock import Clock
-from omnican.kinematics import OmniKinematics
-from omnican.state import Snapshot
+from omnican.core.kinematics import OmniKinematics
 from omnican.telemetry.frames import FrameMessages, FrameTap
 from omnican.telemetry.messages import Sample
 from omnican.telemetry.model import Message, Telemetry

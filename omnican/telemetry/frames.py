@@ -102,7 +102,7 @@ class FrameMessages:
         return {m.CAN_DECODED_PREFIX + msg.name: _signal_schema(msg) for msg in db.messages}
 
     def messages(self, frames: list[Frame], wants: Callable[[str], bool]) -> list[Message]:
-        from omnican import rosmsg
+        from omnican.telemetry import cdr
 
         raw = {True: wants(m.CAN_RX), False: wants(m.CAN_TX)}
         decode = self.database is not None
@@ -111,7 +111,7 @@ class FrameMessages:
             ns = int(stamp * 1e9)
             if raw[rx]:
                 out.append(Message(m.CAN_RX if rx else m.CAN_TX, m.CAN_FRAME, m.ROS2, ns, None,
-                                   rosmsg.encode_can_frame(
+                                   cdr.encode_can_frame(
                                        ns, can_id, data,
                                        str(channel) if channel is not None else self.channel,
                                        extended=extended, remote=remote, error=error)))

@@ -23,10 +23,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from omnican.cia402 import State
-from omnican.kinematics import Twist
-from omnican.odometry import Pose2D
-from omnican.state import ChassisStatus, WheelState
+from omnican.chassis.state import ChassisStatus, WheelState
+from omnican.core.kinematics import Twist
+from omnican.core.odometry import Pose2D
+from omnican.protocol.cia402 import State
 from omnican.telemetry.settings import TelemetrySettings
 
 # diagnostic_msgs/msg/DiagnosticStatus levels

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from omnican.kinematics import OmniKinematics
+from omnican.core.kinematics import OmniKinematics
 from omnican.telemetry import messages as m
 from omnican.telemetry.covariance import OdomCovariance
 from omnican.telemetry.settings import TelemetrySettings
@@ -49,17 +49,17 @@ class Message:
             if self.kind == m.JSON:
                 self._payload = json.dumps(self.data).encode()
             else:
-                from omnican import rosmsg
+                from omnican.telemetry import cdr
 
-                self._payload = rosmsg.encode(self.schema, self.data)
+                self._payload = cdr.encode(self.schema, self.data)
         return self._payload
 
     def decoded(self) -> dict[str, Any]:
         """The data as plain values (a raw frame's decoded from its bytes)."""
         if self.data is None:
-            from omnican import rosmsg
+            from omnican.telemetry import cdr
 
-            self.data = rosmsg.decode(self.schema, self.payload())
+            self.data = cdr.decode(self.schema, self.payload())
         return self.data
 
 

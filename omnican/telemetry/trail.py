@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from omnican.odometry import Pose2D
+from omnican.core.odometry import Pose2D
 
 SPACING_M = 0.02  # a point each 2 cm of travel ...
 SPACING_RAD = math.radians(10.0)  # ... or 10 degrees of turn

@@ -1,0 +1,1 @@
+"""Offline and bus analysis: calibration, traffic and bus load, scan."""

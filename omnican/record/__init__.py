@@ -1,0 +1,1 @@
+"""Recordings: python-can log formats, MCAP, replay."""

@@ -1,0 +1,135 @@
+"""Odometry: exact SE(2) integration of wheel travel; no drift for a pure spin."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import astuple
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from omnican import Odometry, OmniKinematics, Pose2D, Twist
+from omnican.core.odometry import wrap_angle
+
+KIN = OmniKinematics.from_layout("b21", base_radius=0.19)
+finite = st.floats(-3, 3, allow_nan=False)
+poses = st.builds(Pose2D, finite, finite, st.floats(-10, 10))
+
+
+def drive(odo: Odometry, twist: Twist, duration: float, steps: int, start: np.ndarray) -> Pose2D:
+    rates = KIN.to_wheel_speeds(twist)
+    odo.update(start)
+    for k in range(1, steps + 1):
+        odo.update(start + rates * duration * k / steps)
+    return odo.pose
+
+
+@given(st.builds(Twist, finite, finite, st.floats(-4, 4)))
+def test_one_step_equals_thousand_steps(t: Twist) -> None:
+    start = np.array([10.0, -3.0, 7.5])
+    one = drive(Odometry(KIN), t, 2.0, 1, start)
+    many = drive(Odometry(KIN), t, 2.0, 1000, start)
+    assert one.x == pytest.approx(many.x, abs=1e-9)
+    assert one.y == pytest.approx(many.y, abs=1e-9)
+    assert one.theta == pytest.approx(many.theta, abs=1e-9)
+
+
+def test_constant_twist_traces_the_exact_arc() -> None:
+    # 0.5 m/s forward while turning at 0.5 rad/s for 2 pi s: a half circle of radius 1 m.
+    pose = drive(Odometry(KIN), Twist(0.5, 0, 0.5), 2 * math.pi, 1, np.zeros(3))
+    assert pose.x == pytest.approx(0.0, abs=1e-12)
+    assert pose.y == pytest.approx(2.0, abs=1e-12)
+    assert pose.theta == pytest.approx(math.pi, abs=1e-12)
+
+
+def test_first_update_only_seeds() -> None:
+    odo = Odometry(KIN)
+    assert odo.update([123.4, -55.0, 9.0]) == Pose2D()
+    assert odo.seeded
+
+
+def test_closed_square_returns_to_start() -> None:
+    odo = Odometry(KIN)
+    travel = np.array([1000.0, 2000.0, -3000.0])
+    odo.update(travel)
+    for _ in range(4):
+        for t in (Twist(1.0, 0, 0), Twist(0, 0, math.pi / 2)):  # 1 m side, then turn 90 deg
+            for _ in range(50):
+                travel = travel + KIN.to_wheel_speeds(t) / 50
+                odo.update(travel)
+    assert odo.pose.x == pytest.approx(0.0, abs=1e-9)
+    assert odo.pose.y == pytest.approx(0.0, abs=1e-9)
+    assert odo.pose.theta == pytest.approx(2 * math.pi, abs=1e-9)  # continuous theta
+    assert odo.pose.heading == pytest.approx(0.0, abs=1e-9)
+
+
+def test_pure_spin_has_no_drift() -> None:
+    odo = Odometry(KIN)
+    travel = np.zeros(3)
+    odo.update(travel)
+    for _ in range(1000):
+        travel = travel + 0.19 * 0.01  # every rim at R * dtheta
+        odo.update(travel)
+    assert odo.pose.x == pytest.approx(0.0, abs=1e-12)
+    assert odo.pose.y == pytest.approx(0.0, abs=1e-12)
+    assert odo.pose.theta == pytest.approx(10.0)
+
+
+def test_twist_and_delta_of_last_step() -> None:
+    odo = Odometry(KIN)
+    odo.update([0.0, 0.0, 0.0])
+    step = KIN.to_wheel_speeds(Twist(0.2, 0.1, 0.0)) * 0.01
+    odo.update(step, dt_s=0.01)
+    assert astuple(odo.twist) == pytest.approx((0.2, 0.1, 0.0), abs=1e-12)
+    assert astuple(odo.delta) == pytest.approx((0.002, 0.001, 0.0), abs=1e-14)
+
+
+def test_reset_keeps_reference() -> None:
+    odo = Odometry(KIN)
+    odo.update([0.0, 0.0, 0.0])
+    odo.update([0.0, 0.5, -0.5])
+    odo.reset(Pose2D(1.0, 2.0, 0.5))
+    assert odo.pose == Pose2D(1.0, 2.0, 0.5)
+    odo.update([0.0, 0.5, -0.5])  # no new travel -> no jump
+    assert odo.pose == Pose2D(1.0, 2.0, 0.5)
+
+
+def test_bad_travel_is_rejected() -> None:
+    odo = Odometry(KIN)
+    with pytest.raises(ValueError, match="non-finite"):
+        odo.update([0.0, float("nan"), 0.0])
+    with pytest.raises(ValueError, match="expected 3"):
+        odo.update([0.0, 0.0])
+
+
+@given(poses, poses)
+def test_compose_inverse(a: Pose2D, b: Pose2D) -> None:
+    ident = a.compose(a.inverse())
+    assert ident.x == pytest.approx(0, abs=1e-9) and ident.y == pytest.approx(0, abs=1e-9)
+    back = a.compose(b).relative_to(a)
+    assert (back.x, back.y, back.theta) == pytest.approx((b.x, b.y, b.theta), abs=1e-9)
+
+
+@given(st.builds(Twist, finite, finite, st.floats(-3, 3)))
+def test_exp_log_round_trip(t: Twist) -> None:
+    back = Pose2D.exp(t).log()
+    assert (back.vx, back.vy, back.wz) == pytest.approx((t.vx, t.vy, t.wz), abs=1e-9)
+
+
+@given(st.floats(-1e-3, 1e-3), finite, finite)
+def test_small_angle_exp_is_continuous(theta: float, x: float, y: float) -> None:
+    p = Pose2D.exp(Twist(x, y, theta))
+    c, s = math.cos(theta / 2), math.sin(theta / 2)  # chord of the arc at half angle
+    chord = math.hypot(x, y) * (1 - theta**2 / 24)
+    assert math.hypot(p.x, p.y) == pytest.approx(chord, abs=1e-9)
+    assert c * p.x + s * p.y == pytest.approx(math.hypot(p.x, p.y) * math.cos(
+        math.atan2(y, x)), abs=1e-6)
+
+
+@given(st.floats(-100, 100))
+def test_wrap_angle_range(a: float) -> None:
+    w = wrap_angle(a)
+    assert -math.pi < w <= math.pi
+    assert math.cos(w) == pytest.approx(math.cos(a), abs=1e-9)

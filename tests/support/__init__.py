@@ -1,0 +1,1 @@
+"""What the tests share: helpers, a terminal, host processes, buses."""
