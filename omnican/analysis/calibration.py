@@ -36,7 +36,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from omnican.config import SCHEMA, WHEEL_EDS, ChassisConfig, ChassisSettings, parse_config
+from omnican.config import (
+    SCHEMA,
+    WHEEL_EDS,
+    ChassisConfig,
+    ChassisSettings,
+    SimTruth,
+    parse_config,
+)
 from omnican.core.kinematics import OmniKinematics
 from omnican.core.odometry import wrap_angle
 from omnican.errors import ConfigError
@@ -164,6 +171,23 @@ def truth_options(cfg: ChassisConfig, scale_error: float | Sequence[float],
               else [float(scale_error)] * len(cfg.wheels))
     return {"true_scale": [1.0 + e for e in errors],
             "true_kinematics": scaled_kinematics(cfg.kinematics(), 1.0 + radius_error)}
+
+
+def sim_truth(cfg: ChassisConfig, scale_error: float, radius_error: float) -> SimTruth:
+    """The ``[sim]`` table of a simulated base whose wheels turn ``1 + scale_error`` times
+    ``cfg``'s counts per metre and whose radius is ``1 + radius_error`` times ``cfg``'s."""
+    return SimTruth(cfg.chassis.base_radius * (1.0 + radius_error),
+                    tuple(abs(w.position_scale) * (1.0 + scale_error) for w in cfg.wheels))
+
+
+def sim_options(cfg: ChassisConfig, truth: SimTruth) -> dict[str, Any]:
+    """``SimulatedBase.from_config`` arguments for the simulated base ``truth`` describes
+    (a ``[sim]`` table), against what ``cfg`` says it is."""
+    scale = ([1.0] * len(cfg.wheels) if truth.position_scale is None else
+             [t / abs(w.position_scale)
+              for t, w in zip(truth.position_scale, cfg.wheels, strict=True)])
+    radius = 1.0 if truth.base_radius is None else truth.base_radius / cfg.chassis.base_radius
+    return {"true_scale": scale, "true_kinematics": scaled_kinematics(cfg.kinematics(), radius)}
 
 
 def _sinc_terms(w: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -409,6 +433,54 @@ def edit_config(text: str, correction: Correction) -> tuple[str, list[ConfigEdit
     return "".join(out), edits
 
 
+#: Significant digits of a ``[sim]`` table's numbers: the simulated base stays the same
+#: base to well below what one encoder count resolves.
+SIM_DIGITS = 10
+_SIM_COMMENT = "# the simulated base 'omnican calibrate --sim' drives, as it really is"
+
+
+def _sim_lines(truth: SimTruth) -> list[str]:
+    lines = []
+    if truth.base_radius is not None:
+        lines.append(f"base_radius = {format_number(truth.base_radius, SIM_DIGITS)}")
+    scale = truth.position_scale
+    if scale is not None:
+        text = (format_number(scale[0], SIM_DIGITS) if len(set(scale)) == 1 else
+                "[" + ", ".join(format_number(v, SIM_DIGITS) for v in scale) + "]")
+        lines.append(f"position_scale = {text}")
+    return lines
+
+
+def set_sim_table(text: str, truth: SimTruth) -> str:
+    """The config file ``text`` with its ``[sim]`` table saying ``truth``: the numbers of
+    the table it has replaced (its comments and other lines kept), or the table appended."""
+    lines = text.splitlines(keepends=True)
+    headers = [(i, m.group("name").strip()) for i, m in
+               ((i, _HEADER.match(line.rstrip("\r\n"))) for i, line in enumerate(lines)) if m]
+    start = next((i for i, name in headers if name == "sim"), None)
+    if start is None:
+        head = text if not text or text.endswith("\n") else text + "\n"
+        return head + "\n".join(["", f"[sim]  {_SIM_COMMENT}", *_sim_lines(truth)]) + "\n"
+    end = next((i for i, _ in headers if i > start), len(lines))
+    kept = [line for line in lines[start + 1:end]
+            if not re.match(r"\s*(base_radius|position_scale)\s*=", line)]
+    new = [line + "\n" for line in _sim_lines(truth)]
+    return "".join([*lines[:start + 1], *new, *kept, *lines[end:]])
+
+
+def check_sim(text: str, truth: SimTruth, origin: str = "config") -> None:
+    """Raise ConfigError unless ``text`` loads with the ``[sim]`` table ``truth``."""
+    got = parse_config(tomllib.loads(text), origin, check_eds=False).sim or SimTruth()
+    want = [truth.base_radius, *(truth.position_scale or ())]
+    have = [got.base_radius, *(got.position_scale or ())]
+    if len(want) != len(have) or not all(
+            (a is None and b is None) or (a is not None and b is not None
+                                          and math.isclose(a, b, rel_tol=1e-8))
+            for a, b in zip(want, have, strict=False)):
+        raise ConfigError(f"could not write the [sim] table of {origin} automatically: give "
+                          "it " + ", ".join(_sim_lines(truth)) + " by hand")
+
+
 def check_edited(text: str, expected: ChassisConfig, origin: str = "config",
                  rel_tol: float = 1e-6) -> None:
     """Raise ConfigError unless ``text`` loads with ``expected``'s scales and radii (to
@@ -482,6 +554,8 @@ def render_config(cfg: ChassisConfig, comment: str = "", digits: int = 7) -> str
                       f"value = {_toml_value(setting.value)}"]
             if setting.type is not None:
                 lines.append(f'type = "{setting.type}"')
+    if cfg.sim is not None:
+        lines += ["", f"[sim]  {_SIM_COMMENT}", *_sim_lines(cfg.sim)]
     for table, settings in (("power", cfg.power), ("estop", cfg.estop)):
         if settings is None:
             continue

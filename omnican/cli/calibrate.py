@@ -5,7 +5,10 @@ Guided (or scripted) run: the base drives --distance m straight ahead, then spin
 it really turned; the command asks for both when it runs in a terminal, or takes
 --measured-distance and --measured-turns (or --measured-angle-deg). Under --sim the
 simulated base is built a little wrong (--sim-scale-error, --sim-radius-error) and
-its ground truth stands in for the measurements.
+its ground truth stands in for the measurements; --write records that base in the
+config's [sim] table, so the next --sim run drives the same base (and finds the
+corrections near zero). Without the options, a config's [sim] table says what the
+simulated base is.
 
     scale s = odometry distance / measured distance
               (true counts per metre / configured: velocity_scale and position_scale
@@ -52,7 +55,7 @@ from omnican.cli.common import (
     session,
 )
 from omnican.command import motion
-from omnican.config import WHEEL_EDS, ChassisConfig
+from omnican.config import WHEEL_EDS, ChassisConfig, SimTruth
 from omnican.core.odometry import Pose2D
 from omnican.errors import BaseStoppedError, ConfigError
 from omnican.record import replay
@@ -87,10 +90,10 @@ def add_subparser(sub: Any) -> None:
     sim_g = p.add_argument_group("simulated base (--sim)")
     sim_g.add_argument("--sim-scale-error", type=finite_float, metavar="F",
                        help="the simulated wheels turn 1+F times the configured counts per m "
-                            f"(default {DEFAULT_SIM_SCALE_ERROR})")
+                            f"(default: the config's [sim] table, else {DEFAULT_SIM_SCALE_ERROR})")
     sim_g.add_argument("--sim-radius-error", type=finite_float, metavar="F",
                        help="the simulated base radius is 1+F times the configured one "
-                            f"(default {DEFAULT_SIM_RADIUS_ERROR})")
+                            f"(default: the config's [sim] table, else {DEFAULT_SIM_RADIUS_ERROR})")
     fit_g = p.add_argument_group("fit to recordings (no bus)")
     fit_g.add_argument("--fit", action="append", metavar="RECORDING", default=[],
                        help="a recording made on the --config base (repeatable)")
@@ -178,6 +181,7 @@ class Measurements:
     angle_measured: float
     distance_source: str  # where the measured values came from
     angle_source: str
+    sim: SimTruth | None = None  # under --sim: the simulated base, as it really is
 
 
 def _ask(prompt: str, parse: Any) -> float:
@@ -226,12 +230,9 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
 
     cfg = load(args)
     options: dict[str, Any] = {}
-    if args.sim:
-        scale_error = (DEFAULT_SIM_SCALE_ERROR if args.sim_scale_error is None
-                       else args.sim_scale_error)
-        radius_error = (DEFAULT_SIM_RADIUS_ERROR if args.sim_radius_error is None
-                        else args.sim_radius_error)
-        options = calibration.truth_options(cfg, scale_error, radius_error)
+    sim_base = simulated_base(cfg, args) if args.sim else None
+    if sim_base is not None:
+        options = calibration.sim_options(cfg, sim_base)
     measured_turns = args.measured_turns
     if args.measured_angle_deg is not None:
         measured_turns = args.measured_angle_deg / 360.0
@@ -288,7 +289,20 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
     else:
         measured_angle = 2 * math.pi * measured_turns
     return cfg, Measurements(odo_distance, distance, odo_angle, measured_angle,
-                             distance_source, angle_source)
+                             distance_source, angle_source, sim_base)
+
+
+def simulated_base(cfg: ChassisConfig, args: argparse.Namespace) -> SimTruth:
+    """The simulated base --sim drives, as it really is: --sim-scale-error and
+    --sim-radius-error against the config where given; else the config's [sim] table
+    (the same base as the run that wrote it), else the defaults against the config."""
+    recorded = cfg.sim
+    if recorded is None:
+        recorded = calibration.sim_truth(cfg, DEFAULT_SIM_SCALE_ERROR, DEFAULT_SIM_RADIUS_ERROR)
+    given = calibration.sim_truth(cfg, args.sim_scale_error or 0.0, args.sim_radius_error or 0.0)
+    return SimTruth(
+        recorded.base_radius if args.sim_radius_error is None else given.base_radius,
+        recorded.position_scale if args.sim_scale_error is None else given.position_scale)
 
 
 def _digits(cfg: ChassisConfig, m: Measurements) -> int:
@@ -373,10 +387,14 @@ def _print_correction(cfg: ChassisConfig, c: Correction,
               "config's units", file=sys.stderr)
 
 
-def write_config(path: str, cfg: ChassisConfig, c: Correction) -> None:
+def write_config(path: str, cfg: ChassisConfig, c: Correction,
+                 sim: SimTruth | None = None) -> None:
     """Write the corrected config: the source TOML edited in place, or (for the demo
-    base, which has no file) a complete new one. Atomic: a temporary file, renamed."""
+    base, which has no file) a complete new one; with ``sim``, its [sim] table says so
+    (the simulated base calibrated). Atomic: a temporary file, renamed."""
     out = Path(path)
+    if sim is not None:
+        cfg = replace(cfg, sim=sim)
     corrected = c.apply(cfg)
     if cfg.source is not None:
         try:
@@ -384,6 +402,8 @@ def write_config(path: str, cfg: ChassisConfig, c: Correction) -> None:
         except OSError as exc:
             raise ConfigError(f"cannot read {cfg.source}: {exc.strerror or exc}") from None
         new = calibration.edit_config_text(text, c)
+        if sim is not None:
+            new = calibration.set_sim_table(new, sim)
         src_dir = Path(cfg.source).resolve().parent
         if out.resolve().parent != src_dir and any(w.eds != WHEEL_EDS for w in cfg.wheels):
             print(f"omnican: warning: {out} is not next to {cfg.source}: relative eds paths "
@@ -394,6 +414,8 @@ def write_config(path: str, cfg: ChassisConfig, c: Correction) -> None:
             "base\n(three bundled drives, nodes 1-3), with the calibrated scales and radius.",
             c.digits)
     calibration.check_edited(new, corrected, str(out), rel_tol=10.0 ** (1 - c.digits))
+    if sim is not None:
+        calibration.check_sim(new, sim, str(out))
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
         with os.fdopen(fd, "w", encoding="utf-8") as f:
@@ -486,7 +508,7 @@ def run(args: argparse.Namespace) -> int:
     correction = correction.with_digits(_digits(cfg, m))
     edits = _edits(cfg, correction)  # before --write may replace the --config file
     if args.write:
-        write_config(args.write, cfg, correction)
+        write_config(args.write, cfg, correction, m.sim)
     if args.json:
         print(json.dumps({
             "source": {"distance": m.distance_source, "angle": m.angle_source},
@@ -504,10 +526,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"spin:     odometry {math.degrees(m.angle_odometry):.2f} deg, measured "
           f"{math.degrees(m.angle_measured):.2f} deg ({m.angle_source})")
     _print_correction(cfg, correction, edits)
-    if args.sim:
-        se = DEFAULT_SIM_SCALE_ERROR if args.sim_scale_error is None else args.sim_scale_error
-        re_ = DEFAULT_SIM_RADIUS_ERROR if args.sim_radius_error is None else args.sim_radius_error
-        print(f"simulator truth: scale factor {1 + se:.5f}, base_radius "
-              f"{cfg.chassis.base_radius * (1 + re_):.6g} m")
+    if m.sim is not None:
+        options = calibration.sim_options(cfg, m.sim)
+        factors = [f"{f:.5f}" for f in options["true_scale"]]
+        scale = (f"scale factor {factors[0]}" if len(set(factors)) == 1 else
+                 "scale factors " + ", ".join(factors))
+        radius = cfg.chassis.base_radius if m.sim.base_radius is None else m.sim.base_radius
+        print(f"simulator truth: {scale}, base_radius {radius:.6g} m")
     _print_written(args.write)
     return EXIT_OK

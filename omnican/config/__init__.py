@@ -321,6 +321,17 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "token": Key((str,), None, "a secret a client must give to drive (ws://host:port/"
                      "?token=...): without it, it may only watch; --foxglove-token"),
     },
+    # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
+    # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.
+    "sim": {
+        "base_radius": Key(_NUM, None, "m, the simulated base's true base_radius (per-wheel "
+                           "base_radius scale with it); default the configured one",
+                           range=(0.01, 10.0)),
+        "position_scale": Key((*_NUM, list), None, "true encoder counts per m of rim travel "
+                              "of the simulated wheels (magnitude): one number for every "
+                              "wheel, or one per wheel; default the configured ones",
+                              range=_SCALE),
+    },
 }
 
 
@@ -442,6 +453,15 @@ class EstopSettings:
     node_id: int | None = _ESTOP["node_id"]
 
 
+@dataclass(frozen=True)
+class SimTruth:
+    """The ``[sim]`` table: the true geometry of the simulated base ``omnican calibrate
+    --sim`` drives; None: as configured."""
+
+    base_radius: float | None = None
+    position_scale: tuple[float, ...] | None = None  # one per wheel, counts per m
+
+
 #: What a ``[chassis]`` table must give (or may leave to the wheels' angle_deg), for a
 #: ChassisSettings made in code: the demo base's (:func:`default_config`).
 DEMO_CHASSIS: dict[str, Any] = {"layout": "b21", "base_radius": 0.19}
@@ -509,6 +529,8 @@ class ChassisConfig:
     power: PowerSettings | None = None  # the [power] table
     estop: EstopSettings | None = None  # the [estop] table
     foxglove: Mapping[str, Any] | None = None  # the [foxglove] table, schema-checked (--foxglove)
+    # The [sim] table: not the robot's description, so not part of equality.
+    sim: SimTruth | None = field(default=None, compare=False)
 
     def kinematics(self) -> OmniKinematics:
         c = self.chassis
@@ -691,7 +713,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = _Reader(origin)
     for key in data:
-        sections = ("bus", "chassis", "wheel", "power", "estop", "ros2", "foxglove",
+        sections = ("bus", "chassis", "wheel", "power", "estop", "ros2", "foxglove", "sim",
                     *FRONT_END_SECTIONS)
         if key not in sections:
             raise r.fail(key, f"unknown section {key!r}{_suggest(key, sections)}")
@@ -765,8 +787,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     power = _parse_power(r, data["power"]) if "power" in data else None
     estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
     foxglove = _foxglove_table(r, data["foxglove"], base_dir) if "foxglove" in data else None
+    sim = _parse_sim(r, data["sim"], len(wheels)) if "sim" in data else None
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2, power=power,
-                        estop=estop, foxglove=foxglove)
+                        estop=estop, foxglove=foxglove, sim=sim)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -775,6 +798,27 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     if check_eds:
         check_eds_files(cfg, r.origin)
     return cfg
+
+
+def _parse_sim(r: _Reader, table: Any, n_wheels: int) -> SimTruth:
+    t = r.table("sim", table, "sim")
+    scale = t["position_scale"]
+    if isinstance(scale, list):
+        if len(scale) != n_wheels:
+            raise r.fail("sim.position_scale", f"give one number for every wheel or one per "
+                         f"wheel ({n_wheels}), got {len(scale)}")
+        for i, v in enumerate(scale):
+            if isinstance(v, bool) or not isinstance(v, _NUM) or math.isnan(v):
+                raise r.fail(f"sim.position_scale[{i}]", f"must be a number, got {v!r}")
+    values = None if scale is None else [scale] * n_wheels if isinstance(scale, _NUM) else scale
+    if values is not None:
+        spec = SCHEMA["sim"]["position_scale"]
+        for i, v in enumerate(values):
+            r.in_range(f"sim.position_scale[{i}]" if isinstance(scale, list)
+                       else "sim.position_scale", spec, v)
+    radius = t["base_radius"]
+    return SimTruth(None if radius is None else float(radius),
+                    None if values is None else tuple(float(v) for v in values))
 
 
 def _parse_power(r: _Reader, table: Any) -> PowerSettings:

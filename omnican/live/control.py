@@ -17,7 +17,10 @@ is on (``--foxglove-control``).
 - **Parameters** named as the config's keys (``chassis.max_speed``, ...; the limits of
   :data:`omnican.config.LIVE_LIMITS`), read and set live through
   :meth:`Chassis.set_limits` (the config's checks); a refused value keeps the old one and
-  a status message gives the reason. An unlimited speed reads ``"inf"``.
+  a status message gives the reason. An unlimited speed (inf in the config) reads as the
+  top speed the base can reach under its other limits (:func:`omnican.core.limits.top_speeds`:
+  the wheel limit's), a number; set back, it is a limit at that speed, which changes
+  nothing the base does.
 
 While one client drives, only it may recover, reset odometry, change a parameter or
 inject a fault. The SDK calls these methods on its own threads; none of them blocks the
@@ -44,6 +47,7 @@ from typing import Any
 from omnican.command.arbiter import CommandArbiter
 from omnican.config import LIVE_LIMITS
 from omnican.core.kinematics import Twist
+from omnican.core.limits import top_speeds
 from omnican.core.odometry import Pose2D
 from omnican.errors import OmnicanError, quote
 from omnican.live.relay import GRANT_CHANNEL_ID, GRANT_PREFIX
@@ -387,9 +391,12 @@ class Control:
     def _parameter(self, name: str) -> Any:
         from foxglove.websocket import Parameter, ParameterType
 
-        value = getattr(self.base.cfg.chassis, name.split(".", 1)[1])
-        if math.isinf(value):  # JSON has no inf: the protocol would say null
-            return Parameter(name, value="inf")
+        cfg = self.base.cfg
+        key = name.split(".", 1)[1]
+        value = getattr(cfg.chassis, key)
+        if math.isinf(value):  # JSON has no inf (the protocol would say null): the top speed
+            linear, angular = top_speeds(cfg.limits(), cfg.kinematics())
+            value = linear if key == "max_speed" else angular
         return Parameter(name, value=float(value), type=ParameterType.Float64)
 
     def on_get_parameters(self, client: Any, param_names: list[str],

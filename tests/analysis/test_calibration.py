@@ -26,9 +26,12 @@ from omnican.analysis.calibration import (
     render_config,
     scale_from_distance,
     scaled_kinematics,
+    set_sim_table,
+    sim_options,
+    sim_truth,
     truth_options,
 )
-from omnican.config import WHEEL_EDS, parse_config
+from omnican.config import WHEEL_EDS, SimTruth, parse_config
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -150,6 +153,47 @@ def test_truth_options() -> None:
     assert opts["true_kinematics"].base_radius == pytest.approx((0.19 * 0.98,) * 3)
     assert truth_options(CFG, [0.01, 0.0, -0.01], 0.0)["true_scale"] == \
         pytest.approx([1.01, 1.0, 0.99])
+
+
+def test_sim_truth_is_the_same_base_against_a_corrected_config() -> None:
+    """The [sim] table holds the simulated base itself: against the config it was made
+    from it is the errors given; against a corrected config, what is left of them."""
+    truth = sim_truth(CFG, 0.03, -0.02)
+    assert truth.base_radius == pytest.approx(0.19 * 0.98)
+    opts = sim_options(CFG, truth)
+    assert opts["true_scale"] == pytest.approx(truth_options(CFG, 0.03, -0.02)["true_scale"])
+    assert opts["true_kinematics"].base_radius == pytest.approx((0.19 * 0.98,) * 3)
+    corrected = Correction.common(3, 1.03, 0.98).apply(CFG)
+    again = sim_options(corrected, truth)
+    assert again["true_scale"] == pytest.approx([1.0] * 3)
+    assert again["true_kinematics"].base_radius == pytest.approx(
+        corrected.kinematics().base_radius)
+    assert sim_options(CFG, SimTruth())["true_scale"] == [1.0] * 3  # none: as configured
+
+
+def test_sim_table_is_appended_or_its_numbers_replaced() -> None:
+    truth = SimTruth(0.2, (50000.0, 50000.0, 48000.5))
+    appended = set_sim_table(CONFIG_TEXT, truth)
+    assert appended.startswith(CONFIG_TEXT)
+    assert load_text(appended).sim == truth
+    own = CONFIG_TEXT + "\n[sim]   # my simulated robot\nbase_radius = 0.3  # worn\n# the end\n"
+    replaced = set_sim_table(own, SimTruth(0.25, (7.0,) * 3))
+    assert replaced.splitlines()[-4:] == ["[sim]   # my simulated robot", "base_radius = 0.25",
+                                          "position_scale = 7.0", "# the end"]
+    assert load_text(replaced).sim == SimTruth(0.25, (7.0,) * 3)
+    assert load_text(replaced) == load_text(CONFIG_TEXT)  # the robot's numbers untouched
+
+
+@settings(max_examples=50)
+@given(radius=st.floats(0.01, 10.0), scales=st.lists(st.floats(1e-6, 1e12), min_size=3,
+                                                      max_size=3))
+def test_sim_table_round_trips(radius: float, scales: list[float]) -> None:
+    truth = SimTruth(radius, tuple(scales))
+    text = set_sim_table(CONFIG_TEXT, truth)
+    got = load_text(text).sim
+    assert got is not None and got.base_radius == pytest.approx(radius, rel=1e-9)
+    assert got.position_scale == pytest.approx(tuple(scales), rel=1e-9)
+    assert set_sim_table(text, truth) == text  # written again: the same text
 
 
 # ---------------------------------------------------------------- integration

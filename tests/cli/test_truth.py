@@ -72,9 +72,11 @@ def test_calibrate_prints_what_it_writes_in_the_configs_own_terms(tmp_path: Path
     # changed is printed.
     printed = re.findall(r"(\w+) (\S+) -> ([0-9.]+)", out)
     assert printed, out
+    before, after = PHYSICAL.splitlines(), written.splitlines()
+    assert after[len(before) + 1].startswith("[sim]")  # the simulated base, recorded apart
     changed = [(a.split("=")[0].strip(), a.split("=")[1].split()[0],
                 b.split("=")[1].split()[0])
-               for a, b in zip(PHYSICAL.splitlines(), written.splitlines(), strict=True)
+               for a, b in zip(before, after[:len(before)], strict=True)
                if a != b]
     assert sorted((k, float(o), float(n)) for k, o, n in printed) == \
         sorted((k, float(o), float(n)) for k, o, n in changed)

@@ -195,7 +195,7 @@ def test_readme_reference_matches_the_schema() -> None:
     readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
     rows = [line for line in readme.splitlines() if line.startswith(
         ("| `chassis.", "| `wheel.", "| `power.", "| `estop.", "| `ros2.", "| `foxglove.",
-         "| `gamepad."))]
+         "| `sim.", "| `gamepad."))]
     expected = [f"| `{key}` | {default} | {doc} |" for key, default, doc in reference_rows()]
     assert rows == expected
 
@@ -365,6 +365,28 @@ def test_ros2_settings_defaults_are_the_schemas(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- numbers beyond sense
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ("position_scale = [1.0, 2.0]", r"sim\.position_scale: give one number for every wheel "
+     r"or one per wheel \(3\), got 2"),
+    ('position_scale = [1.0, "2", 3.0]', r"sim\.position_scale\[1\]: must be a number, got '2'"),
+    ("position_scale = [1.0, 2.0, -3.0]", r"sim\.position_scale\[2\]: must be 1e-06-1e\+12, "
+     r"got -3"),
+    ("position_scale = -3.0", r"sim\.position_scale: must be 1e-06-1e\+12, got -3"),
+    ("radius = 0.2", r"sim\.radius: unknown key 'radius'"),
+])
+def test_bad_sim_table_names_key_and_problem(tmp_path: Path, table: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_config(write(tmp_path, GOOD + f"\n[sim]\n{table}\n"))
+
+
+def test_sim_table_one_number_is_every_wheel_and_not_the_robot(tmp_path: Path) -> None:
+    from omnican.config import SimTruth
+
+    cfg = load_config(write(tmp_path, GOOD + "\n[sim]\nposition_scale = 5e4\n"))
+    assert cfg.sim == SimTruth(None, (5e4, 5e4, 5e4))
+    assert cfg == load_config(write(tmp_path, GOOD))  # the simulated base is not the robot
 
 
 def _with_key(section: str, key: str, value: str) -> str:

@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 from omnican import Pose2D, Twist, default_config
 from omnican.command.arbiter import CommandArbiter
 from omnican.config import ChassisSettings, load_config, with_live_limits
+from omnican.core.limits import top_speeds
 from omnican.errors import ConfigError, quote
 from omnican.live.control import Control, decode_twist, parameter_value
 from omnican.live.relay import (
@@ -365,10 +366,14 @@ def test_parameters_read_as_config_keys_and_refusals_keep_the_value() -> None:
     base = StandInBase()
     c = control(base)
     values = {p.name: p.get_value() for p in c.on_get_parameters(client(1), [])}
-    assert values == {"chassis.max_speed": "inf", "chassis.max_angular_speed": "inf",
+    # The unlimited speeds read as numbers (Foxglove's panel shows a text value as text):
+    # the top speeds the wheel limit allows, 1 m/s at the rim of the b21 base of 0.19 m.
+    assert values == {"chassis.max_speed": pytest.approx(4 / 3),
+                      "chassis.max_angular_speed": pytest.approx(1.0 / 0.19),
                       "chassis.max_accel": 1.0, "chassis.max_angular_accel": 3.0,
                       "chassis.stop_decel": 2.0, "chassis.stop_angular_decel": 6.0,
                       "chassis.max_wheel_speed": 1.0}
+    assert all(type(v) is float for v in values.values())
     [p] = c.on_set_parameters(client(1), [SimpleNamespace(name="chassis.max_accel",
                                                           get_value=lambda: 0)])
     assert (p.name, p.get_value()) == ("chassis.max_accel", 1.0)
@@ -378,6 +383,26 @@ def test_parameters_read_as_config_keys_and_refusals_keep_the_value() -> None:
     assert c.on_set_parameters(client(1), [SimpleNamespace(name="chassis.rate_hz",
                                                            get_value=lambda: 5.0)]) == []
     assert base.cfg.chassis.rate_hz == 100.0
+
+
+def test_an_unlimited_speed_reads_as_the_top_speed_and_round_trips() -> None:
+    """An unlimited max_speed shows the speed the base can reach under its other limits;
+    a client that sets the value it read back changes nothing the base does, and a lower
+    wheel limit lowers what it reads."""
+    pytest.importorskip("foxglove", reason="needs the foxglove extra")
+    base = StandInBase()
+    c = control(base)
+    top = _set(c, 1, "chassis.max_angular_speed", 1e9)  # faster: refused, reads as before
+    assert top == pytest.approx(1.0 / 0.19) and base.cfg.chassis.max_angular_speed == math.inf
+    shown = {p.name: p.get_value() for p in c.on_get_parameters(client(1), [])}
+    before = base.cfg.limits()
+    assert _set(c, 1, "chassis.max_speed", shown["chassis.max_speed"]) == shown["chassis.max_speed"]
+    assert base.cfg.chassis.max_speed == pytest.approx(4 / 3)  # now a number, the same top
+    assert top_speeds(base.cfg.limits(), base.cfg.kinematics()) == pytest.approx(
+        top_speeds(before, base.cfg.kinematics()))
+    assert _set(c, 1, "chassis.max_wheel_speed", 0.5) == 0.5
+    assert _set(c, 1, "chassis.max_angular_speed", "inf") == pytest.approx(0.5 / 0.19)
+    assert base.cfg.chassis.max_angular_speed == math.inf
 
 
 # ---------------------------------------------------------------- abusive clients
@@ -423,7 +448,7 @@ def test_a_client_the_relay_did_not_vouch_for_may_watch_only() -> None:
                                              "/omnican/stop"):
             call(c, "/omnican/stop", n)
         assert c.on_set_parameters(client(n), [SimpleNamespace(
-            name="chassis.max_speed", get_value=lambda: 0.1)])[0].get_value() == "inf"
+            name="chassis.max_speed", get_value=lambda: 0.1)])[0].get_value() == 4 / 3
     assert base.calls == [] and base.cfg.chassis.max_speed == math.inf
     assert any("Foxglove client 2 may watch, not drive" in m for m in board.sent)
     assert {p.name for p in c.on_get_parameters(client(2), [])} >= {"chassis.max_speed"}
@@ -985,12 +1010,13 @@ def test_a_parameter_cannot_make_the_base_unstoppable_or_faster(real: Any) -> No
     from tests.support.helpers import still
 
     clock, sim, base, c = real
-    configured = base.cfg.chassis
+    configured, configured_limits = base.cfg.chassis, base.cfg.limits()
     assert _set(c, 2, "chassis.stop_decel", 1e-6) == configured.stop_decel
     assert _set(c, 2, "chassis.stop_angular_decel", 0.5) == configured.stop_angular_decel
     assert _set(c, 2, "chassis.max_accel", 5.0) == configured.max_accel
     assert _set(c, 2, "chassis.max_wheel_speed", 2.0) == configured.max_wheel_speed
-    assert _set(c, 2, "chassis.max_speed", 1e9) == "inf"
+    assert _set(c, 2, "chassis.max_speed", 1e9) == top_speeds(configured_limits,
+                                                              base.cfg.kinematics())[0]
     assert base.cfg.chassis == configured
     assert _set(c, 2, "chassis.max_speed", 0.25) == 0.25  # slower: safer, taken
     assert _set(c, 2, "chassis.stop_decel", 4.0) == 4.0  # a shorter stop: taken
