@@ -31,7 +31,7 @@ LAYERS: list[frozenset[str]] = [frozenset(s) for s in (
     {"telemetry"},       # what front ends publish, built once
     {"command", "record", "analysis"},
     {"sim"},             # simulated drives and base
-    {"ros2", "live", "gamepad", "zenoh"},  # front ends
+    {"ros2", "live", "gamepad"},  # front ends
     {"cli"},             # the command line, which starts the others
 )]
 #: The package's public face: it may name any layer (lazily), and old names kept for a
@@ -143,3 +143,13 @@ def test_the_public_names_are_one_table() -> None:
     for name, home in omnican._HOMES.items():
         assert getattr(omnican, name).__module__.startswith(f"omnican.{home}") or name in {
             "WHEEL_EDS"}, name
+
+
+def test_the_architecture_page_draws_the_same_layers() -> None:
+    """docs/architecture.md's table of layers names the folders of LAYERS, in order."""
+    page = (PACKAGE.parent / "docs" / "architecture.md").read_text()
+    rows = page.split("| layer (lowest first) |", 1)[1].split("\n\n", 1)[0].splitlines()[2:]
+    drawn = [frozenset(name.strip("`").removesuffix(".py").rstrip("/")
+                       for name in row.split("|")[2].replace(",", " ").split())
+             for row in rows]
+    assert drawn == LAYERS
