@@ -100,6 +100,10 @@ def test_29_bit_frames_from_another_device_change_nothing(
 
 def test_a_failed_open_leaves_every_drive_disabled(served: tuple[SimulatedBase, Path]) -> None:
     sim, toml = served
+    # The point is what a failed open leaves: a stall of either process beside busy ones
+    # must not cost a drive the host's heartbeat first (seen once at the default factor).
+    toml.write_text(toml.read_text().replace('layout = "b21"',
+                                             'layout = "b21"\nheartbeat_timeout_factor = 10.0'))
     sim.drives[2].hold_switched_on()  # node 3 will not enable
     result = omnican("drive", "--config", str(toml), "--vx", "0.2", "--duration", "1")
     assert result.returncode == 1
