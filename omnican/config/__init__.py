@@ -7,8 +7,9 @@ Three parts, data flowing one way:
   reference is checked against it by a test.
 - :mod:`omnican.config.model`: the frozen dataclasses a config is (:class:`ChassisConfig`
   and its tables), their defaults the schema's, and the demo base (:func:`default_config`).
-- :mod:`omnican.config.parsing` (and :mod:`omnican.config.wheels` for the ``[[wheel]]``
-  tables and their EDS files): a TOML document checked against the schema into the model.
+- :mod:`omnican.config.parsing`: a TOML document checked against the schema into the
+  model, table by table (:mod:`omnican.config.reader` checks one table's keys, types and
+  ranges; :mod:`omnican.config.wheels` the ``[[wheel]]`` tables and their EDS files).
   Every problem is a :class:`~omnican.errors.ConfigError` whose message names the key, e.g.
   ``robot.toml: wheel[2].node_id: must be 1-127, got 200``.
 
@@ -16,6 +17,8 @@ The names below are the package's; import them from here.
 """
 
 from __future__ import annotations
+
+import sys
 
 from omnican.config.model import (
     DEMO_CHASSIS,
@@ -36,7 +39,6 @@ from omnican.config.parsing import (
     gamepad_values,
     load_config,
     parse_config,
-    tomllib,
     with_live_limits,
 )
 from omnican.config.schema import (
@@ -57,6 +59,11 @@ from omnican.config.schema import (
     schema_defaults,
 )
 from omnican.config.wheels import check_eds_files
+
+if sys.version_info >= (3, 11):  # the TOML parser load_config uses (tests read TOML with it)
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib  # type: ignore[import-not-found,unused-ignore]
 
 __all__ = [
     "BUS_KEYS",

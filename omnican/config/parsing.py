@@ -8,7 +8,6 @@ No I/O beyond reading the TOML file and parsing the EDS files it names.
 
 from __future__ import annotations
 
-import difflib
 import math
 import sys
 from collections.abc import Iterable, Mapping
@@ -24,6 +23,7 @@ from omnican.config.model import (
     SimTruth,
     WheelConfig,
 )
+from omnican.config.reader import Reader, suggest
 from omnican.config.schema import (
     BUS_KEYS,
     CHASSIS_SCALED,
@@ -36,14 +36,12 @@ from omnican.config.schema import (
     NUMBER,
     PDO_MAPPINGS,
     SCHEMA,
-    Key,
 )
 from omnican.config.wheels import check_eds_files, check_wheels, parse_wheel
 from omnican.core.kinematics import LAYOUTS
 from omnican.core.limits import MAX_STOP_S, stop_decel_floor, top_speeds
 from omnican.errors import ConfigError
 from omnican.protocol import heartbeat
-from omnican.protocol.cia402 import Mode
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -54,72 +52,6 @@ else:  # pragma: no cover
 SECTIONS = ("bus", *(section for section in SCHEMA if "." not in section))
 _UNLIMITED_OK = ("max_speed", "max_angular_speed")  # inf: no such limit
 _SCALED = CHASSIS_SCALED
-
-
-def _suggest(word: str, known: Iterable[str]) -> str:
-    """" (did you mean 'x'?)" for the closest known key; else where the keys are listed
-    (a list of every key makes a line no one reads)."""
-    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.75)
-    return f" (did you mean {close[0]!r}?)" if close else \
-        " (the keys: omnican check-config --help)"
-
-
-class Reader:
-    """Checks one TOML table against its schema, collecting nothing: first error raises.
-    ``origin`` (the file) begins every message."""
-
-    def __init__(self, origin: str) -> None:
-        self.origin = origin
-
-    def fail(self, where: str, message: str) -> ConfigError:
-        return ConfigError(f"{self.origin}: {where}: {message}")
-
-    def table(self, section: str, data: Any, where: str) -> dict[str, Any]:
-        if not isinstance(data, dict):
-            raise self.fail(where, f"must be a table, got {type(data).__name__}")
-        schema = SCHEMA[section]
-        for key in data:
-            if key not in schema:
-                raise self.fail(f"{where}.{key}", f"unknown key {key!r}{_suggest(key, schema)}")
-        out: dict[str, Any] = {}
-        for key, spec in schema.items():
-            if key not in data:
-                if spec.required:
-                    raise self.fail(f"{where}.{key}", "missing required key")
-                out[key] = spec.default
-                continue
-            value = data[key]
-            if isinstance(value, bool) and bool not in spec.types:
-                raise self.fail(f"{where}.{key}", f"must be a number, got {value!r}")
-            if not isinstance(value, spec.types):
-                kind = " or ".join(t.__name__ for t in spec.types)
-                raise self.fail(f"{where}.{key}", f"must be {kind}, got {value!r}")
-            if isinstance(value, float) and math.isnan(value):
-                raise self.fail(f"{where}.{key}", "must be a number, got nan")
-            self.in_range(f"{where}.{key}", spec, value)
-            out[key] = value
-        return out
-
-    def in_range(self, where: str, spec: Key, value: Any) -> None:
-        """A number within its key's :attr:`Key.range` (inf where the key allows it)."""
-        problem = spec.out_of_range(value)
-        if problem is not None:
-            raise self.fail(where, problem)
-
-    def positive(self, where: str, value: Any, allow_inf: bool = False) -> float:
-        v = float(value)
-        if not (v > 0) or (math.isinf(v) and not allow_inf):
-            raise self.fail(where, f"must be a positive number, got {value!r}")
-        return v
-
-    def mode(self, where: str, value: str | None) -> Mode | None:
-        """A mode's name (None: not given) as the :class:`Mode` it names."""
-        if value is None:
-            return None
-        try:
-            return Mode.from_name(value)
-        except ValueError as exc:
-            raise self.fail(where, str(exc)) from None
 
 
 def _chassis_settings(table: Mapping[str, Any]) -> ChassisSettings:
@@ -140,7 +72,7 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     r = Reader(origin)
     for key in data:
         if key not in SECTIONS:
-            raise r.fail(key, f"unknown section {key!r}{_suggest(key, SECTIONS)}")
+            raise r.fail(key, f"unknown section {key!r}{suggest(key, SECTIONS)}")
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")
@@ -399,7 +331,7 @@ def gamepad_values(table: Mapping[str, Any], where: str = "gamepad") -> dict[str
     schema = SCHEMA["gamepad"]
     for key in table:
         if key not in schema:
-            raise ConfigError(f"{where}.{key}: unknown key {key!r}{_suggest(key, schema)}")
+            raise ConfigError(f"{where}.{key}: unknown key {key!r}{suggest(key, schema)}")
     out: dict[str, Any] = {}
     preset = table.get("preset")
     if preset:
@@ -409,9 +341,9 @@ def gamepad_values(table: Mapping[str, Any], where: str = "gamepad") -> dict[str
         out["preset"] = preset
     if "deadzone" in table:
         out["deadzone"] = dz = _number(f"{where}.deadzone", table["deadzone"])
-        problem = schema["deadzone"].out_of_range(dz)
-        if problem is not None:
-            raise ConfigError(f"{where}.deadzone: {problem}")
+        spec = schema["deadzone"]
+        if spec.out_of_range(dz) is not None:
+            raise ConfigError(f"{where}.deadzone: must be {spec.range_text()}, got {dz}")
     for key in ("deadman_button", "turbo_button"):
         if key in table:
             value = table[key]

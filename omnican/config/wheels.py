@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from omnican.config.model import (
     ChassisConfig,
@@ -19,13 +19,11 @@ from omnican.config.model import (
     WheelConfig,
     derive_scales,
 )
+from omnican.config.reader import Reader
 from omnican.config.schema import SDO_TYPES, WHEEL_EDS
 from omnican.core.kinematics import LAYOUTS
 from omnican.errors import ConfigError
 from omnican.protocol.cia402 import Mode
-
-if TYPE_CHECKING:
-    from omnican.config.parsing import Reader
 
 
 def parse_wheel(r: Reader, i: int, data: Any, settings: ChassisSettings,
