@@ -1,4 +1,4 @@
-"""The configuration's model: frozen dataclasses, one per table (:class:`ChassisConfig`
+"""The configuration's model: the frozen dataclasses a config is (:class:`ChassisConfig`
 the whole robot), whose defaults are :data:`omnican.config.schema.SCHEMA`'s, and the demo
 base that ``--sim`` runs without a config (:func:`default_config`).
 
