@@ -88,7 +88,6 @@ KNOWN = {
     "omnican.chassis.base imports omnican.telemetry.feed, a layer above it",
     "omnican.chassis.cycle imports omnican.telemetry.feed, a layer above it",
     "omnican.chassis.cycle imports omnican.telemetry.settings, a layer above it",
-    "omnican.config.__init__ imports omnican.command.gamepad, a layer above it",
 }
 
 

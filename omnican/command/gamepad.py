@@ -8,9 +8,11 @@ the output stays continuous; each axis has a scale (m/s or rad/s at full deflect
 negative to flip it).
 
 Codes are Linux input event codes (``linux/input-event-codes.h``, what evdev reports), so
-a mapping is plain data: :data:`PRESETS` holds the pads tested with the kernel's drivers
-(xpad: Xbox and Logitech F710 in X mode; hid-playstation: PS4/PS5), and the ``[gamepad]``
-table of the config overrides any part of it (:func:`mapping_from_table`).
+a mapping is plain data. The ``[gamepad]`` table is the config's like every other: its
+keys, defaults, codes and presets (:data:`PRESETS`: the pads tested with the kernel's
+drivers, xpad: Xbox and Logitech F710 in X mode; hid-playstation: PS4/PS5) are declared
+in :mod:`omnican.config.schema`, and a table overrides any part of a preset
+(:func:`mapping_from_table`).
 """
 
 from __future__ import annotations
@@ -20,29 +22,27 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from omnican.config import (
+    GAMEPAD_AXES,
+    GAMEPAD_BUTTONS,
+    GAMEPAD_PRESETS,
+    SCHEMA,
+    gamepad_values,
+    schema_defaults,
+)
+from omnican.config.schema import default_text
 from omnican.core.kinematics import Twist
-from omnican.errors import ConfigError
 
 # linux/input-event-codes.h (stable kernel ABI)
 EV_SYN, EV_KEY, EV_ABS = 0x00, 0x01, 0x03
 SYN_DROPPED = 3
-ABS_CODES: dict[str, int] = {
-    "ABS_X": 0x00, "ABS_Y": 0x01, "ABS_Z": 0x02, "ABS_RX": 0x03, "ABS_RY": 0x04,
-    "ABS_RZ": 0x05, "ABS_HAT0X": 0x10, "ABS_HAT0Y": 0x11,
-}
-BUTTON_CODES: dict[str, int] = {
-    "BTN_SOUTH": 0x130, "BTN_A": 0x130, "BTN_EAST": 0x131, "BTN_B": 0x131,
-    "BTN_NORTH": 0x133, "BTN_X": 0x133, "BTN_WEST": 0x134, "BTN_Y": 0x134,
-    "BTN_TL": 0x136, "BTN_TR": 0x137, "BTN_TL2": 0x138, "BTN_TR2": 0x139,
-    "BTN_SELECT": 0x13A, "BTN_START": 0x13B, "BTN_MODE": 0x13C,
-    "BTN_THUMBL": 0x13D, "BTN_THUMBR": 0x13E,
-    # generic HID joysticks (e.g. the F710 with its switch on D)
-    "BTN_TRIGGER": 0x120, "BTN_THUMB": 0x121, "BTN_THUMB2": 0x122, "BTN_TOP": 0x123,
-    "BTN_TOP2": 0x124, "BTN_PINKIE": 0x125, "BTN_BASE": 0x126, "BTN_BASE2": 0x127,
-}
+#: Stick axes and buttons by name (the ``[gamepad]`` keys name them).
+ABS_CODES: dict[str, int] = GAMEPAD_AXES
+BUTTON_CODES: dict[str, int] = GAMEPAD_BUTTONS
 
-DEFAULT_DEADZONE = 0.05  # ROS joy's default
-DEFAULT_REQUIRE_DEADMAN = True
+_DEFAULTS = schema_defaults("gamepad")
+DEFAULT_DEADZONE: float = _DEFAULTS["deadzone"]  # ROS joy's default
+DEFAULT_REQUIRE_DEADMAN: bool = _DEFAULTS["require_deadman"]
 
 
 @dataclass(frozen=True)
@@ -69,24 +69,21 @@ class PadMapping:
     require_deadman: bool = DEFAULT_REQUIRE_DEADMAN
 
 
-def _pad(name: str, right_x: int, deadman: int, turbo: int | None) -> PadMapping:
-    return PadMapping(
-        name=name,
-        vx=AxisMap(ABS_CODES["ABS_Y"], -0.3, -0.8),
-        vy=AxisMap(ABS_CODES["ABS_X"], -0.3, -0.8),
-        wz=AxisMap(right_x, -1.0, -2.0),
-        deadman=deadman, turbo=turbo)
+def _preset(name: str) -> PadMapping:
+    """Preset ``name``: its codes (:data:`GAMEPAD_PRESETS`), the schema's defaults."""
+    codes = GAMEPAD_PRESETS[name]
+
+    def axis(a: str) -> AxisMap:
+        return AxisMap(ABS_CODES[codes[f"axis_{a}"]], _DEFAULTS[f"scale_{a}"],
+                       _DEFAULTS[f"turbo_scale_{a}"])
+
+    return PadMapping(name=name, vx=axis("vx"), vy=axis("vy"), wz=axis("wz"),
+                      deadman=BUTTON_CODES[codes["deadman_button"]],
+                      turbo=BUTTON_CODES[codes["turbo_button"]])
 
 
 #: Default mappings. Deadman: the left shoulder button (LB, L1); turbo: the right one.
-PRESETS: dict[str, PadMapping] = {
-    "xbox": _pad("xbox", ABS_CODES["ABS_RX"], BUTTON_CODES["BTN_TL"], BUTTON_CODES["BTN_TR"]),
-    "ps": _pad("ps", ABS_CODES["ABS_RX"], BUTTON_CODES["BTN_TL"], BUTTON_CODES["BTN_TR"]),
-    "f710": _pad("f710", ABS_CODES["ABS_RX"], BUTTON_CODES["BTN_TL"], BUTTON_CODES["BTN_TR"]),
-    # the F710 with its switch on D is a generic HID joystick: right stick on Z/RZ
-    "f710-d": _pad("f710-d", ABS_CODES["ABS_Z"], BUTTON_CODES["BTN_TOP2"],
-                   BUTTON_CODES["BTN_PINKIE"]),
-}
+PRESETS: dict[str, PadMapping] = {name: _preset(name) for name in GAMEPAD_PRESETS}
 
 
 def preset_for(device_name: str) -> str:
@@ -173,85 +170,36 @@ class PadState:
 
 _AXES = ("vx", "vy", "wz")
 #: Keys of the config's ``[gamepad]`` table and their meaning (README lists them).
-TABLE_KEYS: dict[str, str] = {
-    "preset": "xbox, ps (PS4/PS5), f710 (X mode) or f710-d; default: from the device name",
-    "deadzone": "stick deadzone, fraction of full deflection",
-    "deadman_button": "button to hold for any motion, e.g. \"BTN_TL\"; default the preset's "
-                      "(LB / L1)",
-    "turbo_button": "button for the turbo scales, e.g. \"BTN_TR\"; \"\" for none; default the "
-                    "preset's (RB / R1)",
-    "require_deadman": "whether the deadman must be held for any motion",
-    **{f"axis_{a}": f"axis for {a}, e.g. \"{code}\"; default the preset's"
-       for a, code in zip(_AXES, ("ABS_Y", "ABS_X", "ABS_RX"), strict=True)},
-    **{f"scale_{a}": f"{a} at full deflection ({'rad/s' if a == 'wz' else 'm/s'}; "
-                     "negative flips it)" for a in _AXES},
-    **{f"turbo_scale_{a}": f"{a} at full deflection with turbo held" for a in _AXES},
-}
+TABLE_KEYS: dict[str, str] = {key: spec.doc for key, spec in SCHEMA["gamepad"].items()}
 #: Defaults of the ``[gamepad]`` keys that do not depend on the preset (README's reference).
-TABLE_DEFAULTS: dict[str, str] = {"deadzone": f"{DEFAULT_DEADZONE:g}",
-                                  "require_deadman": str(DEFAULT_REQUIRE_DEADMAN).lower()}
-for _a in _AXES:
-    _axis: AxisMap = getattr(PRESETS["xbox"], _a)  # every preset has the same scales
-    TABLE_DEFAULTS[f"scale_{_a}"] = f"{_axis.scale:g}"
-    TABLE_DEFAULTS[f"turbo_scale_{_a}"] = f"{_axis.turbo_scale:g}"
-
-
-def _code(where: str, value: Any, table: Mapping[str, int]) -> int:
-    if isinstance(value, bool):
-        raise ConfigError(f"{where}: want a code name or number, got {value!r}")
-    if isinstance(value, int):
-        if value < 0:
-            raise ConfigError(f"{where}: must not be negative, got {value}")
-        return value
-    if isinstance(value, str) and value.upper() in table:
-        return table[value.upper()]
-    raise ConfigError(f"{where}: unknown code {value!r} (known: {', '.join(table)})")
-
-
-def _number(where: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(f"{where}: want a finite number, got {value!r}")
-    return float(value)
+TABLE_DEFAULTS: dict[str, str] = {key: default_text(spec)
+                                  for key, spec in SCHEMA["gamepad"].items()
+                                  if spec.default is not None}
 
 
 def mapping_from_table(table: Mapping[str, Any], device_name: str = "",
                        origin: str = "gamepad") -> PadMapping:
     """The mapping for a device: its preset (named in the table or guessed from the
-    device's name) with the table's keys applied. ConfigError names a bad key."""
-    for key in table:
-        if key not in TABLE_KEYS:
-            raise ConfigError(f"{origin}.{key}: unknown key (known: {', '.join(TABLE_KEYS)})")
-    preset = table.get("preset") or preset_for(device_name)
-    if preset not in PRESETS:
-        raise ConfigError(f"{origin}.preset: unknown preset {preset!r} "
-                          f"(known: {', '.join(PRESETS)})")
-    m = PRESETS[preset]
-    if "deadzone" in table:
-        dz = _number(f"{origin}.deadzone", table["deadzone"])
-        if not 0.0 <= dz < 1.0:
-            raise ConfigError(f"{origin}.deadzone: must be 0 or more and below 1, got {dz}")
-        m = replace(m, deadzone=dz)
-    if "deadman_button" in table:
-        m = replace(m, deadman=_code(f"{origin}.deadman_button", table["deadman_button"],
-                                     BUTTON_CODES))
-    if "turbo_button" in table:
-        t = table["turbo_button"]
-        m = replace(m, turbo=None if t == "" else _code(f"{origin}.turbo_button", t,
-                                                        BUTTON_CODES))
-    if "require_deadman" in table:
-        if not isinstance(table["require_deadman"], bool):
-            raise ConfigError(f"{origin}.require_deadman: want true or false")
-        m = replace(m, require_deadman=table["require_deadman"])
+    device's name) with the table's keys applied. ConfigError names a bad key
+    (``origin.key``), as the config's check does (:func:`omnican.config.gamepad_values`)."""
+    values = gamepad_values(table, origin)
+    m = PRESETS[values.get("preset") or preset_for(device_name)]
+    if "deadzone" in values:
+        m = replace(m, deadzone=values["deadzone"])
+    if "deadman_button" in values:
+        m = replace(m, deadman=values["deadman_button"])
+    if "turbo_button" in values:
+        m = replace(m, turbo=values["turbo_button"])
+    if "require_deadman" in values:
+        m = replace(m, require_deadman=values["require_deadman"])
     for a in _AXES:
         axis: AxisMap = getattr(m, a)
-        if f"axis_{a}" in table:
-            axis = replace(axis, code=_code(f"{origin}.axis_{a}", table[f"axis_{a}"],
-                                            ABS_CODES))
-        if f"scale_{a}" in table:
-            axis = replace(axis, scale=_number(f"{origin}.scale_{a}", table[f"scale_{a}"]))
-        if f"turbo_scale_{a}" in table:
-            axis = replace(axis, turbo_scale=_number(f"{origin}.turbo_scale_{a}",
-                                                     table[f"turbo_scale_{a}"]))
+        if f"axis_{a}" in values:
+            axis = replace(axis, code=values[f"axis_{a}"])
+        if f"scale_{a}" in values:
+            axis = replace(axis, scale=values[f"scale_{a}"])
+        if f"turbo_scale_{a}" in values:
+            axis = replace(axis, turbo_scale=values[f"turbo_scale_{a}"])
         m = replace(m, vx=axis) if a == "vx" else replace(m, vy=axis) if a == "vy" \
             else replace(m, wz=axis)
     return m

@@ -1,0 +1,425 @@
+"""The configuration schema: every key of every table, its type, default, range and
+meaning (:data:`SCHEMA`), and the values some keys take (:data:`VELOCITY_UNITS`,
+:data:`PDO_MAPPINGS`, the gamepad's codes and presets...). The one place a default or a
+range is written: the dataclasses of :mod:`omnican.config.model` take their defaults from
+here, :mod:`omnican.config.parsing` checks a TOML document against it, and README's
+configuration reference is made from it (:func:`reference_rows`, checked by a test).
+
+Pure data: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from omnican.core.limits import MAX_ACCEL_SENSE, MAX_SPEED_SENSE
+
+#: The bundled generic wheel-drive EDS (inside the installed package).
+WHEEL_EDS: Path = Path(__file__).resolve().parents[1] / "eds" / "omnican_wheel.eds"
+
+#: The TOML types of a number.
+NUMBER = (int, float)
+
+#: Velocity units of a drive's target/actual velocity, as multiples of motor rev/s.
+VELOCITY_UNITS: dict[str, float] = {
+    "counts/s": 0.0,  # special: encoder counts per second
+    "rpm": 1.0 / 60.0,
+    "0.1rpm": 1.0 / 600.0,
+    "0.01rpm": 1.0 / 6000.0,
+    "rev/s": 1.0,
+}
+
+#: [[wheel.sdo]] type names -> (bits, signed); bool is one byte.
+SDO_TYPES: dict[str, tuple[int, bool]] = {"u8": (8, False), "u16": (16, False),
+                                          "u32": (32, False), "i8": (8, True),
+                                          "i16": (16, True), "i32": (32, True),
+                                          "bool": (8, False)}
+
+
+@dataclass(frozen=True)
+class Key:
+    """One configuration key: its TOML type(s), default (None: none, or see ``required``
+    and ``scaled``) and meaning. The one place a default is written: the dataclasses the
+    tables parse into take theirs from here (:func:`schema_defaults`)."""
+
+    types: tuple[type, ...]
+    default: Any
+    doc: str
+    required: bool = False
+    #: (other key, factor): left out, the key is ``factor`` x the other key's value.
+    scaled: tuple[str, float] | None = None
+    #: (lowest, highest) a number may be, both allowed; None: any finite number. Beyond
+    #: it a value has no physical sense for a base (or overflows what it feeds): refused.
+    range: tuple[float, float] | None = None
+    #: inf is allowed too (no such limit).
+    inf_ok: bool = False
+    #: ``range`` bounds the magnitude; the sign is free (a polarity), zero is not.
+    signed: bool = False
+    #: The highest value of ``range`` is not allowed itself (a fraction below 1).
+    open_high: bool = False
+
+    def range_text(self) -> str:
+        """The range as an error message says it: "0.001-60", "-720 to 720"."""
+        if self.range is None:
+            return "a finite number"
+        lo, hi = (_bound_text(x) for x in self.range)
+        text = f"{lo}-{hi}" if self.range[0] >= 0 else f"{lo} to {hi}"
+        if self.signed:
+            text = f"{lo} to {hi} in magnitude (either sign)"
+        if self.open_high:
+            text = f"{lo} or more and below {hi}"
+        return text + (" or inf" if self.inf_ok else "")
+
+    def out_of_range(self, value: Any) -> str | None:
+        """What is wrong with a number beyond :attr:`range` ("must be 0.01-60, got 100"),
+        None for one within it (inf where the key allows it) or for no number."""
+        if self.range is None or isinstance(value, bool) or not isinstance(value, NUMBER):
+            return None
+        if math.isinf(value) and self.inf_ok and value > 0:
+            return None
+        lo, hi = self.range
+        v = abs(value) if self.signed else value
+        if lo <= v < hi or (v == hi and not self.open_high):
+            return None
+        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
+        return f"must be {self.range_text()}, got {shown}"
+
+
+def _bound_text(x: float) -> str:
+    """A range's bound as people write it: 1000000, not 1e+06; 1e+12 stays."""
+    return str(int(x)) if x == int(x) and abs(x) < 1e7 else f"{x:g}"
+
+
+def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float,
+            range: tuple[float, float] | None = None) -> Key:
+    """A key whose default is ``factor`` x key ``of`` of the same table (said in its doc)."""
+    return Key(types, None, f"{doc}; default {factor:g} x {of}", scaled=(of, factor),
+               range=range)
+
+
+# The ranges of the numeric keys (Key.range): what a base can physically have, wide
+# enough for any real robot. Speeds and accelerations share omnican.core.limits' bounds of
+# sense (a command beyond them is refused too); times go from a millisecond to what a
+# person would still wait for; a stop deceleration also has a floor that depends on the
+# speed limits (omnican.core.limits.MAX_STOP_S, checked once the wheels are known).
+_SPEED = (0.001, MAX_SPEED_SENSE)
+_ACCEL = (0.001, MAX_ACCEL_SENSE)
+_DECEL = (0.001, 2 * MAX_ACCEL_SENSE)  # the default is twice the acceleration
+_WAIT = (0.01, 60.0)  # s: a CAN round trip and a scheduler's tick fit the lowest
+_RATE = (0.01, 5000.0)  # Hz
+_SCALE = (1e-6, 1e12)  # units per SI unit, either sign
+_ROS_RATE = (0.01, 1000.0)  # Hz, a topic's publish rate
+
+
+#: The highest chassis.rt_priority: Linux's highest SCHED_FIFO priority.
+MAX_RT_PRIORITY = 99
+
+#: Values of chassis.pdo_mapping (what omnican.plan.pdo does with each).
+PDO_MAPPINGS = ("try", "eds", "sdo")
+#: Values of chassis.lifted_wheel (what the health checks do with a wheel off the ground).
+LIFTED_WHEEL = ("warn", "stop", "off")
+
+#: [chassis] keys a running base takes while it runs (:meth:`omnican.Chassis.set_limits`,
+#: Foxglove's parameters): its velocity limiter's.
+LIVE_LIMITS = ("max_speed", "max_angular_speed", "max_accel", "max_angular_accel",
+               "stop_decel", "stop_angular_decel", "max_wheel_speed")
+
+#: The keys of the free-form [bus] table that omnican reads itself (the bus load): their
+#: type and range (CAN's nominal bitrates run from 10 kbit/s down to what some
+#: controllers allow, 1 kbit/s, up to 1 Mbit/s; a CAN FD data phase up to 12 Mbit/s).
+BUS_KEYS: dict[str, Key] = {
+    "bitrate": Key((int,), None, "bit/s of the bus (nominal)", range=(1000, 1_000_000)),
+    "data_bitrate": Key((int,), None, "bit/s of a CAN FD data phase",
+                        range=(1000, 12_000_000)),
+}
+
+# The [gamepad] table's words: Linux input event codes (linux/input-event-codes.h, the
+# stable kernel ABI, what evdev reports) and the pads tested with the kernel's drivers
+# (xpad: Xbox and Logitech F710 in X mode; hid-playstation: PS4/PS5).
+#: Stick axes a ``[gamepad]`` axis key may name.
+GAMEPAD_AXES: dict[str, int] = {
+    "ABS_X": 0x00, "ABS_Y": 0x01, "ABS_Z": 0x02, "ABS_RX": 0x03, "ABS_RY": 0x04,
+    "ABS_RZ": 0x05, "ABS_HAT0X": 0x10, "ABS_HAT0Y": 0x11,
+}
+#: Buttons a ``[gamepad]`` button key may name.
+GAMEPAD_BUTTONS: dict[str, int] = {
+    "BTN_SOUTH": 0x130, "BTN_A": 0x130, "BTN_EAST": 0x131, "BTN_B": 0x131,
+    "BTN_NORTH": 0x133, "BTN_X": 0x133, "BTN_WEST": 0x134, "BTN_Y": 0x134,
+    "BTN_TL": 0x136, "BTN_TR": 0x137, "BTN_TL2": 0x138, "BTN_TR2": 0x139,
+    "BTN_SELECT": 0x13A, "BTN_START": 0x13B, "BTN_MODE": 0x13C,
+    "BTN_THUMBL": 0x13D, "BTN_THUMBR": 0x13E,
+    # generic HID joysticks (e.g. the F710 with its switch on D)
+    "BTN_TRIGGER": 0x120, "BTN_THUMB": 0x121, "BTN_THUMB2": 0x122, "BTN_TOP": 0x123,
+    "BTN_TOP2": 0x124, "BTN_PINKIE": 0x125, "BTN_BASE": 0x126, "BTN_BASE2": 0x127,
+}
+_STICKS = {"axis_vx": "ABS_Y", "axis_vy": "ABS_X", "axis_wz": "ABS_RX"}
+_SHOULDERS = {"deadman_button": "BTN_TL", "turbo_button": "BTN_TR"}  # LB / L1, RB / R1
+#: Preset -> the ``[gamepad]`` keys it gives (the others default as :data:`SCHEMA` says).
+#: The left stick moves, the right one turns; hold the left shoulder button to move, the
+#: right one for the turbo scales.
+GAMEPAD_PRESETS: dict[str, dict[str, str]] = {
+    "xbox": {**_STICKS, **_SHOULDERS},
+    "ps": {**_STICKS, **_SHOULDERS},
+    "f710": {**_STICKS, **_SHOULDERS},
+    # the F710 with its switch on D is a generic HID joystick: right stick on Z/RZ
+    "f710-d": {**_STICKS, "axis_wz": "ABS_Z", "deadman_button": "BTN_TOP2",
+               "turbo_button": "BTN_PINKIE"},
+}
+_AXES = ("vx", "vy", "wz")
+_GAMEPAD_SCALES = {"vx": (-0.3, -0.8), "vy": (-0.3, -0.8), "wz": (-1.0, -2.0)}  # turbo 2nd
+
+# Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
+SCHEMA: dict[str, dict[str, Key]] = {
+    "chassis": {
+        "layout": Key((str,), None, "wheel preset: \"b21\" (180, -60, 60 deg) or \"a12\" "
+                      "(0, 120, -120 deg); omit and give angle_deg per wheel instead"),
+        "base_radius": Key(NUMBER, None, "m, base centre to wheel contact point", required=True,
+                           range=(0.01, 10.0)),
+        "rate_hz": Key(NUMBER, 100.0, "control loop and SYNC rate", range=(1.0, 5000.0)),
+        "rt_priority": Key((int,), 50, "SCHED_FIFO priority 1-99 of the control loop thread "
+                           "(its thread alone) where the process may: root, CAP_SYS_NICE or "
+                           "RLIMIT_RTPRIO; elsewhere normal priority and a note; 0: never"),
+        "cmd_timeout_s": Key(NUMBER, 0.5, "no command for this long -> controlled stop",
+                             range=_WAIT),
+        "max_wheel_speed": Key(NUMBER, 1.0, "m/s at the rim; commands are desaturated to it",
+                               range=_SPEED),
+        "max_speed": Key(NUMBER, math.inf, "m/s, body linear speed (vector norm)", range=_SPEED,
+                         inf_ok=True),
+        "max_angular_speed": Key(NUMBER, math.inf, "rad/s, body angular speed", range=_SPEED,
+                                 inf_ok=True),
+        "max_accel": Key(NUMBER, 1.0, "m/s^2, body linear acceleration", range=_ACCEL),
+        "max_angular_accel": Key(NUMBER, 3.0, "rad/s^2, body angular acceleration",
+                                 range=_ACCEL),
+        "stop_decel": _scaled(NUMBER, "m/s^2 for a stop command (and every other stop); at "
+                              "least the top speed / 2 s", "max_accel", 2.0, _DECEL),
+        "stop_angular_decel": _scaled(NUMBER, "rad/s^2 for a stop; at least the top angular "
+                                      "speed / 2 s", "max_angular_accel", 2.0, _DECEL),
+        "mode": Key((str,), None, "\"pv\", \"csv\" or \"vl\"; default: pv, or what 6502h offers"),
+        "host_node_id": Key((int,), 127, "node id of this host's heartbeat (0x700 + id)",
+                            range=(1, 127)),
+        "heartbeat_ms": Key((int,), 100, "heartbeat period of host and drives, ms",
+                            range=(1, 65535)),
+        "heartbeat_timeout_factor": Key(NUMBER, 3.0, "a heartbeat is lost after this many "
+                                        "periods and half a period more: that many lost in a "
+                                        "row stop the base, one fewer never does",
+                                        range=(1.0, 100.0)),
+        "sdo_timeout_s": Key(NUMBER, 0.3, "one SDO request's wait for its answer", range=_WAIT),
+        "sdo_retries": Key((int,), 3, "an SDO request unanswered within sdo_timeout_s is sent "
+                           "again, up to this many times", range=(0, 20)),
+        "boot_timeout_s": Key(NUMBER, 2.0, "wait for a drive's boot-up after NMT reset",
+                              range=(0.1, 60.0)),
+        "enable_timeout_s": Key(NUMBER, 1.0, "bring a drive to OPERATION ENABLED within this",
+                                range=_WAIT),
+        "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
+                           "them anyway (warning; a drive that refuses runs on its own mapping, "
+                           "and what that lacks goes by SDO every cycle), \"eds\" sends them by "
+                           "SDO every cycle, \"sdo\" sends targets and positions by SDO every "
+                           "cycle"),
+        "health_rate_hz": Key(NUMBER, 5.0, "how often each drive's current, torque, voltage, "
+                              "temperature, error register and e-stop input are read",
+                              range=_RATE),
+        "tracking_error": Key(NUMBER, 0.1, "m/s: a wheel whose measured speed stays this far "
+                              "outside what its target was over the last tracking_lag_s "
+                              "latches a stop (inf: never)", range=_SPEED, inf_ok=True),
+        "tracking_time_s": Key(NUMBER, 0.5, "for this long", range=_WAIT),
+        "tracking_lag_s": Key(NUMBER, 0.3, "how far a wheel's measured speed may lag its target "
+                              "(speed window, drive ramp and velocity loop)", range=_WAIT),
+        "lifted_wheel": Key((str,), "warn", "a wheel off the ground (or without its roller), "
+                            "found from its current against its siblings': \"warn\" (a status "
+                            "warning naming it), \"stop\" (a stop naming it) or \"off\""),
+    },
+    "wheel": {
+        "node_id": Key((int,), None, "CANopen node id 1-127", required=True, range=(1, 127)),
+        "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)", range=(0, 7)),
+        "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
+        "velocity_scale": Key(NUMBER, None, "drive velocity units per m/s at the rim; sign = "
+                              "polarity", range=_SCALE, signed=True),
+        "position_scale": Key(NUMBER, None, "encoder position units per m of rim travel",
+                              range=_SCALE, signed=True),
+        "gear_ratio": Key(NUMBER, None, "motor turns per wheel turn (instead of the scales)",
+                          range=(0.001, 1e5)),
+        "encoder_cpr": Key(NUMBER, None, "encoder counts per motor turn (instead of the scales)",
+                           range=(1.0, 1e9)),
+        "wheel_radius": Key(NUMBER, None, "m, wheel radius (instead of the scales)",
+                            range=(0.001, 10.0)),
+        "velocity_unit": Key((str,), "counts/s", "drive velocity unit when deriving the scales: "
+                             + ", ".join(VELOCITY_UNITS)),
+        "invert": Key((bool,), False, "reverse the wheel's direction (negates both scales)"),
+        "angle_deg": Key(NUMBER, None, "wheel position angle from +x, CCW (instead of layout)",
+                         range=(-720.0, 720.0)),
+        "drive_angle_deg": Key(NUMBER, None, "drive direction; default angle_deg + 90",
+                               range=(-720.0, 720.0)),
+        "base_radius": Key(NUMBER, None, "m, this wheel's distance from the centre; default "
+                           "[chassis] base_radius", range=(0.01, 10.0)),
+        "mode": Key((str,), None, "this wheel's mode; default [chassis] mode"),
+        "current": Key((str,), "0x6078", "object with the motor current: \"0xIIII:SS\", "
+                       "\"0xIIII\" (this axis's copy) or the EDS entry's name; \"\" for none"),
+        "current_scale": Key(NUMBER, None, "A per unit of current; default: 6078h's per mille "
+                             "of the rated current 6075h, read at startup", range=_SCALE,
+                             signed=True),
+        "torque": Key((str,), "0x6077", "object with the torque, per mille of the rated "
+                      "torque; \"\" for none"),
+        "voltage": Key((str,), "0x6079", "object with the DC link voltage; \"\" for none"),
+        "voltage_scale": Key(NUMBER, 0.001, "V per unit of voltage (6079h: mV)", range=_SCALE,
+                             signed=True),
+        "temperature": Key((str,), None, "object with a temperature (vendor-specific, e.g. "
+                           "\"0x2032:01\" or its EDS name); default none"),
+        "temperature_scale": Key(NUMBER, 1.0, "degC per unit of temperature", range=_SCALE,
+                                 signed=True),
+        "sdo": Key((list,), None, "vendor settings: [[wheel.sdo]] tables written in "
+                   "PRE-OPERATIONAL at every configuration (below)"),
+    },
+    # One [[wheel.sdo]] table: a setting the drive gets at startup, after a reboot and
+    # after the bus comes back.
+    "wheel.sdo": {
+        "object": Key((str,), None, "\"0xIIII:SS\" or the EDS entry's name", required=True),
+        "value": Key((int, float, bool), None, "the value written", required=True),
+        "type": Key((str,), None, "u8, u16, u32, i8, i16, i32 or bool; default: the EDS's "
+                    "type (which it must match)"),
+    },
+    # Read by the base when present: a low battery warns, then stops the base.
+    "power": {
+        "warn_v": Key(NUMBER, None, "V: the DC link below this warns (status, diagnostics)",
+                      range=(0.1, 2000.0)),
+        "cutoff_v": Key(NUMBER, None, "V: below this for delay_s, a controlled stop "
+                        "(recover() refuses until it is back above cutoff_v + hysteresis_v)",
+                        range=(0.1, 2000.0)),
+        "hysteresis_v": Key(NUMBER, 0.5, "V a warning or cutoff needs to clear",
+                            range=(0.0, 100.0)),
+        "delay_s": Key(NUMBER, 1.0, "below a threshold this long before it counts (a sag "
+                       "while accelerating does not)", range=(0.0, 60.0)),
+    },
+    # An e-stop (or a drive's safe torque off) as a stop reason.
+    "estop": {
+        "object": Key((str,), "0x60FD", "object with the e-stop: a digital input (60FDh), "
+                      "the statusword (0x6041, a drive's STO bit) or a vendor object"),
+        "bit": Key((int,), None, "bit of it that shows the e-stop pressed", required=True,
+                   range=(0, 31)),
+        "active_low": Key((bool,), False, "pressed when the bit is clear (a normally closed "
+                          "loop)"),
+        "node_id": Key((int,), None, "the drive whose input it is; default every node",
+                       range=(1, 127)),
+    },
+    # Read by `omnican ros2` (omnican/ros2/settings.py checks the values).
+    "ros2": {
+        "namespace": Key((str,), "", "ROS 2 namespace of the node and its relative topics"),
+        "node_name": Key((str,), "omnican", "ROS 2 node name (~/ topics live under it)"),
+        "domain_id": Key((int,), None, "DDS domain 0-232; default: ROS_DOMAIN_ID, else 0",
+                         range=(0, 232)),
+        "cmd_vel_topic": Key((str,), "cmd_vel", "velocity commands in (Twist)"),
+        "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of Twist"),
+        "cmd_vel_timeout_s": Key(NUMBER, None, "no cmd_vel for this long -> stop; default "
+                                 "[chassis] cmd_timeout_s", range=_WAIT),
+        "odom_topic": Key((str,), "odom", "nav_msgs/Odometry out"),
+        "odom_frame": Key((str,), "odom", "frame of the odometry pose"),
+        "base_frame": Key((str,), "base_link", "frame of the base (odometry child frame)"),
+        "odom_rate_hz": Key(NUMBER, 50.0, "odom and tf publish rate", range=_ROS_RATE),
+        "publish_tf": Key((bool,), True, "publish the odom -> base_link transform"),
+        "tf_topic": Key((str,), "/tf", "tf2_msgs/TFMessage out"),
+        "joint_states_topic": Key((str,), "joint_states", "sensor_msgs/JointState out"),
+        "joint_states_rate_hz": Key(NUMBER, 50.0, "joint_states publish rate", range=_ROS_RATE),
+        "joint_names": Key((list,), None, "one joint name per wheel; default wheel_0_joint, "
+                           "wheel_1_joint, ..."),
+        "wheel_radius": Key(NUMBER, None, "m, for joint angles; default the wheels' "
+                            "wheel_radius (no joint_states without one)", range=(0.001, 10.0)),
+        "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
+        "diagnostics_rate_hz": Key(NUMBER, 1.0, "diagnostics rate (and at once on a change)",
+                                   range=_ROS_RATE),
+        "battery_state_topic": Key((str,), "battery_state", "sensor_msgs/BatteryState out: the "
+                                   "drives' DC link (when they report one)"),
+        "battery_state_rate_hz": Key(NUMBER, 1.0, "battery_state publish rate", range=_ROS_RATE),
+        "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
+        "odom_slip": Key(NUMBER, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
+                         "(covariances)", range=(0.0, 0.99)),
+        "interface": Key((str,), None, "DDS network interface name or address; default all"),
+        "peers": Key((list,), None, "unicast discovery peers (addresses or host names)"),
+        "multicast": Key((bool,), True, "DDS multicast discovery"),
+    },
+    # Read by the live view (--foxglove; omnican/live/settings.py checks the values).
+    "foxglove": {
+        "control": Key((bool,), False, "drive from Foxglove (Teleop panel, services, "
+                       "parameters); --foxglove-control, off: the view only watches"),
+        "cmd_vel_topic": Key((str,), "/cmd_vel", "topic Foxglove's Teleop panel publishes "
+                             "geometry_msgs/Twist on"),
+        "allow_remote": Key((bool,), False, "control on a server that other hosts can reach "
+                            "(a host other than loopback); --foxglove-allow-remote"),
+        "tls_cert": Key((str,), None, "PEM certificate (relative to the config file): serve "
+                        "wss:// (a phone's browser needs it); with tls_key"),
+        "tls_key": Key((str,), None, "PEM private key of tls_cert"),
+        "origins": Key((list,), None, "web pages (Origin) whose browsers may connect, e.g. "
+                       "[\"https://app.foxglove.dev\"], \"*\" any; default Foxglove's app "
+                       "(app. and studio.foxglove.dev) and desktop (file://); "
+                       "--foxglove-origin adds one"),
+        "token": Key((str,), None, "a secret a client must give to drive (ws://host:port/"
+                     "?token=...): without it, it may only watch; --foxglove-token"),
+    },
+    # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
+    # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.
+    "sim": {
+        "base_radius": Key(NUMBER, None, "m, the simulated base's true base_radius (per-wheel "
+                           "base_radius scale with it); default the configured one",
+                           range=(0.01, 10.0)),
+        "position_scale": Key((*NUMBER, list), None, "true encoder counts per m of rim travel "
+                              "of the simulated wheels (magnitude): one number for every "
+                              "wheel, or one per wheel; default the configured ones",
+                              range=_SCALE),
+    },
+    # Read by `omnican teleop --gamepad` (omnican.command.gamepad). A key left out is the
+    # preset's; every preset has the defaults below. evdev's sticks read + to the right
+    # and + down, REP-103 wants + forward, + left and + counter-clockwise: hence the
+    # negative scales.
+    "gamepad": {
+        "preset": Key((str,), None, "xbox, ps (PS4/PS5), f710 (X mode) or f710-d; default: "
+                      "from the device name"),
+        "deadzone": Key(NUMBER, 0.05, "stick deadzone, fraction of full deflection",
+                        range=(0.0, 1.0), open_high=True),  # 0.05: ROS joy's default
+        "deadman_button": Key((str, int), None, "button to hold for any motion, e.g. "
+                              "\"BTN_TL\"; default the preset's (LB / L1)"),
+        "turbo_button": Key((str, int), None, "button for the turbo scales, e.g. \"BTN_TR\"; "
+                            "\"\" for none; default the preset's (RB / R1)"),
+        "require_deadman": Key((bool,), True, "whether the deadman must be held for any "
+                               "motion"),
+        **{f"axis_{a}": Key((str, int), None, f"axis for {a}, e.g. \"{_STICKS[f'axis_{a}']}\"; "
+                            "default the preset's") for a in _AXES},
+        **{f"scale_{a}": Key(NUMBER, _GAMEPAD_SCALES[a][0], f"{a} at full deflection "
+                             f"({'rad/s' if a == 'wz' else 'm/s'}; negative flips it)")
+           for a in _AXES},
+        **{f"turbo_scale_{a}": Key(NUMBER, _GAMEPAD_SCALES[a][1], f"{a} at full deflection "
+                                   "with turbo held") for a in _AXES},
+    },
+}
+
+#: The [chassis] keys that default to a factor times another: key -> (other key, factor).
+CHASSIS_SCALED = {name: spec.scaled for name, spec in SCHEMA["chassis"].items() if spec.scaled}
+
+
+def schema_defaults(section: str) -> dict[str, Any]:
+    """Key -> default of every key of a :data:`SCHEMA` section (None: required, scaled or
+    no value)."""
+    return {name: spec.default for name, spec in SCHEMA[section].items()}
+
+
+def default_text(spec: Key) -> str:
+    """A key's default as README's reference table writes it: "required", "-" (none),
+    true, "text", inf, 0.5."""
+    d = spec.default
+    if spec.required:
+        return "required"
+    if d is None:
+        return "-"
+    if isinstance(d, bool):
+        return str(d).lower()
+    if isinstance(d, str):
+        return f'"{d}"'
+    if isinstance(d, float) and math.isinf(d):
+        return "inf"
+    return f"{d:g}"
+
+
+def reference_rows() -> list[tuple[str, str, str]]:
+    """(key, default, meaning) for every key of :data:`SCHEMA`: README's reference table."""
+    return [(f"{section}.{name}", default_text(spec), spec.doc)
+            for section, keys in SCHEMA.items() for name, spec in keys.items()]
