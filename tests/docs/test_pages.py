@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import re
+import sys
 from pathlib import Path
 
 import pytest
@@ -53,7 +54,10 @@ def test_every_fence_says_its_language() -> None:
 
 
 def test_toml_examples_parse() -> None:
-    from omnican.config import tomllib
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:
+        import tomli as tomllib
 
     tables = [b for b in all_blocks() if b.lang == "toml"]
     assert len(tables) >= 5
@@ -118,7 +122,7 @@ def _stop_fragments() -> list[tuple[str, str]]:
     cutoff_reason(), a ``reason``/``held``/``bus_off`` assignment)."""
     files = [*sorted((ROOT / "omnican" / "chassis").glob("*.py")),
              ROOT / "omnican" / "core" / "tracking.py", ROOT / "omnican" / "core" / "lift.py"]
-    out = []
+    out: list[tuple[str, str]] = []
 
     def literal(node: ast.AST, where: str) -> None:
         parts = [node] if isinstance(node, ast.Constant) else \
