@@ -168,3 +168,25 @@ def test_the_sim_console_commands_are_on_the_getting_started_page() -> None:
     for syntax, _ in COMMANDS:
         verb = syntax.split()[0]
         assert re.search(rf"`{verb}( [^`]*)?`", section), verb
+
+
+def test_one_version_for_the_command_the_package_and_the_changelog() -> None:
+    import subprocess
+
+    import omnican
+
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:
+        import tomli as tomllib  # type: ignore[import-not-found,unused-ignore]
+
+    out = subprocess.run([sys.executable, "-m", "omnican", "--version"], text=True,
+                         capture_output=True, check=True, env={"PYTHONPATH": str(ROOT)},
+                         cwd=ROOT).stdout
+    assert out.strip() == f"omnican {omnican.__version__}"
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project.get("version", omnican.__version__) == omnican.__version__
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    first = re.search(r"^## \[([^\]]+)\]", changelog, re.M)
+    assert first is not None and first[1] in ("Unreleased", omnican.__version__)
+    assert f"## [{omnican.__version__}]" in changelog
