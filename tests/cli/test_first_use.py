@@ -130,15 +130,18 @@ def test_the_ros2_command_refuses_the_same_line(tmp_path: Path) -> None:
     assert code == 2 and one_error_line(err) == one_error_line(checked)
 
 
-def test_gamepad_keys_are_in_check_config_help_and_the_readme() -> None:
+def test_gamepad_keys_are_in_check_config_help_and_the_reference() -> None:
+    """Every [gamepad] key is in check-config --help and in the rows the configuration
+    reference (docs/reference/config.md) is generated from."""
     from omnican.command.gamepad import TABLE_KEYS
+    from omnican.config import reference_rows
 
     code, out, _ = run_main(["check-config", "--help"])
     assert code == 0
-    readme = (ROOT / "README.md").read_text()
+    documented = {key for key, _, _ in reference_rows()}
     for key in TABLE_KEYS:
         assert f"gamepad.{key}" in out, key
-        assert f"| `gamepad.{key}` |" in readme, key
+        assert f"gamepad.{key}" in documented, key
 
 
 # ---------------------------------------------------------------- 3: several configs
@@ -812,9 +815,9 @@ def test_the_vendor_drives_of_the_tests_are_shipped_with_a_config_each() -> None
         assert any(f'eds = "{VENDOR_EDS.name}/{eds.name}"' in t for t in texts), eds.name
 
 
-def test_readme_has_a_first_power_on_checklist() -> None:
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("### First power-on with real drives", 1)[1].split("\n## ", 1)[0]
+def test_the_docs_have_a_first_power_on_checklist() -> None:
+    page = (ROOT / "docs" / "bring-up.md").read_text()
+    section = page.split("## First power-on checklist", 1)[1].split("\n## ", 1)[0]
     for step in ("off the ground", "omnican check-config", "omnican scan", "--vx 0.05",
                  "Ctrl-C", "wheel", "0.05 m/s = target"):
         assert step in section, step

@@ -357,13 +357,13 @@ def test_each_key_goes_where_the_help_says(key: str, where: str) -> None:
     assert expected == where
 
 
-def test_readme_and_help_show_the_key_map() -> None:
+def test_the_docs_and_help_show_the_key_map() -> None:
     from omnican.command.teleop import key_help
 
     block = key_help()
     assert "m    ,    .     back-left" in block
-    readme = (ROOT / "README.md").read_text()
-    assert f"```\n{block}\n```" in readme
+    page = (ROOT / "docs" / "getting-started.md").read_text()
+    assert f"```\n{block}\n```" in page
     code, out, _ = run_main(["teleop", "--help"])
     assert code == 0
     assert block in out
@@ -475,8 +475,10 @@ def _all_help() -> dict[str, str]:
     return pages
 
 
-def test_help_and_readme_speak_to_a_new_user() -> None:
-    texts = {**_all_help(), "README.md": (ROOT / "README.md").read_text()}
+def test_help_and_docs_speak_to_a_new_user() -> None:
+    pages = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").glob("*.md"))]
+    assert len(pages) > 10
+    texts = {**_all_help(), **{p.name: p.read_text() for p in pages}}
     for name, text in texts.items():
         rst = re.search(r"(?<!`)``(?!`)", text)  # reStructuredText literals (not ``` fences)
         assert rst is None, (name, text[rst.start() - 80:rst.end() + 80])
