@@ -4,10 +4,12 @@ A product feature (``omnican sim``, ``--sim``), not a test helper: the drives be
 on the wire like real ones, so code that works against them works on a robot.
 
 A drive (:mod:`~omnican.sim.drive`) is its CiA 301 node side (:mod:`~omnican.sim.node`,
-:mod:`~omnican.sim.process_data`, :mod:`~omnican.sim.heartbeat`, :mod:`~omnican.sim.pdo`),
-the CiA 402 power stage (:mod:`~omnican.sim.stage`) and the axes' motion
-(:mod:`~omnican.sim.axis` over the motor model :mod:`~omnican.sim.motor`); the base
-(:mod:`~omnican.sim.base`) adds the ground truth.
+:mod:`~omnican.sim.objects`, :mod:`~omnican.sim.process_data`,
+:mod:`~omnican.sim.heartbeat`, :mod:`~omnican.sim.pdo`), the CiA 402 device behind it
+(:mod:`~omnican.sim.device`: the power stage :mod:`~omnican.sim.stage`, the axes' motion
+:mod:`~omnican.sim.axis` over the motor model :mod:`~omnican.sim.motor`, the drive's
+health :mod:`~omnican.sim.health`) and its fault injection (:mod:`~omnican.sim.faults`);
+the base (:mod:`~omnican.sim.base`) adds the ground truth.
 """
 
 from omnican.clock import SimClock

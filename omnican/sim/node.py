@@ -6,7 +6,9 @@ adding what it lacks (canopen #555, #558): NMT states with boot-up frames and bo
 resets, TPDOs answering SYNC and RPDOs applied to the dictionary, as the master
 configured them (taken from 14xxh-1Axxh on entering OPERATIONAL); event-driven TPDOs
 with inhibit and event times; a heartbeat producer (1017h) and consumer (1016h);
-silence when frozen, and random frame loss.
+silence when frozen, and random frame loss. :class:`SimNode` handles the frames; what
+reading and writing an object does is :mod:`omnican.sim.objects`', the PDOs at run time
+:mod:`omnican.sim.process_data`'s, the heartbeats' bookkeeping :mod:`omnican.sim.heartbeat`'s.
 
 What the device does with its objects is the :class:`Application`'s (the CiA 402
 drive, :mod:`omnican.sim.drive`): it provides the dynamic objects' readers and hears
@@ -27,35 +29,27 @@ from typing import Any, Protocol
 import can
 import canopen
 from canopen import objectdictionary as od
-from canopen.sdo.exceptions import SdoAbortedError
 
 from omnican.clock import Clock
 from omnican.io.bus import prepared_message
 from omnican.protocol.cia301 import (
     COB_ID_MASK,
-    COMMUNICATION_PROFILE,
-    CONSUMER_HEARTBEAT_TIME,
     EMCY_BASE,
     EMCY_HEARTBEAT,
     EMCY_PDO_LENGTH,
     ERROR_REGISTER_COMMUNICATION,
     ERROR_REGISTER_GENERIC,
     HEARTBEAT_BASE,
-    IDENTITY,
-    MAX_PDOS,
     NMT_COB_ID,
     NMT_STATE_NAMES,
-    PRODUCER_HEARTBEAT_TIME,
-    RPDO_MAP,
-    SDO_ABORT_READ_ONLY,
     SYNC_COB_ID,
     SYNC_COB_ID_OBJECT,
-    TPDO_MAP,
     NmtCommand,
     NmtState,
 )
 from omnican.sim.heartbeat import Heartbeat
-from omnican.sim.pdo import check_mapping_write, read_uint
+from omnican.sim.objects import NodeObjects, ObjectHooks
+from omnican.sim.pdo import read_uint
 from omnican.sim.process_data import ProcessData
 
 logger = logging.getLogger(__name__)
@@ -67,8 +61,8 @@ Key = tuple[int, int]
 Reader = Callable[[], int]
 
 
-class Application(Protocol):
-    """What the node side needs from the device behind it."""
+class Application(ObjectHooks, Protocol):
+    """What the node side needs from the device behind it (besides its objects' hooks)."""
 
     @property
     def last_advance(self) -> float:
@@ -77,16 +71,6 @@ class Application(Protocol):
 
     def advance(self, now: float) -> None:
         """Bring the device up to ``now`` (before a frame acts on it)."""
-
-    def write_hook(self, index: int, subindex: int,
-                   var: od.ODVariable) -> Callable[[bytes, bool], None] | None:
-        """What the device does before an object is written: a function of the new
-        data and whether it changed, which raises :class:`SdoAbortedError` to refuse
-        the value; None when the device does nothing then. Asked once per object and
-        kept (PDOs write the same objects with every frame)."""
-
-    def written(self, index: int, subindex: int) -> None:
-        """An object was written with a new value (stored by now)."""
 
     def booted(self, reset_node: bool) -> None:
         """The node booted: ``reset_node`` a power-on or NMT reset node (application
@@ -130,14 +114,10 @@ class SimNode:
         self.dictionary: od.ObjectDictionary = local.object_dictionary
         self.app = app
         self.readers = dict(readers)
-        self._defaults = dict(defaults)
         self.lock = lock
         self.clock = clock
         self._rng = rng
         self.frame_loss = frame_loss
-        self.max_mapping_entries = max_mapping_entries
-        self.remappable = remappable
-        self.accept_unmappable = accept_unmappable
 
         self.nmt = NmtState.BOOT_UP
         self.frozen = False
@@ -152,7 +132,6 @@ class SimNode:
         self._sdo_answers: list[tuple[float, bytes]] = []  # (due, frame) held back
         self.heartbeat = Heartbeat()
         self._subscribed_hb: set[int] = set()
-        self.pdos = ProcessData(local, self.readers, self._send, self._compile_write)
         self._send_failures = 0
         # One frame per COB-ID, refilled for each send (under the send lock): every
         # interface only reads a frame while sending it, and can.Message's constructor
@@ -162,8 +141,12 @@ class SimNode:
 
         # LocalNode produces its heartbeat from a 1017h write callback; we do it ourselves.
         local._write_callbacks.remove(local.nmt.on_write)
-        local.add_read_callback(self._on_read)
-        local.add_write_callback(self._on_write)
+        #: what reading and writing the objects does (LocalNode's callbacks)
+        self.objects = NodeObjects(
+            local, app, self.readers, defaults, self._load_heartbeat_config,
+            max_mapping_entries=max_mapping_entries, remappable=remappable,
+            accept_unmappable=accept_unmappable)
+        self.pdos = ProcessData(local, self.readers, self._send, self.objects.compile_write)
         network.add_node(local)
         # Replace LocalNode's NMT and SDO handlers with ones that honour freeze/NMT state.
         network.unsubscribe(NMT_COB_ID, local.nmt.on_command)
@@ -171,7 +154,8 @@ class SimNode:
         network.subscribe(NMT_COB_ID, self._on_nmt)
         network.subscribe(local.sdo.rx_cobid, self._on_sdo)
         local.sdo.send_response = self._send_sdo_answer  # type: ignore[method-assign]
-        self._sync_cob = self._uint(SYNC_COB_ID_OBJECT, 0, "<I", SYNC_COB_ID) & COB_ID_MASK
+        self._sync_cob = read_uint(local.get_data, SYNC_COB_ID_OBJECT, 0, "<I",
+                                   SYNC_COB_ID) & COB_ID_MASK
         network.subscribe(self._sync_cob, self._on_sync)
 
     @property
@@ -179,24 +163,9 @@ class SimNode:
         return NMT_STATE_NAMES.get(self.nmt, hex(self.nmt))
 
     def prefill_defaults(self) -> None:
-        """Give every numeric object without a default a value, as a drive would: its
-        identity from the EDS's [DeviceInfo], the given defaults, else 0."""
-        store = self.local.data_store
-        info = self.dictionary.device_information
-        known = {
-            (IDENTITY, 1): info.vendor_number or 0,
-            (IDENTITY, 2): info.product_number or 0,
-            (IDENTITY, 3): info.revision_number or 0,
-            **self._defaults,
-        }
-        for obj in self.dictionary.values():
-            variables = [obj] if isinstance(obj, od.ODVariable) else list(obj.values())
-            for var in variables:
-                if var.value is None and var.default is None and var.data_type in od.NUMBER_TYPES:
-                    value = known.get((var.index, var.subindex), 0)
-                    if var.min is not None and var.min > value:
-                        value = var.min
-                    store.setdefault(var.index, {})[var.subindex] = var.encode_raw(value)
+        """Give every numeric object without a default a value, as a drive would (see
+        :meth:`NodeObjects.prefill_defaults`)."""
+        self.objects.prefill_defaults()
 
     # ---------------------------------------------------------------- NMT
 
@@ -206,13 +175,7 @@ class SimNode:
         self._boot_due = None
         self.nmt = NmtState.BOOT_UP
         self.pdos.stop()
-        store = self.local.data_store
-        if reset_node:
-            store.clear()
-        else:
-            for index in [i for i in store if i in COMMUNICATION_PROFILE]:
-                del store[index]
-        self.prefill_defaults()
+        self.objects.restore_defaults(reset_node)
         self.app.booted(reset_node)
         self.heartbeat.enabled = True
         self._send(HEARTBEAT_BASE + self.node_id, bytes([NmtState.BOOT_UP]), droppable=False)
@@ -269,7 +232,7 @@ class SimNode:
             self.network.subscribe(cob, self._on_rpdo)
         self.nmt = NmtState.OPERATIONAL
 
-    # ------------------------------------------------------ SDO and objects
+    # ---------------------------------------------------------------- SDO
 
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
@@ -285,52 +248,6 @@ class SimNode:
             self._sdo_answers.append((self.clock.now() + self.sdo_delay_s, bytes(response)))
         else:
             self._send(self.local.sdo.tx_cobid, bytes(response), droppable=False)
-
-    def _on_read(self, index: int, subindex: int, od: od.ODVariable) -> int | None:
-        reader = self.readers.get((index, subindex))
-        return None if reader is None else reader()
-
-    def _on_write(self, index: int, subindex: int, od: od.ODVariable, data: bytes) -> None:
-        if _is_mapping(index):
-            if not self.remappable:
-                raise SdoAbortedError(SDO_ABORT_READ_ONLY)
-            check_mapping_write(self.dictionary, self.local.get_data, index, subindex, data,
-                                self.max_mapping_entries, self.accept_unmappable)
-            return
-        self._object_write(index, subindex, od)(bytes(data))
-
-    def _object_write(self, index: int, subindex: int,
-                      var: od.ODVariable) -> Callable[[bytes], None]:
-        """Writing one (not a mapping) object: the device's hook (a refusal stores
-        nothing), the store (LocalNode stores again after an SDO download: storing now
-        lets what follows read the new value), and on a new value what depends on it."""
-        hook = self.app.write_hook(index, subindex, var)
-        store_of, written = self.local.data_store, self.app.written
-        heartbeat = index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME)
-
-        def write(data: bytes) -> None:
-            store = store_of.setdefault(index, {})
-            changed = store.get(subindex) != data
-            if hook is not None:
-                hook(data, changed)
-            store[subindex] = data
-            if changed:  # the same value again (a cyclic controlword): nothing to recompute
-                written(index, subindex)
-                if heartbeat:
-                    self._load_heartbeat_config()
-
-        return write
-
-    def _compile_write(self, index: int, subindex: int,
-                       var: od.ODVariable) -> Callable[[bytes], None] | None:
-        """An RPDO's write of one object, decided once (see :class:`ProcessData`): what
-        an SDO download of it does, while this node is LocalNode's only write callback."""
-        if self.local._write_callbacks != [self._on_write] or _is_mapping(index):
-            return None
-        return self._object_write(index, subindex, var)
-
-    def _uint(self, index: int, sub: int, fmt: str, default: int = 0) -> int:
-        return read_uint(self.local.get_data, index, sub, fmt, default)
 
     # ------------------------------------------------------------- PDOs
 
@@ -459,11 +376,6 @@ class SimNode:
         if self.node_id in net.nodes and net.nodes[self.node_id] is self.local:
             # LocalNode.remove_network would unsubscribe handlers we already replaced.
             del net.nodes[self.node_id]
-
-
-def _is_mapping(index: int) -> bool:
-    """A PDO mapping parameter (16xxh, 1Axxh): written as the PDO configuration."""
-    return RPDO_MAP <= index < RPDO_MAP + MAX_PDOS or TPDO_MAP <= index < TPDO_MAP + MAX_PDOS
 
 
 def _unsubscribe(net: canopen.Network, cob: int, handler: Any) -> None:
