@@ -407,12 +407,20 @@ def test_drive_prints_the_pose_after_ctrl_c() -> None:
     import time
 
     proc = subprocess.Popen([sys.executable, "-m", "omnican", "drive", "--sim", "--vx", "0.2",
-                             "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+                             "--duration", "30", "-v"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.stderr is not None
     try:
-        time.sleep(4.0)  # up and driving
+        lines = []  # up and driving: its drives enabled (however long that took here)
+        while not any("every drive enabled" in line for line in lines):
+            line = proc.stderr.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+        time.sleep(1.0)  # 0.2 m at 0.2 m/s
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=20)
+        err = "".join(lines) + err
     finally:
         if proc.poll() is None:
             proc.kill()
