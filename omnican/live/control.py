@@ -4,7 +4,8 @@ is on (``--foxglove-control``).
 - **Twists** on the control topic (``/cmd_vel``; Foxglove's Teleop panel), as JSON or CDR,
   ``geometry_msgs/Twist`` or ``TwistStamped``: each goes to :meth:`Chassis.set_velocity`,
   so the same limits and watchdog apply as to every other command. One controller at a
-  time (:class:`~omnican.command.arbiter.CommandArbiter`): the first client that publishes holds
+  time (the base's :meth:`~omnican.chassis.Chassis.command_source`, each client one
+  source; shared with the front end's other sources): the first client that publishes holds
   control until it leaves or sends nothing for ``cmd_timeout_s``; another client's
   commands are ignored and a status message says who is driving. The base stops at once
   when the controlling client leaves. A Twist that cannot be read (NaN, a wrong type)
@@ -44,7 +45,7 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from omnican.command.arbiter import CommandArbiter
+from omnican.chassis.arbiter import CommandSource
 from omnican.config import LIVE_LIMITS
 from omnican.core.kinematics import Twist
 from omnican.core.limits import top_speeds
@@ -172,11 +173,9 @@ class Control:
     """What Foxglove clients may do to ``base`` (see the module docstring): the SDK
     server's listener and services. ``sim``: a simulated base, for its fault console."""
 
-    def __init__(self, base: Any, settings: FoxgloveSettings, arbiter: CommandArbiter,
-                 sim: Any = None) -> None:
+    def __init__(self, base: Any, settings: FoxgloveSettings, sim: Any = None) -> None:
         self.base = base
         self.settings = settings
-        self.arbiter = arbiter
         self.sim = sim
         self._server: Any = None
         self._status_level: Any = None
@@ -194,6 +193,16 @@ class Control:
     @staticmethod
     def source(client_id: int) -> str:
         return f"Foxglove client {client_id}"
+
+    def _commands(self, source: str) -> CommandSource:
+        """The base's handle for ``source``: every command and stop goes through it."""
+        handle: CommandSource = self.base.command_source(source)
+        return handle
+
+    @property
+    def timeout_s(self) -> float:
+        """How long a silent driver keeps control (the base's command timeout)."""
+        return self._commands("").timeout_s
 
     # ------------------------------------------------------------ who may drive
 
@@ -224,10 +233,6 @@ class Control:
         if self._throttle.log(logging.WARNING, ("watcher", client_id), "%s", why):
             self._status("Warning", why, _STATUS_REFUSED)
         return why
-
-    def _now(self) -> float:
-        now: float = self.base.clock.now()
-        return now
 
     # ------------------------------------------------------------ the server's set-up
 
@@ -301,8 +306,8 @@ class Control:
         if gone is None or gone.topic != topic or still:
             return
         source = self.source(client.id)
-        if self.arbiter.release(source, self._now()) and not self._closed:
-            self.base.stop()
+        # The base stops at once, inside the release: no one else's command between.
+        if self._commands(source).release(stop=not self._closed) and not self._closed:
             logger.warning("%s left while driving: the base stops", source)
             self._status("Warning", f"{source} left while driving: the base stopped; "
                          "the next client to publish drives", _STATUS_DRIVER)
@@ -318,17 +323,17 @@ class Control:
         if self._watcher(client.id, "drive"):
             self.refused += 1
             return
-        source, now = self.source(client.id), self._now()
+        source = self.source(client.id)
+        commands = self._commands(source)
         try:
             twist = decode_twist(channel.encoding, channel.schema_name, data)
-            # The base checks the values (Chassis.set_velocity: beyond sense, refused).
-            holder = self.arbiter.claim(source, now, lambda: self.base.set_velocity(
-                twist.vx, twist.vy, twist.wz))
+            # The base checks the values (Chassis.set_twist: beyond sense, refused).
+            holder = commands.send(twist)
         except ValueError as exc:
             self.refused += 1
-            mine = self.arbiter.may_act(source, now) is None
+            mine = commands.may_act() is None
             if mine:
-                self.base.stop()  # the controller sends what cannot be obeyed: stop
+                commands.stop()  # the controller sends what cannot be obeyed: stop
             what = "the base stops" if mine else "ignored"
             if self._throttle.log(logging.WARNING, ("bad", source), "%s: a %s message that "
                                   "is not a usable Twist (%s): %s", source, channel.topic,
@@ -342,8 +347,8 @@ class Control:
                 first = source not in self._told
                 self._told.add(source)
             if first:
-                wait = f"{self.arbiter.timeout_s:g} s"
-                if self.arbiter.stopped_by(source, now) == holder:
+                wait = f"{commands.timeout_s:g} s"
+                if commands.stopped_by() == holder:
                     logger.info("%s: stopped by %s; its commands are ignored until it lets "
                                 "go", source, holder)
                     text = (f"{holder} stopped the base: {source}'s commands are ignored "
@@ -409,7 +414,7 @@ class Control:
         source = self.source(client.id)
         if self._watcher(client.id, "change a parameter"):
             return [self._parameter(p.name) for p in parameters if p.name in PARAMETERS]
-        holder = self.arbiter.may_act(source, self._now())
+        holder = self._commands(source).may_act()
         names = []
         for p in parameters:
             name = p.name
@@ -486,12 +491,12 @@ class Control:
         return handle
 
     def _refused(self, source: str) -> str | None:
-        holder = self.arbiter.may_act(source, self._now())
+        holder = self._commands(source).may_act()
         return None if holder is None else (f"{holder} is driving; only it may do this now "
                                             "(anyone may call /omnican/stop)")
 
     def _stop(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        driver = self.arbiter.stop_by(source, self._now(), self.base.stop)
+        driver = self._commands(source).stop()
         if driver is None:
             return True, "stopping"
         with self._lock:

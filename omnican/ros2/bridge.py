@@ -5,11 +5,13 @@ base when commands stop. Commands are polled, not called back: a thread of the b
 takes what arrived at most :data:`MAX_POLL_HZ` times a second (the control rate, if
 lower), up to the reader's depth each time, and applies only the newest sample of each
 publisher. A flood costs DDS's receive thread (C, without the GIL) and at most
-``depth x rate`` samples a second here, whoever sends it. One publisher drives at a
-time (:class:`~omnican.command.arbiter.CommandArbiter`, shared with Foxglove's clients when
-``--foxglove-control`` is on): another is ignored, and told so in the log, until the
-first has sent nothing for the command timeout. A publisher of another type on the
-cmd_vel topic (DDS does not connect it) is named in the log once, from DDS discovery.
+``depth x rate`` samples a second here, whoever sends it. Each publisher (by its DDS
+GUID) is a source of commands of the base's own
+(:meth:`~omnican.chassis.Chassis.command_source`): one drives at a time, among them and
+Foxglove's clients when ``--foxglove-control`` is on; another is ignored, and told so in
+the log, until the first has sent nothing for the command timeout. A publisher of another
+type on the cmd_vel topic (DDS does not connect it) is named in the log once, from DDS
+discovery.
 
 ``odom``, ``tf``, ``joint_states``, ``diagnostics`` and the simulator's true pose are
 the base's telemetry (:mod:`omnican.telemetry`), the same messages the live view and an
@@ -36,7 +38,6 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from omnican.command.arbiter import CommandArbiter
 from omnican.core.kinematics import Twist
 from omnican.errors import ConfigError, DriveError
 from omnican.errors import quote as _quote
@@ -48,6 +49,7 @@ if TYPE_CHECKING:
     from cyclonedds.idl import IdlStruct
 
     from omnican.chassis import Chassis
+    from omnican.chassis.arbiter import CommandSource
     from omnican.sim import SimulatedBase
 
 logger = logging.getLogger(__name__)
@@ -384,8 +386,7 @@ class Bridge:
     it does not own the chassis or the transport."""
 
     def __init__(self, base: Chassis, settings: Ros2Settings, transport: Transport, *,
-                 sim: SimulatedBase | None = None, arbiter: CommandArbiter | None = None,
-                 poll_thread: bool = True) -> None:
+                 sim: SimulatedBase | None = None, poll_thread: bool = True) -> None:
         from omnican.ros2 import msgs
 
         self.base = base
@@ -428,16 +429,15 @@ class Bridge:
                                           TopicQos(depth=CMD_VEL_DEPTH))
         self._take_recover = transport.reader(settings.topic("recover"), msgs.Empty,
                                               TopicQos(depth=1))
-        cmd_timeout_s = base.cfg.chassis.cmd_timeout_s
-        # One cmd_vel publisher drives at a time, as one Foxglove client does.
-        self.arbiter = arbiter if arbiter is not None else CommandArbiter(cmd_timeout_s)
         self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
         self._poll_thread: threading.Thread | None = None
         self._poll_on_thread = poll_thread
         self._stop_polling = threading.Event()
         self._poll_lock = threading.Lock()
         self._polls = 0
-        self._writers: dict[int, str] = {}  # publication handle -> source name
+        # publication handle -> its source of commands (one publisher drives at a time,
+        # as one Foxglove client does)
+        self._writers: dict[int, CommandSource] = {}
         self._driver: str | None = None
         self._told_types: set[str] = set()
         self._throttle = Throttle(logger)
@@ -478,14 +478,14 @@ class Bridge:
             for r in received:  # oldest first: the last of each writer stays
                 newest.pop(r.writer, None)
                 newest[r.writer] = r.data
-            now = self.base.clock.now()
-            holder = self.arbiter.holder(now)
+            sources = {writer: self._source(writer) for writer in newest}
+            holder = next(iter(sources.values())).holder() if sources else None
             parsed = 0
             # The driver's sample first; another's only while no one drives (then it is
             # parsed to see whether it may take control), a few a poll at most.
-            for writer in sorted(newest, key=lambda w: self._source(w) != holder):
-                source = self._source(writer)
-                other = self.arbiter.may_act(source, now)
+            for writer in sorted(newest, key=lambda w: sources[w].name != holder):
+                source = sources[writer]
+                other = source.may_act()
                 if other is not None:
                     self._refuse(source, other)
                 elif parsed < MAX_PARSED_PER_POLL:
@@ -494,17 +494,18 @@ class Bridge:
             if self._take_recover():
                 self._on_recover()
 
-    def _source(self, writer: int) -> str:
-        name = self._writers.get(writer)
-        if name is None:
+    def _source(self, writer: int) -> CommandSource:
+        source = self._writers.get(writer)
+        if source is None:
             guid = self.transport.writer_guid(self._cmd_topic, writer)
-            name = f"{CMD_VEL_SOURCE} publisher {guid or hex(writer)}"
+            source = self.base.command_source(f"{CMD_VEL_SOURCE} publisher "
+                                              f"{guid or hex(writer)}")
             if len(self._writers) > 1000:  # writers come and go; do not grow for ever
                 self._writers.clear()
-            self._writers[writer] = name
-        return name
+            self._writers[writer] = source
+        return source
 
-    def _on_cmd_vel(self, source: str, data: bytes) -> None:
+    def _on_cmd_vel(self, source: CommandSource, data: bytes) -> None:
         self.cmd_vel_parsed += 1
         if len(data) > MAX_CMD_BYTES:
             self._reject(source, f"a {len(data)}-byte sample, not read (more than the "
@@ -523,8 +524,7 @@ class Bridge:
                          f"wz={quote(t.wz)}")
             return
         try:
-            holder = self.arbiter.claim(source, self.base.clock.now(),
-                                        lambda: self.base.set_velocity(t.vx, t.vy, t.wz))
+            holder = source.send(t)
         except ValueError as exc:
             self._reject(source, quote(str(exc), 200))
             return
@@ -533,21 +533,21 @@ class Bridge:
         if holder is not None:  # someone else drives (another publisher, a Foxglove client)
             self._refuse(source, holder)
             return
-        if self._driver != source:
-            self._driver = source
-            logger.info("%s drives the base", source)
+        if self._driver != source.name:
+            self._driver = source.name
+            logger.info("%s drives the base", source.name)
 
-    def _refuse(self, source: str, holder: str) -> None:
+    def _refuse(self, source: CommandSource, holder: str) -> None:
         self.cmd_vel_refused += 1
-        self._throttle.warning(("refused", source), "cmd_vel from %s ignored: %s is driving "
-                               "the base (one publisher at a time; it drives once %s has "
-                               "sent nothing for %g s)", source, holder, holder,
-                               self.arbiter.timeout_s)
+        self._throttle.warning(("refused", source.name), "cmd_vel from %s ignored: %s is "
+                               "driving the base (one publisher at a time; it drives once "
+                               "%s has sent nothing for %g s)", source.name, holder, holder,
+                               source.timeout_s)
 
-    def _reject(self, source: str, why: str) -> None:
+    def _reject(self, source: CommandSource, why: str) -> None:
         self.cmd_vel_rejected += 1
-        self._throttle.warning(("rejected", source), "cmd_vel from %s ignored: %s",
-                               source, why)
+        self._throttle.warning(("rejected", source.name), "cmd_vel from %s ignored: %s",
+                               source.name, why)
 
     def _type_name(self) -> str:
         return ros_type_name(self.cmd_type.__idl_typename__)

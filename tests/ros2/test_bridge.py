@@ -442,22 +442,20 @@ def test_stamped_cmd_vel_and_no_joint_states_without_a_radius(channel: str) -> N
 
 
 def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Chassis]) -> None:
-    """With a shared arbiter (``omnican ros2 --foxglove-control``), cmd_vel is one source
-    among others: ignored, and counted, while a Foxglove client drives; it drives once
-    that one has stopped for the command timeout."""
+    """With another source of the base's commands (``omnican ros2 --foxglove-control``),
+    cmd_vel is one source among others: ignored, and counted, while a Foxglove client
+    drives; it drives once that one has stopped for the command timeout."""
     pytest.importorskip("cyclonedds")
-    from omnican.command.arbiter import CommandArbiter
     from omnican.ros2.bridge import CMD_VEL_SOURCE, Bridge
 
     sim, base = rig
-    arbiter = CommandArbiter(base.cfg.chassis.cmd_timeout_s)
+    foxglove = base.command_source("Foxglove client 1")
     t = MemoryTransport()
-    with Bridge(base, Ros2Settings(), t, arbiter=arbiter, poll_thread=False) as bridge:
+    with Bridge(base, Ros2Settings(), t, poll_thread=False) as bridge:
         # The Foxglove client drives (a turn), sending as its Teleop panel does; every
         # cmd_vel between its commands is refused, however slowly this machine runs.
         for _ in range(10):
-            assert arbiter.claim("Foxglove client 1", base.clock.now(),
-                                 lambda: base.set_velocity(0.0, 0.0, 0.5)) is None
+            assert foxglove.send(Twist(0.0, 0.0, 0.5)) is None
             _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
             time.sleep(0.02)
         assert bridge.cmd_vel_refused == 10
@@ -466,7 +464,7 @@ def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Cha
 
         def driven_by_cmd_vel() -> bool:
             _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
-            return ((arbiter.holder(base.clock.now()) or "").startswith(CMD_VEL_SOURCE) and
+            return ((foxglove.holder() or "").startswith(CMD_VEL_SOURCE) and
                     sim.true_twist.vx == pytest.approx(0.3, abs=0.03))
 
         assert wait_for(driven_by_cmd_vel, 10.0, step=0.02)
