@@ -145,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         import cyclonedds.domain  # noqa: F401  (the ros2 extra)
 
-        from omnican.ros2.bridge import Bridge, DdsTransport
+        from omnican.ros2.bridge import Bridge
+        from omnican.ros2.transport import DdsTransport
     except ImportError:
         from omnican.extras import install_hint
 
@@ -224,7 +225,7 @@ def _print_summary(bridge: Any) -> None:
     rejected = f", {bridge.cmd_vel_rejected} refused" if bridge.cmd_vel_rejected else ""
     print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel ({bridge.cmd_vel_parsed} "
           f"parsed: a publisher's newest at each poll{refused}{rejected})", flush=True)
-    from omnican.ros2.bridge import quote
+    from omnican.ros2.cmd_vel import quote
 
     for guid, type_name in bridge.wrong_types.items():
         print(f"not received: cmd_vel publisher {guid} sent {quote(type_name)}", flush=True)
