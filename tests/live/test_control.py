@@ -27,7 +27,7 @@ from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.config import ChassisSettings, load_config, with_live_limits
 from omnican.core.limits import top_speeds
 from omnican.errors import ConfigError, quote
-from omnican.live.control import Control, decode_twist, parameter_value
+from omnican.live.control import Control
 from omnican.live.relay import (
     GRANT_CHANNEL_ID,
     GRANT_PREFIX,
@@ -36,6 +36,7 @@ from omnican.live.relay import (
     rewrite_protocol,
     without_query,
 )
+from omnican.live.requests import decode_twist, parameter_value
 from omnican.live.settings import FoxgloveSettings, check_token, resolve
 from omnican.live.view import describe_control
 from omnican.telemetry import cdr
