@@ -111,7 +111,7 @@ class Control:
     @property
     def timeout_s(self) -> float:
         """How long a silent driver keeps control (the base's command timeout)."""
-        return self.commands("").timeout_s
+        return self.commands("Foxglove").timeout_s  # the same for every source of a base
 
     def service_names(self) -> list[str]:
         return self.services.service_names()
