@@ -48,8 +48,9 @@ def one_run(rate_hz: float, seconds: float, frontends: bool, tmp: Path) -> dict[
             stack.callback(watcher.stop_event.set)
             messages = watcher
             try:
-                from omnican.ros2.bridge import Bridge, DdsTransport
+                from omnican.ros2.bridge import Bridge
                 from omnican.ros2.settings import Ros2Settings
+                from omnican.ros2.transport import DdsTransport
 
                 settings = Ros2Settings().with_loopback()
                 transport = DdsTransport(settings)

@@ -31,8 +31,9 @@ from bench_chassis import cycle_starts
 
 from omnican import Chassis, default_config
 from omnican.ros2 import msgs
-from omnican.ros2.bridge import Bridge, TopicQos
+from omnican.ros2.bridge import Bridge
 from omnican.ros2.settings import Ros2Settings
+from omnican.ros2.transport import TopicQos
 from omnican.sim import SimulatedBase
 
 
@@ -71,7 +72,7 @@ class SerialisingTransport:
         return take
 
     def put(self, topic: str, data: bytes) -> None:
-        from omnican.ros2.bridge import Received
+        from omnican.ros2.transport import Received
 
         with self.lock:
             self.inbox[topic].append(Received(1, data))
@@ -179,7 +180,7 @@ def thread_cpu_s() -> dict[str, float]:
 
 
 def flood_run(seconds: float, rate_hz: float, domain: int) -> None:
-    from omnican.ros2.bridge import DdsTransport
+    from omnican.ros2.transport import DdsTransport
 
     cfg = default_config(bus={"interface": "virtual", "channel": f"bench-{uuid.uuid4().hex[:8]}"})
     settings = Ros2Settings(domain_id=domain).with_loopback()

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from omnican.chassis import realtime
+from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.chassis.cycle import ControlCycle
 from omnican.chassis.health import HealthMonitor
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
@@ -84,6 +85,7 @@ class Chassis:
         self._close_lock = threading.Lock()
         self._guards_signals = False
         self._froze_heap = False
+        self._arbiter = CommandArbiter(cfg.chassis.cmd_timeout_s)  # one source at a time
 
     def _call_soon(self, fn: Any) -> None:
         self._loop.call_soon(fn)
@@ -199,7 +201,13 @@ class Chassis:
         Raises ValueError for NaN/inf or a value beyond any wheeled base (beyond
         :data:`omnican.core.limits.MAX_SPEED_SENSE`; nothing changes then); DriveError if the
         base is closed. Within that, a command beyond the limits drives at them."""
-        twist = Twist(float(vx), float(vy), float(wz))
+        self.set_twist(Twist(float(vx), float(vy), float(wz)))
+
+    def set_twist(self, twist: Twist) -> None:
+        """:meth:`set_velocity` with the command as one :class:`Twist`, kept as it is."""
+        if not (type(twist.vx) is float and type(twist.vy) is float
+                and type(twist.wz) is float):
+            twist = Twist(float(twist.vx), float(twist.vy), float(twist.wz))
         problem = command_problem(twist.vx, twist.vy, twist.wz)
         if problem is not None:
             raise ValueError(f"velocity command refused: {problem}")
@@ -210,6 +218,12 @@ class Chassis:
     def stop(self) -> None:
         """Controlled stop now (at the stop deceleration); a new command moves again."""
         self._loop.command = (Twist(), self.clock.now())
+
+    def command_source(self, name: str) -> CommandSource:
+        """The handle by which a front end commands this base as ``name`` (the name the
+        others are told): one source drives at a time, by the base's one arbiter, shared
+        by every source it hands out (:mod:`omnican.chassis.arbiter`)."""
+        return CommandSource(self, self._arbiter, name)
 
     def recover(self, timeout_s: float | None = None) -> None:
         """Clear a latched stop: reset faulted drives, re-enable every drive, and wait

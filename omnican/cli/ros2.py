@@ -26,7 +26,6 @@ from omnican.cli.common import (
     serve_lines,
     session,
 )
-from omnican.command.arbiter import CommandArbiter
 from omnican.errors import ConfigError
 from omnican.live import prepare, watch
 
@@ -146,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         import cyclonedds.domain  # noqa: F401  (the ros2 extra)
 
-        from omnican.ros2.bridge import Bridge, DdsTransport
+        from omnican.ros2.bridge import Bridge
+        from omnican.ros2.transport import DdsTransport
     except ImportError:
         from omnican.extras import install_hint
 
@@ -165,18 +165,16 @@ def run(args: argparse.Namespace) -> int:
         if settings.cmd_vel_timeout_s is not None:
             run_cfg = replace(run_cfg, chassis=replace(run_cfg.chassis,
                                                        cmd_timeout_s=settings.cmd_vel_timeout_s))
+        # cmd_vel's publishers and Foxglove's clients drive one at a time: each is a
+        # source of commands of the base's own (Chassis.command_source)
         fox = foxglove_settings(args, run_cfg)
-        # cmd_vel and Foxglove's clients drive one at a time
-        arbiter = (CommandArbiter(run_cfg.chassis.cmd_timeout_s)
-                   if fox is not None and fox.control else None)
         transport = DdsTransport(settings, os.environ.get("CYCLONEDDS_URI"))
         if fox is not None:
             prepare(run_cfg)  # its slow set-up before the control loop runs
         try:
             with Chassis.open(run_cfg, record=args.record) as base, \
-                    Bridge(base, settings, transport, sim=sess.sim, arbiter=arbiter) as bridge, \
-                    watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True),
-                          arbiter=arbiter):
+                    Bridge(base, settings, transport, sim=sess.sim) as bridge, \
+                    watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True)):
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
                     serve_lines(lambda line: command(bridge, line), args.duration)
@@ -227,7 +225,7 @@ def _print_summary(bridge: Any) -> None:
     rejected = f", {bridge.cmd_vel_rejected} refused" if bridge.cmd_vel_rejected else ""
     print(f"published {parts}; received {bridge.cmd_vel_count} cmd_vel ({bridge.cmd_vel_parsed} "
           f"parsed: a publisher's newest at each poll{refused}{rejected})", flush=True)
-    from omnican.ros2.bridge import quote
+    from omnican.ros2.cmd_vel import quote
 
     for guid, type_name in bridge.wrong_types.items():
         print(f"not received: cmd_vel publisher {guid} sent {quote(type_name)}", flush=True)

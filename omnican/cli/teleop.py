@@ -34,6 +34,7 @@ from rich.table import Table
 from rich.text import Text
 
 from omnican.chassis import Chassis
+from omnican.chassis.arbiter import CommandSource
 from omnican.cli.common import (
     UsageError,
     add_bus_arguments,
@@ -45,7 +46,6 @@ from omnican.cli.common import (
     positive_float,
     session,
 )
-from omnican.command.arbiter import CommandArbiter
 from omnican.command.teleop import ESC, Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
 from omnican.errors import OmnicanError
@@ -368,34 +368,25 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
     return Group(*body)
 
 
-def share_command(base: Chassis, arbiter: CommandArbiter, source: str, command: Twist,
-                  held: bool, now: float) -> tuple[bool, str | None]:
+def share_command(source: CommandSource, command: Twist) -> str | None:
     """The local input's command when others (Foxglove) may drive too: a motion goes to
     the base when ``source`` may command (it then holds control); the first zero after
-    it goes too (the keys let go: the base stops) and gives control up. Returns (whether
-    ``source`` holds control, who refused it)."""
+    it goes too (the keys let go: the base stops) and gives control up. Returns who
+    refused it (None: not refused)."""
     if not command.is_zero():
-        holder = arbiter.claim(source, now, lambda: base.set_velocity(
-            command.vx, command.vy, command.wz))
-        if holder is not None:
-            return held, holder
-        return True, None
-    if held:
-        base.set_velocity(0.0, 0.0, 0.0)
-        arbiter.release(source, now)
-    return False, None
+        return source.send(command)
+    source.release(stop=True)  # stops the base only if these keys drove it
+    return None
 
 
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: _Events, pad: Gamepad | None = None,
-               arbiter: CommandArbiter | None = None) -> None:
-    """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. With an
-    ``arbiter`` (Foxglove may drive too) the keys command only while they move the base
+               events: _Events, pad: Gamepad | None = None, shared: bool = False) -> None:
+    """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. When
+    ``shared`` (Foxglove may drive too) the keys command only while they move the base
     and no one else drives; a stop key stops the base whoever drives."""
     note = ""
     note_stop: str | None = None  # the stop a failed recover's note speaks of
-    source = "the gamepad" if pad is not None else "the terminal's keys"
-    held = False
+    source = base.command_source("the gamepad" if pad is not None else "the terminal's keys")
     while not keys.quit_requested:
         now = time.monotonic()
         if note_stop is not None and base.status.stopped_reason != note_stop:
@@ -404,12 +395,12 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             stop = keys.press(key, now).intent is Intent.STOP
             if note.startswith("stopped "):
                 note = ""  # the next key after it
-            if stop and arbiter is not None:  # whoever drives; it drives again once it lets go
-                stopped = arbiter.stop_by(source, base.clock.now(), base.stop)
+            if stop and shared:  # whoever drives; it drives again once it lets go
+                stopped = source.stop()
                 if stopped:
                     note = f"stopped {stopped}: it drives again once it lets go"
         if keys.take_recover():
-            driver = arbiter.may_act(source, base.clock.now()) if arbiter else None
+            driver = source.may_act() if shared else None
             note = f"{driver} is driving: not recovering" if driver else "recovering..."
             live.update(dashboard(base, keys, Twist(), title, events, note,
                                   live.console.width, live.console.height), refresh=True)
@@ -427,15 +418,14 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
         else:
             command = keys.command(time.monotonic())
             shown = note
-        if arbiter is None:
-            base.set_velocity(command.vx, command.vy, command.wz)
+        if not shared:  # the only source: every command goes, zeros too
+            source.send(command)
         else:
-            held, refused = share_command(base, arbiter, source, command, held,
-                                          base.clock.now())
-            driver = arbiter.holder(base.clock.now())
+            refused = share_command(source, command)
+            driver = source.holder()
             if refused:
                 shown = f"{refused} is driving: space stops the base"
-            elif driver and driver != source and not shown:
+            elif driver and driver != source.name and not shown:
                 shown = f"{driver} is driving"
         live.update(dashboard(base, keys, command, title, events, shown, live.console.width,
                               live.console.height), refresh=True)
@@ -468,8 +458,7 @@ def run(args: argparse.Namespace) -> int:
         if pad is not None:
             title += f" - gamepad {pad.name}"
         fox = foxglove_settings(args, s.cfg)
-        arbiter = (CommandArbiter(s.cfg.chassis.cmd_timeout_s)
-                   if fox is not None and fox.control else None)
+        shared = fox is not None and fox.control  # Foxglove's clients may drive too
         console.print(f"{title}: bringing the drives up...", style="dim")
         if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
@@ -479,13 +468,13 @@ def run(args: argparse.Namespace) -> int:
             events.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
 
         with Chassis.open(s.cfg, record=args.record) as base, \
-                watch(base, s.sim, fox, announce=announce, arbiter=arbiter) as view, \
+                watch(base, s.sim, fox, announce=announce) as view, \
                 cbreak(fd, lambda: events.say(SUSPEND_REFUSED)), logs_into(events), \
                 Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
             if view is not None:
                 title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
             try:
-                drive_loop(base, keys, fd, live, title, events, pad, arbiter)
+                drive_loop(base, keys, fd, live, title, events, pad, shared)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
                 pass
             base.stop()

@@ -1,2 +1,3 @@
-"""What front ends share to command the base: the teleop and gamepad models, the
-arbiter (one source at a time), scripted motion."""
+"""What front ends share to command the base: the teleop and gamepad models, scripted
+motion. One source at a time is the base's own rule: a front end sends through the handle
+:meth:`omnican.chassis.Chassis.command_source` gives it (:mod:`omnican.chassis.arbiter`)."""

@@ -2,18 +2,17 @@
 is on (``--foxglove-control``).
 
 - **Twists** on the control topic (``/cmd_vel``; Foxglove's Teleop panel), as JSON or CDR,
-  ``geometry_msgs/Twist`` or ``TwistStamped``: each goes to :meth:`Chassis.set_velocity`,
+  ``geometry_msgs/Twist`` or ``TwistStamped``: each goes to :meth:`Chassis.set_twist`,
   so the same limits and watchdog apply as to every other command. One controller at a
-  time (:class:`~omnican.command.arbiter.CommandArbiter`): the first client that publishes holds
+  time (the base's :meth:`~omnican.chassis.Chassis.command_source`, each client one
+  source; shared with the front end's other sources): the first client that publishes holds
   control until it leaves or sends nothing for ``cmd_timeout_s``; another client's
   commands are ignored and a status message says who is driving. The base stops at once
   when the controlling client leaves. A Twist that cannot be read (NaN, a wrong type)
   moves nothing; from the controller it stops the base.
-- **Services** (JSON; Foxglove's Service Call panel): ``/omnican/stop`` (anyone, at any
-  time; from another client it also takes control from the driver until it lets go),
-  ``/omnican/recover``, ``/omnican/reset_odometry`` (to zero, or ``{"x", "y",
-  "theta"}``), and under simulation ``/omnican/sim/console`` (the fault console's
-  commands: ``{"command": "fault 2"}``). Each answers ``{"success", "message"}``.
+- **Services** (:mod:`omnican.live.services`): ``/omnican/stop`` (anyone, at any time),
+  ``/omnican/recover``, ``/omnican/reset_odometry``, and under simulation
+  ``/omnican/sim/console``.
 - **Parameters** named as the config's keys (``chassis.max_speed``, ...; the limits of
   :data:`omnican.config.LIVE_LIMITS`), read and set live through
   :meth:`Chassis.set_limits` (the config's checks); a refused value keeps the old one and
@@ -29,14 +28,11 @@ control loop.
 Only a client the relay vouched for (:mod:`omnican.live.relay`: its web page allowed, the
 token given when one is set) may do any of this; the others, and whoever reaches the SDK's
 own port past the relay, may watch and read the parameters, nothing more. Every message is
-measured before it is read (:data:`TWIST_LIMIT`, :data:`REQUEST_LIMIT`), a value quoted
-back is cut short (:func:`omnican.errors.quote`), and JSON nested too deeply is refused as
-any other junk is.
+read with care (:mod:`omnican.live.requests`: measured first, junk refused).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import secrets
@@ -44,121 +40,22 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from omnican.command.arbiter import CommandArbiter
+from omnican.chassis.arbiter import CommandSource
 from omnican.config import LIVE_LIMITS
-from omnican.core.kinematics import Twist
 from omnican.core.limits import top_speeds
-from omnican.core.odometry import Pose2D
 from omnican.errors import OmnicanError, quote
 from omnican.live.relay import GRANT_CHANNEL_ID, GRANT_PREFIX
+from omnican.live.requests import decode_twist, parameter_value
+from omnican.live.services import Services
 from omnican.live.settings import FoxgloveSettings
 from omnican.log_throttle import Throttle
 
 logger = logging.getLogger(__name__)
 
 ENCODINGS = ["json", "cdr"]  # what clients may publish in; Foxglove picks the first
-TWIST_TYPES = {"geometry_msgs/Twist": False, "geometry_msgs/msg/Twist": False,
-               "geometry_msgs/TwistStamped": True, "geometry_msgs/msg/TwistStamped": True}
 PARAMETERS = tuple(f"chassis.{key}" for key in LIVE_LIMITS)
-SERVICE_STOP, SERVICE_RECOVER = "/omnican/stop", "/omnican/recover"
-SERVICE_RESET, SERVICE_CONSOLE = "/omnican/reset_odometry", "/omnican/sim/console"
 _STATUS_DRIVER, _STATUS_REFUSED = "omnican.control", "omnican.control.refused"
-#: The largest Twist message read (a TwistStamped in JSON with a long frame id is a few
-#: hundred bytes), and the largest service request (a console command, a pose).
-TWIST_LIMIT = REQUEST_LIMIT = 4096
-#: The longest parameter value read as text ("inf", "0.25").
-PARAMETER_TEXT_LIMIT = 64
-_CONSOLE_LINE_MAX = 200
 _GRANTS_PENDING_MAX = 256  # keys given to the relay and not yet used (connections opening)
-
-_OBJECT = '{"type": "object"}'
-_REPLY = ('{"type": "object", "properties": {"success": {"type": "boolean"}, '
-          '"message": {"type": "string"}}}')
-_POSE = ('{"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": '
-         '"number"}, "theta": {"type": "number"}}}')
-_COMMAND = ('{"type": "object", "properties": {"command": {"type": "string"}}, '
-            '"required": ["command"]}')
-
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{where} must be a number, got {quote(value)}")
-    if not math.isfinite(value):
-        raise ValueError(f"{where} must be finite, got {quote(value)}")
-    return float(value)
-
-
-def _reject_constant(word: str) -> Any:
-    raise ValueError(f"not a finite number: {word}")
-
-
-def _check_size(data: bytes, limit: int, what: str) -> None:
-    if len(data) > limit:
-        raise ValueError(f"{what} of {len(data)} bytes (at most {limit}): not read")
-
-
-def _json(data: bytes) -> Any:
-    """JSON as the protocol defines it: NaN and Infinity (which Python's json reads) are
-    not numbers there. Nesting deeper than Python's recursion allows is refused."""
-    try:
-        return json.loads(bytes(data), parse_constant=_reject_constant)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"not JSON: {quote(str(exc), 80)}") from None
-    except RecursionError:
-        raise ValueError("not JSON this program reads: nested too deeply") from None
-
-
-def decode_twist(encoding: str, schema_name: str, data: bytes) -> Twist:
-    """The body twist (vx, vy, wz) of a ``geometry_msgs`` Twist or TwistStamped message
-    in ``encoding`` (json or cdr). ValueError saying why it cannot be used: another type,
-    another encoding, a field missing or not a finite number."""
-    stamped = TWIST_TYPES.get(schema_name)
-    if stamped is None:
-        raise ValueError("want geometry_msgs/Twist, got "
-                         f"{quote(schema_name) if schema_name else 'no schema name'}")
-    _check_size(data, TWIST_LIMIT, "a message")
-    typename = "geometry_msgs/msg/TwistStamped" if stamped else "geometry_msgs/msg/Twist"
-    if encoding == "json":
-        msg = _json(data)
-    elif encoding == "cdr":
-        from omnican.telemetry import cdr
-
-        try:
-            msg = cdr.decode(typename, bytes(data))
-        except Exception as exc:  # rosbags says little of a short or damaged buffer
-            raise ValueError(f"not a CDR {typename}: {type(exc).__name__}") from None
-    else:
-        raise ValueError(f"cannot read {quote(encoding)} messages (json or cdr)")
-    if stamped:
-        msg = msg.get("twist") if isinstance(msg, dict) else None
-    if not isinstance(msg, dict):
-        raise ValueError("want an object with linear and angular")
-    parts = []
-    for group, axis in (("linear", "x"), ("linear", "y"), ("angular", "z")):
-        vector = msg.get(group, {})
-        if not isinstance(vector, dict):
-            raise ValueError(f"{group} must be an object, got {quote(vector)}")
-        parts.append(_number(vector.get(axis, 0.0), f"{group}.{axis}"))
-    return Twist(*parts)
-
-
-def parameter_value(name: str, value: Any) -> float | int:
-    """A parameter's new value as a limit: a number as it came, or "inf" (also numbers
-    as text: the Parameters panel edits a text value as text). ValueError if neither."""
-    if isinstance(value, str):
-        if len(value) > PARAMETER_TEXT_LIMIT:
-            raise ValueError(f"{name}: must be a number, got {quote(value)}")
-        text = value.strip().lower()
-        try:
-            number = math.inf if text in ("inf", "infinity") else float(text)
-        except ValueError:
-            raise ValueError(f"{name}: must be a number, got {quote(value)}") from None
-        if math.isnan(number):
-            raise ValueError(f"{name}: must be a number, got {quote(value)}")
-        return number
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{name}: must be a number, got {quote(value)}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -172,12 +69,11 @@ class Control:
     """What Foxglove clients may do to ``base`` (see the module docstring): the SDK
     server's listener and services. ``sim``: a simulated base, for its fault console."""
 
-    def __init__(self, base: Any, settings: FoxgloveSettings, arbiter: CommandArbiter,
-                 sim: Any = None) -> None:
+    def __init__(self, base: Any, settings: FoxgloveSettings, sim: Any = None) -> None:
         self.base = base
         self.settings = settings
-        self.arbiter = arbiter
         self.sim = sim
+        self.services = Services(self)
         self._server: Any = None
         self._status_level: Any = None
         self._lock = threading.Lock()
@@ -195,6 +91,34 @@ class Control:
     def source(client_id: int) -> str:
         return f"Foxglove client {client_id}"
 
+    def commands(self, source: str) -> CommandSource:
+        """The base's handle for ``source``: every command and stop goes through it."""
+        handle: CommandSource = self.base.command_source(source)
+        return handle
+
+    @property
+    def closed(self) -> bool:
+        """The server is stopping: nothing reaches the base any more."""
+        return self._closed
+
+    def driver_stopped(self, driver: str) -> None:
+        """Another client's stop took control from ``driver``: it is told why at its next
+        command, and no one drives."""
+        with self._lock:
+            self._told.discard(driver)
+            self._driver = None
+
+    @property
+    def timeout_s(self) -> float:
+        """How long a silent driver keeps control (the base's command timeout)."""
+        return self.commands("Foxglove").timeout_s  # the same for every source of a base
+
+    def service_names(self) -> list[str]:
+        return self.services.service_names()
+
+    def _services(self, foxglove: Any) -> list[Any]:
+        return self.services.build(foxglove)
+
     # ------------------------------------------------------------ who may drive
 
     def grant(self) -> str:
@@ -211,7 +135,7 @@ class Control:
         with self._lock:
             return client_id in self._drivers
 
-    def _watcher(self, client_id: int, what: str) -> str | None:
+    def watcher(self, client_id: int, what: str) -> str | None:
         """None if the client may drive; else the reason it may not do ``what``, told
         to it (at most every few seconds) and logged."""
         if self.may_drive(client_id):
@@ -224,10 +148,6 @@ class Control:
         if self._throttle.log(logging.WARNING, ("watcher", client_id), "%s", why):
             self._status("Warning", why, _STATUS_REFUSED)
         return why
-
-    def _now(self) -> float:
-        now: float = self.base.clock.now()
-        return now
 
     # ------------------------------------------------------------ the server's set-up
 
@@ -301,8 +221,8 @@ class Control:
         if gone is None or gone.topic != topic or still:
             return
         source = self.source(client.id)
-        if self.arbiter.release(source, self._now()) and not self._closed:
-            self.base.stop()
+        # The base stops at once, inside the release: no one else's command between.
+        if self.commands(source).release(stop=not self._closed) and not self._closed:
             logger.warning("%s left while driving: the base stops", source)
             self._status("Warning", f"{source} left while driving: the base stopped; "
                          "the next client to publish drives", _STATUS_DRIVER)
@@ -315,20 +235,20 @@ class Control:
             channel = self._channels.get((client.id, client_channel_id))
         if channel is None or channel.topic != self.settings.cmd_vel_topic or self._closed:
             return
-        if self._watcher(client.id, "drive"):
+        if self.watcher(client.id, "drive"):
             self.refused += 1
             return
-        source, now = self.source(client.id), self._now()
+        source = self.source(client.id)
+        commands = self.commands(source)
         try:
             twist = decode_twist(channel.encoding, channel.schema_name, data)
-            # The base checks the values (Chassis.set_velocity: beyond sense, refused).
-            holder = self.arbiter.claim(source, now, lambda: self.base.set_velocity(
-                twist.vx, twist.vy, twist.wz))
+            # The base checks the values (Chassis.set_twist: beyond sense, refused).
+            holder = commands.send(twist)
         except ValueError as exc:
             self.refused += 1
-            mine = self.arbiter.may_act(source, now) is None
+            mine = commands.may_act() is None
             if mine:
-                self.base.stop()  # the controller sends what cannot be obeyed: stop
+                commands.stop()  # the controller sends what cannot be obeyed: stop
             what = "the base stops" if mine else "ignored"
             if self._throttle.log(logging.WARNING, ("bad", source), "%s: a %s message that "
                                   "is not a usable Twist (%s): %s", source, channel.topic,
@@ -342,8 +262,8 @@ class Control:
                 first = source not in self._told
                 self._told.add(source)
             if first:
-                wait = f"{self.arbiter.timeout_s:g} s"
-                if self.arbiter.stopped_by(source, now) == holder:
+                wait = f"{commands.timeout_s:g} s"
+                if commands.stopped_by() == holder:
                     logger.info("%s: stopped by %s; its commands are ignored until it lets "
                                 "go", source, holder)
                     text = (f"{holder} stopped the base: {source}'s commands are ignored "
@@ -407,9 +327,9 @@ class Control:
     def on_set_parameters(self, client: Any, parameters: list[Any],
                           request_id: str | None = None) -> list[Any]:
         source = self.source(client.id)
-        if self._watcher(client.id, "change a parameter"):
+        if self.watcher(client.id, "change a parameter"):
             return [self._parameter(p.name) for p in parameters if p.name in PARAMETERS]
-        holder = self.arbiter.may_act(source, self._now())
+        holder = self.commands(source).may_act()
         names = []
         for p in parameters:
             name = p.name
@@ -439,102 +359,3 @@ class Control:
         return [self._parameter(n) for n in names]
 
     # ------------------------------------------------------------ services
-
-    def _services(self, foxglove: Any) -> list[Any]:
-        from foxglove.websocket import MessageSchema, Service, ServiceSchema
-
-        def schema(name: str, text: str) -> Any:
-            return MessageSchema(encoding="json", schema=foxglove.Schema(
-                name=name, encoding="jsonschema", data=text.encode()))
-
-        reply = schema("omnican.Reply", _REPLY)
-        table = [(SERVICE_STOP, "omnican/Trigger", schema("omnican.Empty", _OBJECT), self._stop),
-                 (SERVICE_RECOVER, "omnican/Trigger", schema("omnican.Empty", _OBJECT),
-                  self._recover),
-                 (SERVICE_RESET, "omnican/ResetOdometry", schema("omnican.Pose2D", _POSE),
-                  self._reset)]
-        if self.sim is not None:
-            table.append((SERVICE_CONSOLE, "omnican/SimConsole",
-                          schema("omnican.ConsoleCommand", _COMMAND), self._console))
-        return [Service(name, schema=ServiceSchema(kind, request=request, response=reply),
-                        handler=self._handler(name, fn)) for name, kind, request, fn in table]
-
-    def service_names(self) -> list[str]:
-        names = [SERVICE_STOP, SERVICE_RECOVER, SERVICE_RESET]
-        return names + ([SERVICE_CONSOLE] if self.sim is not None else [])
-
-    def _handler(self, name: str, fn: Any) -> Any:
-        def handle(request: Any) -> bytes:
-            # A ValueError is the SDK's failure answer to the caller, with its message.
-            refused = self._watcher(request.client_id, f"call {name}")
-            if refused:
-                raise ValueError(refused)
-            if request.encoding != "json":
-                raise ValueError(f"{name} takes JSON, got {quote(request.encoding)}")
-            _check_size(request.payload, REQUEST_LIMIT, f"{name}: a request")
-            payload = bytes(request.payload)
-            body = _json(payload) if payload.strip() else {}
-            if not isinstance(body, dict):
-                raise ValueError(f"{name} takes a JSON object, got {quote(body)}")
-            source = self.source(request.client_id)
-            if self._closed:
-                ok, message = False, "the base is closing"
-            else:
-                ok, message = fn(source, body)
-            (logger.info if ok else logger.warning)("%s called %s: %s", source, name, message)
-            return json.dumps({"success": ok, "message": message}).encode()
-        return handle
-
-    def _refused(self, source: str) -> str | None:
-        holder = self.arbiter.may_act(source, self._now())
-        return None if holder is None else (f"{holder} is driving; only it may do this now "
-                                            "(anyone may call /omnican/stop)")
-
-    def _stop(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        driver = self.arbiter.stop_by(source, self._now(), self.base.stop)
-        if driver is None:
-            return True, "stopping"
-        with self._lock:
-            self._told.discard(driver)  # it is told why, at its next command
-            self._driver = None
-        return True, f"stopping; {driver} drives again once it has let go"
-
-    def _recover(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        refused = self._refused(source)
-        if refused:
-            return False, refused
-        try:
-            self.base.recover()
-        except OmnicanError as exc:
-            return False, f"recover failed: {exc}"
-        return True, "recovered: every drive enabled"
-
-    def _reset(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        refused = self._refused(source)
-        if refused:
-            return False, refused
-        unknown = sorted(set(body) - {"x", "y", "theta"})
-        if unknown:
-            return False, f"unknown field {quote(unknown[0])} (x, y, theta)"
-        try:
-            pose = Pose2D(*(_number(body.get(k, 0.0), k) for k in ("x", "y", "theta")))
-            self.base.reset_pose(pose)  # the base refuses a pose beyond sense
-        except ValueError as exc:
-            return False, str(exc)
-        return True, f"odometry reset to x={pose.x:g} y={pose.y:g} theta={pose.theta:g}"
-
-    def _console(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        from omnican.sim import console
-
-        refused = self._refused(source)
-        if refused:
-            return False, refused
-        line = body.get("command")
-        if not isinstance(line, str) or not line.strip():
-            return False, 'give a console command: {"command": "fault 2"} (help lists them)'
-        if len(line) > _CONSOLE_LINE_MAX:
-            return False, f"a console command of {len(line)} characters: too long"
-        if line.split()[0].lower() in ("quit", "exit"):
-            return False, "quit is the terminal's: not from Foxglove"
-        reply = console.command(self.sim, line) or ""
-        return not reply.startswith("error:"), reply

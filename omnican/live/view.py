@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 from omnican import telemetry
-from omnican.command.arbiter import CommandArbiter
 from omnican.errors import ConfigError, quote
 from omnican.live.control import PARAMETERS, Control
 from omnican.live.relay import Relay, tls_context
@@ -239,7 +238,7 @@ def describe_control(view: LiveView) -> list[str]:
     lines = [f"Foxglove control on: Twists on {s.cmd_vel_topic} (Teleop panel; JSON or CDR), "
              f"services {', '.join(c.service_names())}, parameters {params}; one client "
              f"drives at a time, and the base stops when it leaves or sends nothing for "
-             f"{c.arbiter.timeout_s:g} s"]
+             f"{c.timeout_s:g} s"]
     pages = "any web page" if "*" in s.origins else ", ".join(s.origins)
     lines.append(f"Foxglove clients: browsers from {pages}, and programs; "
                  + ("only a client with the token drives (its URL ending /?token=...), "
@@ -253,14 +252,14 @@ def describe_control(view: LiveView) -> list[str]:
 
 @contextlib.contextmanager
 def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = None,
-          announce: Any = None, arbiter: CommandArbiter | None = None
-          ) -> Iterator[LiveView | None]:
+          announce: Any = None) -> Iterator[LiveView | None]:
     """What a front end adds around a running base (or a simulator alone, ``base``
     None): the simulator's ground truth into the base's telemetry (a recording, the ROS 2
     bridge, the view), and a Foxglove server when ``foxglove`` (``[HOST:]PORT``, or
     :class:`FoxgloveSettings`) is given; with control on in the settings, its clients
-    may drive the base, one at a time by ``arbiter`` (shared with the front end's other
-    sources of commands; default a new one with the chassis' command timeout).
+    may drive the base, each a source of commands of the base's own
+    (:meth:`~omnican.chassis.Chassis.command_source`: one at a time, shared with the front
+    end's other sources).
     ``announce(text)`` is told where the server listens and what control allows."""
     settings: FoxgloveSettings | None = None
     if isinstance(foxglove, FoxgloveSettings):
@@ -283,9 +282,7 @@ def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = 
             return
         control = None
         if settings.control and base is not None:
-            if arbiter is None:
-                arbiter = CommandArbiter(base.cfg.chassis.cmd_timeout_s)
-            control = Control(base, settings, arbiter, sim)
+            control = Control(base, settings, sim)
         view = stack.enter_context(LiveView(feed, control=control, settings=settings))
         if announce is not None:
             announce(f"Foxglove: open a connection to {view.url} (layout: {LAYOUT})")

@@ -1,7 +1,8 @@
-"""Driving from Foxglove, the parts that need no other process: the arbiter (one
-controller at a time), reading a Twist, the control's rules against a stand-in base,
-the relay (either name of the protocol, TLS) and the settings. The same paths across
-processes, with Foxglove's own client: tests/interop/test_foxglove_node.py."""
+"""Driving from Foxglove, the parts that need no other process: reading a Twist, the
+control's rules against a stand-in base, the relay (either name of the protocol, TLS)
+and the settings. The arbiter (one controller at a time) is tests/chassis/test_arbiter.py;
+the same paths across processes, with Foxglove's own client,
+tests/interop/test_foxglove_node.py."""
 
 from __future__ import annotations
 
@@ -22,11 +23,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from omnican import Pose2D, Twist, default_config
-from omnican.command.arbiter import CommandArbiter
+from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.config import ChassisSettings, load_config, with_live_limits
 from omnican.core.limits import top_speeds
 from omnican.errors import ConfigError, quote
-from omnican.live.control import Control, decode_twist, parameter_value
+from omnican.live.control import Control
 from omnican.live.relay import (
     GRANT_CHANNEL_ID,
     GRANT_PREFIX,
@@ -35,87 +36,11 @@ from omnican.live.relay import (
     rewrite_protocol,
     without_query,
 )
+from omnican.live.requests import decode_twist, parameter_value
 from omnican.live.settings import FoxgloveSettings, check_token, resolve
 from omnican.live.view import describe_control
 from omnican.telemetry import cdr
 from tests.support.helpers import one_error_line
-
-# ---------------------------------------------------------------- the arbiter
-
-
-def test_the_first_source_holds_control_until_it_is_silent_or_leaves() -> None:
-    arb = CommandArbiter(0.5)
-    assert arb.claim("a", 0.0) is None
-    assert arb.claim("b", 0.1) == "a"  # refused, told who drives
-    assert arb.claim("a", 0.4) is None  # a fresh command keeps it
-    assert arb.claim("b", 0.8) == "a"  # 0.4 s since a's last: still a's
-    assert arb.claim("b", 0.95) is None  # a silent for 0.55 s: free, and b takes it
-    assert arb.holder(0.95) == "b"
-    assert not arb.release("a", 1.0)  # a does not hold it: nothing happens
-    assert arb.holder(1.0) == "b"
-    assert not arb.release("b", 1.6)  # b's hold had lapsed: it did not hold it then
-    assert arb.claim("b", 1.6) is None
-    assert arb.release("b", 1.7)
-    assert arb.holder(1.7) is None
-    assert arb.claim("a", 1.7) is None
-
-
-def test_who_may_act_while_someone_drives() -> None:
-    arb = CommandArbiter(0.5)
-    assert arb.may_act("b", 0.0) is None  # no one drives
-    arb.claim("a", 0.0)
-    assert arb.may_act("a", 0.1) is None
-    assert arb.may_act("b", 0.1) == "a"
-    assert arb.holder(0.1) == "a"  # asking takes nothing
-    assert arb.may_act("b", 0.6) is None
-
-
-def test_a_stop_by_another_takes_control_until_the_driver_lets_go() -> None:
-    arb = CommandArbiter(0.5)
-    assert arb.stop_by("b", 0.0) is None  # no one drives: nothing to take
-    arb.claim("a", 0.0)
-    assert arb.stop_by("a", 0.1) is None  # its own stop: it keeps control
-    assert arb.holder(0.1) == "a"
-    assert arb.stop_by("b", 0.2) == "a"
-    assert arb.holder(0.2) is None
-    for t in (0.3, 0.6, 0.9):  # a keeps pressing: refused, told who stopped it
-        assert arb.claim("a", t) == "b"
-        assert arb.stopped_by("a", t) == "b"
-    assert arb.claim("c", 1.0) is None  # anyone else may drive meanwhile
-    arb.release("c", 1.0)
-    assert arb.claim("a", 1.41) is None  # a let go for more than 0.5 s: it drives again
-    assert arb.stopped_by("a", 1.41) is None
-
-
-@given(st.lists(st.tuples(st.sampled_from("abc"), st.floats(0.0, 1.0),
-                          st.sampled_from(["claim", "release"])), max_size=60))
-def test_control_changes_hands_only_when_the_holder_is_silent_or_gone(
-        events: list[tuple[str, float, str]]) -> None:
-    arb = CommandArbiter(0.5)
-    now, holder, last = 0.0, None, -math.inf
-    for source, dt, action in events:
-        now += dt
-        if holder is not None and now - last > 0.5:
-            holder = None  # the model: silent for the timeout
-        if action == "release":
-            assert arb.release(source, now) == (holder == source)
-            if holder == source:
-                holder = None
-            continue
-        refused = arb.claim(source, now)
-        if holder is None or holder == source:
-            assert refused is None
-            holder, last = source, now
-        else:
-            assert refused == holder
-        assert arb.holder(now) == holder
-
-
-def test_an_arbiter_needs_a_timeout() -> None:
-    for bad in (0.0, -1.0, math.nan, math.inf):
-        with pytest.raises(ValueError):
-            CommandArbiter(bad)
-
 
 # ---------------------------------------------------------------- reading a Twist
 
@@ -190,13 +115,21 @@ class StandInBase:
     calls: list[tuple[str, Any]] = field(default_factory=list)
     time: float = 0.0
     recover_fails: str | None = None
+    timeout_s: float = 0.5  # the command timeout: how long a silent driver holds control
+    arbiter: CommandArbiter = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.arbiter = CommandArbiter(self.timeout_s)
 
     @property
     def clock(self) -> Any:
         return SimpleNamespace(now=lambda: self.time)
 
-    def set_velocity(self, vx: float, vy: float, wz: float) -> None:
-        self.calls.append(("velocity", (vx, vy, wz)))
+    def command_source(self, name: str) -> CommandSource:
+        return CommandSource(self, self.arbiter, name)
+
+    def set_twist(self, t: Twist) -> None:
+        self.calls.append(("velocity", (t.vx, t.vy, t.wz)))
 
     def stop(self) -> None:
         self.calls.append(("stop", None))
@@ -237,10 +170,9 @@ def vouch(c: Control, n: int) -> None:
     c.on_client_advertise(client(n), channel(GRANT_CHANNEL_ID, topic=GRANT_PREFIX + c.grant()))
 
 
-def control(base: StandInBase, timeout_s: float = 0.5,
-            vouched: tuple[int, ...] = (1, 2, 3)) -> Control:
+def control(base: StandInBase, vouched: tuple[int, ...] = (1, 2, 3)) -> Control:
     """A Control whose clients ``vouched`` came in through the relay and may drive."""
-    c = Control(base, FoxgloveSettings(control=True), CommandArbiter(timeout_s))
+    c = Control(base, FoxgloveSettings(control=True))
     for n in vouched:
         vouch(c, n)
     return c
@@ -262,7 +194,7 @@ def test_only_the_controller_moves_the_base_and_its_leaving_stops_it() -> None:
     assert base.calls == [("velocity", (0.2, 0.0, 0.0))]
     c.on_client_unadvertise(client(1), 11)  # the driver leaves: the base stops now
     assert base.calls[-1] == ("stop", None)
-    assert c.arbiter.holder(base.time) is None
+    assert base.arbiter.holder(base.time) is None
 
 
 def test_the_driver_with_two_panels_keeps_control_until_its_last_one_goes() -> None:
@@ -461,7 +393,7 @@ def test_a_client_the_relay_did_not_vouch_for_may_watch_only() -> None:
 
 def test_the_token_is_named_to_a_client_that_did_not_give_it() -> None:
     base = StandInBase()
-    c = Control(base, FoxgloveSettings(control=True, token="s3cret"), CommandArbiter(0.5))
+    c = Control(base, FoxgloveSettings(control=True, token="s3cret"))
     board = attached(c)
     c.on_client_advertise(client(1), channel(1))
     c.on_message_data(client(1), 1, twist(0.3))
@@ -673,9 +605,9 @@ def guarded(channel: str) -> Any:
     from omnican.sim import SimulatedBase
 
     cfg = default_config(bus={"interface": "virtual", "channel": channel})
-    base = StandInBase()
+    base = StandInBase(timeout_s=60.0)
     settings = FoxgloveSettings(port=0, control=True, token="s3cret")
-    c = Control(base, settings, CommandArbiter(60.0))
+    c = Control(base, settings)
     with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
             LiveView(feed, control=c, settings=settings) as v:
         yield v, base
@@ -932,7 +864,7 @@ def test_control_on_another_host_when_allowed_is_announced() -> None:
     assert s.remote and s.control
     assert resolve({"control": True}, "[::1]:8765").remote is False  # loopback, either family
     fake = SimpleNamespace(settings=s, port=8765, control=SimpleNamespace(
-        service_names=lambda: ["/omnican/stop"], arbiter=CommandArbiter(0.5)))
+        service_names=lambda: ["/omnican/stop"], timeout_s=0.5))
     lines = describe_control(fake)  # type: ignore[arg-type]
     assert lines[0].startswith("Foxglove control on: Twists on /cmd_vel")
     assert lines[1] == ("Foxglove clients: browsers from https://app.foxglove.dev, "
@@ -988,8 +920,7 @@ def real(channel: str) -> Any:
     clock = SimClock()
     with SimulatedBase.from_config(cfg, clock=clock) as sim, \
             Chassis.open(cfg, clock=clock) as base:
-        c = Control(base, FoxgloveSettings(control=True),
-                    CommandArbiter(cfg.chassis.cmd_timeout_s))
+        c = Control(base, FoxgloveSettings(control=True))
         for n in (1, 2, 3):  # came in through the relay: they may drive
             vouch(c, n)
         yield clock, sim, base, c
@@ -1054,7 +985,7 @@ def test_absurd_values_from_a_client_are_refused_with_the_reason(real: Any) -> N
     assert still(sim) and base.command == Twist()
     assert c.twists == 0 and c.refused == 3
     assert "vx 1e+308 m/s is beyond any wheeled base" in statuses[-1]
-    assert c.arbiter.holder(clock.now()) is None  # a refused command takes no control
+    assert base.command_source("a test").holder() is None  # a refused one takes no control
     reply = call(c, "/omnican/reset_odometry", 1, {"x": 1e308})
     assert reply == {"success": False, "message": "odometry reset refused: x 1e+308 m is "
                      "beyond 1e+06 m (the motion added to it would be lost to rounding)"}

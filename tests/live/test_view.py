@@ -228,7 +228,12 @@ def test_shipped_layout_is_current_and_names_our_topics() -> None:
 
     from omnican import telemetry
     from omnican.config import SCHEMA
-    from omnican.live.control import SERVICE_CONSOLE, SERVICE_RECOVER, SERVICE_RESET, SERVICE_STOP
+    from omnican.live.services import (
+        SERVICE_CONSOLE,
+        SERVICE_RECOVER,
+        SERVICE_RESET,
+        SERVICE_STOP,
+    )
 
     pytest.importorskip("foxglove.layouts", reason="this foxglove-sdk has no layout types "
                         "(the layout's generator needs a newer one)")

@@ -24,7 +24,7 @@ from omnican import Chassis, Pose2D, Twist, default_config, load_config
 from omnican.cli import main
 from omnican.errors import ConfigError
 from omnican.protocol.cia402 import State
-from omnican.ros2.bridge import twist_from_msg
+from omnican.ros2.cmd_vel import twist_from_msg
 from omnican.ros2.settings import (
     EPROSIMA_VENDOR_ID,
     Ros2Settings,
@@ -291,7 +291,7 @@ class MemoryTransport:
         self.deliver_raw(topic, msg.serialize(use_version_2=False), writer)
 
     def deliver_raw(self, topic: str, data: bytes, writer: int = 1) -> None:
-        from omnican.ros2.bridge import Received
+        from omnican.ros2.transport import Received
 
         with self.lock:
             self.readers[topic][1].append(Received(writer, data))
@@ -442,22 +442,21 @@ def test_stamped_cmd_vel_and_no_joint_states_without_a_radius(channel: str) -> N
 
 
 def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Chassis]) -> None:
-    """With a shared arbiter (``omnican ros2 --foxglove-control``), cmd_vel is one source
-    among others: ignored, and counted, while a Foxglove client drives; it drives once
-    that one has stopped for the command timeout."""
+    """With another source of the base's commands (``omnican ros2 --foxglove-control``),
+    cmd_vel is one source among others: ignored, and counted, while a Foxglove client
+    drives; it drives once that one has stopped for the command timeout."""
     pytest.importorskip("cyclonedds")
-    from omnican.command.arbiter import CommandArbiter
-    from omnican.ros2.bridge import CMD_VEL_SOURCE, Bridge
+    from omnican.ros2.bridge import Bridge
+    from omnican.ros2.cmd_vel import CMD_VEL_SOURCE
 
     sim, base = rig
-    arbiter = CommandArbiter(base.cfg.chassis.cmd_timeout_s)
+    foxglove = base.command_source("Foxglove client 1")
     t = MemoryTransport()
-    with Bridge(base, Ros2Settings(), t, arbiter=arbiter, poll_thread=False) as bridge:
+    with Bridge(base, Ros2Settings(), t, poll_thread=False) as bridge:
         # The Foxglove client drives (a turn), sending as its Teleop panel does; every
         # cmd_vel between its commands is refused, however slowly this machine runs.
         for _ in range(10):
-            assert arbiter.claim("Foxglove client 1", base.clock.now(),
-                                 lambda: base.set_velocity(0.0, 0.0, 0.5)) is None
+            assert foxglove.send(Twist(0.0, 0.0, 0.5)) is None
             _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
             time.sleep(0.02)
         assert bridge.cmd_vel_refused == 10
@@ -466,7 +465,7 @@ def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Cha
 
         def driven_by_cmd_vel() -> bool:
             _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
-            return ((arbiter.holder(base.clock.now()) or "").startswith(CMD_VEL_SOURCE) and
+            return ((foxglove.holder() or "").startswith(CMD_VEL_SOURCE) and
                     sim.true_twist.vx == pytest.approx(0.3, abs=0.03))
 
         assert wait_for(driven_by_cmd_vel, 10.0, step=0.02)
@@ -616,7 +615,7 @@ def test_a_flood_costs_one_parsed_sample_per_publisher_and_poll(
     """10,000 samples between two polls (a 10 kHz flood at 1 poll a second): the reader
     keeps the newest few, the bridge parses only the newest and drives with it."""
     pytest.importorskip("cyclonedds")
-    from omnican.ros2.bridge import CMD_VEL_DEPTH
+    from omnican.ros2.cmd_vel import CMD_VEL_DEPTH
 
     clock, sim, base = stepped
     t = MemoryTransport()
@@ -665,7 +664,7 @@ def test_one_publisher_drives_at_a_time(stepped: tuple[Any, SimulatedBase, Chass
     who drives) until the first has sent nothing for the command timeout."""
     pytest.importorskip("cyclonedds")
     clock, sim, base = stepped
-    caplog.set_level("INFO", logger="omnican.ros2.bridge")
+    caplog.set_level("INFO", logger="omnican.ros2.cmd_vel")
     t = MemoryTransport()
     first, second = f"{1:032x}", f"{2:032x}"
     with _bridge(base, t) as bridge:
@@ -699,7 +698,7 @@ def test_many_publishers_cost_no_more_than_a_few(
     """200 other writers beside the one driving: each poll parses the driver's sample and
     refuses the others unread; while no one drives, a few are parsed a poll."""
     pytest.importorskip("cyclonedds")
-    from omnican.ros2.bridge import MAX_PARSED_PER_POLL
+    from omnican.ros2.cmd_vel import MAX_PARSED_PER_POLL
 
     clock, sim, base = stepped
     t = MemoryTransport()
@@ -734,7 +733,7 @@ def test_a_cmd_vel_publisher_of_another_type_is_named_once(
         stepped: tuple[Any, SimulatedBase, Chassis], caplog: pytest.LogCaptureFixture,
         stamped: bool, arrives: str, hint: str) -> None:
     pytest.importorskip("cyclonedds")
-    from omnican.ros2.bridge import Publication
+    from omnican.ros2.transport import Publication
 
     _, _, base = stepped
     t = MemoryTransport()
@@ -754,7 +753,7 @@ def test_a_cmd_vel_publisher_of_another_type_is_named_once(
 @settings(deadline=None)
 @given(st.one_of(st.text(max_size=5000), st.floats(allow_nan=True), st.integers()))
 def test_quoted_values_stay_short(value: Any) -> None:
-    from omnican.ros2.bridge import QUOTE_CHARS, quote
+    from omnican.ros2.cmd_vel import QUOTE_CHARS, quote
 
     text = quote(value)
     assert len(text) <= QUOTE_CHARS + 40
@@ -765,7 +764,7 @@ def test_quoted_values_stay_short(value: Any) -> None:
 @settings(deadline=None)
 @given(names, names)
 def test_ros_type_names_from_dds_names(package: str, message: str) -> None:
-    from omnican.ros2.bridge import ros_type_name
+    from omnican.ros2.transport import ros_type_name
 
     assert ros_type_name(f"{package}::msg::dds_::{message}_") == f"{package}/msg/{message}"
     assert ros_type_name(f"{package}::{message}") == f"{package}::{message}"  # not ROS 2's

@@ -11,6 +11,13 @@ also takes control from the one driving, which is then refused until it lets go 
 nothing for ``timeout_s``): a Teleop button held down does not start the base again the
 moment after someone else stopped it.
 
+A front end does not apply these rules itself: it asks the base for a
+:class:`CommandSource` (:meth:`omnican.chassis.Chassis.command_source`), one per source,
+and sends through it. Every source of one base shares the base's one arbiter, so a new
+front end shares control with the others by construction. The arbiter lives here, in the
+chassis layer, so that the base may hand it out (the layers above may not be imported
+from here).
+
 Pure: no I/O, no threads of its own; safe to call from any thread.
 """
 
@@ -19,6 +26,9 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
+from typing import Protocol
+
+from omnican.core.kinematics import Twist
 
 
 class CommandArbiter:
@@ -77,12 +87,16 @@ class CommandArbiter:
             stopped = self._stopped.get(source)
             return stopped[0] if stopped and now - stopped[1] <= self.timeout_s else None
 
-    def release(self, source: str, now: float) -> bool:
+    def release(self, source: str, now: float, stop: Callable[[], None] | None = None
+                ) -> bool:
         """``source`` gives control up at ``now`` (it left); True if it held control then
-        (not if its hold had lapsed)."""
+        (not if its hold had lapsed). ``stop`` runs only then, before anyone else can
+        take control (so it stops this source's motion, never another's)."""
         with self._lock:
             if self._current(now) != source:
                 return False
+            if stop is not None:
+                stop()
             self._holder, self._last = None, -math.inf
             return True
 
@@ -103,3 +117,77 @@ class CommandArbiter:
         if self._holder is not None and now - self._last > self.timeout_s:
             self._holder = None  # silent for the timeout: the base stopped by itself
         return self._holder
+
+
+class _Clock(Protocol):
+    def now(self) -> float: ...
+
+
+class Commandable(Protocol):
+    """What a :class:`CommandSource` drives: a :class:`~omnican.chassis.Chassis`, or a
+    stand-in in a test."""
+
+    @property
+    def clock(self) -> _Clock: ...
+
+    def set_twist(self, twist: Twist) -> None: ...
+
+    def stop(self) -> None: ...
+
+
+class CommandSource:
+    """One source of commands for a base (the terminal's keys, a ROS 2 publisher, a
+    Foxglove client), named as the others are told of it: every command and stop goes
+    through the base's :class:`CommandArbiter`, at the base's clock. Ask the base for it
+    (:meth:`omnican.chassis.Chassis.command_source`); cheap to make, one per source name
+    (two of one name are one source). Safe to call from any thread."""
+
+    __slots__ = ("_arbiter", "_base", "name")
+
+    def __init__(self, base: Commandable, arbiter: CommandArbiter, name: str) -> None:
+        self.name = name
+        self._base = base
+        self._arbiter = arbiter
+
+    @property
+    def timeout_s(self) -> float:
+        """How long a silent holder keeps control (the chassis watchdog's timeout)."""
+        return self._arbiter.timeout_s
+
+    def send(self, twist: Twist) -> str | None:
+        """Command the base to ``twist`` (body frame: m/s, m/s, rad/s), if this source may
+        (it then holds control): None if sent, else the source that holds control (or
+        that stopped this one, see :meth:`stopped_by`), and nothing is sent. A twist the
+        base refuses (ValueError: NaN, beyond sense) raises and takes no control. A zero
+        twist is a command like any other: it holds control too."""
+        base = self._base
+        return self._arbiter.claim(self.name, base.clock.now(), lambda: base.set_twist(twist))
+
+    def stop(self) -> str | None:
+        """Stop the base now, whoever drives (anyone may). If another source drove, it
+        loses control until it lets go: returns that source (None: none did)."""
+        base = self._base
+        return self._arbiter.stop_by(self.name, base.clock.now(), base.stop)
+
+    def release(self, stop: bool = False) -> bool:
+        """Give control up (this source left, or went idle): True if it held control.
+        With ``stop``, the base stops then too (only if this source drove it)."""
+        base = self._base
+        return self._arbiter.release(self.name, base.clock.now(),
+                                     base.stop if stop else None)
+
+    def holder(self) -> str | None:
+        """Who holds control now (None: no one; it may be this source)."""
+        return self._arbiter.holder(self._base.clock.now())
+
+    def may_act(self) -> str | None:
+        """Whether this source may do what only the controller may while one drives
+        (recover, change a limit, reset odometry): None if it may, else who drives."""
+        return self._arbiter.may_act(self.name, self._base.clock.now())
+
+    def stopped_by(self) -> str | None:
+        """Who stopped this source, while it is still refused for that (None: no one)."""
+        return self._arbiter.stopped_by(self.name, self._base.clock.now())
+
+    def __repr__(self) -> str:
+        return f"CommandSource({self.name!r})"

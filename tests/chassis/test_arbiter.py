@@ -1,0 +1,255 @@
+"""One source of commands at a time: the arbiter's rules (pure, at given times), and the
+handle a front end asks the base for (:meth:`Chassis.command_source`), which applies
+them: two sources against a stand-in base on a simulated clock, and against a real base
+in lock-step. A new front end (Zenoh, say) that sends only through its handle shares
+control with the others by construction."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from omnican import Chassis, Twist
+from omnican.chassis.arbiter import CommandArbiter, CommandSource
+from omnican.clock import SimClock
+from omnican.sim import SimulatedBase
+from tests.support.helpers import lockstep_rig, still
+
+# ---------------------------------------------------------------- the arbiter
+
+
+def test_the_first_source_holds_control_until_it_is_silent_or_leaves() -> None:
+    arb = CommandArbiter(0.5)
+    assert arb.claim("a", 0.0) is None
+    assert arb.claim("b", 0.1) == "a"  # refused, told who drives
+    assert arb.claim("a", 0.4) is None  # a fresh command keeps it
+    assert arb.claim("b", 0.8) == "a"  # 0.4 s since a's last: still a's
+    assert arb.claim("b", 0.95) is None  # a silent for 0.55 s: free, and b takes it
+    assert arb.holder(0.95) == "b"
+    assert not arb.release("a", 1.0)  # a does not hold it: nothing happens
+    assert arb.holder(1.0) == "b"
+    assert not arb.release("b", 1.6)  # b's hold had lapsed: it did not hold it then
+    assert arb.claim("b", 1.6) is None
+    assert arb.release("b", 1.7)
+    assert arb.holder(1.7) is None
+    assert arb.claim("a", 1.7) is None
+
+
+def test_who_may_act_while_someone_drives() -> None:
+    arb = CommandArbiter(0.5)
+    assert arb.may_act("b", 0.0) is None  # no one drives
+    arb.claim("a", 0.0)
+    assert arb.may_act("a", 0.1) is None
+    assert arb.may_act("b", 0.1) == "a"
+    assert arb.holder(0.1) == "a"  # asking takes nothing
+    assert arb.may_act("b", 0.6) is None
+
+
+def test_a_stop_by_another_takes_control_until_the_driver_lets_go() -> None:
+    arb = CommandArbiter(0.5)
+    assert arb.stop_by("b", 0.0) is None  # no one drives: nothing to take
+    arb.claim("a", 0.0)
+    assert arb.stop_by("a", 0.1) is None  # its own stop: it keeps control
+    assert arb.holder(0.1) == "a"
+    assert arb.stop_by("b", 0.2) == "a"
+    assert arb.holder(0.2) is None
+    for t in (0.3, 0.6, 0.9):  # a keeps pressing: refused, told who stopped it
+        assert arb.claim("a", t) == "b"
+        assert arb.stopped_by("a", t) == "b"
+    assert arb.claim("c", 1.0) is None  # anyone else may drive meanwhile
+    arb.release("c", 1.0)
+    assert arb.claim("a", 1.41) is None  # a let go for more than 0.5 s: it drives again
+    assert arb.stopped_by("a", 1.41) is None
+
+
+def test_a_release_runs_its_stop_only_for_the_holder() -> None:
+    arb = CommandArbiter(0.5)
+    stops: list[str] = []
+    arb.claim("a", 0.0)
+    assert not arb.release("b", 0.1, lambda: stops.append("b"))  # not b's to stop
+    assert arb.release("a", 0.2, lambda: stops.append("a"))
+    assert not arb.release("a", 0.3, lambda: stops.append("a again"))  # already let go
+    assert stops == ["a"]
+
+
+@given(st.lists(st.tuples(st.sampled_from("abc"), st.floats(0.0, 1.0),
+                          st.sampled_from(["claim", "release"])), max_size=60))
+def test_control_changes_hands_only_when_the_holder_is_silent_or_gone(
+        events: list[tuple[str, float, str]]) -> None:
+    arb = CommandArbiter(0.5)
+    now, holder, last = 0.0, None, -math.inf
+    for source, dt, action in events:
+        now += dt
+        if holder is not None and now - last > 0.5:
+            holder = None  # the model: silent for the timeout
+        if action == "release":
+            assert arb.release(source, now) == (holder == source)
+            if holder == source:
+                holder = None
+            continue
+        refused = arb.claim(source, now)
+        if holder is None or holder == source:
+            assert refused is None
+            holder, last = source, now
+        else:
+            assert refused == holder
+        assert arb.holder(now) == holder
+
+
+def test_an_arbiter_needs_a_timeout() -> None:
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError):
+            CommandArbiter(bad)
+
+
+# ---------------------------------------------------------------- the handle
+
+
+@dataclass(eq=False)
+class FakeBase:
+    """What a source calls on a base, recorded, on a simulated clock; it hands out
+    sources as :meth:`Chassis.command_source` does (one arbiter for all)."""
+
+    clock: SimClock = field(default_factory=SimClock)
+    calls: list[tuple[str, Any]] = field(default_factory=list)
+    arbiter: CommandArbiter = field(default_factory=lambda: CommandArbiter(0.5))
+
+    def command_source(self, name: str) -> CommandSource:
+        return CommandSource(self, self.arbiter, name)
+
+    def set_twist(self, twist: Twist) -> None:
+        if not twist.is_finite():
+            raise ValueError("velocity command refused: not finite")
+        self.calls.append(("twist", twist))
+
+    def stop(self) -> None:
+        self.calls.append(("stop", None))
+
+
+def test_two_sources_share_the_base_one_at_a_time() -> None:
+    """Claim, refusal, hand-over at the timeout, a stop by the one not driving, release:
+    what a front end gets from its handle alone."""
+    base = FakeBase()
+    keys, zenoh = base.command_source("keys"), base.command_source("zenoh")
+    clock = base.clock
+    assert keys.timeout_s == 0.5
+
+    # claim: the first to send drives; the other is refused and told who drives
+    assert keys.send(Twist(0.2, 0.0, 0.0)) is None
+    assert (keys.holder(), zenoh.holder()) == ("keys", "keys")
+    clock.sleep(0.1)
+    assert zenoh.send(Twist(0.0, 0.0, 1.0)) == "keys"
+    assert zenoh.may_act() == "keys" and keys.may_act() is None
+    assert base.calls == [("twist", Twist(0.2, 0.0, 0.0))]  # the refused twist went nowhere
+
+    # timeout hand-over: keys silent for longer than the timeout, zenoh takes control
+    clock.sleep(0.45)  # 0.55 s since keys' last command
+    assert zenoh.send(Twist(0.0, 0.0, 1.0)) is None
+    assert keys.holder() == "zenoh"
+    assert keys.send(Twist(0.3, 0.0, 0.0)) == "zenoh"
+
+    # a stop by the one not driving: the base stops, the driver is out until it lets go
+    calls = len(base.calls)
+    assert keys.stop() == "zenoh"
+    assert base.calls[calls:] == [("stop", None)]
+    assert keys.holder() is None
+    for _ in range(3):  # zenoh keeps sending: refused, told who stopped it
+        clock.sleep(0.2)
+        assert zenoh.send(Twist(0.0, 0.0, 1.0)) == "keys"
+        assert zenoh.stopped_by() == "keys"
+    assert base.calls[calls:] == [("stop", None)]
+    assert keys.send(Twist(0.1, 0.0, 0.0)) is None  # meanwhile anyone else may drive
+
+    # release: keys leave; the base stops (they drove it) and control is free
+    calls = len(base.calls)
+    assert keys.release(stop=True)
+    assert base.calls[calls:] == [("stop", None)]
+    assert not keys.release(stop=True)  # not held any more: nothing more stops
+    assert base.calls[calls:] == [("stop", None)]
+    assert keys.holder() is None
+    clock.sleep(0.6)  # zenoh let go of its refused commands: it drives again
+    assert zenoh.stopped_by() is None
+    assert zenoh.send(Twist(0.0, 0.0, 0.5)) is None
+    assert zenoh.release() and base.calls[-1] == ("twist", Twist(0.0, 0.0, 0.5))
+
+
+def test_a_twist_the_base_refuses_takes_no_control() -> None:
+    base = FakeBase()
+    keys, zenoh = base.command_source("keys"), base.command_source("zenoh")
+    with pytest.raises(ValueError, match="not finite"):
+        zenoh.send(Twist(math.nan, 0.0, 0.0))
+    assert zenoh.holder() is None and base.calls == []
+    assert keys.send(Twist(0.1, 0.0, 0.0)) is None
+
+
+_ACTIONS = st.lists(st.tuples(st.sampled_from(["a", "b"]),
+                              st.sampled_from(["send", "stop", "release", "wait"]),
+                              st.floats(0.0, 0.4)), max_size=40)
+
+
+@given(_ACTIONS)
+def test_the_base_moves_only_for_the_source_that_holds_control(
+        actions: list[tuple[str, str, float]]) -> None:
+    """Whatever two sources do, every twist the base receives comes from the one that
+    then holds control, and a release stops the base only for the one that drove it."""
+    base = FakeBase()
+    sources = {name: base.command_source(name) for name in "ab"}
+    for name, action, dt in actions:
+        base.clock.sleep(dt)
+        source, before = sources[name], base.arbiter.holder(base.clock.now())
+        calls = len(base.calls)
+        if action == "send":
+            refused = source.send(Twist(0.1, 0.0, 0.0))
+            sent = base.calls[calls:]
+            assert (refused is None) == (sent == [("twist", Twist(0.1, 0.0, 0.0))])
+            if refused is None:
+                assert source.holder() == name
+            else:
+                assert sent == [] and refused != name
+        elif action == "stop":
+            taken = source.stop()
+            assert base.calls[calls:] == [("stop", None)]  # anyone may stop
+            assert taken == (before if before not in (None, name) else None)
+        elif action == "release":
+            released = source.release(stop=True)
+            assert released == (before == name)
+            assert base.calls[calls:] == ([("stop", None)] if released else [])
+
+
+# ---------------------------------------------------------------- a real base
+
+
+@pytest.fixture
+def rig(channel: str) -> Iterator[tuple[SimClock, SimulatedBase, Chassis]]:
+    with lockstep_rig(channel) as r:
+        yield r
+
+
+def test_every_source_of_a_base_shares_its_one_arbiter(
+        rig: tuple[SimClock, SimulatedBase, Chassis]) -> None:
+    """Sources of a real base, asked for one by one (as two front ends do), drive it one
+    at a time."""
+    clock, sim, base = rig
+    keys, zenoh = base.command_source("keys"), base.command_source("zenoh")
+    assert keys.timeout_s == base.cfg.chassis.cmd_timeout_s
+    sent = Twist(0.2, 0.0, 0.0)
+    assert keys.send(sent) is None
+    assert zenoh.send(Twist(0.0, 0.0, 1.0)) == "keys"
+    assert clock.run_until(lambda: sim.true_twist.vx == pytest.approx(0.2, abs=0.01),
+                           2.0, 0.02)
+    assert base.command == sent and abs(sim.true_twist.wz) < 1e-2  # zenoh's went nowhere
+    assert zenoh.stop() == "keys"  # anyone may stop
+    clock.sleep(0.1)
+    assert keys.send(sent) == "zenoh" and keys.stopped_by() == "zenoh"  # out till it lets go
+    assert clock.run_until(lambda: still(sim), 2.0, 0.02)
+    clock.sleep(base.cfg.chassis.cmd_timeout_s)
+    assert zenoh.send(Twist(0.0, 0.0, 0.5)) is None
+    assert clock.run_until(lambda: base.command == Twist(0.0, 0.0, 0.5), 2.0, 0.02)
+    assert zenoh.release(stop=True)
+    assert clock.run_until(lambda: still(sim), 2.0, 0.02)
