@@ -52,6 +52,7 @@ from omnican.cli.common import (
     load,
     positive_float,
     progress_bar,
+    recording,
     session,
 )
 from omnican.command import motion
@@ -248,7 +249,7 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
         if not sys.stdin.readline():
             raise UsageError("no answer (end of input)")
     with session(args, **options) as s, \
-            Chassis.open(s.cfg, record=args.record, clock=s.clock) as base:
+            Chassis.open(s.cfg, record=recording(args.record), clock=s.clock) as base:
         sim = s.sim
         truth: list[Pose2D] = [sim.true_pose] if sim is not None else []
         poses = [base.pose]

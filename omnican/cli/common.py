@@ -140,6 +140,16 @@ def add_record_argument(parser: Any, what: str = "record the bus to FILE") -> No
                              f"({install_hint('mcap')})")
 
 
+def recording(path: str | Path | None) -> Any:
+    """``--record FILE`` as a recording of the base (``Chassis.open(..., record=)``: from
+    the bus's first frame on, closed with the base); None without one."""
+    if path is None:
+        return None
+    from omnican.record.recording import FileRecording
+
+    return FileRecording(path)
+
+
 def add_config_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="TOML",
                         help="robot config (default: the demo base of three bundled drives, "

@@ -23,6 +23,7 @@ from omnican.cli.common import (
     foxglove_settings,
     load,
     positive_float,
+    recording,
     serve_lines,
     session,
 )
@@ -173,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         if fox is not None:
             prepare(run_cfg)  # its slow set-up before the control loop runs
         try:
-            with Chassis.open(run_cfg, record=args.record) as base, \
+            with Chassis.open(run_cfg, record=recording(args.record)) as base, \
                     Bridge(base, settings, transport, sim=sess.sim, arbiter=arbiter) as bridge, \
                     watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True),
                           arbiter=arbiter):

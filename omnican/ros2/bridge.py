@@ -43,6 +43,7 @@ from omnican.errors import quote as _quote
 from omnican.log_throttle import Throttle
 from omnican.ros2.settings import Ros2Settings, cyclone_config, dds_topic, resolve_name
 from omnican.telemetry import Message
+from omnican.telemetry.attach import feed_of
 
 if TYPE_CHECKING:
     from cyclonedds.idl import IdlStruct
@@ -378,7 +379,7 @@ def to_idl(msg_type: type[M], data: dict[str, Any]) -> M:
 class Bridge:
     """Publishes the base's telemetry over a :class:`Transport` and takes its commands.
 
-    A :class:`~omnican.telemetry.Sink` of ``base.telemetry``: the messages are the ones
+    A :class:`~omnican.telemetry.Sink` of ``feed_of(base)``: the messages are the ones
     the live view and an MCAP recording carry, published here at the configured rates
     (every n-th sample). Use as a context manager (or :meth:`start` and :meth:`close`);
     it does not own the chassis or the transport."""
@@ -391,7 +392,7 @@ class Bridge:
         self.base = base
         self.settings = settings
         self.sim = sim
-        feed = base.telemetry
+        self._feed = feed = feed_of(base)
         if sim is not None:
             feed.truth = sim  # the simulator's ground truth goes along (~/sim/true_pose)
         self.joint_names = feed.settings.joint_names
@@ -665,7 +666,7 @@ class Bridge:
         :meth:`poll`) take commands on a thread of its own."""
         if not self._started:
             self._started = True
-            self.base.telemetry.add(self)
+            self._feed.add(self)
             if self._poll_on_thread:
                 self._stop_polling.clear()
                 self._poll_thread = threading.Thread(target=self._poll_loop,
@@ -691,7 +692,7 @@ class Bridge:
         """Stop publishing; wait for a recover under way. Idempotent."""
         if self._started:
             self._started = False
-            self.base.telemetry.remove(self)
+            self._feed.remove(self)
         self._stop_polling.set()
         poller = self._poll_thread
         if poller is not None:
