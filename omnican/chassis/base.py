@@ -28,6 +28,7 @@ from typing import Any
 from omnican.chassis import realtime
 from omnican.chassis.cycle import ControlCycle
 from omnican.chassis.health import HealthMonitor
+from omnican.chassis.opening import make_base
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
 from omnican.chassis.signals import guard
 from omnican.chassis.sink import Attachments, Recording, SnapshotSink
@@ -41,7 +42,6 @@ from omnican.core.odometry import Pose2D
 from omnican.drive import DriveNode
 from omnican.errors import DriveError
 from omnican.io.bus import CanBus
-from omnican.plan.node import node_layouts
 
 logger = logging.getLogger("omnican.chassis")
 
@@ -124,29 +124,8 @@ class Chassis:
             DriveError: a drive did not come up (the message says which and why).
         """
         clock = clock if clock is not None else REAL_TIME
-        if record is not None and not hasattr(record, "attach"):
-            raise TypeError(f"record: a recording, such as omnican.record.recording."
-                            f"FileRecording(path), not {record!r}")
-        layouts = node_layouts(cfg)  # EDS problems surface before a file or the bus is made
-        try:
-            can_bus = CanBus(bus if bus is not None else cfg.bus, clock=clock,
-                             recorder=record.open(cfg) if record is not None else None)
-        except BaseException:
-            if record is not None:
-                record.close()
-            raise
-        nodes: list[DriveNode] = []
-        try:
-            for layout in layouts:
-                nodes.append(DriveNode(can_bus.network, layout, can_bus, clock))
-            base = cls(cfg, can_bus, nodes, clock)
-        except BaseException:
-            for n in nodes:
-                n.detach()
-            can_bus.close()
-            if record is not None:
-                record.close()
-            raise
+        base = make_base(lambda can_bus, nodes: cls(cfg, can_bus, nodes, clock),
+                         cfg, bus, record, clock)
         try:
             if record is not None:  # from the first frame on: the configuration too
                 base.attachments.add("record", record)  # closed after what it attaches
