@@ -116,12 +116,17 @@ class ControlCycle:
     def offer_to(self, sink: SnapshotSink | None, every: int = 1) -> None:
         """Hand every ``every``-th snapshot to ``sink`` from the next cycle on, on the
         loop thread (None: to none). Any thread: the sink is set before the count, and the
-        count cleared first (a cycle under way may still hand the old sink one more)."""
+        count cleared first (a cycle under way may still hand the old sink one more).
+        Raises ValueError while another sink is attached."""
         if sink is None:
             self.sink_every = 0
             return
         if every < 1:
             raise ValueError(f"every: a snapshot in 1 or more cycles, not {every}")
+        if self.sink_every and self.sink != sink.offer:
+            raise ValueError("the base offers its snapshots to one sink, and one is attached "
+                             "(the telemetry feed, omnican.telemetry.attach.feed_of, is "
+                             "the one to share)")
         self.sink = sink.offer  # one bound method: what the cycle calls
         self.sink_every = every
 

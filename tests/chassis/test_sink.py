@@ -54,6 +54,8 @@ def test_the_cycle_offers_every_nth_snapshot_to_its_sink(channel: str) -> None:
         drive_for(base, 0.1, vx=0.1)
         assert sink.offered == []  # none attached: nothing offered
         base.offer_snapshots(sink, every=4)
+        with pytest.raises(ValueError, match="one sink"):
+            base.offer_snapshots(Collect(), every=2)  # it would take the first one's place
         clock.sleep(0.3)
         cycles = [s.status.cycles for s in sink.offered]
         assert len(cycles) >= 5
