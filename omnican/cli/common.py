@@ -26,6 +26,7 @@ from omnican.errors import ConfigError
 if TYPE_CHECKING:
     from omnican.config import ChassisConfig
     from omnican.core.odometry import Pose2D
+    from omnican.record.recording import FileRecording
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
@@ -140,7 +141,7 @@ def add_record_argument(parser: Any, what: str = "record the bus to FILE") -> No
                              f"({install_hint('mcap')})")
 
 
-def recording(path: str | Path | None) -> Any:
+def recording(path: str | Path | None) -> FileRecording | None:
     """``--record FILE`` as a recording of the base (``Chassis.open(..., record=)``: from
     the bus's first frame on, closed with the base); None without one."""
     if path is None:
