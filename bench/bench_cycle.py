@@ -54,6 +54,7 @@ from bench_chassis import config, notifier_threads, percentile, thread_cpu
 from omnican import Chassis
 from omnican.clock import SimClock
 from omnican.io.lockstep import LockstepBus
+from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
 
 LATE = 0.2  # of a period
@@ -158,7 +159,8 @@ def omnican_loop(rate_hz: float, seconds: float, record: str | None) -> None:
     stamps: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"run.{record}" if record else None
-        with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=path) as base:
+        with SimulatedBase.from_config(cfg) as sim, Chassis.open(
+                cfg, record=FileRecording(path) if path else None) as base:
             sim.network.subscribe(0x80, lambda cid, data, ts: stamps.append(ts))
             time.sleep(0.3)
             threads = host_threads(base, sim.network)

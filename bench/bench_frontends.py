@@ -26,13 +26,16 @@ from bench_chassis import config, cycle_starts, emit
 from bench_record import _Watcher
 
 from omnican import Chassis
+from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
+from omnican.telemetry.attach import feed_of
 
 
 def one_run(rate_hz: float, seconds: float, frontends: bool, tmp: Path) -> dict[str, Any]:
     cfg = config(rate_hz)
     record = tmp / f"frontends-{time.monotonic_ns()}.mcap" if frontends else None
-    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=record) as base, \
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(
+            cfg, record=FileRecording(record) if record else None) as base, \
             contextlib.ExitStack() as stack:
         runner = base._runner
         starts = cycle_starts(base)
@@ -76,7 +79,7 @@ def one_run(rate_hz: float, seconds: float, frontends: bool, tmp: Path) -> dict[
                    late_fraction=round(late / max(cycles, 1), 4),
                    longest_gap_ms=round(1e3 * gaps[-1], 2) if gaps else None,
                    p99_gap_ms=round(1e3 * gaps[int(0.99 * (len(gaps) - 1))], 2) if gaps else None,
-                   telemetry_dropped=base.telemetry.dropped)
+                   telemetry_dropped=feed_of(base).dropped)
         if messages is not None:
             out["viewer_messages_per_s"] = round((messages.messages - msgs0) / elapsed)
     return out

@@ -25,7 +25,9 @@ from typing import Any
 from bench_chassis import config, emit, loop_thread, notifier_threads, thread_cpu
 
 from omnican import Chassis
+from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
+from omnican.telemetry.attach import feed_of
 
 
 def writer_thread(suffix: str | None) -> threading.Thread | None:
@@ -37,7 +39,8 @@ def writer_thread(suffix: str | None) -> threading.Thread | None:
 def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None:
     cfg = config(rate_hz)
     record = tmp / f"bench-{int(rate_hz)}{suffix}" if suffix else None
-    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=record) as base:
+    recording = FileRecording(record) if record is not None else None
+    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=recording) as base:
         writer = writer_thread(suffix)
         notif = notifier_threads(base.bus.network)
         time.sleep(0.3)
@@ -55,9 +58,9 @@ def bench(rate_hz: float, seconds: float, suffix: str | None, tmp: Path) -> None
         notif_cpu = sum(thread_cpu(t) for t in notif) - notif0
         writer_cpu = (thread_cpu(writer) - writer0) if writer else None
         late = base._runner.late - late0
-        recorder = base._own_sinks[0] if base._own_sinks else base.bus.recorder
-        dropped = base.telemetry.frames.dropped if base._own_sinks else getattr(
-            recorder, "dropped", None)
+        mcap = suffix == ".mcap"
+        recorder = recording.recorder if recording is not None else None
+        dropped = feed_of(base).frames.dropped if mcap else getattr(recorder, "dropped", None)
     fields = dict(bench="record.loop", rate_hz=rate_hz, recording=suffix or "none",
                   seconds=round(elapsed, 2), achieved_hz=round(cycles / elapsed, 1),
                   late_cycle_fraction=round(late / max(cycles, 1), 4),

@@ -81,16 +81,6 @@ def modules() -> list[tuple[str, Path]]:
     return out
 
 
-#: Upward imports the restructuring has still to remove (issue 27): each goes when the
-#: lower layer offers an interface the upper one attaches to. None may be added.
-KNOWN = {
-    "omnican.chassis.base imports omnican.record.can_log, a layer above it",
-    "omnican.chassis.base imports omnican.telemetry.feed, a layer above it",
-    "omnican.chassis.cycle imports omnican.telemetry.feed, a layer above it",
-    "omnican.chassis.cycle imports omnican.telemetry.settings, a layer above it",
-}
-
-
 def upward_imports() -> list[str]:
     problems = []
     for name, path in modules():
@@ -114,7 +104,7 @@ def test_every_module_is_in_a_layer() -> None:
 
 
 def test_no_module_imports_from_a_layer_above_its_own() -> None:
-    problems = [p for p in upward_imports() if p not in KNOWN]
+    problems = upward_imports()
     assert not problems, "\n".join(problems)
 
 

@@ -2,7 +2,8 @@
 (:mod:`~omnican.chassis.cycle`), the node supervisor (:mod:`~omnican.chassis.supervisor`),
 the runner (:mod:`~omnican.chassis.runner`) with its thread's real-time priority
 (:mod:`~omnican.chassis.realtime`) and signal handling (:mod:`~omnican.chassis.signals`).
-The state types are :mod:`omnican.chassis.state`'s."""
+The state types are :mod:`omnican.chassis.state`'s; what layers above attach to a base
+(the telemetry, a recording) is :mod:`omnican.chassis.sink`'s."""
 
 from __future__ import annotations
 

@@ -23,15 +23,16 @@ import threading
 import weakref
 from collections.abc import Callable, Mapping
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 from omnican.chassis import realtime
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.chassis.cycle import ControlCycle
 from omnican.chassis.health import HealthMonitor
+from omnican.chassis.opening import make_base
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
 from omnican.chassis.signals import guard
+from omnican.chassis.sink import Attachments, Recording, SnapshotSink
 from omnican.chassis.state import ChassisStatus, WheelState
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
@@ -42,9 +43,6 @@ from omnican.core.odometry import Pose2D
 from omnican.drive import DriveNode
 from omnican.errors import DriveError
 from omnican.io.bus import CanBus
-from omnican.plan.node import node_layouts
-from omnican.record.can_log import open_recording, records_state
-from omnican.telemetry.feed import Feed
 
 logger = logging.getLogger("omnican.chassis")
 
@@ -78,7 +76,8 @@ class Chassis:
             if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed,
                                                 cfg.chassis.rt_priority))
         loop.runner = self._runner
-        self._own_sinks: list[Any] = []  # telemetry sinks open() made (a recording)
+        #: what layers above attached (the telemetry feed, a recording): closed with the base
+        self.attachments = Attachments()
         self._limits_lock = threading.Lock()
         self._configured = cfg.chassis  # what a live limit may only make safer
         self._closed = False
@@ -101,7 +100,7 @@ class Chassis:
         cfg: ChassisConfig,
         *,
         bus: Mapping[str, Any] | None = None,
-        record: str | Path | Any = None,
+        record: Recording | None = None,
         handle_signals: bool = True,
         clock: Clock | None = None,
     ) -> Chassis:
@@ -110,9 +109,10 @@ class Chassis:
         Args:
             cfg: the robot config.
             bus: ``can.Bus`` arguments overriding ``cfg.bus``.
-            record: record the bus to this file: a python-can log (.log/.asc/.blf: the
-                frames), or .mcap (the frames and the robot's state); or a recorder
-                (:mod:`omnican.record.can_log`) or telemetry sink, closed with the base.
+            record: a recording of the bus from its first frame on, closed with the
+                base: ``FileRecording(path)`` (:mod:`omnican.record.recording`) records to
+                a python-can log (.log/.asc/.blf: the frames) or .mcap (the frames and the
+                robot's state).
             handle_signals: in the main thread, turn SIGTERM into SystemExit so the
                 ``with`` block unwinds and the drives are disabled, and keep a second
                 SIGINT/SIGTERM from cutting that stop short.
@@ -126,32 +126,12 @@ class Chassis:
             DriveError: a drive did not come up (the message says which and why).
         """
         clock = clock if clock is not None else REAL_TIME
-        layouts = node_layouts(cfg)  # EDS problems surface before the bus is touched
-        recorder = open_recording(record, cfg) if isinstance(record, (str, Path)) else record
-        state_sink = recorder if records_state(recorder) else None
+        base = make_base(lambda can_bus, nodes: cls(cfg, can_bus, nodes, clock),
+                         cfg, bus, record, clock)
         try:
-            can_bus = CanBus(bus if bus is not None else cfg.bus,
-                             recorder=None if state_sink is not None else recorder, clock=clock)
-        except BaseException:
-            if state_sink is not None:
-                state_sink.close()
-            raise
-        nodes: list[DriveNode] = []
-        try:
-            for layout in layouts:
-                nodes.append(DriveNode(can_bus.network, layout, can_bus, clock))
-            base = cls(cfg, can_bus, nodes, clock)
-        except BaseException:
-            for n in nodes:
-                n.detach()
-            can_bus.close()
-            if state_sink is not None:
-                state_sink.close()
-            raise
-        try:
-            if state_sink is not None:  # from the first frame on: the configuration too
-                base._own_sinks.append(state_sink)
-                base.telemetry.add(state_sink)
+            if record is not None:  # from the first frame on: the configuration too
+                base.attachments.add("record", record)  # closed after what it attaches
+                record.attach(base)
             base._start(handle_signals)
         except BaseException:
             base.close(controlled=False)
@@ -345,10 +325,12 @@ class Chassis:
     def bus(self) -> CanBus:
         return self._bus
 
-    @property
-    def telemetry(self) -> Feed:
-        """The one feed of what front ends publish: ``base.telemetry.add(sink)``."""
-        return self._loop.feed
+    def offer_snapshots(self, sink: SnapshotSink | None, every: int = 1) -> None:
+        """Hand every ``every``-th cycle's snapshot to ``sink.offer`` on the loop thread
+        (it must queue and return), from the next cycle on; None: stop. One sink at a
+        time: the telemetry feed (:func:`omnican.telemetry.attach.feed_of`) is the one
+        that fans them out to every front end."""
+        self._loop.offer_to(sink, every)
 
     @property
     def warnings(self) -> list[str]:
@@ -397,10 +379,8 @@ class Chassis:
                                self._bus.failing is None)
             finally:
                 sup.detach()
-                feed = self._loop.feed
-                feed.close(self._loop.snapshot)  # the last sample, and the frames of the stop
-                for sink in self._own_sinks:  # a recording: it says what did not reach it
-                    sink.close(dropped_frames=feed.frames.dropped)
+                # The telemetry's last sample (and the frames of the stop), then a recording.
+                self.attachments.close(self._loop.snapshot)
                 self._bus.close()
                 if self._guards_signals:
                     self._guards_signals = False

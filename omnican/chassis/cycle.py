@@ -18,6 +18,7 @@ import queue
 from collections.abc import Callable
 from typing import Any
 
+from omnican.chassis.sink import SnapshotSink
 from omnican.chassis.state import Snapshot
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import Clock
@@ -33,8 +34,6 @@ from omnican.protocol.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.protocol.cia402 import ENABLED_BITS as _ENABLED_BITS
 from omnican.protocol.cia402 import ENABLED_MASK as _ENABLED_MASK
 from omnican.protocol.heartbeat import HeartbeatSchedule
-from omnican.telemetry.feed import Feed
-from omnican.telemetry.settings import TelemetrySettings
 
 STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
 HEALTH_CHECK_HZ = 250.0  # faster loops check the drives' health every few cycles (below)
@@ -105,27 +104,31 @@ class ControlCycle:
         self._warnings_list: list[str] = []
         self._warnings: tuple[str, ...] = ()
         self._bitrate = bus.bitrate
-        # The telemetry: every feed_every-th snapshot, while a front end listens (0: none).
-        self.feed = Feed(TelemetrySettings.from_config(cfg), self.kinematics, clock,
-                         make_database=lambda: _database(cfg))
-        self.feed.on_active = self._telemetry_active
-        self.feed_every = 0
-        self._feed_period = max(1, round(c.rate_hz / self.feed.settings.state_rate_hz))
+        # Every sink_every-th snapshot goes to sink (0: none; see offer_to).
+        self.sink: Callable[[Snapshot], None] = _no_sink
+        self.sink_every = 0
         self.snapshot = self._make_snapshot(clock.now())
 
     def call_soon(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` on the loop thread, at the start of the next cycle."""
         self._requests.put(fn)
 
-    def _telemetry_active(self, active: bool) -> None:
-        """A first front end subscribed (the frames go to the feed too, and samples at
-        the state rate), or the last one left."""
-        if active:
-            self._bus.add_listener(self.feed.frames, sent=True)
-            self.feed_every = self._feed_period
-        else:
-            self.feed_every = 0
-            self._bus.remove_listener(self.feed.frames)
+    def offer_to(self, sink: SnapshotSink | None, every: int = 1) -> None:
+        """Hand every ``every``-th snapshot to ``sink`` from the next cycle on, on the
+        loop thread (None: to none). Any thread: the sink is set before the count, and the
+        count cleared first (a cycle under way may still hand the old sink one more).
+        Raises ValueError while another sink is attached."""
+        if sink is None:
+            self.sink_every = 0
+            return
+        if every < 1:
+            raise ValueError(f"every: a snapshot in 1 or more cycles, not {every}")
+        if self.sink_every and self.sink != sink.offer:
+            raise ValueError("the base offers its snapshots to one sink, and one is attached "
+                             "(the telemetry feed, omnican.telemetry.attach.feed_of, is "
+                             "the one to share)")
+        self.sink = sink.offer  # one bound method: what the cycle calls
+        self.sink_every = every
 
     def cycle_bits(self) -> int:
         """Worst-case bits per control cycle: every node's cyclic PDOs plus the SYNC."""
@@ -197,9 +200,9 @@ class ControlCycle:
                 sup.bus_came_back()
         self.cycles += 1
         self.snapshot = self._make_snapshot(now, limited)
-        every = self.feed_every
+        every = self.sink_every
         if every and not self.cycles % every:
-            self.feed.offer(self.snapshot)  # a queue append (real time)
+            self.sink(self.snapshot)  # the telemetry feed: a queue append (real time)
 
     def _every_stage_enabled(self) -> bool:
         """Every stage OPERATION ENABLED, tested on the statusword's bits."""
@@ -339,8 +342,5 @@ class ControlCycle:
                 self._stale, self._all_enabled)
 
 
-def _database(cfg: ChassisConfig) -> Any:
-    """The base's DBC, for decoded frames (cantools: imported when a front end wants them)."""
-    from omnican.plan.dbc import database_for
-
-    return database_for(cfg)
+def _no_sink(snapshot: Snapshot) -> None:
+    """What the cycle hands snapshots to before a sink is attached (never called)."""

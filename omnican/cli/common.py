@@ -26,6 +26,7 @@ from omnican.errors import ConfigError
 if TYPE_CHECKING:
     from omnican.config import ChassisConfig
     from omnican.core.odometry import Pose2D
+    from omnican.record.recording import FileRecording
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports Ctrl-C
@@ -138,6 +139,16 @@ def add_record_argument(parser: Any, what: str = "record the bus to FILE") -> No
                         help=f"{what}; format by extension: .log (candump), .asc, .blf, .csv, "
                              ".trc; .mcap: frames plus the robot's state as ROS 2 messages "
                              f"({install_hint('mcap')})")
+
+
+def recording(path: str | Path | None) -> FileRecording | None:
+    """``--record FILE`` as a recording of the base (``Chassis.open(..., record=)``: from
+    the bus's first frame on, closed with the base); None without one."""
+    if path is None:
+        return None
+    from omnican.record.recording import FileRecording
+
+    return FileRecording(path)
 
 
 def add_config_argument(parser: argparse.ArgumentParser) -> None:

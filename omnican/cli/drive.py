@@ -41,6 +41,7 @@ from omnican.cli.common import (
     pose_line,
     positive_float,
     progress_bar,
+    recording,
     rounded,
     session,
 )
@@ -262,7 +263,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
                   f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
         if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
-        with Chassis.open(s.cfg, record=args.record, clock=s.clock) as base, \
+        with Chassis.open(s.cfg, record=recording(args.record), clock=s.clock) as base, \
                 watch(base, s.sim, fox, announce=_note):
             try:
                 result = execute(base, plan) if plan else take_commands(base, args.duration)

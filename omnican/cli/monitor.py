@@ -256,7 +256,7 @@ def _run(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
             more = []
             if args.record:  # what the monitor hears, recorded
-                from omnican.record.can_log import recording_frames
+                from omnican.record.recording import recording_frames
 
                 more.append(stack.enter_context(recording_frames(args.record, s.cfg)))
             stack.enter_context(listening(bus_kwargs, monitor, *more))

@@ -35,6 +35,7 @@ from omnican.cli.common import (
     pose_line,
     positive_float,
     progress_bar,
+    recording,
     session,
 )
 from omnican.command import motion
@@ -357,7 +358,7 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
     options = truth_options(cfg, args.sim_scale_error, args.sim_radius_error)
     plan = motion.square(args.square, args.speed, args.omega, args.sides)
     with (session(args, **options) as s,
-          Chassis.open(s.cfg, record=record, clock=s.clock) as base,
+          Chassis.open(s.cfg, record=recording(record), clock=s.clock) as base,
           _sample_truth(s.sim) as truth):
         try:
             c = s.cfg.chassis

@@ -23,6 +23,7 @@ from omnican.cli.common import (
     foxglove_settings,
     load,
     positive_float,
+    recording,
     serve_lines,
     session,
 )
@@ -172,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
         if fox is not None:
             prepare(run_cfg)  # its slow set-up before the control loop runs
         try:
-            with Chassis.open(run_cfg, record=args.record) as base, \
+            with Chassis.open(run_cfg, record=recording(args.record)) as base, \
                     Bridge(base, settings, transport, sim=sess.sim) as bridge, \
                     watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True)):
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)

@@ -44,6 +44,7 @@ from omnican.cli.common import (
     foxglove_settings,
     pose_line,
     positive_float,
+    recording,
     session,
 )
 from omnican.command.teleop import ESC, Intent, TeleopModel, key_help
@@ -467,7 +468,7 @@ def run(args: argparse.Namespace) -> int:
             console.print(text, style="dim")
             events.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
 
-        with Chassis.open(s.cfg, record=args.record) as base, \
+        with Chassis.open(s.cfg, record=recording(args.record)) as base, \
                 watch(base, s.sim, fox, announce=announce) as view, \
                 cbreak(fd, lambda: events.say(SUSPEND_REFUSED)), logs_into(events), \
                 Live(console=console, screen=True, auto_refresh=False, transient=True) as live:

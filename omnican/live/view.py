@@ -32,6 +32,7 @@ from omnican.live.relay import Relay, tls_context
 from omnican.live.settings import DEFAULT_HOST, DEFAULT_PORT, FoxgloveSettings, parse_address
 from omnican.log_throttle import Throttle
 from omnican.telemetry import Feed, Message, cdr
+from omnican.telemetry.attach import feed_of, simulator_feed
 
 logger = logging.getLogger(__name__)
 
@@ -111,7 +112,7 @@ def _quiet_viewers_leaving() -> None:
 
 
 class LiveView:
-    """A running Foxglove server publishing ``feed`` (a base's :attr:`~omnican.Chassis.telemetry`,
+    """A running Foxglove server publishing ``feed`` (a base's, ``feed_of(base)``,
     or a simulator's alone): a :class:`~omnican.telemetry.Sink`. With ``control``, its
     clients may drive the base (:class:`~omnican.live.control.Control`). A context
     manager."""
@@ -272,11 +273,11 @@ def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = 
         settings = FoxgloveSettings(host=host, port=port)
     with contextlib.ExitStack() as stack:
         if base is not None:
-            feed = base.telemetry
+            feed = feed_of(base)
             if sim is not None:
                 feed.truth = sim
         else:
-            feed = stack.enter_context(sim.telemetry())
+            feed = stack.enter_context(simulator_feed(sim))
         if settings is None:
             yield None
             return

@@ -1,7 +1,7 @@
 """Recordings of a bus: the frames, to a python-can log file (:class:`LogRecorder`:
-``.log`` candump text, ``.asc``, ``.blf``, ``.csv``, ...), or frames and the robot's
-state to an MCAP file (the MCAP front end, :mod:`omnican.record.mcap`, a telemetry sink).
-:func:`open_recording` picks by the file's extension.
+``.log`` candump text, ``.asc``, ``.blf``, ``.csv``, ...), and reading them back. (Frames
+and the robot's state go to an MCAP file, :mod:`omnican.record.mcap`, a telemetry sink;
+:mod:`omnican.record.recording` picks by the file's extension.)
 
 A recorder never holds up the bus or the control loop: frames go into a bounded queue
 and a writer thread of its own turns them into lines; a full queue drops and counts.
@@ -11,74 +11,22 @@ from __future__ import annotations
 
 import bisect
 import collections
-import contextlib
-import importlib
 import logging
 import math
 import struct
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import can
 
-from omnican.config import ChassisConfig
 from omnican.errors import ConfigError
 from omnican.protocol.cia301 import COB_ID_MASK
 from omnican.telemetry.messages import CAN_FRAME, CAN_RX, CAN_TX
 
 logger = logging.getLogger("omnican.io.bus")
-
-#: Recording formats that are front ends of their own (extension -> "module:Class"):
-#: made by name, so the bus layer needs nothing of theirs.
-FRONT_END_RECORDERS = {".mcap": "omnican.record.mcap:McapRecorder"}
-
-
-def open_recording(path: str | Path, cfg: ChassisConfig | None = None) -> Any:
-    """The recorder for ``path``'s format: an MCAP recording (frames and the robot's
-    state: a telemetry sink; ``cfg``'s DBC goes along) or a :class:`LogRecorder`
-    (frames, any python-can format). Raises ConfigError for a path it cannot write."""
-    path = Path(path)
-    target = FRONT_END_RECORDERS.get(path.suffix.lower())
-    if target is not None:
-        module, _, name = target.partition(":")
-        return getattr(importlib.import_module(module), name)(path, cfg)
-    return LogRecorder(path)
-
-
-@contextlib.contextmanager
-def recording_frames(path: str | Path, cfg: ChassisConfig) -> Iterator[can.Listener]:
-    """A listener that records the frames it is handed to ``path`` (any format
-    :func:`open_recording` takes), for a front end that listens to a bus of its own
-    (``omnican monitor``); closed, with the file, when the block ends."""
-    recorder = open_recording(path, cfg)
-    if not records_state(recorder):
-        try:
-            yield recorder
-        finally:
-            recorder.close()
-        return
-    from omnican.clock import REAL_TIME
-    from omnican.plan.dbc import database_for
-    from omnican.telemetry import Feed, TelemetrySettings
-
-    feed = Feed(TelemetrySettings.from_config(cfg), cfg.kinematics(), REAL_TIME,
-                make_database=lambda: database_for(cfg), has_base=False)
-    try:
-        feed.add(recorder)
-        yield feed.frames
-    finally:
-        feed.close()
-        recorder.close()
-
-
-def records_state(recorder: Any) -> bool:
-    """Whether ``recorder`` records the robot's state too (a telemetry sink), not only
-    the frames."""
-    return hasattr(recorder, "publish")
-
 
 class LogRecorder(can.Listener):
     """Writes frames to a python-can log file on a thread of its own; survives Notifier

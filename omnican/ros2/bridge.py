@@ -33,6 +33,7 @@ from omnican.ros2.cmd_vel import CmdVel
 from omnican.ros2.settings import Ros2Settings, resolve_name
 from omnican.ros2.transport import M, TopicQos, Transport
 from omnican.telemetry import Message
+from omnican.telemetry.attach import feed_of
 
 if TYPE_CHECKING:
     from omnican.chassis import Chassis
@@ -103,7 +104,7 @@ def to_idl(msg_type: type[M], data: dict[str, Any]) -> M:
 class Bridge:
     """Publishes the base's telemetry over a :class:`Transport` and takes its commands.
 
-    A :class:`~omnican.telemetry.Sink` of ``base.telemetry``: the messages are the ones
+    A :class:`~omnican.telemetry.Sink` of ``feed_of(base)``: the messages are the ones
     the live view and an MCAP recording carry, published here at the configured rates
     (every n-th sample). Use as a context manager (or :meth:`start` and :meth:`close`);
     it does not own the chassis or the transport."""
@@ -115,7 +116,7 @@ class Bridge:
         self.base = base
         self.settings = settings
         self.sim = sim
-        feed = base.telemetry
+        self._feed = feed = feed_of(base)
         if sim is not None:
             feed.truth = sim  # the simulator's ground truth goes along (~/sim/true_pose)
         self.joint_names = feed.settings.joint_names
@@ -276,7 +277,7 @@ class Bridge:
         :meth:`poll`) take commands on a thread of its own."""
         if not self._started:
             self._started = True
-            self.base.telemetry.add(self)
+            self._feed.add(self)
             if self._poll_on_thread:
                 self._stop_polling.clear()
                 self._poll_thread = threading.Thread(target=self._poll_loop,
@@ -302,7 +303,7 @@ class Bridge:
         """Stop publishing; wait for a recover under way. Idempotent."""
         if self._started:
             self._started = False
-            self.base.telemetry.remove(self)
+            self._feed.remove(self)
         self._stop_polling.set()
         poller = self._poll_thread
         if poller is not None:

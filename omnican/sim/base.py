@@ -7,13 +7,12 @@ through the base's true kinematics.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import can
 import canopen
@@ -31,9 +30,6 @@ from omnican.protocol.object_map import Obj
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.health import QUANTITIES, EstopInput
 from omnican.sim.scheduler import SimScheduler
-
-if TYPE_CHECKING:
-    from omnican.telemetry import Feed
 
 logger = logging.getLogger(__name__)
 
@@ -250,49 +246,6 @@ class SimulatedBase:
     def wheel_drive(self, wheel: int) -> tuple[SimulatedDrive, int]:
         """(drive, axis) that simulates wheel number ``wheel`` of the config."""
         return self.wheel_axes[wheel]
-
-    @contextlib.contextmanager
-    def telemetry(self) -> Iterator[Feed]:
-        """The simulator's own telemetry, for a front end without a base (``omnican sim
-        --foxglove``): its ground truth at the state rate of its clock, and the frames
-        its drives hear."""
-        from omnican.plan.dbc import database_for
-        from omnican.telemetry import Feed, TelemetrySettings
-
-        cfg = self.cfg
-        feed = Feed(TelemetrySettings.from_config(cfg), self.true_kinematics, self.clock,
-                    make_database=lambda: database_for(cfg), has_base=False)
-        feed.truth = self
-        every = max(1, round(1.0 / (self.scheduler.period_s * feed.settings.state_rate_hz)))
-        ticks = [0]
-
-        def tick(now: float) -> None:
-            ticks[0] += 1
-            if feed.active and not ticks[0] % every:
-                feed.offer(None)
-
-        self.scheduler.add(tick)
-        notifier = self.network.notifier
-
-        def frames_while_watched(active: bool) -> None:
-            # Frames queue only while a front end takes them: with none attached they
-            # filled the queue and, on quit, read as one that fell behind.
-            if notifier is None:
-                return
-            if active:
-                notifier.add_listener(feed.frames)
-            else:
-                with contextlib.suppress(ValueError):
-                    notifier.remove_listener(feed.frames)
-                feed.frames.queue.clear()
-
-        feed.on_active = frames_while_watched
-        try:
-            yield feed
-        finally:
-            self.scheduler.remove(tick)
-            frames_while_watched(False)
-            feed.close()
 
     # ------------------------------------------------------------ lifecycle
 

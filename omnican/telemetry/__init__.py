@@ -5,6 +5,7 @@
 :mod:`~omnican.telemetry.model` keeps what spans samples (:class:`Telemetry`);
 :mod:`~omnican.telemetry.frames` makes CAN frames into messages, raw and decoded;
 :mod:`~omnican.telemetry.feed` is the one feed front ends subscribe to (:class:`Feed`);
+:mod:`~omnican.telemetry.attach` attaches it to a base (``feed_of(base)``) or a simulator;
 :mod:`~omnican.telemetry.settings` reads from the config what they all say alike.
 """
 

@@ -1,7 +1,8 @@
 """The one feed of a base's telemetry: the control loop offers a snapshot at the state
-rate (in the base's clock) and the frames go into a tap; every front end that subscribes
-(the ROS 2 bridge, the live view, an MCAP recording) gets the same messages of each
-sample, built once by :class:`~omnican.telemetry.model.Telemetry`.
+rate (in the base's clock: the feed is the base's snapshot sink, attached from above by
+:func:`omnican.telemetry.attach.feed_of`) and the frames go into a tap; every front end
+that subscribes (the ROS 2 bridge, the live view, an MCAP recording) gets the same
+messages of each sample, built once by :class:`~omnican.telemetry.model.Telemetry`.
 
 In real time the messages are built and handed to the front ends on one thread of the
 feed's own (``omnican-telemetry``): offering a sample costs the loop a queue append. A

@@ -19,6 +19,7 @@ from omnican.clock import REAL_TIME, SimClock
 from omnican.errors import DriveError
 from omnican.io.lockstep import LockstepBus
 from omnican.protocol.cia402 import State
+from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
 from tests.support.helpers import drive_for, sim_config, still, vendor_config, wait_for
 
@@ -280,7 +281,7 @@ def test_recording(channel: str, tmp_path: Path, realtime: bool) -> None:
     log = tmp_path / "run.log"
     clock = REAL_TIME if realtime else SimClock()
     with SimulatedBase.from_config(cfg, clock=clock), \
-            Chassis.open(cfg, record=log, clock=clock) as base:
+            Chassis.open(cfg, record=FileRecording(log), clock=clock) as base:
         drive_for(base, 0.2, vx=0.2)
     frames = list(can.LogReader(str(log)))
     ids = {m.arbitration_id for m in frames}
@@ -293,7 +294,7 @@ def test_blf_recording_of_a_channel_named_with_big_digits(channel: str, tmp_path
     in 123456789 must neither break the recording nor stop reception."""
     cfg = sim_config(f"{channel}-123456789")
     log = tmp_path / "run.blf"
-    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=log) as base:
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=FileRecording(log)) as base:
         drive_for(base, 0.3, vx=0.2)
         assert base.status.enabled and sim.true_twist.vx > 0.1
     frames = list(can.LogReader(str(log)))
@@ -384,7 +385,7 @@ def test_lockstep_runs_are_identical(channel: str, tmp_path: Path) -> None:
         clock = SimClock()
         with SimulatedBase.from_config(cfg, clock=clock, frame_loss=0.02, encoder_noise=2.0,
                                        seed=7) as sim, \
-                Chassis.open(cfg, clock=clock, record=log) as base:
+                Chassis.open(cfg, clock=clock, record=FileRecording(log)) as base:
             drive_for(base, 1.0, vx=0.3, wz=0.5)
             sim.drives[1].inject_fault(0x2310)
             clock.sleep(0.3)

@@ -19,6 +19,7 @@ from omnican import Chassis
 from omnican.clock import SimClock
 from omnican.io.bus import CanBus
 from omnican.protocol.cia402 import State
+from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
 from tests.support.flaky_bus import FlakyBus, register
 from tests.support.helpers import drive_for, sim_config, still, wait_for
@@ -253,7 +254,7 @@ def test_a_stalled_disk_never_stalls_the_control_loop(channel: str, tmp_path: Pa
     the loop keeps its cycles and nothing recorded is lost."""
     cfg = sim_config(channel)
     log = tmp_path / "run.log"
-    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=log) as base:
+    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=FileRecording(log)) as base:
         recorder = base.bus.recorder
         assert recorder is not None
         writer = recorder._writer

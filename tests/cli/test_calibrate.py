@@ -20,6 +20,7 @@ from omnican.cli import main
 from omnican.command import motion
 from omnican.command.motion import Leg
 from omnican.core.kinematics import Twist
+from omnican.record.recording import FileRecording
 from omnican.sim import SimClock, SimulatedBase
 from tests.support.helpers import one_error_line
 
@@ -348,7 +349,7 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> Recordings:
         path = d / f"{name}.log"
         clock = SimClock()  # recorded in simulated time: the same frames, sooner
         with SimulatedBase.from_config(cfg, clock=clock, **truth) as sim, \
-                Chassis.open(cfg, record=path, clock=clock) as base:
+                Chassis.open(cfg, record=FileRecording(path), clock=clock) as base:
             motion.run(base, [Leg(line, 0.4, "line", distance=0.2),
                            Leg(Twist(0, 0, 3.0), 0.5, "spin", angle=math.pi / 2)])
             end = sim.true_pose

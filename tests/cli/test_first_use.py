@@ -22,6 +22,7 @@ import pytest
 
 from omnican.cli import main
 from omnican.sim import SimulatedBase
+from omnican.telemetry.attach import simulator_feed
 from tests.support.helpers import one_error_line
 from tests.support.terminal import Pty
 
@@ -914,7 +915,7 @@ def test_sim_telemetry_queues_frames_only_while_a_front_end_watches(channel: str
 
     cfg = sim_config(channel)
     probe = Probe()
-    with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
+    with SimulatedBase.from_config(cfg) as sim, simulator_feed(sim) as feed, \
             can.Bus(interface="virtual", channel=channel) as other:
         assert sim.network.notifier is not None
         sim.network.notifier.add_listener(probe)

@@ -40,6 +40,7 @@ from omnican.live.requests import decode_twist, parameter_value
 from omnican.live.settings import FoxgloveSettings, check_token, resolve
 from omnican.live.view import describe_control
 from omnican.telemetry import cdr
+from omnican.telemetry.attach import simulator_feed
 from tests.support.helpers import one_error_line
 
 # ---------------------------------------------------------------- reading a Twist
@@ -544,7 +545,7 @@ def view(channel: str) -> Any:
     from omnican.sim import SimulatedBase
 
     cfg = default_config(bus={"interface": "virtual", "channel": channel})
-    with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
+    with SimulatedBase.from_config(cfg) as sim, simulator_feed(sim) as feed, \
             LiveView(feed, host="127.0.0.1", port=0) as v:
         yield v
 
@@ -608,7 +609,7 @@ def guarded(channel: str) -> Any:
     base = StandInBase(timeout_s=60.0)
     settings = FoxgloveSettings(port=0, control=True, token="s3cret")
     c = Control(base, settings)
-    with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
+    with SimulatedBase.from_config(cfg) as sim, simulator_feed(sim) as feed, \
             LiveView(feed, control=c, settings=settings) as v:
         yield v, base
 
@@ -794,7 +795,7 @@ def test_tls_serves_wss_and_refuses_plain_ws(channel: str, tmp_path: Path) -> No
     cert, key = make_certificate(tmp_path)
     cfg = default_config(bus={"interface": "virtual", "channel": channel})
     settings = FoxgloveSettings(port=0, tls_cert=cert, tls_key=key)
-    with SimulatedBase.from_config(cfg) as sim, sim.telemetry() as feed, \
+    with SimulatedBase.from_config(cfg) as sim, simulator_feed(sim) as feed, \
             LiveView(feed, settings=settings) as v:
         assert v.url.startswith("wss://127.0.0.1:")
         trust = ssl.create_default_context(cafile=str(cert))

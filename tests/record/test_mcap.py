@@ -19,6 +19,7 @@ from omnican.cli import main
 from omnican.record import replay
 from omnican.record.can_log import mcap_frames as read_frames
 from omnican.record.mcap import McapRecorder
+from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
 from tests.support.helpers import drive_for, one_error_line
 
@@ -118,7 +119,7 @@ def test_mcap_replays_like_a_log(tmp_path: Path, capsys: pytest.CaptureFixture[s
     """plot/calibrate read .mcap through replay: the same decode as from a .log."""
     mcap_path, log_path = tmp_path / "a.mcap", tmp_path / "a.log"
     cfg = default_config(bus={"interface": "virtual", "channel": f"mcap-{tmp_path.name}"})
-    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=mcap_path) as base:
+    with SimulatedBase.from_config(cfg), Chassis.open(cfg, record=FileRecording(mcap_path)) as base:
         drive_for(base, 0.8, vx=0.3, wz=0.5)
         base.stop()
         drive_for(base, 0.4)
@@ -209,7 +210,7 @@ def test_diagnostics_once_a_second_and_at_once_on_a_fault(tmp_path: Path) -> Non
     them), at once when a level changes, and in the final sample."""
     path = tmp_path / "diag.mcap"
     cfg = default_config(bus={"interface": "virtual", "channel": f"mcap-{tmp_path.name}"})
-    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=path) as base:
+    with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg, record=FileRecording(path)) as base:
         drive_for(base, 2.3, vx=0.2)
         sim.drives[0].inject_fault(0x2310)
         drive_for(base, 0.3, vx=0.2)

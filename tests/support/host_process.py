@@ -8,11 +8,12 @@ import sys
 import time
 
 from omnican import Chassis, load_config
+from omnican.record.recording import FileRecording
 
 
 def main() -> int:
     cfg = load_config(sys.argv[1])
-    record = sys.argv[2] if len(sys.argv) > 2 else None
+    record = FileRecording(sys.argv[2]) if len(sys.argv) > 2 else None
     try:
         with Chassis.open(cfg, record=record) as base:
             print("ready", flush=True)

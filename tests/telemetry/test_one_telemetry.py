@@ -14,6 +14,7 @@ import pytest
 
 from omnican import Chassis
 from omnican.clock import SimClock
+from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
 from tests.ros2.test_bridge import MemoryTransport
 from tests.support.foxglove_client import FoxgloveClient
@@ -67,7 +68,7 @@ def test_bridge_live_view_and_recording_say_the_same(channel: str, tmp_path: Pat
     transport = MemoryTransport()
     live: list[tuple[str, int, bytes]] = []
     with SimulatedBase.from_config(cfg, clock=clock) as sim, \
-            Chassis.open(cfg, clock=clock, record=record) as base, \
+            Chassis.open(cfg, clock=clock, record=FileRecording(record)) as base, \
             watch(base, sim, "127.0.0.1:0") as view, \
             Bridge(base, Ros2Settings(), transport, sim=sim):
         assert view is not None

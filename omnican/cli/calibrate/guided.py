@@ -21,7 +21,15 @@ from omnican.cli.calibrate.output import (
     wheel_changes,
     write_config,
 )
-from omnican.cli.common import EXIT_FAILURE, EXIT_OK, UsageError, load, progress_bar, session
+from omnican.cli.common import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    UsageError,
+    load,
+    progress_bar,
+    recording,
+    session,
+)
 from omnican.command import motion
 from omnican.config import ChassisConfig, SimTruth
 from omnican.core.odometry import Pose2D
@@ -108,7 +116,7 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
         if not sys.stdin.readline():
             raise UsageError("no answer (end of input)")
     with session(args, **options) as s, \
-            Chassis.open(s.cfg, record=args.record, clock=s.clock) as base:
+            Chassis.open(s.cfg, record=recording(args.record), clock=s.clock) as base:
         sim = s.sim
         truth: list[Pose2D] = [sim.true_pose] if sim is not None else []
         poses = [base.pose]
