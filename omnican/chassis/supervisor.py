@@ -7,7 +7,8 @@ Read top to bottom: :meth:`NodeSupervisor.configure_all` (startup), :meth:`check
 health check, on the loop thread), :meth:`bus_went_down` / :meth:`bus_came_back`,
 :meth:`begin_recover` / :meth:`end_recover`, :meth:`disable_all` and :meth:`stop_nodes`
 (shutdown). Everything but startup and the re-configuration workers runs on the loop
-thread; the workers hand their results back through ``call_soon``.
+thread; the workers hand their results back through ``call_soon``. Configuring the nodes
+(at startup, and again on worker threads) is :mod:`omnican.chassis.configurator`.
 
 A latched stop (:attr:`latched`, its reason) holds every target at zero until
 :meth:`begin_recover` clears it.
@@ -18,14 +19,17 @@ from __future__ import annotations
 import collections
 import logging
 import math
-import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 
+from omnican.chassis.configurator import (
+    RECONFIGURE_ATTEMPTS,
+    STARTUP_ATTEMPTS,
+    Configurator,
+    combine_node_errors,
+)
 from omnican.chassis.health import HealthMonitor
 from omnican.clock import Clock
 from omnican.drive import DriveNode
-from omnican.errors import DriveError, OmnicanError
 from omnican.io.bus import CanBus
 from omnican.log_throttle import Throttle
 from omnican.protocol import cia402
@@ -41,11 +45,12 @@ from omnican.protocol.cia402 import ENABLED_MASK as _ENABLED_MASK
 from omnican.protocol.cia402 import Command, State, describe_emcy
 from omnican.protocol.sdo_cycle import SDO_REQUEST_BASE, download_request
 
+__all__ = ["NMT_RESTART_S", "RECONFIGURE_ATTEMPTS", "STARTUP_ATTEMPTS", "NodeSupervisor",
+           "combine_node_errors", "logger"]
+
 logger = logging.getLogger("omnican.chassis")
 
 NMT_RESTART_S = 0.5  # a started node not yet heard OPERATIONAL is started again this often
-RECONFIGURE_ATTEMPTS = 2  # a node configured again (reboot, bus back) that fails once
-STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being configured
 # Enum members as plain names: each State.X costs a descriptor call on Python 3.11.
 _ENABLED, _FAULT, _FAULT_REACTION, _UNKNOWN = (State.OPERATION_ENABLED, State.FAULT,
                                                State.FAULT_REACTION_ACTIVE, State.UNKNOWN)
@@ -69,8 +74,6 @@ class NodeSupervisor:
         self.monitor = monitor
         self._bus = bus
         self.clock = clock
-        self._lockstep = clock.lockstep
-        self._call_soon = call_soon
         self.stages = [s for n in nodes for s in n.stages]
         self.latched: str | None = None  # why the base is held stopped
         self.recovering = False  # recover() under way: a silent node may come back
@@ -78,11 +81,11 @@ class NodeSupervisor:
         self.offline: set[int] = set()  # nodes whose heartbeat was lost
         self.closed = False  # the base is closing: nothing is started again
         self.warnings: list[str] = []  # for the user, from the configuration
-        self._config_failed: set[int] = set()  # nodes whose re-configuration failed
         self._nmt_started: dict[int, float] = {}  # when NMT start was last sent, by node
         self._sdo_stop_sent: dict[int, float] = {}  # a quick stop by SDO, by node
         self._sdo_aborts: dict[int, int] = {}  # per-cycle SDO aborts seen, by node
-        self._workers: list[threading.Thread] = []
+        #: configures the nodes: at startup, and again on worker threads
+        self._configurator = Configurator(self, nodes, clock.lockstep, call_soon)
         # NMT commands heard on the bus (receive thread appends, loop pops): never ours,
         # since a bus does not hand a sender its own frames. Another master's.
         self._foreign_nmt: collections.deque[tuple[int, int]] = collections.deque(maxlen=64)
@@ -95,24 +98,7 @@ class NodeSupervisor:
         """Configure every node (in parallel in real time, in order in lock-step) and
         let their stages walk to OPERATION ENABLED, resetting faults on the way. A node
         that reboots while being configured is configured again."""
-        warnings: list[str] = []
-        pending = list(self.nodes)
-        for _attempt in range(STARTUP_ATTEMPTS):
-            self._configure(pending, warnings)
-            # A drive that booted again while it was being configured lost part of it.
-            pending = [n for n in self.nodes if n.rebooted]
-            if not pending:
-                break
-            logger.info("nodes %s rebooted during their configuration; configuring again",
-                        [n.node_id for n in pending])
-        else:
-            raise DriveError(f"nodes {[n.node_id for n in pending]} keep rebooting while "
-                             "being configured (power supply? a watchdog of their own?)")
-        for node in self.nodes:
-            _seed_statuswords(node)
-        for w in warnings:
-            logger.warning("%s", w)
-        self.warnings = warnings
+        self.warnings = self._configurator.configure_all()
         for stage in self.stages:
             stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
 
@@ -120,30 +106,6 @@ class NodeSupervisor:
         """Every drive is enabled: from now on a fault latches instead of being reset."""
         for stage in self.stages:
             stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=False)
-
-    def _configure(self, nodes: list[DriveNode], warnings: list[str]) -> None:
-        errors: list[str] = []
-
-        def note(node: DriveNode, exc: Exception) -> None:
-            errors.append(str(exc) if isinstance(exc, OmnicanError) else
-                          f"node {node.node_id}: {exc}")
-
-        if self._lockstep:  # one thread, in order: deterministic
-            for node in nodes:
-                try:
-                    node.configure(warnings)
-                except Exception as exc:
-                    note(node, exc)
-        else:
-            with ThreadPoolExecutor(len(nodes), thread_name_prefix="omnican-cfg") as ex:
-                futures = {ex.submit(n.configure, warnings): n for n in nodes}
-                for fut, node in futures.items():
-                    try:
-                        fut.result()
-                    except Exception as exc:
-                        note(node, exc)
-        if errors:
-            raise DriveError(combine_node_errors(errors, len(self.nodes)))
 
     def not_enabled_why(self) -> str:
         """Why the drives are not (all) enabled, for an error message."""
@@ -285,53 +247,7 @@ class NodeSupervisor:
     def reconfigure(self, node: DriveNode, why: str) -> None:
         """Configure ``node`` again on a worker thread (the loop goes on meanwhile, and
         leaves that node's state machine alone until it is done)."""
-        self.configuring.add(node.node_id)
-        for stage in node.stages:
-            stage.forget()
-            stage.set_goal(State.SWITCH_ON_DISABLED)
-        for ax in node.axes:
-            ax.reseed()
-        call_soon = self._call_soon
-
-        def work() -> None:
-            try:
-                for attempt in range(RECONFIGURE_ATTEMPTS):
-                    try:
-                        node.configure()
-                        break
-                    except DriveError as exc:  # a drive still booting, an SDO lost
-                        if attempt + 1 == RECONFIGURE_ATTEMPTS or self.closed:
-                            raise
-                        logger.info("re-configuring node %d: %s; trying again", node.node_id,
-                                    exc)
-                _seed_statuswords(node)
-                logger.info("node %d re-configured after %s", node.node_id, why)
-                call_soon(lambda: self._configured(node))
-            except Exception as exc:
-                logger.error("re-configuring node %d failed: %s", node.node_id, exc)
-                call_soon(lambda: self._config_failed.add(node.node_id))
-                # Not again until the drive boots once more (it announces that itself).
-                node.configured_boot = node.boot_count
-                reason = f"re-configuring node {node.node_id} failed: {exc}"
-                call_soon(lambda: self.latch(reason))
-            finally:
-                call_soon(lambda: self.configuring.discard(node.node_id))
-
-        if self._lockstep:  # the simulated drives answer at once: no thread, no waiting
-            work()
-            return
-        t = threading.Thread(target=work, name=f"omnican-reconfigure-{node.node_id}", daemon=True)
-        self._workers = [w for w in self._workers if w.is_alive()]
-        self._workers.append(t)
-        t.start()
-
-    def _configured(self, node: DriveNode) -> None:
-        """A re-configuration ended well (loop thread): a recover() waiting for it wants
-        the node enabled."""
-        self._config_failed.discard(node.node_id)
-        if self.recovering:
-            for stage in node.stages:
-                stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
+        self._configurator.reconfigure(node, why)
 
     def bus_went_down(self, failing: str) -> None:
         """The cause of the lost heartbeats & co. that follow: it replaces their latch."""
@@ -356,7 +272,7 @@ class NodeSupervisor:
         started, faults are reset on the way to OPERATION ENABLED."""
         self.recovering = True  # a silent node may come back meanwhile
         for node in self.nodes:  # a failed configuration gets another go
-            if node.node_id in self._config_failed and node.node_id not in self.configuring:
+            if node.node_id in self._configurator.failed and node.node_id not in self.configuring:
                 self.reconfigure(node, "recover()")
         for node in self.nodes:
             if node.node_id in self.offline and not node.heartbeat_lost(now):
@@ -389,8 +305,7 @@ class NodeSupervisor:
         return all(s.state in _OFF for s in self.stages)
 
     def join_workers(self, timeout_s: float) -> None:
-        for t in self._workers:
-            t.join(timeout=timeout_s)
+        self._configurator.join_workers(timeout_s)
 
     def stop_nodes(self, bus_works: bool) -> None:
         """Each reachable node: disabled by SDO where the loop could not, consumer off,
@@ -408,38 +323,3 @@ class NodeSupervisor:
         self._bus.network.unsubscribe(NMT_COB_ID, self._on_nmt)
         for node in self.nodes:
             node.detach()
-
-
-def _seed_statuswords(node: DriveNode) -> None:
-    """Read each statusword once by SDO: a drive need not send its event TPDO at start."""
-    for stage in node.stages:
-        sw = stage.statusword
-        try:
-            raw = node.remote.sdo.upload(sw.index, sw.subindex)
-        except Exception as exc:  # the TPDO will tell; this is only a head start
-            logger.debug("node %d: statusword read failed: %s", node.node_id, exc)
-            continue
-        if stage.statusword_value is None:
-            stage.statusword_value = sw.decode(raw) & 0xFFFF
-
-
-def combine_node_errors(errors: list[str], nodes: int) -> str:
-    """``node 1: X; node 2: X`` as ``nodes 1, 2: X``: one reason said once; when no node
-    at all sent its boot-up, say there is no drive on the bus."""
-    groups: dict[str, list[str]] = {}
-    for error in errors:
-        head, sep, reason = error.partition(": ")
-        if sep and head.startswith("node ") and head[5:].isdigit():
-            groups.setdefault(reason, []).append(head[5:])
-        else:
-            groups.setdefault(error, [])
-    parts = []
-    for reason, ids in groups.items():
-        if len(ids) > 1:
-            parts.append(f"nodes {', '.join(ids)}: {reason}")
-        else:
-            parts.append(f"node {ids[0]}: {reason}" if ids else reason)
-    text = "; ".join(parts)
-    if len(groups) == 1 and len(errors) == nodes and "no boot-up" in text:
-        text = f"no drive answered on the bus: {text}"
-    return text
