@@ -95,6 +95,8 @@ class Odometry:
     After that, each call integrates the travel since the previous call.
     """
 
+    __slots__ = ("_cols", "_d", "_dt", "_kin", "_last", "_n", "_pose", "_th", "_x", "_y")
+
     def __init__(self, kinematics: OmniKinematics, pose: Pose2D | None = None) -> None:
         self._kin = kinematics
         self._n = kinematics.num_wheels
