@@ -23,6 +23,7 @@ from omnican.clock import Clock
 from omnican.config import ChassisConfig
 from omnican.core.kinematics import Twist
 from omnican.core.limits import VelocityLimiter
+from omnican.core.odometry import Odometry
 from omnican.core.wheel_odometry import EncoderCounters, WheelOdometry
 from omnican.drive import AxisIO, DriveNode
 from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
@@ -50,6 +51,7 @@ class ControlCycle:
         self.nodes = nodes
         self._sup = supervisor
         self.kinematics = cfg.kinematics()
+        self.odometry = Odometry(self.kinematics)
         self.limiter = VelocityLimiter(cfg.limits(), self.kinematics)
         self.period_s = period = 1.0 / c.rate_hz
         # Above HEALTH_CHECK_HZ the latches (fault, heartbeat, reboot, SDO aborts) are
@@ -67,13 +69,13 @@ class ControlCycle:
         self.axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
                                          key=lambda a: a.wheel_index)
         self._axis_nodes = [(a, node_of[id(a)]) for a in self.axes]
-        # The encoders: counter fold, speed window, measured twist and pose in one owner.
-        self.odometry = WheelOdometry(self.kinematics, EncoderCounters(
+        # The encoders: counter fold, speed window and measured twist; they drive the pose.
+        self.wheel_odometry = WheelOdometry(self.odometry, EncoderCounters(
             self.axes, [a.position.bits for a in self.axes],
             [a.wheel.position_scale for a in self.axes]))
         # Per wheel: its counter (the counts), stage and node.
         self._axis_parts = tuple((c, a.stage, node_of[id(a)]) for a, c in
-                                 zip(self.axes, self.odometry.counters.wheels, strict=True))
+                                 zip(self.axes, self.wheel_odometry.counters.wheels, strict=True))
         self._all_ok_flags = ((True, False),) * len(self.axes)
         # Per wheel, what never changes: index, node id, axis, position scale.
         self._wheel_info = tuple((a.wheel_index, n.node_id, a.wheel.axis, a.wheel.position_scale)
@@ -206,7 +208,7 @@ class ControlCycle:
 
     def _integrate_samples(self) -> None:
         epoch = self._bus.sync_epoch
-        if not self.odometry.integrate(epoch, self._last_sync_time):
+        if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
             # Not every wheel has answered the last SYNC: wait for a complete set. A
             # wheel silent for STALE_AFTER_S has no known speed: report none rather
             # than the last one (a drive gone offline must not look as if it still
@@ -223,12 +225,12 @@ class ControlCycle:
         self._stale = stale
         if stale:
             # The other wheels keep their last speeds, a stale one reads 0 (the snapshot).
-            self.odometry.forget_speeds(stale)
+            self.wheel_odometry.forget_speeds(stale)
 
     @property
     def speeds_settled(self) -> bool:
         """The limiter's output is zero and every wheel below 5 mm/s."""
-        return self.limiter.output.is_zero() and self.odometry.settled(0.005)
+        return self.limiter.output.is_zero() and self.wheel_odometry.settled(0.005)
 
     # ------------------------------------------------------------ the snapshot
 
@@ -256,8 +258,8 @@ class ControlCycle:
         else:
             wheel_flags = self._all_ok_flags
         # What the wheels were this cycle, as plain values; WheelState is made on read.
-        odometry = self.odometry
-        wheels = (self._targets, odometry.window, wheel_flags,
+        encoders = self.wheel_odometry
+        wheels = (self._targets, encoders.window, wheel_flags,
                   tuple([(ax.counts, stage.statusword_value, stage.mode_value,
                           stage.error_value, stage.error, node.fault_text)
                          for ax, stage, node in self._axis_parts]))
@@ -282,13 +284,13 @@ class ControlCycle:
             not bus_down,
         )
         unknown = offline or configuring or bus_down
-        return Snapshot(odometry.xyt, (0.0, 0.0, 0.0) if unknown else odometry.measured,
+        return Snapshot(self.odometry.xyt, (0.0, 0.0, 0.0) if unknown else encoders.measured,
                         command, wheels, status, self._wheel_info, sup.monitor.values)
 
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
         every drive enabled) as of the last cycle: what the health checks compare."""
-        return self._targets, self.odometry.speeds(), self._stale, self._all_enabled
+        return self._targets, self.wheel_odometry.speeds(), self._stale, self._all_enabled
 
 
 def _database(cfg: ChassisConfig) -> Any:

@@ -4,8 +4,8 @@ window and the measured twist.
 :class:`EncoderCounters` folds each wheel's raw counter samples into continuous counts
 (a wrap of the counter is not a jump; a restart after a reboot continues the travel);
 :class:`WheelOdometry` integrates the travel of each complete set of samples into the
-pose (:class:`~omnican.core.odometry.Odometry`) and keeps the window that measured
-wheel speeds and the body twist average over. The control loop
+pose (an :class:`~omnican.core.odometry.Odometry` it feeds) and keeps the window that
+measured wheel speeds and the body twist average over. The control loop
 (:class:`omnican.chassis.cycle.ControlCycle`) and the recording decoder
 (:func:`omnican.record.replay.decode`) both read counters through these classes, so a
 replayed recording reads them as the live loop did.
@@ -24,8 +24,7 @@ import collections
 from collections.abc import Collection, Sequence
 from typing import Protocol
 
-from omnican.core.kinematics import OmniKinematics
-from omnican.core.odometry import Odometry, Pose2D
+from omnican.core.odometry import Odometry
 
 #: Measured wheel speeds and body twist average over this window (s).
 SPEED_WINDOW_S = 0.1
@@ -131,24 +130,27 @@ def fold_counter(counts: float, last_raw: int | None, raw: int, bits: int) -> fl
 _ZERO = (0.0, 0.0, 0.0)
 
 
-class WheelOdometry(Odometry):
-    """Odometry read from encoder counters: the pose (:class:`Odometry`), plus the
-    speed window and the twist measured over it.
+class WheelOdometry:
+    """Odometry read from encoder counters: the counters (``counters``), the pose they
+    drive (``odometry``, an :class:`Odometry` whose :meth:`~Odometry.step` it calls: the
+    one pose, which may be reset or read as usual), the speed window and the twist
+    measured over it.
 
-    :meth:`integrate` folds the counters (``counters``) and integrates every complete
-    set of samples. The measured speeds are the travel since the latest set at least
-    ``window_s`` older (or the oldest kept) over the time between: SYNC timing jitter
-    averages out. :attr:`window` and :attr:`measured` are replaced whole, never changed
-    in place (a snapshot may keep them)."""
+    :meth:`integrate` folds the counters and integrates every complete set of samples.
+    The measured speeds are the travel since the latest set at least ``window_s`` older
+    (or the oldest kept) over the time between: SYNC timing jitter averages out.
+    :attr:`window` and :attr:`measured` are replaced whole, never changed in place (a
+    snapshot may keep them)."""
 
-    __slots__ = ("_body_sum", "_history", "_window_s", "counters", "measured", "window")
+    __slots__ = ("_body_sum", "_history", "_window_s", "counters", "measured", "odometry",
+                 "window")
 
-    def __init__(self, kinematics: OmniKinematics, counters: EncoderCounters,
-                 window_s: float = SPEED_WINDOW_S, pose: Pose2D | None = None) -> None:
-        super().__init__(kinematics, pose)
-        n = kinematics.num_wheels
+    def __init__(self, odometry: Odometry, counters: EncoderCounters,
+                 window_s: float = SPEED_WINDOW_S) -> None:
+        n = odometry.num_wheels
         if len(counters.wheels) != n:
             raise ValueError(f"expected {n} wheel counters, got {len(counters.wheels)}")
+        self.odometry = odometry
         self.counters = counters
         self._window_s = window_s
         #: (travel now, travel at the window's start, its span in s): rim speeds are
@@ -167,17 +169,16 @@ class WheelOdometry(Odometry):
         travel = self.counters.fold(epoch)
         if travel is None:
             return False
-        seeded = self._last is not None
-        self.step(travel)
+        moved = self.odometry.step(travel)
         history = self._history
-        if not seeded:
+        if moved is None:  # seeded (the first set, or the first after a reseed)
             self._body_sum = _ZERO
             history.clear()
             history.append((t, travel, _ZERO))
             return True
         # The body displacement over the window is the sum of the steps over it (the
         # forward kinematics is linear): one running sum, no second product.
-        dx, dy, dw = self._d
+        dx, dy, dw = moved
         sx, sy, sw = self._body_sum
         body = self._body_sum = (sx + dx, sy + dy, sw + dw)
         history.append((t, travel, body))

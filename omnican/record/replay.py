@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from omnican.config import ChassisConfig
+from omnican.core.odometry import Odometry
 from omnican.core.wheel_odometry import SPEED_WINDOW_S, EncoderCounters, Sample, WheelOdometry
 from omnican.errors import RecordingError
 from omnican.plan.codec import PdoCodec
@@ -307,7 +308,7 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
     reset: set[int] = set()  # nodes the host reset (NMT): their next boot-up is no reboot
     # Each wheel's newest position sample, tagged with its SYNC (syncs), as the loop's.
     samples = [Sample() for _ in range(n)]
-    odo = WheelOdometry(kin, EncoderCounters(samples, bits, pscale))
+    odo = WheelOdometry(Odometry(kin), EncoderCounters(samples, bits, pscale))
     poses_rows: list[tuple[float, float, float]] = []
     speed_rows: list[list[float]] = []
     current_sync: float | None = None
@@ -323,7 +324,7 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         if current_sync is not None and odo.integrate(syncs, current_sync):
             sync_t.append(current_sync)
             counts_rows.append(odo.counters.counts())
-            poses_rows.append(odo.xyt)
+            poses_rows.append(odo.odometry.xyt)
             speed_rows.append(odo.speeds())
         for w in reseed:
             samples[w].restarts += 1

@@ -26,8 +26,8 @@ COUNTS_PER_M = [-4772.44 * 10, 5000.0, 123456.0]  # signed, as position_scale
 def wheel_odometry(bits: list[int], counts_per_m: list[float] | None = None,
                    window_s: float = SPEED_WINDOW_S) -> tuple[WheelOdometry, list[Sample]]:
     samples = [Sample() for _ in bits]
-    return WheelOdometry(KIN, EncoderCounters(samples, bits, counts_per_m or COUNTS_PER_M),
-                         window_s), samples
+    counters = EncoderCounters(samples, bits, counts_per_m or COUNTS_PER_M)
+    return WheelOdometry(Odometry(KIN), counters, window_s), samples
 
 
 def give(samples: list[Sample], raws: list[int], epoch: int) -> None:
@@ -95,7 +95,7 @@ def test_folding_wrapped_counters_gives_the_unwrapped_travel(
         assert odo.integrate(k, 0.01 * k)
         assert odo.counters.counts() == true
         expected.update([c / s for c, s in zip(true, COUNTS_PER_M, strict=True)])
-        assert odo.xyt == expected.xyt
+        assert odo.odometry.xyt == expected.xyt
 
 
 def test_a_set_without_every_wheel_is_not_integrated() -> None:
@@ -104,16 +104,16 @@ def test_a_set_without_every_wheel_is_not_integrated() -> None:
     odo, samples = wheel_odometry([32, 32, 32], [1000.0] * 3)
     give(samples, [10, 20, 30], 1)
     assert odo.integrate(1, 0.01)
-    assert odo.seeded and odo.xyt == (0.0, 0.0, 0.0)  # the first set only seeds
+    assert odo.odometry.seeded and odo.odometry.xyt == (0.0, 0.0, 0.0)  # the first set only seeds
     give(samples, [110, 20, 30], 2)
     samples[1].epoch = 1  # wheel 1 has not answered SYNC 2
     assert not odo.integrate(2, 0.02)
-    assert odo.xyt == (0.0, 0.0, 0.0)
+    assert odo.odometry.xyt == (0.0, 0.0, 0.0)
     assert odo.counters.counts() == [100.0, 0.0, 0.0]
     samples[1].raw, samples[1].epoch = 20, 2
     assert odo.integrate(2, 0.02)
     assert odo.counters.counts() == [100.0, 0.0, 0.0]  # not folded twice
-    assert odo.xyt != (0.0, 0.0, 0.0)
+    assert odo.odometry.xyt != (0.0, 0.0, 0.0)
     samples[2].raw = None
     assert not odo.integrate(2, 0.03)
 
@@ -122,7 +122,7 @@ def test_the_counters_want_one_width_and_scale_per_wheel() -> None:
     with pytest.raises(ValueError, match="one of each per wheel"):
         EncoderCounters([Sample(), Sample()], [32, 32, 32], [1.0, 1.0])
     with pytest.raises(ValueError, match="expected 3 wheel counters, got 2"):
-        WheelOdometry(KIN, EncoderCounters([Sample(), Sample()], [32, 32], [1.0, 1.0]))
+        WheelOdometry(Odometry(KIN), EncoderCounters([Sample(), Sample()], [32, 32], [1.0, 1.0]))
 
 
 # ---------------------------------------------------------------- the window and the twist
@@ -189,9 +189,9 @@ def test_reset_moves_the_pose_only() -> None:
         give(samples, [k, 2 * k, 0], k)
         odo.integrate(k, 0.01 * k)
     speeds, counts = odo.speeds(), odo.counters.counts()
-    odo.reset(Pose2D(1.0, 2.0, math.pi))
-    assert odo.pose == Pose2D(1.0, 2.0, math.pi)
+    odo.odometry.reset(Pose2D(1.0, 2.0, math.pi))
+    assert odo.odometry.pose == Pose2D(1.0, 2.0, math.pi)
     assert odo.speeds() == speeds and odo.counters.counts() == counts
     give(samples, [3, 6, 0], 3)
     odo.integrate(3, 0.03)
-    assert odo.pose != Pose2D(1.0, 2.0, math.pi)  # integrates on from the new pose
+    assert odo.odometry.pose != Pose2D(1.0, 2.0, math.pi)  # integrates on from the new pose

@@ -228,8 +228,8 @@ def test_window_speeds_are_the_loops_window(t_steps: list[int], counts: list[int
     t = np.cumsum([0.0, *t_steps]) / 1024
     travel = np.cumsum(counts[:len(t)]).astype(float)[:, None] / PS
     samples = [Sample() for _ in range(3)]
-    odo = WheelOdometry(CFG.kinematics(), EncoderCounters(samples, [32] * 3, [PS] * 3),
-                        window_s=0.125)
+    odo = WheelOdometry(Odometry(CFG.kinematics()),
+                        EncoderCounters(samples, [32] * 3, [PS] * 3), window_s=0.125)
     live = []
     for k, c in enumerate(np.cumsum(counts[:len(t)])):
         for s in samples:
