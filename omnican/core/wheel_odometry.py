@@ -12,8 +12,11 @@ replayed recording reads them as the live loop did.
 
 Samples are read from objects the drive layer writes (:class:`CounterSample`: the TPDO
 handler leaves the newest raw value and the SYNC it belongs to). :meth:`WheelOdometry.integrate`
-runs every control cycle (100 Hz - 1 kHz): it is written out, allocates only the travel
-list it keeps, and its per-cycle objects have ``__slots__``.
+runs every control cycle (100 Hz - 1 kHz): it is written out (no call per wheel), makes
+only the values it keeps (the travel list, the window's tuples), and its objects have
+``__slots__``. It calls the pose's :meth:`Odometry.step` rather than being an Odometry:
+one type runs that code, so CPython's specialised attribute access holds (a simulator's
+ground-truth Odometry in the same process would otherwise de-specialise it).
 
 Pure module: no I/O.
 """
