@@ -12,7 +12,6 @@ OPERATION ENABLED) or when no command came for ``cmd_timeout_s``.
 
 from __future__ import annotations
 
-import collections
 import math
 import queue
 from collections.abc import Callable
@@ -23,10 +22,10 @@ from omnican.chassis.state import Snapshot
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import Clock
 from omnican.config import ChassisConfig
-from omnican.core.encoder import SPEED_WINDOW_S
 from omnican.core.kinematics import Twist
 from omnican.core.limits import VelocityLimiter
 from omnican.core.odometry import Odometry
+from omnican.core.wheel_odometry import EncoderCounters, WheelOdometry
 from omnican.drive import AxisIO, DriveNode
 from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
 from omnican.plan.node import cycle_bits
@@ -69,7 +68,13 @@ class ControlCycle:
         self.axes: list[AxisIO] = sorted((a for n in nodes for a in n.axes),
                                          key=lambda a: a.wheel_index)
         self._axis_nodes = [(a, node_of[id(a)]) for a in self.axes]
-        self._axis_parts = tuple((a, a.stage, node_of[id(a)]) for a in self.axes)
+        # The encoders: counter fold, speed window and measured twist; they drive the pose.
+        self.wheel_odometry = WheelOdometry(self.odometry, EncoderCounters(
+            self.axes, [a.position.bits for a in self.axes],
+            [a.wheel.position_scale for a in self.axes]))
+        # Per wheel: its counter (the counts), stage and node.
+        self._axis_parts = tuple((c, a.stage, node_of[id(a)]) for a, c in
+                                 zip(self.axes, self.wheel_odometry.counters.wheels, strict=True))
         self._all_ok_flags = ((True, False),) * len(self.axes)
         # Per wheel, what never changes: index, node id, axis, position scale.
         self._wheel_info = tuple((a.wheel_index, n.node_id, a.wheel.axis, a.wheel.position_scale)
@@ -82,16 +87,8 @@ class ControlCycle:
         self.command: tuple[Twist, float] = (Twist(), -math.inf)
         self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         n = len(self.axes)
-        # The speed window: (travel now, travel at its start, its span); rim speeds are
-        # their difference over the span, made when read (SpeedWindow).
-        self._window: tuple[list[float], list[float], float] = ([0.0] * n, [0.0] * n, 1.0)
         self._targets = [0.0] * n  # commanded rim speeds, m/s, by wheel index
         self._limited: tuple[float, float, float] | None = None  # what _targets were made of
-        # (SYNC time, travel, body displacement summed since seeding) of each complete set.
-        self._history: collections.deque[tuple[float, list[float], tuple[float, float, float]]] \
-            = collections.deque()
-        self._body_sum = (0.0, 0.0, 0.0)
-        self._measured = (0.0, 0.0, 0.0)
         self._stale: tuple[int, ...] = ()  # wheels (by index) without a fresh sample
         self._stale_cycles = max(3, math.ceil(STALE_AFTER_S * c.rate_hz))
         self._last_sync_time = 0.0
@@ -214,50 +211,14 @@ class ControlCycle:
 
     def _integrate_samples(self) -> None:
         epoch = self._bus.sync_epoch
-        travel: list[float] = []
-        for a in self.axes:
-            raw = a.raw
-            if raw is None or a.epoch != epoch:
-                # Not every wheel has answered the last SYNC: wait for a complete set. A
-                # wheel silent for STALE_AFTER_S has no known speed: report none rather
-                # than the last one (a drive gone offline must not look as if it still
-                # turned). (The wheels folded so far fold the same sample again: no change.)
-                self._mark_stale(epoch)
-                return
-            # AxisIO.travel_from_sample, written out (each cycle, each wheel).
-            last = a.last_raw
-            if raw != last:
-                a.last_raw = raw
-                if last is not None:
-                    half = a._half_span
-                    a.counts += (raw - last + half) % (half << 1) - half
-            travel.append(a.counts / a.wheel.position_scale)
-        if self._stale:
+        if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
+            # Not every wheel has answered the last SYNC: wait for a complete set. A
+            # wheel silent for STALE_AFTER_S has no known speed: report none rather
+            # than the last one (a drive gone offline must not look as if it still
+            # turned).
+            self._mark_stale(epoch)
+        elif self._stale:
             self._stale = ()
-        t = self._last_sync_time
-        history = self._history
-        odometry = self.odometry
-        seeded = odometry.seeded
-        odometry.step(travel)
-        if not seeded:
-            self._body_sum = (0.0, 0.0, 0.0)
-            history.clear()
-            history.append((t, travel, self._body_sum))
-            return
-        # The body displacement over the speed window is the sum of odometry's steps
-        # over it (the forward kinematics is linear): one running sum, no second product.
-        dx, dy, dw = odometry.last_step
-        sx, sy, sw = self._body_sum
-        body = self._body_sum = (sx + dx, sy + dy, sw + dw)
-        history.append((t, travel, body))
-        while len(history) > 2 and t - history[1][0] >= SPEED_WINDOW_S:
-            history.popleft()
-        t0, travel0, body0 = history[0]
-        if t > t0:  # speeds over the window: SYNC timing jitter averages out
-            span = t - t0
-            self._window = (travel, travel0, span)
-            self._measured = ((body[0] - body0[0]) / span, (body[1] - body0[1]) / span,
-                              (body[2] - body0[2]) / span)
 
     def _mark_stale(self, epoch: int) -> None:
         stale = tuple(i for i, a in enumerate(self.axes)
@@ -267,18 +228,12 @@ class ControlCycle:
         self._stale = stale
         if stale:
             # The other wheels keep their last speeds, a stale one reads 0 (the snapshot).
-            travel, travel0, span = self._window
-            self._window = ([0.0 if i in stale else v for i, v in enumerate(travel)],
-                            [0.0 if i in stale else v for i, v in enumerate(travel0)], span)
-            self._measured = (0.0, 0.0, 0.0)
-            self._history.clear()  # the speed window restarts with the next complete set
+            self.wheel_odometry.forget_speeds(stale)
 
     @property
     def speeds_settled(self) -> bool:
         """The limiter's output is zero and every wheel below 5 mm/s."""
-        travel, travel0, span = self._window
-        return self.limiter.output.is_zero() and all(
-            abs(a - b) < 0.005 * span for a, b in zip(travel, travel0, strict=True))
+        return self.limiter.output.is_zero() and self.wheel_odometry.settled(0.005)
 
     # ------------------------------------------------------------ the snapshot
 
@@ -306,7 +261,8 @@ class ControlCycle:
         else:
             wheel_flags = self._all_ok_flags
         # What the wheels were this cycle, as plain values; WheelState is made on read.
-        wheels = (self._targets, self._window, wheel_flags,
+        encoders = self.wheel_odometry
+        wheels = (self._targets, encoders.window, wheel_flags,
                   tuple([(ax.counts, stage.statusword_value, stage.mode_value,
                           stage.error_value, stage.error, node.fault_text)
                          for ax, stage, node in self._axis_parts]))
@@ -331,15 +287,13 @@ class ControlCycle:
             not bus_down,
         )
         unknown = offline or configuring or bus_down
-        return Snapshot(self.odometry.xyt, (0.0, 0.0, 0.0) if unknown else self._measured,
+        return Snapshot(self.odometry.xyt, (0.0, 0.0, 0.0) if unknown else encoders.measured,
                         command, wheels, status, self._wheel_info, sup.monitor.values)
 
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
         every drive enabled) as of the last cycle: what the health checks compare."""
-        travel, travel0, span = self._window
-        return (self._targets, [(a - b) / span for a, b in zip(travel, travel0, strict=True)],
-                self._stale, self._all_enabled)
+        return self._targets, self.wheel_odometry.speeds(), self._stale, self._all_enabled
 
 
 def _no_sink(snapshot: Snapshot) -> None:

@@ -95,6 +95,8 @@ class Odometry:
     After that, each call integrates the travel since the previous call.
     """
 
+    __slots__ = ("_cols", "_d", "_dt", "_kin", "_last", "_n", "_pose", "_th", "_x", "_y")
+
     def __init__(self, kinematics: OmniKinematics, pose: Pose2D | None = None) -> None:
         self._kin = kinematics
         self._n = kinematics.num_wheels
@@ -106,6 +108,11 @@ class Odometry:
         self._last: list[float] | None = None
         self._d = (0.0, 0.0, 0.0)
         self._dt: float | None = None
+
+    @property
+    def num_wheels(self) -> int:
+        """How many wheel travels :meth:`update` takes."""
+        return self._n
 
     @property
     def pose(self) -> Pose2D:
@@ -167,13 +174,15 @@ class Odometry:
         self.step(travel, dt_s)
         return self.pose
 
-    def step(self, travel: list[float], dt_s: float | None = None) -> None:
+    def step(self, travel: list[float],
+             dt_s: float | None = None) -> tuple[float, float, float] | None:
         """:meth:`update` for the control loop: ``travel`` is a list of N finite floats
-        (unchecked), and no Pose2D is made until :attr:`pose` is read."""
+        (unchecked), and no Pose2D is made until :attr:`pose` is read. Returns
+        :attr:`last_step`, or None when this call only seeded."""
         last = self._last
         self._last = travel
         if last is None:
-            return
+            return None
         # kinematics.body_of_change and _sinc_terms, written out (each cycle).
         dx = dy = dw = 0.0
         for (ca, cb, cc), v1, v0 in zip(self._cols, travel, last, strict=True):
@@ -181,7 +190,8 @@ class Odometry:
             dx += ca * d
             dy += cb * d
             dw += cc * d
-        self._d, self._dt = (dx, dy, dw), dt_s
+        moved = self._d = (dx, dy, dw)
+        self._dt = dt_s
         # Compose the SE(2) exponential of the step onto the pose.
         if -1e-4 < dw < 1e-4:
             t2 = dw * dw
@@ -195,3 +205,4 @@ class Odometry:
         self._y += s * lx + c * ly
         self._th = th + dw
         self._pose = None
+        return moved

@@ -59,30 +59,15 @@ class AxisIO:
     target: Entry
     position: Entry
     stage: StageDriver
-    # Position samples (written on the Notifier thread, read by the loop).
+    # Position samples (written on the Notifier thread, read by the loop): a
+    # CounterSample, folded into travel by the chassis' WheelOdometry.
     raw: int | None = None
     epoch: int = -1
-    # Continuous travel (loop thread only).
-    counts: float = 0.0
-    last_raw: int | None = None
-    _half_span: int = field(init=False, repr=False, default=0)
-
-    def travel_from_sample(self, raw: int) -> float:
-        """Fold a raw counter value into continuous counts; returns travel in m.
-        :func:`fold_counter`, written out (each cycle, each wheel)."""
-        last = self.last_raw
-        self.last_raw = raw
-        if last is not None:
-            half = self._half_span
-            self.counts += (raw - last + half) % (half << 1) - half
-        return self.counts / self.wheel.position_scale
-
-    def __post_init__(self) -> None:
-        self._half_span = 1 << (self.position.bits - 1)
+    restarts: int = 0  # times the counter restarted (reseed)
 
     def reseed(self) -> None:
         """After a reboot the counter restarts: the next sample continues the travel."""
-        self.last_raw = None
+        self.restarts += 1
 
 
 @dataclass

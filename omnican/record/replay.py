@@ -9,7 +9,8 @@ the frames in time order and applies the chassis' rules:
 * position samples belong to the latest SYNC before them; odometry integrates only
   complete sets (every wheel answered that SYNC), as :class:`omnican.chassis.Chassis`;
 * counters are folded into continuous counts across wrap-around, and a drive's
-  boot-up (a reboot) restarts the fold without a jump, as :class:`omnican.drive.AxisIO`.
+  boot-up (a reboot) restarts the fold without a jump, by the loop's own
+  :class:`omnican.core.wheel_odometry.WheelOdometry`.
 
 :func:`read_frames` is the only I/O: it reads any python-can log format by extension,
 and ``.mcap``. A recording cut short (the recording process killed) or damaged is read
@@ -29,8 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 from omnican.config import ChassisConfig
-from omnican.core.encoder import SPEED_WINDOW_S, fold_counter
 from omnican.core.odometry import Odometry
+from omnican.core.wheel_odometry import SPEED_WINDOW_S, EncoderCounters, Sample, WheelOdometry
 from omnican.errors import RecordingError
 from omnican.plan.codec import PdoCodec
 from omnican.plan.node import NodeLayout, node_layouts
@@ -254,8 +255,8 @@ def window_speeds(t: FloatArray, travel: FloatArray,
                   window_s: float = SPEED_WINDOW_S) -> FloatArray:
     """Speeds (M, N) at each row of ``travel`` (M, N) sampled at times ``t`` (M,): the
     travel since the latest sample at least ``window_s`` older (or the first sample),
-    over the time between, as the chassis measures them; row 0 (and rows with no time
-    between) are zero."""
+    over the time between, as the chassis measures them (its WheelOdometry, which
+    :func:`decode` runs); row 0 (and rows with no time between) are zero."""
     speed = np.zeros_like(travel)
     if len(t) < 2:
         return speed
@@ -305,9 +306,11 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
     reboots: list[tuple[float, int]] = []
     booted: set[int] = set()
     reset: set[int] = set()  # nodes the host reset (NMT): their next boot-up is no reboot
-    counts = [0.0] * n
-    last_raw: list[int | None] = [None] * n
-    pending: dict[int, int] = {}  # wheel -> raw sample of the current SYNC
+    # Each wheel's newest position sample, tagged with its SYNC (syncs), as the loop's.
+    samples = [Sample() for _ in range(n)]
+    odo = WheelOdometry(Odometry(kin), EncoderCounters(samples, bits, pscale))
+    poses_rows: list[tuple[float, float, float]] = []
+    speed_rows: list[list[float]] = []
     current_sync: float | None = None
     reseed: set[int] = set()  # wheels whose drive rebooted since the SYNC
     syncs = 0
@@ -318,15 +321,13 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         """The chassis' rule: integrate the SYNC's samples only if every wheel answered.
         A drive that rebooted meanwhile restarts its fold after that (its samples of the
         SYNC were taken before the reboot)."""
-        if current_sync is not None and len(pending) == n:
-            for w in range(n):
-                raw = pending[w]
-                counts[w] = fold_counter(counts[w], last_raw[w], raw, bits[w])
-                last_raw[w] = raw
+        if current_sync is not None and odo.integrate(syncs, current_sync):
             sync_t.append(current_sync)
-            counts_rows.append(list(counts))
+            counts_rows.append(odo.counters.counts())
+            poses_rows.append(odo.odometry.xyt)
+            speed_rows.append(odo.speeds())
         for w in reseed:
-            last_raw[w] = None
+            samples[w].restarts += 1
         reseed.clear()
 
     for frame in ordered:
@@ -336,7 +337,6 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
         cob, data, t = frame.arbitration_id, frame.data, frame.timestamp - t0
         if cob == SYNC_COB_ID:
             close_sync()
-            pending.clear()
             current_sync = t
             syncs += 1
             continue
@@ -355,7 +355,8 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
                     target_v[slot.index].append(value / vscale[slot.index])
                 elif slot.role == "position":
                     if current_sync is not None:
-                        pending[slot.index] = value
+                        sample = samples[slot.index]
+                        sample.raw, sample.epoch = value, syncs
                 else:
                     sw = value & 0xFFFF
                     state = decode_state(sw)
@@ -392,12 +393,8 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
     sync_arr = np.array(sync_t, dtype=np.float64)
     counts_arr = np.array(counts_rows, dtype=np.float64).reshape(-1, n)
     travel = counts_arr / np.array(pscale, dtype=np.float64)
-    speed = window_speeds(sync_arr, travel)
-    odo = Odometry(kin)
-    poses = np.zeros((len(sync_arr), 3))
-    for k, row in enumerate(travel):
-        p = odo.update(row)
-        poses[k] = (p.x, p.y, p.theta)
+    speed = np.array(speed_rows, dtype=np.float64).reshape(-1, n)
+    poses = np.array(poses_rows, dtype=np.float64).reshape(-1, 3)
     names = tuple(f"wheel {i} ({w.name})" for i, w in enumerate(cfg.wheels))
     tracks = []
     for s in stages:

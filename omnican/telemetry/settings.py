@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from omnican.config import SCHEMA, ChassisConfig
-from omnican.core.encoder import SPEED_WINDOW_S
+from omnican.core.wheel_odometry import SPEED_WINDOW_S
 from omnican.errors import ConfigError
 
 #: The base is sampled at least this often (Hz of the base's clock).

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from omnican import Chassis, ChassisConfig
 from omnican.clock import SimClock
 from omnican.config import load_config
-from omnican.core.encoder import fold_counter
+from omnican.core.wheel_odometry import fold_counter
 from omnican.errors import ConfigError, DriveError
 from omnican.protocol.eds_check import counter_problem, value_range, width_problem
 from omnican.sim import SimulatedBase

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from omnican import ChassisConfig, Odometry, default_config
 from omnican.cli import main
-from omnican.core.encoder import fold_counter
+from omnican.core.wheel_odometry import EncoderCounters, Sample, WheelOdometry, fold_counter
 from omnican.plan.codec import PdoCodec
 from omnican.plan.node import NodeLayout, node_layouts
 from omnican.protocol.cia402 import State
@@ -63,54 +63,6 @@ def statusword(t: float, node: int, sw: int) -> F:
 def odometry_poses(travel: np.ndarray) -> np.ndarray:
     odo = Odometry(CFG.kinematics())
     return np.array([[p.x, p.y, p.theta] for p in (odo.update(row) for row in travel)])
-
-
-# ---------------------------------------------------------------- counter folding
-
-
-@given(bits=st.sampled_from([8, 16, 32]), start=st.integers(0, (1 << 32) - 1),
-       steps=st.lists(st.integers(-(1 << 7) + 1, (1 << 7) - 1), max_size=60))
-def test_fold_counter_follows_wraparound(bits: int, start: int, steps: list[int]) -> None:
-    span = 1 << bits
-    counts, last = 0.0, None
-    true = 0
-    for step in [0, *steps]:
-        true += step
-        raw = (start + true) % span
-        counts = fold_counter(counts, last, raw, bits)
-        last = raw
-    assert counts == true
-
-
-def test_fold_counter_without_a_previous_sample_keeps_the_count() -> None:
-    assert fold_counter(123.0, None, 99999, 32) == 123.0
-
-
-@given(bits=st.sampled_from([16, 32]), start=st.integers(0, (1 << 32) - 1),
-       raws=st.lists(st.integers(0, (1 << 32) - 1), max_size=40),
-       reseed_at=st.integers(0, 40))
-def test_the_loop_folds_counters_as_replay_does(bits: int, start: int, raws: list[int],
-                                                 reseed_at: int) -> None:
-    """The control loop's fold (written out in AxisIO) is fold_counter, a reboot's
-    reseed included: live odometry and a replayed recording read counters alike."""
-    from types import SimpleNamespace
-
-    from omnican.drive import AxisIO
-    from omnican.protocol.object_map import Entry
-
-    position = Entry(obj=None, index=0x6064, subindex=0, bits=bits, signed=True,
-                     declared_signed=True, shared=False, pdo_mappable=True, writable=False,
-                     name="Position actual value")
-    wheel = SimpleNamespace(position_scale=1000.0)
-    axis = AxisIO(0, wheel, None, position, position, None)  # type: ignore[arg-type]
-    counts, last = 0.0, None
-    for k, raw in enumerate(r % (1 << bits) for r in [start, *raws]):
-        if k == reseed_at:
-            axis.reseed()
-            last = None
-        counts = fold_counter(counts, last, raw, bits)
-        last = raw
-        assert axis.travel_from_sample(raw) == counts / 1000.0
 
 
 # ---------------------------------------------------------------- decoding
@@ -265,6 +217,27 @@ def test_window_speeds_average_over_the_window() -> None:
     travel = np.array([[0.0], [1.0], [1.0], [1.0], [3.0]])
     # The reference is the latest sample at least 0.125 s older (else the first).
     assert window_speeds(t, travel, 0.125)[:, 0].tolist() == [0, 16, 8, 0, 16]
+
+
+@given(t_steps=st.lists(st.integers(1, 64), min_size=1, max_size=40),
+       counts=st.lists(st.integers(-5000, 5000), min_size=41, max_size=41))
+def test_window_speeds_are_the_loops_window(t_steps: list[int], counts: list[int]) -> None:
+    """window_speeds, the window over a whole recording at once, gives each set the
+    speeds the loop's WheelOdometry measured when that set came (times and window
+    exact in binary: the two compare the same differences)."""
+    t = np.cumsum([0.0, *t_steps]) / 1024
+    travel = np.cumsum(counts[:len(t)]).astype(float)[:, None] / PS
+    samples = [Sample() for _ in range(3)]
+    odo = WheelOdometry(Odometry(CFG.kinematics()),
+                        EncoderCounters(samples, [32] * 3, [PS] * 3), window_s=0.125)
+    live = []
+    for k, c in enumerate(np.cumsum(counts[:len(t)])):
+        for s in samples:
+            s.raw, s.epoch = int(c) % (1 << 32), k
+        assert odo.integrate(k, float(t[k]))
+        live.append(odo.speeds()[0])
+    np.testing.assert_allclose(window_speeds(t, travel, 0.125)[:, 0], live, rtol=1e-12,
+                               atol=1e-12)
 
 
 # ---------------------------------------------------------------- files
