@@ -199,3 +199,56 @@ def wait_real(done: Callable[[], bool]) -> bool:
 def _port(bridge: Any) -> int:
     (endpoint,) = bridge.settings.connect
     return int(endpoint.rsplit(":", 1)[1])
+
+
+def test_a_second_controller_is_refused_while_the_first_drives(
+        stepped: tuple[SimClock, SimulatedBase, Chassis], bridge: Any, router: str) -> None:
+    from omnican.telemetry import cdr
+
+    clock, sim, _ = stepped
+
+    def twist(vx: float) -> bytes:
+        return cdr.encode("geometry_msgs/msg/Twist", {"linear": {"x": vx, "y": 0.0, "z": 0.0},
+                                                      "angular": {"x": 0.0, "y": 0.0, "z": 0.0}})
+
+    session = client(router)
+    try:
+        pub = session.declare_publisher(bridge.cmd_key)
+        assert wait_real(lambda: pub.matching_status.matching)
+        first, second = bytes([0xA1]) * 16, bytes([0xB2]) * 16
+        seq = itertools.count(1)
+
+        def send(*who: tuple[bytes, float]) -> Callable[[], None]:
+            def each() -> None:
+                for gid, vx in who:
+                    pub.put(twist(vx), attachment=rmw.Attachment(next(seq), 0, gid).encode())
+            return each
+
+        assert run_until(clock, bridge, lambda: sim.true_twist.vx > 0.15,
+                         each=send((first, 0.2)))
+        assert run_until(clock, bridge, lambda: bridge.cmd_vel_refused >= 20,
+                         each=send((first, 0.2), (second, -0.2)))
+        assert sim.true_twist.vx == pytest.approx(0.2, abs=0.02)
+        assert bridge.arbiter.holder(clock.now()) == f"Zenoh cmd_vel publisher {first.hex()}"
+        pub.undeclare()
+    finally:
+        session.close()
+
+
+def test_closing_withdraws_the_graph_tokens(
+        stepped: tuple[SimClock, SimulatedBase, Chassis], bridge: Any, router: str) -> None:
+    session = client(router)
+    try:
+        def tokens() -> set[str]:
+            return {str(r.ok.key_expr) for r in
+                    session.liveliness().get("@ros2_lv/**", timeout=10.0) if r.ok}
+
+        node = bridge.node.token()
+        ours = f"/{bridge.node.session_id}/"  # the node's and its endpoints' tokens
+        assert wait_real(lambda: node in tokens())
+        assert sum(ours in t for t in tokens()) == 2 + len(bridge.publishers)
+        bridge.close()
+        assert wait_real(lambda: not any(ours in t for t in tokens()))
+        bridge.poll()  # closed: takes nothing, raises nothing
+    finally:
+        session.close()
