@@ -71,6 +71,7 @@ class _Publisher:
     def __init__(self, session: Any, node: rmw.Node, entity_id: int, fq_name: str,
                  type_name: str, qos: rmw.Qos) -> None:
         hash_ = rmw.type_hash(type_name)
+        self.name = fq_name
         self.key = rmw.data_key(node.domain_id, fq_name, type_name, hash_)
         self.token_key = node.endpoint_token(entity_id, rmw.Kind.PUBLISHER, fq_name,
                                              type_name, hash_, qos)
@@ -137,6 +138,7 @@ class ZenohBridge:
         self._poll_thread: threading.Thread | None = None
         self._stop_polling = threading.Event()
         self._poll_lock = threading.Lock()
+        self._publish_lock = threading.Lock()
         self._throttle = Throttle(logger)
         self._driver: str | None = None
         self._started = False
@@ -152,6 +154,11 @@ class ZenohBridge:
         return topic in self.publishers
 
     def publish(self, messages: list[Message]) -> None:
+        with self._publish_lock:  # close() may run meanwhile (the feed's thread is ours)
+            if not self._closed:
+                self._publish(messages)
+
+    def _publish(self, messages: list[Message]) -> None:
         for message in messages:
             pub = self.publishers.get(message.topic)
             if pub is None:
@@ -277,7 +284,7 @@ class ZenohBridge:
         if self._poll_thread is not None:
             self._poll_thread.join(timeout=5.0)
             self._poll_thread = None
-        with self._poll_lock:
+        with self._poll_lock, self._publish_lock:
             if self._closed:
                 return
             self._closed = True
