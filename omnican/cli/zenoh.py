@@ -2,7 +2,8 @@
 
 A ROS 2 node on rmw_zenoh_cpp (or any peer speaking its format) sees the base as a node:
 it publishes odom, tf, joint_states, diagnostics and battery_state, and takes cmd_vel
-(geometry_msgs/Twist; one publisher at a time; the base stops when cmd_vel stops).
+(geometry_msgs/Twist, or TwistStamped with --cmd-vel-stamped; one publisher at a time;
+the base stops when cmd_vel stops).
 Multicast scouting is off unless --zenoh-multicast: point it at a router
 (--zenoh-connect tcp/HOST:7447, rmw_zenoh's default port). Needs eclipse-zenoh (the
 zenoh extra).
@@ -34,6 +35,8 @@ def add_subparser(sub: Any) -> None:
                       help="node name (default omnican)")
     node.add_argument("--domain-id", type=int, metavar="N", default=0,
                       help="ROS domain 0-232: the first chunk of every key (default 0)")
+    node.add_argument("--cmd-vel-stamped", action="store_true",
+                      help="cmd_vel carries geometry_msgs/TwistStamped")
     net = p.add_argument_group("Zenoh network")
     net.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                      help="connect to a router or peer, e.g. tcp/127.0.0.1:7447 (repeatable)")
@@ -59,7 +62,8 @@ def settings_from(args: argparse.Namespace) -> Any:
                          node_name=args.node_name, mode=args.zenoh_mode,
                          connect=tuple(args.zenoh_connect), listen=tuple(args.zenoh_listen),
                          multicast=args.zenoh_multicast,
-                         config_file=args.zenoh_config).validate()
+                         config_file=args.zenoh_config,
+                         cmd_vel_stamped=args.cmd_vel_stamped).validate()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,7 +100,8 @@ def _print_startup(bridge: Any, timeout_s: float) -> None:
     print(f"Zenoh node {node} on domain {s.domain_id} (session {bridge.node.session_id}, "
           f"{s.mode}; connect: {where}; multicast {'on' if s.multicast else 'off'})",
           flush=True)
-    print(f"  in:  {bridge.cmd_topic} (Twist; one publisher at a time; stop after "
+    kind = bridge.cmd_type.rsplit("/", 1)[1]
+    print(f"  in:  {bridge.cmd_topic} ({kind}; one publisher at a time; stop after "
           f"{timeout_s:g} s without)", flush=True)
     print(f"  out: {', '.join(pub.name for pub in bridge.publishers.values())}", flush=True)
     print("Ctrl-C to stop", flush=True)

@@ -8,13 +8,14 @@ sample's time, a fixed GID per publisher). It declares the liveliness tokens a R
 graph reads: the node (``NN``), each publisher (``MP``) and the cmd_vel subscription
 (``MS``). Publishing is on the feed's thread, never the control loop's.
 
-cmd_vel (``geometry_msgs/msg/Twist``) arrives in a ring of :data:`CMD_VEL_DEPTH`
-samples (a flood costs the oldest, in Zenoh's threads) and is polled, as the ROS 2
-bridge does: the newest sample of each publisher (told apart by its attachment's GID)
-is parsed, up to :data:`MAX_PARSED_PER_POLL` a poll. One publisher drives at a time
-through the :class:`~omnican.command.arbiter.CommandArbiter`; the chassis watchdog stops
-the base when its commands stop (a dropped network stops the base). What cannot be a
-Twist (oversized, malformed CDR, NaN) is refused with one log line and moves nothing.
+cmd_vel (``geometry_msgs/msg/Twist``, or TwistStamped if the settings say) arrives in a
+ring of :data:`CMD_VEL_DEPTH` samples (a flood costs the oldest, in Zenoh's threads) and
+is polled, as the ROS 2 bridge does: the newest sample of each publisher (told apart by
+its attachment's GID) is parsed, up to :data:`MAX_PARSED_PER_POLL` a poll. One
+publisher drives at a time through the :class:`~omnican.command.arbiter.CommandArbiter`;
+the chassis watchdog stops the base when its commands stop (a dropped network stops
+it). What cannot be a command (oversized, malformed CDR, NaN) is refused with one log
+line and moves nothing.
 """
 
 from __future__ import annotations
@@ -38,12 +39,14 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 TWIST = "geometry_msgs/msg/Twist"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 #: The telemetry this front end publishes (tf with odom, joint states with wheel radii).
 PUBLISHED = ("/odom", "/tf", "/joint_states", "/diagnostics", "/battery_state")
 TF_DEPTH = 100  # tf2's listener keeps 100
 CMD_VEL_DEPTH = 256  # samples kept between polls (the newest)
 MAX_POLL_HZ = 100.0
-#: A Twist is 52 bytes with its header: a larger sample is refused unread.
+#: A Twist is 52 bytes with its header, a TwistStamped 76 and its frame id: a larger
+#: sample is refused unread.
 MAX_CMD_BYTES = 1024
 MAX_PARSED_PER_POLL = 4
 SOURCE = "Zenoh cmd_vel publisher"
@@ -124,10 +127,12 @@ class ZenohBridge:
         self._odom_sent = False
 
         self.cmd_topic = rmw.fully_qualified(ns, "cmd_vel")
-        hash_ = rmw.type_hash(TWIST)
-        self.cmd_key = rmw.data_key(settings.domain_id, self.cmd_topic, TWIST, hash_)
+        self.cmd_type = TWIST_STAMPED if settings.cmd_vel_stamped else TWIST
+        hash_ = rmw.type_hash(self.cmd_type)
+        self.cmd_key = rmw.data_key(settings.domain_id, self.cmd_topic, self.cmd_type, hash_)
         self._cmd_token = session.liveliness().declare_token(self.node.endpoint_token(
-            len(topics) + 1, rmw.Kind.SUBSCRIPTION, self.cmd_topic, TWIST, hash_, rmw.Qos()))
+            len(topics) + 1, rmw.Kind.SUBSCRIPTION, self.cmd_topic, self.cmd_type, hash_,
+            rmw.Qos()))
         self._cmd_sub = session.declare_subscriber(
             self.cmd_key, zenoh.handlers.RingChannel(CMD_VEL_DEPTH))
 
@@ -143,6 +148,7 @@ class ZenohBridge:
         self._driver: str | None = None
         self._started = False
         self._closed = False
+        self.polls = 0
         self.cmd_vel_count = 0  # samples taken
         self.cmd_vel_parsed = 0
         self.cmd_vel_rejected = 0  # not a Twist one may drive with
@@ -183,6 +189,7 @@ class ZenohBridge:
         with self._poll_lock:
             if self._closed:
                 return
+            self.polls += 1
             newest: dict[str, bytes] = {}
             for _ in range(CMD_VEL_DEPTH):
                 sample = self._cmd_sub.try_recv()
@@ -209,14 +216,17 @@ class ZenohBridge:
         self.cmd_vel_parsed += 1
         if len(data) > MAX_CMD_BYTES:
             self._reject(source, f"a {len(data)}-byte sample, not read (more than the "
-                         f"{MAX_CMD_BYTES} bytes a {TWIST} may have here)")
+                         f"{MAX_CMD_BYTES} bytes a {self.cmd_type} may have here)")
             return
         try:
-            msg = cdr.decode(TWIST, data)
+            msg = cdr.decode(self.cmd_type, data)
+            if self.cmd_type == TWIST_STAMPED:
+                msg = msg["twist"]
             t = Twist(float(msg["linear"]["x"]), float(msg["linear"]["y"]),
                       float(msg["angular"]["z"]))
         except Exception as exc:  # whatever a broken sample raises
-            self._reject(source, f"cannot be read as a {TWIST}: {quote(str(exc), 60)}")
+            self._reject(source, f"cannot be read as a {self.cmd_type}: "
+                         f"{quote(str(exc), 60)}")
             return
         if not t.is_finite():
             self._reject(source, f"not finite: vx={quote(t.vx, 60)} vy={quote(t.vy, 60)} "

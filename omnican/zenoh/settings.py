@@ -38,6 +38,7 @@ class ZenohSettings:
     listen: tuple[str, ...] = ()  # empty: Zenoh's default for the mode
     multicast: bool = False  # multicast scouting
     config_file: str | None = None  # a Zenoh JSON5 file, applied first
+    cmd_vel_stamped: bool = False  # cmd_vel carries geometry_msgs/msg/TwistStamped
     #: Hz per telemetry topic (tf goes with odom; diagnostics at the telemetry's pace).
     rates_hz: dict[str, float] = field(default_factory=_default_rates)
 

@@ -271,3 +271,63 @@ def test_type_hashes_match_the_sdks_from_the_msg_files(sdk: Any, type_name: str)
     deps = load_dependencies_recursive(type_name, text, registry)
     assert get_type_hash(type_name, msg_definition=text, dependencies=deps) == \
         rmw.type_hash(type_name)
+
+
+def test_a_flood_costs_one_parsed_sample_per_publisher_and_poll(
+        stepped: tuple[SimClock, SimulatedBase, Chassis], bridge: Any, router: str) -> None:
+    """Thousands of samples between polls: the ring keeps the newest, the bridge parses
+    one a poll (the publisher's newest) and drives with it."""
+    from omnican.telemetry import cdr
+    from omnican.zenoh.bridge import CMD_VEL_DEPTH
+
+    clock, sim, _ = stepped
+    session = client(router)
+    try:
+        pub = session.declare_publisher(bridge.cmd_key)
+        assert wait_real(lambda: pub.matching_status.matching)
+        gid = bytes([0xF1]) * 16
+        seq = itertools.count(1)
+
+        def flood() -> None:
+            for k in range(500):
+                vx = 0.3 * k / 499
+                pub.put(cdr.encode("geometry_msgs/msg/Twist",
+                                   {"linear": {"x": vx, "y": 0.0, "z": 0.0},
+                                    "angular": {"x": 0.0, "y": 0.0, "z": 0.0}}),
+                        attachment=rmw.Attachment(next(seq), 0, gid).encode())
+
+        assert run_until(clock, bridge, lambda: sim.true_twist.vx > 0.25, each=flood)
+        assert bridge.cmd_vel_parsed <= bridge.polls
+        assert bridge.cmd_vel_count <= CMD_VEL_DEPTH * bridge.polls
+        assert bridge.cmd_vel_rejected == 0
+        pub.undeclare()
+    finally:
+        session.close()
+
+
+def test_a_stamped_cmd_vel_drives_when_asked_for(
+        stepped: tuple[SimClock, SimulatedBase, Chassis], router: str, sdk: Any) -> None:
+    from omnican.zenoh.bridge import ZenohBridge, open_session
+    from omnican.zenoh.settings import ZenohSettings
+
+    clock, sim, base = stepped
+    settings = ZenohSettings(mode="client", connect=(router,), cmd_vel_stamped=True,
+                             namespace="/robot1")
+    session = open_session(settings)
+    try:
+        with ZenohBridge(base, settings, session, poll_thread=False) as bridge:
+            pub = sdk.ROS2Publisher("/robot1/cmd_vel", "geometry_msgs/msg/TwistStamped",
+                                    router_port=int(router.rsplit(":", 1)[1]))
+            assert pub.keyexpr == bridge.cmd_key
+            types = pub.session_mgr.store.types
+            twist = types["geometry_msgs/msg/Twist"](types["geometry_msgs/msg/Vector3"](
+                0.0, 0.0, 0.0), types["geometry_msgs/msg/Vector3"](0.0, 0.0, 0.5))
+            header = types["std_msgs/msg/Header"](types["builtin_interfaces/msg/Time"](0, 0),
+                                                  "base_link")
+            try:
+                assert run_until(clock, bridge, lambda: sim.true_twist.wz > 0.4,
+                                 each=lambda: pub.publish(header=header, twist=twist))
+            finally:
+                pub.close()
+    finally:
+        session.close()
