@@ -19,11 +19,13 @@ Jazzy (:func:`type_hash`): no ROS installation is needed.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
 import struct
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 ADMIN_SPACE = "@ros2_lv"
 GID_BYTES = 16
@@ -75,6 +77,53 @@ def type_hash(type_name: str) -> str:
     from omnican.telemetry.cdr import typestore
 
     value: str = typestore().hash_rihs01(type_name)
+    return value
+
+
+#: ROS 2's service_msgs/msg/ServiceEventInfo as its type description has it: rosidl
+#: writes ``char`` as uint8, where rosbags' store keeps ``char`` (and so hashes it apart).
+_EVENT_INFO = ("uint8 event_type\nbuiltin_interfaces/Time stamp\nuint8[16] client_gid\n"
+               "int64 sequence_number")
+
+
+@functools.cache
+def service_type_hash(name: str, request: str, response: str) -> str:
+    """``RIHS01_<sha256>`` of the service ``name`` (``std_srvs/srv/Trigger``) whose request
+    and response have the message definitions ``request`` and ``response``: REP 2011's
+    service description (request_message, response_message, event_message; the event
+    holds ServiceEventInfo and at most one request and one response)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    if _TYPE_NAME.match(name) is None or "/srv/" not in name:
+        raise ValueError(f"not a ROS 2 service name (package/srv/Name): {name!r}")
+    short = name.rsplit("/", 1)[1]
+    types: dict[str, Any] = {}
+    for text, typename in (
+            ("int32 sec\nuint32 nanosec", "builtin_interfaces/msg/Time"),
+            (_EVENT_INFO, "service_msgs/msg/ServiceEventInfo"),
+            (request, f"{name}_Request"), (response, f"{name}_Response"),
+            (f"service_msgs/ServiceEventInfo info\n{short}_Request[<=1] request\n"
+             f"{short}_Response[<=1] response", f"{name}_Event"),
+            (f"{short}_Request request_message\n{short}_Response response_message\n"
+             f"{short}_Event event_message", name)):
+        types.update(get_types_from_msg(text, typename))
+    store = get_typestore(Stores.EMPTY)
+    # rosbags files a service's parts under <package>/srv/msg/; ROS 2 names them
+    # <package>/srv/<Name>_Request (the names are part of what is hashed).
+    store.register({_srv_name(k): _srv_names(v) for k, v in types.items()})
+    value: str = store.hash_rihs01(name)
+    return value
+
+
+def _srv_name(name: str) -> str:
+    return name.replace("/srv/msg/", "/srv/")
+
+
+def _srv_names(value: Any) -> Any:
+    if isinstance(value, str):
+        return _srv_name(value)
+    if isinstance(value, (list, tuple)):
+        return type(value)(_srv_names(v) for v in value)
     return value
 
 

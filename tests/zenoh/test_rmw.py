@@ -18,6 +18,16 @@ def test_the_design_documents_string_hash() -> None:
     assert rmw.type_hash("std_msgs/msg/String") == STRING_HASH
 
 
+def test_service_hashes_are_the_published_ones() -> None:
+    """AddTwoInts' from the design document; Trigger's as ROS 2 Jazzy publishes it."""
+    assert rmw.service_type_hash("example_interfaces/srv/AddTwoInts", "int64 a\nint64 b",
+                                 "int64 sum") == ADD_TWO_INTS_HASH
+    assert rmw.service_type_hash("std_srvs/srv/Trigger", "", "bool success\nstring message") \
+        == "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
+    with pytest.raises(ValueError):
+        rmw.service_type_hash("std_srvs/msg/Trigger", "", "")
+
+
 def test_the_design_documents_key_expressions() -> None:
     assert rmw.data_key(0, "/chatter", "std_msgs/msg/String", STRING_HASH) == \
         f"0/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
