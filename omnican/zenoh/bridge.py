@@ -31,6 +31,7 @@ from omnican.errors import ConfigError, DriveError, quote
 from omnican.log_throttle import Throttle
 from omnican.telemetry import TOPICS, Message
 from omnican.zenoh import rmw
+from omnican.zenoh.services import Services
 from omnican.zenoh.settings import ZenohSettings, config_entries
 
 if TYPE_CHECKING:
@@ -138,6 +139,7 @@ class ZenohBridge:
 
         self.arbiter = arbiter if arbiter is not None else \
             CommandArbiter(base.cfg.chassis.cmd_timeout_s)
+        self.services = Services(session, self.node, base, self.arbiter, len(topics) + 2)
         self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
         self._poll_on_thread = poll_thread
         self._poll_thread: threading.Thread | None = None
@@ -185,7 +187,8 @@ class ZenohBridge:
     # ------------------------------------------------------------ inputs
 
     def poll(self) -> None:
-        """Take what arrived on cmd_vel and act on the newest sample of each publisher."""
+        """Take what arrived on cmd_vel and act on the newest sample of each publisher;
+        answer the service requests (:mod:`omnican.zenoh.services`)."""
         with self._poll_lock:
             if self._closed:
                 return
@@ -209,6 +212,7 @@ class ZenohBridge:
                 elif parsed < MAX_PARSED_PER_POLL:
                     parsed += 1
                     self._on_cmd_vel(source, newest[source])
+            self.services.poll()
 
     def _on_cmd_vel(self, source: str, data: bytes) -> None:
         from omnican.telemetry import cdr
@@ -301,6 +305,7 @@ class ZenohBridge:
         self._throttle.flush()
         self._cmd_sub.undeclare()
         self._cmd_token.undeclare()
+        self.services.close()
         for pub in self.publishers.values():
             pub.close()
         self._node_token.undeclare()

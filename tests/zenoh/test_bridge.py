@@ -237,6 +237,8 @@ def test_a_second_controller_is_refused_while_the_first_drives(
 
 def test_closing_withdraws_the_graph_tokens(
         stepped: tuple[SimClock, SimulatedBase, Chassis], bridge: Any, router: str) -> None:
+    from omnican.zenoh.services import SERVICES
+
     session = client(router)
     try:
         def tokens() -> set[str]:
@@ -246,7 +248,8 @@ def test_closing_withdraws_the_graph_tokens(
         node = bridge.node.token()
         ours = f"/{bridge.node.session_id}/"  # the node's and its endpoints' tokens
         assert wait_real(lambda: node in tokens())
-        assert sum(ours in t for t in tokens()) == 2 + len(bridge.publishers)
+        # the node, its publishers, cmd_vel's subscription and the services
+        assert sum(ours in t for t in tokens()) == 2 + len(bridge.publishers) + len(SERVICES)
         bridge.close()
         assert wait_real(lambda: not any(ours in t for t in tokens()))
         bridge.poll()  # closed: takes nothing, raises nothing
