@@ -68,8 +68,10 @@ class Services:
         self._tokens: list[Any] = []
         for n, name in enumerate(SERVICES):
             fq = rmw.fully_qualified(node.namespace, f"{node.name}/{name}")
+            # complete: it answers every request on its key (rmw_zenoh's servers say so,
+            # and its clients ask only complete queryables)
             self._queryables[name] = session.declare_queryable(
-                service_key(node, name), zenoh.handlers.FifoChannel(QUEUE))
+                service_key(node, name), zenoh.handlers.FifoChannel(QUEUE), complete=True)
             self._tokens.append(session.liveliness().declare_token(node.endpoint_token(
                 first_entity_id + n, rmw.Kind.SERVICE, fq, TRIGGER, trigger_hash(),
                 rmw.Qos())))

@@ -20,10 +20,11 @@ import pytest
 from tests.support.helpers import locked
 
 #: The message packages the tests' types need (with what they use): their wheels on PyPI
-#: ship the .msg files under <name>.data/data/share/<package>/msg/.
+#: ship the .msg and .srv files under <name>.data/data/share/<package>/{msg,srv}/.
 MESSAGE_WHEELS = ("ros-builtin-interfaces==2.0.3", "ros-std-msgs==5.3.6",
                   "ros-geometry-msgs==5.3.6", "ros-nav-msgs==5.3.6",
-                  "ros-sensor-msgs==5.3.6", "ros-diagnostic-msgs==5.3.6")
+                  "ros-sensor-msgs==5.3.6", "ros-diagnostic-msgs==5.3.6",
+                  "ros-std-srvs==5.3.6")
 
 
 def _cache() -> Path:
@@ -32,12 +33,13 @@ def _cache() -> Path:
 
 
 def message_dir() -> tuple[Path | None, str]:
-    """A directory of <package>/msg/<Name>.msg from :data:`MESSAGE_WHEELS`, made once
+    """A directory of <package>/{msg,srv}/<Name>.{msg,srv} from :data:`MESSAGE_WHEELS`, made once
     (pip download, unzip the share directories) and cached; (None, why) if it cannot."""
     root = _cache()
     out = root / "messages"
     with locked(root / "lock"):
-        if (out / "omnican-ok").is_file():
+        ok = out / "omnican-ok"
+        if ok.is_file() and ok.read_text() == "\n".join(MESSAGE_WHEELS):
             return out, "cached"
         wheels = root / "wheels"
         done = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps",
@@ -51,12 +53,12 @@ def message_dir() -> tuple[Path | None, str]:
             with zipfile.ZipFile(wheel) as z:
                 for name in z.namelist():
                     parts = name.split("/")
-                    if len(parts) == 6 and parts[2:5:2] == ["share", "msg"] and \
-                            parts[5].endswith(".msg"):
-                        target = out / parts[3] / "msg" / parts[5]
+                    if len(parts) == 6 and parts[2] == "share" and parts[4] in ("msg", "srv") \
+                            and parts[5].endswith((".msg", ".srv")):
+                        target = out / parts[3] / parts[4] / parts[5]
                         target.parent.mkdir(parents=True, exist_ok=True)
                         target.write_bytes(z.read(name))
-        (out / "omnican-ok").write_text("\n".join(MESSAGE_WHEELS))
+        ok.write_text("\n".join(MESSAGE_WHEELS))
     return out, "downloaded"
 
 

@@ -17,6 +17,7 @@ from omnican.zenoh.services import trigger_response
 from tests.support.helpers import lockstep_rig
 from tests.zenoh.conftest import client
 
+TRIGGER_HASH = "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
 zenoh = pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed "
                             "(pip install 'omnican[zenoh]')")
 
@@ -101,4 +102,46 @@ def test_stop_recover_and_reset_odometry_as_services(
             assert sum("/SS/%/%robot1/omnican/%robot1%omnican%" in t for t in tokens) == 3
     finally:
         session.close()
+        ours.close()
+
+
+def test_the_sdks_service_client_stops_the_base(
+        stepped: tuple[SimClock, SimulatedBase, Chassis], router: str, sdk: Any) -> None:
+    """zenoh-ros2-sdk's client (its own request, query and attachment) calls ~/stop and
+    reads the reply."""
+    import threading
+
+    from omnican.zenoh.bridge import ZenohBridge, open_session
+    from omnican.zenoh.services import service_key
+    from omnican.zenoh.settings import ZenohSettings
+    from tests.zenoh.test_bridge import run_until, wait_real
+
+    clock, sim, base = stepped
+    settings = ZenohSettings(mode="client", connect=(router,))
+    ours = open_session(settings)
+    try:
+        with ZenohBridge(base, settings, ours, poll_thread=False) as bridge:
+            # The SDK refuses a service with an empty request (Trigger's): its request
+            # is given as the one byte CDR carries for an empty struct, and its hash as
+            # ROS 2 Jazzy publishes it.
+            caller = sdk.ROS2ServiceClient(
+                "/omnican/stop", "std_srvs/srv/Trigger",
+                request_definition="uint8 structure_needs_at_least_one_member",
+                response_definition="bool success\nstring message", type_hash=TRIGGER_HASH,
+                router_port=int(router.rsplit(":", 1)[1]))
+            try:
+                assert caller.keyexpr == service_key(bridge.node, "stop")
+                # A query before this session heard of the queryable goes nowhere.
+                assert wait_real(lambda: caller.querier.matching_status.matching)
+                base.set_velocity(0.2, 0.0, 0.0)
+                clock.sleep(0.3)
+                got: list[Any] = []
+                done = threading.Event()
+                caller.call_async(lambda response: (got.append(response), done.set()))
+                assert run_until(clock, bridge, done.is_set)
+                assert got[0] is not None and got[0].success and got[0].message == "stopped"
+                assert run_until(clock, bridge, lambda: abs(sim.true_twist.vx) < 1e-3)
+            finally:
+                caller.close()
+    finally:
         ours.close()
