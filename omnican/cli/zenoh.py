@@ -1,9 +1,10 @@
 """omnican zenoh: the base on Zenoh, in rmw_zenoh's format, with nothing else on.
 
 A ROS 2 node on rmw_zenoh_cpp (or any peer speaking its format) sees the base as a node:
-it publishes odom, tf, joint_states, diagnostics and battery_state, and takes cmd_vel
+it publishes odom, tf, joint_states, diagnostics and battery_state, takes cmd_vel
 (geometry_msgs/Twist, or TwistStamped with --cmd-vel-stamped; one publisher at a time;
-the base stops when cmd_vel stops).
+the base stops when cmd_vel stops) and answers ~/stop, ~/recover and ~/reset_odometry
+(std_srvs/Trigger).
 Multicast scouting is off unless --zenoh-multicast: point it at a router
 (--zenoh-connect tcp/HOST:7447, rmw_zenoh's default port). Needs eclipse-zenoh (the
 zenoh extra).
@@ -94,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_startup(bridge: Any, timeout_s: float) -> None:
+    from omnican.zenoh.services import SERVICES
+
     s = bridge.settings
     node = s.ros_namespace.rstrip("/") + "/" + s.node_name
     where = ", ".join(s.connect) or "no router given"
@@ -104,6 +107,8 @@ def _print_startup(bridge: Any, timeout_s: float) -> None:
     print(f"  in:  {bridge.cmd_topic} ({kind}; one publisher at a time; stop after "
           f"{timeout_s:g} s without)", flush=True)
     print(f"  out: {', '.join(pub.name for pub in bridge.publishers.values())}", flush=True)
+    print(f"  services: {', '.join(f'{node}/{name}' for name in SERVICES)} "
+          "(std_srvs/Trigger)", flush=True)
     print("Ctrl-C to stop", flush=True)
 
 
