@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import pytest
 from hypothesis import given
@@ -10,6 +11,7 @@ from hypothesis import strategies as st
 
 from omnican.errors import ConfigError
 from omnican.zenoh.settings import ZenohSettings, config_entries
+from tests.zenoh.test_bridge import wait_real
 
 
 def test_defaults_are_a_peer_without_multicast() -> None:
@@ -48,3 +50,29 @@ def test_namespaces_are_written_as_ros_2_does(chunks: list[str], lead: bool,
     ns = ("/" if lead else "") + "/".join(chunks) + ("/" if trail and chunks else "")
     s = ZenohSettings(namespace=ns).validate()
     assert s.ros_namespace == "/" + "/".join(chunks)
+
+
+def test_a_zenoh_config_file_passes_through(tmp_path: Any, router: str) -> None:
+    """The file alone says where the router is (as a deployment's would, with TLS or
+    access control beside); the session reaches it."""
+    from omnican.zenoh.bridge import open_session
+
+    conf = tmp_path / "zenoh.json5"
+    conf.write_text("{ mode: \"peer\", connect: { endpoints: " + json.dumps([router]) + " } }")
+    session = open_session(ZenohSettings(mode="client", config_file=str(conf)))
+    try:
+        assert wait_real(lambda: len(list(session.info.routers_zid())) == 1)
+    finally:
+        session.close()
+
+
+def test_a_session_that_cannot_open_is_a_config_error(tmp_path: Any) -> None:
+    pytest.importorskip("zenoh")
+    from omnican.zenoh.bridge import open_session
+
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ mode: 12 }")
+    with pytest.raises(ConfigError, match="cannot open a Zenoh session"):
+        open_session(ZenohSettings(config_file=str(bad)))
+    with pytest.raises(ConfigError, match="cannot open a Zenoh session"):
+        open_session(ZenohSettings(config_file=str(tmp_path / "missing.json5")))
