@@ -145,3 +145,59 @@ def test_the_sdks_service_client_stops_the_base(
                 caller.close()
     finally:
         ours.close()
+
+
+def test_recover_waits_for_the_driver_and_a_stop_takes_control(
+        stepped: tuple[SimClock, SimulatedBase, Chassis], router: str) -> None:
+    from omnican.telemetry import cdr
+    from omnican.zenoh.bridge import ZenohBridge, open_session
+    from omnican.zenoh.services import service_key
+    from omnican.zenoh.settings import ZenohSettings
+    from tests.zenoh.test_bridge import run_until, wait_real
+
+    clock, sim, base = stepped
+    settings = ZenohSettings(mode="client", connect=(router,))
+    ours = open_session(settings)
+    session = client(router)
+    store = _rosbags_trigger()
+    twist = cdr.encode("geometry_msgs/msg/Twist", {"linear": {"x": 0.2, "y": 0.0, "z": 0.0},
+                                                   "angular": {"x": 0.0, "y": 0.0, "z": 0.0}})
+    driver = bytes([0xD1]) * 16
+    try:
+        with ZenohBridge(base, settings, ours, poll_thread=False) as bridge:
+            pub = session.declare_publisher(bridge.cmd_key)
+            assert wait_real(lambda: pub.matching_status.matching)
+
+            def drive() -> None:
+                pub.put(twist, attachment=rmw.Attachment(1, 0, driver).encode())
+
+            def call(name: str) -> Any:
+                got: list[Any] = []
+                handler = session.get(service_key(bridge.node, name), payload=b"\x00\x01\x00\x00\x00",
+                                      attachment=rmw.Attachment(7, 0, bytes(16)).encode(),
+                                      handler=zenoh.handlers.FifoChannel(4))
+
+                def answered() -> bool:
+                    reply = handler.try_recv()
+                    if reply is not None:
+                        got.append(reply)
+                    return bool(got)
+
+                assert run_until(clock, bridge, answered, each=drive)
+                return store.deserialize_cdr(got[0].ok.payload.to_bytes(),
+                                             "std_srvs/msg/Trigger_Response")
+
+            assert run_until(clock, bridge, lambda: sim.true_twist.vx > 0.15, each=drive)
+            refused = call("recover")
+            assert not refused.success and driver.hex() in refused.message
+            assert call("stop").success
+            # The driver keeps sending: ignored until it lets go; the base stays stopped.
+            assert run_until(clock, bridge, lambda: abs(sim.true_twist.vx) < 1e-3, each=drive)
+            before = bridge.cmd_vel_refused
+            assert run_until(clock, bridge, lambda: bridge.cmd_vel_refused > before + 10,
+                             each=drive)
+            assert abs(sim.true_twist.vx) < 1e-3
+            pub.undeclare()
+    finally:
+        session.close()
+        ours.close()
