@@ -10,8 +10,9 @@ import os
 import socket
 import subprocess
 import sys
+import time
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,17 @@ def message_dir() -> tuple[Path | None, str]:
                         target.write_bytes(z.read(name))
         ok.write_text("\n".join(MESSAGE_WHEELS))
     return out, "downloaded"
+
+
+def wait_real(done: Callable[[], bool], timeout_s: float = 60.0) -> bool:
+    """``done()`` became true within ``timeout_s`` real seconds (generous: what the Zenoh
+    side does in its own threads; nothing is timed)."""
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def free_port() -> int:

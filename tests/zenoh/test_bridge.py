@@ -20,7 +20,7 @@ from omnican.clock import SimClock
 from omnican.sim import SimulatedBase
 from omnican.zenoh import rmw
 from tests.support.helpers import lockstep_rig
-from tests.zenoh.conftest import client
+from tests.zenoh.conftest import client, wait_real
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed "
                     "(pip install 'omnican[zenoh]')")
@@ -114,7 +114,9 @@ def test_the_sdks_twist_drives_the_base(stepped: tuple[SimClock, SimulatedBase, 
 
 def test_attachments_count_up_by_one_with_a_fixed_gid(
         stepped: tuple[SimClock, SimulatedBase, Chassis], bridge: Any, router: str) -> None:
-    from zenoh_ros2_sdk.attachment import Attachment  # the independent reading
+    Attachment = pytest.importorskip(  # the independent reading
+        "zenoh_ros2_sdk.attachment", reason="zenoh-ros2-sdk is not installed "
+        "(pip install zenoh-ros2-sdk)").Attachment
 
     clock, _, _ = stepped
     seen: list[Any] = []
@@ -185,15 +187,6 @@ def test_malformed_nan_and_oversized_commands_move_nothing(
     assert any("cannot be read as a geometry_msgs/msg/Twist" in m for m in said)
     assert any("2000004-byte sample" in m for m in said)
     assert max(len(m) for m in said) < 300
-
-
-def wait_real(done: Callable[[], bool]) -> bool:
-    deadline = time.monotonic() + TIMEOUT_S
-    while not done():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def _port(bridge: Any) -> int:

@@ -18,8 +18,11 @@ from tests.support.helpers import lockstep_rig
 from tests.zenoh.conftest import client
 
 TRIGGER_HASH = "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
-zenoh = pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed "
-                            "(pip install 'omnican[zenoh]')")
+
+
+def _zenoh() -> Any:
+    return pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed "
+                               "(pip install 'omnican[zenoh]')")
 
 
 def _rosbags_trigger() -> Any:
@@ -69,7 +72,7 @@ def test_stop_recover_and_reset_odometry_as_services(
                 assert key.startswith("0/robot1/omnican/" + name + "/std_srvs::srv::dds_::")
                 handler = session.get(key, payload=b"\x00\x01\x00\x00\x00",
                                       attachment=rmw.Attachment(seq, 0, gid).encode(),
-                                      handler=zenoh.handlers.FifoChannel(4))
+                                      handler=_zenoh().handlers.FifoChannel(4))
 
                 def answered() -> bool:
                     got = handler.try_recv()
@@ -114,7 +117,8 @@ def test_the_sdks_service_client_stops_the_base(
     from omnican.zenoh.bridge import ZenohBridge, open_session
     from omnican.zenoh.services import service_key
     from omnican.zenoh.settings import ZenohSettings
-    from tests.zenoh.test_bridge import run_until, wait_real
+    from tests.zenoh.conftest import wait_real
+    from tests.zenoh.test_bridge import run_until
 
     clock, sim, base = stepped
     settings = ZenohSettings(mode="client", connect=(router,))
@@ -153,7 +157,8 @@ def test_recover_waits_for_the_driver_and_a_stop_takes_control(
     from omnican.zenoh.bridge import ZenohBridge, open_session
     from omnican.zenoh.services import service_key
     from omnican.zenoh.settings import ZenohSettings
-    from tests.zenoh.test_bridge import run_until, wait_real
+    from tests.zenoh.conftest import wait_real
+    from tests.zenoh.test_bridge import run_until
 
     clock, sim, base = stepped
     settings = ZenohSettings(mode="client", connect=(router,))
@@ -175,7 +180,7 @@ def test_recover_waits_for_the_driver_and_a_stop_takes_control(
                 got: list[Any] = []
                 handler = session.get(service_key(bridge.node, name), payload=b"\x00\x01\x00\x00\x00",
                                       attachment=rmw.Attachment(7, 0, bytes(16)).encode(),
-                                      handler=zenoh.handlers.FifoChannel(4))
+                                      handler=_zenoh().handlers.FifoChannel(4))
 
                 def answered() -> bool:
                     reply = handler.try_recv()

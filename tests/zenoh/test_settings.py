@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from omnican.errors import ConfigError
 from omnican.zenoh.settings import ZenohSettings, config_entries
-from tests.zenoh.test_bridge import wait_real
+from tests.zenoh.conftest import wait_real
 
 
 def test_defaults_are_a_peer_without_multicast() -> None:
