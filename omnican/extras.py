@@ -20,6 +20,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "foxglove": ("foxglove", "rosbags"),
     "mcap": ("mcap", "rosbags"),
     "gamepad": ("evdev",),
+    "zenoh": ("zenoh", "rosbags"),
 }
 
 

@@ -31,7 +31,7 @@ LAYERS: list[frozenset[str]] = [frozenset(s) for s in (
     {"telemetry"},       # what front ends publish, built once
     {"command", "record", "analysis"},
     {"sim"},             # simulated drives and base
-    {"ros2", "live", "gamepad"},  # front ends
+    {"ros2", "live", "gamepad", "zenoh"},  # front ends
     {"cli"},             # the command line, which starts the others
 )]
 #: The package's public face: it may name any layer (lazily), and old names kept for a

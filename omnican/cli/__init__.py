@@ -40,6 +40,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "plot": ("plot", "plot a recording: trajectory, wheel speeds, drive states", "plot"),
     "check-config": ("check_config", "validate config files and their EDS files offline", None),
     "ros2": ("ros2", "run the base as a ROS 2 node (DDS; no ROS install)", "ros2"),
+    "zenoh": ("zenoh", "run the base on Zenoh (rmw_zenoh's format)", "zenoh"),
 }
 #: The modules of the subcommands, in the order ``--help`` lists them.
 SUBCOMMANDS = tuple(module for module, _, _ in COMMANDS.values())

@@ -1,0 +1,343 @@
+"""The base on Zenoh, in rmw_zenoh's format: a ROS 2 node on ``rmw_zenoh_cpp`` (or any
+peer speaking it) sees its telemetry and drives it with cmd_vel.
+
+The telemetry is the one model's (:mod:`omnican.telemetry`): the bridge is a sink of the
+base's telemetry feed (:func:`~omnican.telemetry.attach.feed_of`) and puts each
+message's CDR bytes, built once for every front end, on its rmw_zenoh key with the
+attachment (sequence number one higher each message, the sample's time, a fixed GID per
+publisher). It declares the liveliness tokens a ROS 2 graph reads: the node (``NN``),
+each publisher (``MP``) and the cmd_vel subscription (``MS``). Publishing is on the
+feed's thread, never the control loop's.
+
+cmd_vel (``geometry_msgs/msg/Twist``, or TwistStamped if the settings say) arrives in a
+ring of :data:`CMD_VEL_DEPTH` samples (a flood costs the oldest, in Zenoh's threads) and
+is polled, as the ROS 2 bridge does: the newest sample of each publisher (told apart by
+its attachment's GID) is parsed, up to :data:`MAX_PARSED_PER_POLL` a poll. One
+publisher drives at a time, each through its own command source
+(:meth:`~omnican.chassis.Chassis.command_source`, the base's one arbiter);
+the chassis watchdog stops the base when its commands stop (a dropped network stops
+it). What cannot be a command (oversized, malformed CDR, NaN) is refused with one log
+line and moves nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+from omnican.chassis.arbiter import CommandSource
+from omnican.core.kinematics import Twist
+from omnican.errors import ConfigError, DriveError, quote
+from omnican.log_throttle import Throttle
+from omnican.telemetry import TOPICS, Message
+from omnican.telemetry.attach import feed_of
+from omnican.zenoh import rmw
+from omnican.zenoh.services import Services
+from omnican.zenoh.settings import ZenohSettings, config_entries
+
+if TYPE_CHECKING:
+    from omnican.chassis import Chassis
+
+logger = logging.getLogger(__name__)
+
+TWIST = "geometry_msgs/msg/Twist"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+#: The telemetry this front end publishes (tf with odom, joint states with wheel radii).
+PUBLISHED = ("/odom", "/tf", "/joint_states", "/diagnostics", "/battery_state")
+TF_DEPTH = 100  # tf2's listener keeps 100
+CMD_VEL_DEPTH = 256  # samples kept between polls (the newest)
+MAX_POLL_HZ = 100.0
+#: A Twist is 52 bytes with its header, a TwistStamped 76 and its frame id: a larger
+#: sample is refused unread.
+MAX_CMD_BYTES = 1024
+MAX_PARSED_PER_POLL = 4
+SOURCE = "Zenoh cmd_vel publisher"
+
+
+def open_session(settings: ZenohSettings) -> Any:
+    """A Zenoh session as ``settings`` say (the config file first, then the settings).
+    ConfigError with Zenoh's words when it cannot open."""
+    import zenoh
+
+    settings.validate()
+    try:
+        conf = (zenoh.Config.from_file(settings.config_file) if settings.config_file
+                else zenoh.Config())
+        for path, value in config_entries(settings):
+            conf.insert_json5(path, value)
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise ConfigError(f"cannot open a Zenoh session: {exc}") from None
+
+
+class _Publisher:
+    """One topic's Zenoh publisher, its liveliness token and its attachment's state."""
+
+    def __init__(self, session: Any, node: rmw.Node, entity_id: int, fq_name: str,
+                 type_name: str, qos: rmw.Qos) -> None:
+        hash_ = rmw.type_hash(type_name)
+        self.name = fq_name
+        self.key = rmw.data_key(node.domain_id, fq_name, type_name, hash_)
+        self.token_key = node.endpoint_token(entity_id, rmw.Kind.PUBLISHER, fq_name,
+                                             type_name, hash_, qos)
+        self.gid = rmw.gid_of(self.token_key)
+        self.sequence = 0
+        self.count = 0
+        self._pub = session.declare_publisher(self.key)
+        self._token = session.liveliness().declare_token(self.token_key)
+
+    def put(self, payload: bytes, stamp_ns: int) -> None:
+        self.sequence += 1  # rmw_zenoh's first is 1
+        self._pub.put(payload, attachment=rmw.Attachment(self.sequence, stamp_ns,
+                                                         self.gid).encode())
+        self.count += 1
+
+    def close(self) -> None:
+        self._token.undeclare()
+        self._pub.undeclare()
+
+
+class ZenohBridge:
+    """Publishes the base's telemetry on a Zenoh session and takes cmd_vel from it (see
+    the module docstring). It owns neither the base nor the session; use as a context
+    manager (or :meth:`start` and :meth:`close`). ``poll_thread=False``: no thread of
+    its own; call :meth:`poll` (the lock-step tests do)."""
+
+    def __init__(self, base: Chassis, settings: ZenohSettings, session: Any, *,
+                 poll_thread: bool = True) -> None:
+        import zenoh
+
+        self.base = base
+        self.settings = settings.validate()
+        self.session = session
+        feed = feed_of(base)
+        ns = settings.ros_namespace
+        self.node = rmw.Node(settings.domain_id, str(session.info.zid()), 0,
+                             settings.node_name, namespace=ns)
+        self._node_token = session.liveliness().declare_token(self.node.token())
+        topics = [t for t in PUBLISHED
+                  if t != "/joint_states" or feed.settings.wheel_radii is not None]
+        self.publishers: dict[str, _Publisher] = {}
+        for entity_id, topic in enumerate(topics, start=1):
+            qos = rmw.Qos(depth=TF_DEPTH if topic == "/tf" else 10)
+            self.publishers[topic] = _Publisher(session, self.node, entity_id,
+                                                rmw.fully_qualified(ns, topic[1:]),
+                                                TOPICS[topic][0], qos)
+        state_rate = feed.settings.state_rate_hz
+        self._every = {t: max(1, round(state_rate / r)) for t, r in settings.rates_hz.items()}
+        self._seen = dict.fromkeys(self._every, 0)
+        self._odom_sent = False
+
+        self.cmd_topic = rmw.fully_qualified(ns, "cmd_vel")
+        self.cmd_type = TWIST_STAMPED if settings.cmd_vel_stamped else TWIST
+        hash_ = rmw.type_hash(self.cmd_type)
+        self.cmd_key = rmw.data_key(settings.domain_id, self.cmd_topic, self.cmd_type, hash_)
+        self._cmd_token = session.liveliness().declare_token(self.node.endpoint_token(
+            len(topics) + 1, rmw.Kind.SUBSCRIPTION, self.cmd_topic, self.cmd_type, hash_,
+            rmw.Qos()))
+        self._cmd_sub = session.declare_subscriber(
+            self.cmd_key, zenoh.handlers.RingChannel(CMD_VEL_DEPTH))
+
+        # One command source per publisher (its GID names it), handed out by the base,
+        # whose one arbiter the other front ends share: one drives at a time.
+        self._sources: dict[str, CommandSource] = {}
+        self._anyone = base.command_source(SOURCE)
+        self.services = Services(session, self.node, base, self.command_source,
+                                 len(topics) + 2)
+        self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
+        self._poll_on_thread = poll_thread
+        self._poll_thread: threading.Thread | None = None
+        self._stop_polling = threading.Event()
+        self._poll_lock = threading.Lock()
+        self._publish_lock = threading.Lock()
+        self._throttle = Throttle(logger)
+        self._driver: str | None = None
+        self._started = False
+        self._closed = False
+        self.polls = 0
+        self.cmd_vel_count = 0  # samples taken
+        self.cmd_vel_parsed = 0
+        self.cmd_vel_rejected = 0  # not a Twist one may drive with
+        self.cmd_vel_refused = 0  # another source held control
+
+    # ------------------------------------------------------------ outputs (the sink)
+
+    def wants(self, topic: str) -> bool:
+        return topic in self.publishers
+
+    def publish(self, messages: list[Message]) -> None:
+        with self._publish_lock:  # close() may run meanwhile (the feed's thread is ours)
+            if not self._closed:
+                self._publish(messages)
+
+    def _publish(self, messages: list[Message]) -> None:
+        for message in messages:
+            pub = self.publishers.get(message.topic)
+            if pub is None:
+                continue
+            topic = message.topic
+            if topic == "/tf":  # the transform goes with the odometry it belongs to
+                due = self._odom_sent
+            elif topic in self._every:
+                self._seen[topic] += 1
+                due = (self._seen[topic] - 1) % self._every[topic] == 0
+                if topic == "/odom":
+                    self._odom_sent = due
+            else:
+                due = True
+            if due:
+                pub.put(message.payload(), message.stamp_ns)
+
+    # ------------------------------------------------------------ inputs
+
+    def poll(self) -> None:
+        """Take what arrived on cmd_vel and act on the newest sample of each publisher;
+        answer the service requests (:mod:`omnican.zenoh.services`)."""
+        with self._poll_lock:
+            if self._closed:
+                return
+            self.polls += 1
+            newest: dict[str, bytes] = {}
+            for _ in range(CMD_VEL_DEPTH):
+                sample = self._cmd_sub.try_recv()
+                if sample is None:
+                    break
+                self.cmd_vel_count += 1
+                source = _source(sample.attachment)
+                newest.pop(source, None)  # oldest first: the last of each stays
+                newest[source] = sample.payload.to_bytes()
+            holder = self._anyone.holder()
+            parsed = 0
+            for source in sorted(newest, key=lambda s: s != holder):  # the driver's first
+                other = self.command_source(source).may_act()
+                if other is not None:
+                    self._refuse(source, other)
+                elif parsed < MAX_PARSED_PER_POLL:
+                    parsed += 1
+                    self._on_cmd_vel(source, newest[source])
+            self.services.poll()
+
+    def _on_cmd_vel(self, source: str, data: bytes) -> None:
+        from omnican.telemetry import cdr
+
+        self.cmd_vel_parsed += 1
+        if len(data) > MAX_CMD_BYTES:
+            self._reject(source, f"a {len(data)}-byte sample, not read (more than the "
+                         f"{MAX_CMD_BYTES} bytes a {self.cmd_type} may have here)")
+            return
+        try:
+            msg = cdr.decode(self.cmd_type, data)
+            if self.cmd_type == TWIST_STAMPED:
+                msg = msg["twist"]
+            t = Twist(float(msg["linear"]["x"]), float(msg["linear"]["y"]),
+                      float(msg["angular"]["z"]))
+        except Exception as exc:  # whatever a broken sample raises
+            self._reject(source, f"cannot be read as a {self.cmd_type}: "
+                         f"{quote(str(exc), 60)}")
+            return
+        if not t.is_finite():
+            self._reject(source, f"not finite: vx={quote(t.vx, 60)} vy={quote(t.vy, 60)} "
+                         f"wz={quote(t.wz, 60)}")
+            return
+        try:
+            holder = self.command_source(source).send(t)
+        except ValueError as exc:
+            self._reject(source, quote(str(exc), 200))
+            return
+        except DriveError:
+            return  # closing
+        if holder is not None:
+            self._refuse(source, holder)
+        elif self._driver != source:
+            self._driver = source
+            logger.info("%s drives the base", source)
+
+    def command_source(self, name: str) -> CommandSource:
+        """The base's command source for the cmd_vel publisher or service client ``name``."""
+        source = self._sources.get(name)
+        if source is None:
+            source = self._sources[name] = self.base.command_source(name)
+        return source
+
+    def holder(self) -> str | None:
+        """Who drives the base now, of every front end (None: no one)."""
+        return self._anyone.holder()
+
+    def _refuse(self, source: str, holder: str) -> None:
+        self.cmd_vel_refused += 1
+        self._throttle.warning(("refused", source), "cmd_vel from %s ignored: %s is driving "
+                               "the base (it drives once %s has sent nothing for %g s)",
+                               source, holder, holder, self._anyone.timeout_s)
+
+    def _reject(self, source: str, why: str) -> None:
+        self.cmd_vel_rejected += 1
+        self._throttle.warning(("rejected", source), "cmd_vel from %s ignored: %s",
+                               source, why)
+
+    # ------------------------------------------------------------ lifecycle
+
+    def start(self) -> ZenohBridge:
+        if not self._started:
+            self._started = True
+            feed_of(self.base).add(self)
+            if self._poll_on_thread:
+                self._stop_polling.clear()
+                self._poll_thread = threading.Thread(target=self._poll_loop,
+                                                     name="omnican-zenoh-poll", daemon=True)
+                self._poll_thread.start()
+        return self
+
+    def _poll_loop(self) -> None:
+        period = self.poll_period_s
+        next_t = time.monotonic()
+        while not self._stop_polling.is_set():
+            try:
+                self.poll()
+            except Exception:  # keep taking commands whatever one did
+                logger.exception("handling Zenoh cmd_vel failed")
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < 0:  # fell behind: the next poll a period from now, no burst
+                next_t, delay = time.monotonic() + period, period
+            self._stop_polling.wait(delay)
+
+    def close(self) -> None:
+        """Stop publishing and taking commands; withdraw the liveliness tokens (the graph
+        sees the node leave). Idempotent; the session stays open."""
+        if self._started:
+            self._started = False
+            feed_of(self.base).remove(self)
+        self._stop_polling.set()
+        if self._poll_thread is not None:
+            self._poll_thread.join(timeout=5.0)
+            self._poll_thread = None
+        with self._poll_lock, self._publish_lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._throttle.flush()
+        self._cmd_sub.undeclare()
+        self._cmd_token.undeclare()
+        self.services.close()
+        for pub in self.publishers.values():
+            pub.close()
+        self._node_token.undeclare()
+
+    def __enter__(self) -> ZenohBridge:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _source(attachment: Any) -> str:
+    """A cmd_vel sample's publisher, by its attachment's GID."""
+    if attachment is None:
+        return f"{SOURCE} without an attachment"
+    try:
+        gid = rmw.Attachment.decode(attachment.to_bytes()).gid
+    except ValueError:
+        return f"{SOURCE} with a malformed attachment"
+    return f"{SOURCE} {gid.hex()}"

@@ -1,0 +1,133 @@
+"""The base's services on Zenoh, in rmw_zenoh's request/reply form: ``~/stop``,
+``~/recover`` and ``~/reset_odometry``, each a ``std_srvs/srv/Trigger``.
+
+rmw_zenoh maps a service server to a queryable on the service's data key; a client's
+request is a query whose payload is the request's CDR and whose attachment carries the
+client's sequence number and GID; the reply carries the response's CDR and an attachment
+with the same sequence number and GID (that is how the client matches it). A service
+server also declares a liveliness token of kind ``SS``.
+
+Requests are queued and answered from the bridge's poll, not in Zenoh's threads: a
+recover takes as long as the drives take to enable, and a lock-step base runs only when
+its clock is stepped. Anyone may stop the base (a stop is not a command); recover and
+reset odometry are refused while another source drives it.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from omnican.chassis.arbiter import CommandSource
+from omnican.errors import DriveError, quote
+from omnican.zenoh import rmw
+
+if TYPE_CHECKING:
+    from omnican.chassis import Chassis
+
+logger = logging.getLogger(__name__)
+
+TRIGGER = "std_srvs/srv/Trigger"
+SERVICES = ("stop", "recover", "reset_odometry")
+QUEUE = 16  # requests kept between polls (a flood of requests costs the oldest)
+SOURCE = "Zenoh service client"
+_CDR_LE = b"\x00\x01\x00\x00"
+
+
+def trigger_response(success: bool, message: str) -> bytes:
+    """CDR (little endian, with its header) of a std_srvs/srv/Trigger_Response."""
+    text = message.encode("utf-8", "replace") + b"\x00"
+    return _CDR_LE + struct.pack("<?3xI", success, len(text)) + text
+
+
+def trigger_hash() -> str:
+    return rmw.service_type_hash(TRIGGER, "", "bool success\nstring message")
+
+
+def service_key(node: rmw.Node, name: str) -> str:
+    """The data key of the node's service ``name`` (``~/name``)."""
+    fq = rmw.fully_qualified(node.namespace, f"{node.name}/{name}")
+    return f"{node.domain_id}/{fq[1:]}/{rmw.dds_type_name(TRIGGER)}/{trigger_hash()}"
+
+
+class Services:
+    """The queryables and tokens of :data:`SERVICES` on ``session`` for ``node``; call
+    :meth:`poll` to answer what arrived."""
+
+    def __init__(self, session: Any, node: rmw.Node, base: Chassis,
+                 source_of: Callable[[str], CommandSource], first_entity_id: int) -> None:
+        import zenoh
+
+        self.base = base
+        self.source_of = source_of  # the base's command source of a client
+        self.answered = 0
+        self._queryables: dict[str, Any] = {}
+        self._tokens: list[Any] = []
+        for n, name in enumerate(SERVICES):
+            fq = rmw.fully_qualified(node.namespace, f"{node.name}/{name}")
+            # complete: it answers every request on its key (rmw_zenoh's servers say so,
+            # and its clients ask only complete queryables)
+            self._queryables[name] = session.declare_queryable(
+                service_key(node, name), zenoh.handlers.FifoChannel(QUEUE), complete=True)
+            self._tokens.append(session.liveliness().declare_token(node.endpoint_token(
+                first_entity_id + n, rmw.Kind.SERVICE, fq, TRIGGER, trigger_hash(),
+                rmw.Qos())))
+        self._actions: dict[str, Callable[[str], tuple[bool, str]]] = {
+            "stop": self._stop, "recover": self._recover, "reset_odometry": self._reset}
+
+    def poll(self) -> None:
+        for name, queryable in self._queryables.items():
+            for _ in range(QUEUE):
+                query = queryable.try_recv()
+                if query is None:
+                    break
+                self._answer(name, query)
+
+    def _answer(self, name: str, query: Any) -> None:
+        raw = query.attachment
+        try:
+            asked = rmw.Attachment.decode(raw.to_bytes() if raw is not None else b"")
+        except ValueError:
+            query.reply_err("an rmw_zenoh request carries an attachment (sequence, GID)")
+            return
+        source = f"{SOURCE} {asked.gid.hex()}"
+        ok, message = self._actions[name](source)
+        logger.info("%s: %s from %s: %s", name, "done" if ok else "refused", source, message)
+        reply = rmw.Attachment(asked.sequence, time.time_ns(), asked.gid)
+        query.reply(query.key_expr, trigger_response(ok, message), attachment=reply.encode())
+        self.answered += 1
+
+    def _stop(self, source: str) -> tuple[bool, str]:
+        try:
+            self.source_of(source).stop()
+        except DriveError as exc:
+            return False, quote(str(exc), 200)
+        return True, "stopped"
+
+    def _recover(self, source: str) -> tuple[bool, str]:
+        other = self.source_of(source).may_act()
+        if other is not None:
+            return False, f"{other} is driving the base"
+        try:
+            self.base.recover()
+        except DriveError as exc:
+            return False, quote(str(exc), 200)
+        return True, "recovered"
+
+    def _reset(self, source: str) -> tuple[bool, str]:
+        other = self.source_of(source).may_act()
+        if other is not None:
+            return False, f"{other} is driving the base"
+        self.base.reset_pose()
+        return True, "odometry reset to (0, 0, 0)"
+
+    def close(self) -> None:
+        for queryable in self._queryables.values():
+            queryable.undeclare()
+        for token in self._tokens:
+            token.undeclare()
+        self._queryables.clear()
+        self._tokens.clear()
