@@ -33,6 +33,7 @@ from omnican.core.encoder import SPEED_WINDOW_S, fold_counter
 from omnican.core.odometry import Odometry
 from omnican.errors import RecordingError
 from omnican.plan.codec import PdoCodec
+from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.plan.node import NodeLayout, node_layouts
 from omnican.protocol.cia301 import (
     EMCY_BASE,
@@ -128,8 +129,9 @@ class Replay:
     #: the configured nodes the recording has frames from (a heartbeat, an EMCY, a TPDO)
     nodes_heard: frozenset[int] = frozenset()
     cut: str | None = None  # cut short or damaged: what was read and what not (cut_note)
-    #: what the drives reported: quantity ("current" A, "torque" %, "voltage" V,
-    #: "temperature" degC) -> per wheel (times, values); empty arrays where none came
+    #: what the drives reported, each value of omnican.plan.health_fields but for a
+    #: register, in its unit: quantity ("current" A, "torque" %, "voltage" V, "temperature"
+    #: degC) -> per wheel (times, values); empty arrays where none came
     health: dict[str, tuple[tuple[FloatArray, FloatArray], ...]] = field(
         default_factory=dict)
 
@@ -184,7 +186,7 @@ class _HealthSeries:
     """The health values in a recording, as the base reads them: its health TPDOs and
     the answers to its SDO reads (6075h's too, the rated current 6078h counts in)."""
 
-    QUANTITIES = ("current", "torque", "voltage", "temperature")
+    QUANTITIES = tuple(f.quantity for f in HEALTH_FIELDS if not f.register)
 
     def __init__(self, layouts: Sequence[NodeLayout], wheels: int) -> None:
         self.pdos: dict[int, tuple[PdoCodec, list[tuple[int, Any]]]] = {}
