@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
 from omnican.chassis.battery import BatteryMonitor, base_voltage
 from omnican.chassis.state import Health, StatusHealth, no_health
@@ -184,7 +184,7 @@ class HealthMonitor:
         wheel_values = []
         for health, reads in self._wheel_reads:
             values, scales, oldest = health.values, health.scales, now - health.stale_after_s
-            fresh: dict[str, Any] = {}  # by WheelHealth's field names
+            fresh: dict[str, float | int | None] = {}  # by WheelHealth's field names
             for name, key, per_unit in reads:
                 got = values.get(key)
                 if got is None or got[1] < oldest:
@@ -192,7 +192,7 @@ class HealthMonitor:
                 scale = scales.get(key) if per_unit is None else per_unit
                 fresh[name] = got[0] if scale == 0.0 else None if scale is None else \
                     got[0] * scale
-            wheel_values.append(WheelHealth(**fresh))
+            wheel_values.append(WheelHealth.of(fresh))
         lift_warnings = self._check_lift(now, sup, wheel_values) \
             if self.lifted_wheel != "off" else ()
         pressed = self._check_estop(now, sup)

@@ -89,6 +89,17 @@ def test_a_wheel_states_health_is_its_wheel_health(given_values: dict[str, Any])
         k: v for k, v in given_values.items() if v is not None}
 
 
+@given(st.dictionaries(st.sampled_from([f.name for f in HEALTH_FIELDS]),
+                       st.none() | st.integers(0, 255) | st.floats(allow_nan=False)))
+def test_wheel_health_of_is_the_records_init(given_values: dict[str, Any]) -> None:
+    made = WheelHealth.of(given_values)
+    assert made == WheelHealth(**given_values) and type(made) is WheelHealth
+    assert health_values(made) == {**dict.fromkeys(health_values(made)), **given_values}
+    assert hash(made) == hash(WheelHealth(**given_values))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        made.current_a = 1.0  # type: ignore[misc]
+
+
 def test_diagnostics_give_every_value_by_its_name() -> None:
     shown = values()
     status = telemetry.wheel_status(wheel(**shown), "omnican", "wheel_0_joint")
