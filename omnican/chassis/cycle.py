@@ -36,6 +36,7 @@ from omnican.protocol.heartbeat import HeartbeatSchedule
 
 STALE_AFTER_S = 0.1  # a wheel with no position sample for this long reads as unknown
 HEALTH_CHECK_HZ = 250.0  # faster loops check the drives' health every few cycles (below)
+_bare = object.__new__  # an instance without its __init__ (the snapshot, made field by field)
 
 
 class ControlCycle:
@@ -267,28 +268,32 @@ class ControlCycle:
                           stage.error_value, stage.error, node.fault_text)
                          for ax, stage, node in self._axis_parts]))
         latched = sup.latched
-        enabled = (latched is None and not offline and not configuring and
-                   not bus_down and self._all_enabled)
         bitrate = self._bitrate
         cycles = self.cycles
         if sup.warnings != self._warnings_list:
             self._warnings_list, self._warnings = list(sup.warnings), tuple(sup.warnings)
-        status = (
-            enabled,
-            latched,
-            now - self.command[1],
-            self._loop_hz,
-            self.runner.late / cycles if cycles else 0.0,
-            cycles,
-            self._bus_bits_per_s / bitrate if bitrate else None,
-            self._bus_bits_per_s,
-            watch.failing or (self._bus.reconnect_error if bus_down else None),
-            self._warnings,
-            not bus_down,
-        )
         unknown = offline or configuring or bus_down
-        return Snapshot(self.odometry.xyt, (0.0, 0.0, 0.0) if unknown else encoders.measured,
-                        command, wheels, status, self._wheel_info, sup.monitor.values)
+        # Field by field into a bare snapshot (see Snapshot: cheaper than a constructor).
+        snap = _bare(Snapshot)
+        snap.xyt = self.odometry.xyt
+        snap.measured = (0.0, 0.0, 0.0) if unknown else encoders.measured
+        snap.applied = command
+        snap.wheel_values = wheels
+        snap.info = self._wheel_info
+        snap.health = sup.monitor.values
+        snap.enabled = (latched is None and not offline and not configuring and
+                        not bus_down and self._all_enabled)
+        snap.stopped_reason = latched
+        snap.command_age_s = now - self.command[1]
+        snap.loop_hz = self._loop_hz
+        snap.late_fraction = self.runner.late / cycles if cycles else 0.0
+        snap.cycles = cycles
+        snap.bus_load = self._bus_bits_per_s / bitrate if bitrate else None
+        snap.bus_bits_per_s = self._bus_bits_per_s
+        snap.bus_error = watch.failing or (self._bus.reconnect_error if bus_down else None)
+        snap.warnings = self._warnings
+        snap.bus_up = not bus_down
+        return snap
 
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,

@@ -16,8 +16,10 @@ the loop thread by the supervisor (never by the control cycle itself):
 - the CAN controller (:mod:`omnican.protocol.can_state`): bus-off is a stop's reason, and
   ``recover()`` refuses until the controller is restarted;
 - the health values themselves (:mod:`omnican.drive.health`): the round-robin SDO reads
-  are sent from here, and the values each wheel shows are made here, a tuple handed to
-  every snapshot until the next check.
+  are sent from here, and what each wheel shows is made here (a
+  :class:`~omnican.plan.health_fields.WheelHealth` per wheel, a
+  :class:`~omnican.chassis.state.StatusHealth`), handed to every snapshot until the next
+  check.
 """
 
 from __future__ import annotations
@@ -25,10 +27,10 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
 from omnican.chassis.battery import BatteryMonitor, base_voltage
-from omnican.chassis.state import no_health
+from omnican.chassis.state import Health, StatusHealth, no_health
 from omnican.config import ChassisConfig
 from omnican.core.lift import LiftDetector
 from omnican.core.limits import longest_stop_s
@@ -37,6 +39,7 @@ from omnican.drive import DriveNode
 from omnican.drive.health import NodeHealth
 from omnican.io.bus import CanBus
 from omnican.plan.health import HealthRead
+from omnican.plan.health_fields import HEALTH_FIELDS, WheelHealth
 from omnican.protocol import cia402
 from omnican.protocol.cia402 import Mode, State
 from omnican.protocol.object_map import Obj
@@ -66,7 +69,6 @@ _ENERGISED = (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
 _SLIPPAGE_MODES = (int(Mode.PROFILE_VELOCITY), int(Mode.CYCLIC_SYNC_VELOCITY))
 #: (targets, measured speeds, wheels without a fresh sample, every drive enabled)
 Speeds = Callable[[], tuple[Sequence[float], Sequence[float], Sequence[int], bool]]
-_WHEEL_QUANTITIES = ("current", "torque", "voltage", "temperature", "error_register")
 Key = tuple[int, int]
 
 
@@ -137,19 +139,16 @@ class HealthMonitor:
                       and read.entry.obj is Obj.CURRENT_ACTUAL):
                     current = read.key
             self._loads.append((n.health, torque, current))
-        # Per wheel: its node's values and, per quantity, (key, SI per unit; None: the
-        # scale found at startup; 0: the raw integer), or None where the drive has none.
-        self._wheel_reads: list[tuple[NodeHealth, tuple[tuple[Key, float | None] | None,
+        # Per wheel: its node's values and, per field of WheelHealth that its drive gives,
+        # (name, key, SI per unit; None: the scale found at startup; 0: the raw integer).
+        self._wheel_reads: list[tuple[NodeHealth, tuple[tuple[str, Key, float | None],
                                                         ...]]] = []
         for a, n in axes:
             by_quantity = {r.quantity: r for r in n.health.plan.reads
                            if a.wheel_index in r.wheels}
-            reads = []
-            for q in _WHEEL_QUANTITIES:
-                r = by_quantity.get(q)
-                reads.append(None if r is None else
-                             (r.key, 0.0 if q == "error_register" else r.scale))
-            self._wheel_reads.append((n.health, tuple(reads)))
+            self._wheel_reads.append((n.health, tuple(
+                (f.name, r.key, 0.0 if f.register else r.scale) for f in HEALTH_FIELDS
+                if (r := by_quantity.get(f.quantity)) is not None)))
         self._voltages = [(n.health, r) for n in nodes for r in n.health.plan.reads
                           if r.quantity == "voltage"]
         self.battery = BatteryMonitor(cfg.power) if cfg.power is not None else None
@@ -158,8 +157,8 @@ class HealthMonitor:
         #: why recover() may not clear the stop now (an e-stop held, bus-off), or None
         self.estop_held: str | None = None
         self.bus_off: str | None = None
-        #: what each snapshot carries until the next check (see omnican.chassis.state.no_health)
-        self.values: tuple[tuple[tuple[Any, ...], ...], tuple[Any, ...]] = no_health(len(axes))
+        #: what each snapshot carries until the next check
+        self.values: Health = no_health(len(axes))
 
     def check(self, now: float, sup: Latches) -> None:
         """What is due at ``now`` (loop thread, once ``next_at`` has come); ``sup``
@@ -185,20 +184,15 @@ class HealthMonitor:
         wheel_values = []
         for health, reads in self._wheel_reads:
             values, scales, oldest = health.values, health.scales, now - health.stale_after_s
-            row: list[float | int | None] = []
-            for read in reads:
-                if read is None:
-                    row.append(None)
-                    continue
-                key, scale = read
+            fresh: dict[str, float | int | None] = {}  # by WheelHealth's field names
+            for name, key, per_unit in reads:
                 got = values.get(key)
                 if got is None or got[1] < oldest:
-                    row.append(None)
                     continue
-                if scale is None:
-                    scale = scales.get(key)
-                row.append(got[0] if scale == 0.0 else None if scale is None else got[0] * scale)
-            wheel_values.append(tuple(row))
+                scale = scales.get(key) if per_unit is None else per_unit
+                fresh[name] = got[0] if scale == 0.0 else None if scale is None else \
+                    got[0] * scale
+            wheel_values.append(WheelHealth.of(fresh))
         lift_warnings = self._check_lift(now, sup, wheel_values) \
             if self.lifted_wheel != "off" else ()
         pressed = self._check_estop(now, sup)
@@ -219,14 +213,15 @@ class HealthMonitor:
             level = "cutoff" if battery.cut else "low" if battery.low else "ok"
         can = self._bus.controller.state
         seen = can.error_frames > 0
-        self.values = (tuple(wheel_values), (can.state if seen else None, can.tx_errors,
-                                             can.rx_errors, can.error_frames, pressed, volts,
-                                             level, warnings))
+        self.values = Health(tuple(wheel_values), StatusHealth(
+            can_state=can.state if seen else None, can_tx_errors=can.tx_errors,
+            can_rx_errors=can.rx_errors, can_error_frames=can.error_frames, estop=pressed,
+            battery_v=volts, battery=level, warnings=warnings))
 
     # ------------------------------------------------------------ the checks
 
     def _check_lift(self, now: float, sup: Latches,
-                    wheel_values: list[tuple[float | int | None, ...]]) -> tuple[str, ...]:
+                    wheel_values: list[WheelHealth]) -> tuple[str, ...]:
         """Each wheel's current against its siblings' while the base runs; the warnings
         of the wheels found off the ground."""
         speeds = self.speeds
@@ -238,7 +233,7 @@ class HealthMonitor:
                 not sup.offline and not sup.configuring and not sup.closed):
             lift.paused()
             return ()
-        currents = [None if row[0] is None else float(row[0]) for row in wheel_values]
+        currents = [h.current_a for h in wheel_values]
         known = [None if i in stale else v for i, v in enumerate(measured)]
         for finding in lift.update(now, known, currents):
             _, node, axis = self._wheels[finding.wheel]

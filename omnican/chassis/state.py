@@ -2,24 +2,29 @@
 
 :class:`WheelState` and :class:`ChassisStatus` are what ``Chassis.wheels`` and
 ``Chassis.status`` return; :class:`Snapshot` is what the control loop publishes once a
-cycle (as plain numbers and tuples) and the objects are made from, on first read, by
-the reader. Pure: no I/O.
+cycle (plain numbers and tuples, each by name) and the objects are made from, on first
+read, by the reader. :class:`Health` is what the health checks add to every snapshot,
+made at their rate. Pure: no I/O.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
+from omnican.plan.health_fields import NO_WHEEL_HEALTH, WheelHealth, health_values
 from omnican.protocol import cia402
 from omnican.protocol.cia402 import State, describe_emcy
 
 
 @dataclass(frozen=True)
-class WheelState:
-    """One wheel, as of one control cycle. Speeds in m/s at the rim, travel in m."""
+class WheelState(WheelHealth):
+    """One wheel, as of one control cycle. Speeds in m/s at the rim, travel in m. What
+    its drive reports (``current_a``, ``torque_pct``, ``voltage_v``, ``temperature_c``,
+    ``error_register``: keyword arguments) are :class:`WheelHealth`'s fields, declared
+    there with how the front ends show them."""
 
     index: int
     node_id: int
@@ -34,13 +39,6 @@ class WheelState:
     fault: str | None
     error: str | None
     stale: bool = False  # no fresh position sample: actual_speed reads 0.0, not a stale value
-    # What the drive reports, read a few times a second (chassis.health_rate_hz); None when
-    # the drive does not give it, or nothing fresh came from it.
-    current_a: float | None = None  # motor current, A
-    torque_pct: float | None = None  # torque, % of the rated torque
-    voltage_v: float | None = None  # the drive's DC link, V
-    temperature_c: float | None = None  # the config's temperature object, degC
-    error_register: int | None = None  # 1001h (bits: 0 generic, 1 current, 2 voltage, ...)
 
 
 @dataclass(frozen=True)
@@ -68,88 +66,138 @@ class ChassisStatus:
     battery: str | None = None  # "ok", "low" or "cutoff" ([power]); None: no [power] table
 
 
-#: The health part of a snapshot before anything was read: per wheel (current, torque,
-#: voltage, temperature, error register), then (CAN state, tx and rx counters, error
-#: frames, e-stop, battery voltage and level, health warnings).
-NO_STATUS_HEALTH: tuple[Any, ...] = (None, None, None, 0, False, None, None, ())
+class StatusHealth(NamedTuple):
+    """What the health checks add to the status: :class:`ChassisStatus`'s fields of the
+    same names (``warnings`` follow the loop's)."""
+
+    can_state: str | None = None
+    can_tx_errors: int | None = None
+    can_rx_errors: int | None = None
+    can_error_frames: int = 0
+    estop: bool = False
+    battery_v: float | None = None
+    battery: str | None = None
+    warnings: tuple[str, ...] = ()
 
 
-def no_health(wheels: int) -> tuple[tuple[tuple[Any, ...], ...], tuple[Any, ...]]:
-    return ((None,) * 5,) * wheels, NO_STATUS_HEALTH
+class Health(NamedTuple):
+    """What the health checks found, carried by every snapshot until the next check:
+    per wheel (by index) what its drive reports, and the status's part."""
+
+    wheels: tuple[WheelHealth, ...]
+    status: StatusHealth
+
+
+def no_health(wheels: int) -> Health:
+    """The health part of a snapshot before anything was read."""
+    return Health((NO_WHEEL_HEALTH,) * wheels, StatusHealth())
 
 
 class Snapshot:
-    """What one cycle published, as plain numbers and tuples: the objects (Pose2D,
-    Twist, WheelState, ChassisStatus) are made on first read, by the reader. The loop
-    only packs tuples, which keeps it cheap at 1 kHz."""
+    """What one cycle published, by name, as plain numbers and tuples: the objects
+    (Pose2D, Twist, WheelState, ChassisStatus) are made on first read, by the reader.
 
-    __slots__ = ("_command", "_health", "_info", "_pose", "_status", "_twist", "_values",
-                 "_wheel_values", "_wheels")
+    The cycle makes it field by field (``Snapshot.__new__(Snapshot)``, then a store per
+    field: :meth:`omnican.chassis.cycle.ControlCycle._make_snapshot`), which keeps it
+    cheap at 1 kHz: cheaper than a constructor call with as many arguments, or than a
+    record of the status apart. Once published it does not change (what is made on read
+    is stored the first time)."""
 
-    def __init__(self, pose: tuple[float, float, float], twist: tuple[float, float, float],
-                 command: tuple[float, float, float], wheels: tuple[Any, ...],
-                 status: tuple[Any, ...], info: tuple[tuple[int, int, int, float], ...],
-                 health: tuple[tuple[tuple[Any, ...], ...], tuple[Any, ...]] | None = None
-                 ) -> None:
-        self._values = (pose, twist, command, status)
-        self._wheel_values = wheels
-        self._info = info
-        # Made at the health-check rate, not by the cycle: see no_health().
-        self._health = health if health is not None else no_health(len(info))
-        self._pose: Pose2D | None = None
-        self._twist: Twist | None = None
-        self._command: Twist | None = None
-        self._status: ChassisStatus | None = None
-        self._wheels: tuple[WheelState, ...] | None = None
+    __slots__ = ("_command", "_pose", "_status", "_twist", "_wheels", "applied",
+                 "bus_bits_per_s", "bus_error", "bus_load", "bus_up", "command_age_s", "cycles",
+                 "enabled", "health", "info", "late_fraction", "loop_hz", "measured",
+                 "stopped_reason", "warnings", "wheel_values", "xyt")
+
+    xyt: tuple[float, float, float]  # the pose: x, y (m), theta (rad)
+    measured: tuple[float, float, float]  # the measured twist: vx, vy (m/s), wz (rad/s)
+    applied: tuple[float, float, float]  # the command applied (after the limits)
+    #: (targets, the speed window, (online, stale) per wheel, the drives' values): see
+    #: :attr:`wheels`
+    wheel_values: tuple[Any, ...]
+    info: tuple[tuple[int, int, int, float], ...]  # per wheel: index, node id, axis, scale
+    health: Health  # made at the health-check rate, not by the cycle
+    # The cycle's part of ChassisStatus, by the same names.
+    enabled: bool
+    stopped_reason: str | None
+    command_age_s: float
+    loop_hz: float
+    late_fraction: float
+    cycles: int
+    bus_load: float | None
+    bus_bits_per_s: float
+    bus_error: str | None
+    warnings: tuple[str, ...]
+    bus_up: bool
+    # Made on first read (unset until then).
+    _pose: Pose2D
+    _twist: Twist
+    _command: Twist
+    _status: ChassisStatus
+    _wheels: tuple[WheelState, ...]
 
     @property
     def pose(self) -> Pose2D:
-        if self._pose is None:
-            self._pose = Pose2D(*self._values[0])
-        return self._pose
+        try:
+            return self._pose
+        except AttributeError:  # the first read
+            self._pose = pose = Pose2D(*self.xyt)
+            return pose
 
     @property
     def twist(self) -> Twist:
-        if self._twist is None:
-            self._twist = Twist(*self._values[1])
-        return self._twist
+        try:
+            return self._twist
+        except AttributeError:
+            self._twist = twist = Twist(*self.measured)
+            return twist
 
     @property
     def command(self) -> Twist:
-        if self._command is None:
-            self._command = Twist(*self._values[2])
-        return self._command
+        try:
+            return self._command
+        except AttributeError:
+            self._command = command = Twist(*self.applied)
+            return command
 
     @property
     def status(self) -> ChassisStatus:
-        if self._status is None:
-            values = self._values[3]
-            *extra, warnings = self._health[1]
-            if warnings:
-                values = (*values[:9], values[9] + warnings, *values[10:])
-            self._status = ChassisStatus(*values, *extra)
-        return self._status
+        try:
+            return self._status
+        except AttributeError:
+            h = self.health.status
+            self._status = status = ChassisStatus(
+                enabled=self.enabled, stopped_reason=self.stopped_reason,
+                command_age_s=self.command_age_s, loop_hz=self.loop_hz,
+                late_fraction=self.late_fraction, cycles=self.cycles, bus_load=self.bus_load,
+                bus_bits_per_s=self.bus_bits_per_s, bus_error=self.bus_error,
+                warnings=self.warnings + h.warnings if h.warnings else self.warnings,
+                bus_up=self.bus_up, can_state=h.can_state, can_tx_errors=h.can_tx_errors,
+                can_rx_errors=h.can_rx_errors, can_error_frames=h.can_error_frames,
+                estop=h.estop, battery_v=h.battery_v, battery=h.battery)
+            return status
 
     @property
     def wheels(self) -> tuple[WheelState, ...]:
-        if self._wheels is None:
-            # The measured rim speeds from the loop's speed window: (travel now, travel at
-            # the window's start, its span).
-            targets, (travel, travel0, span), flags, drives = self._wheel_values
-            health = self._health[0]
-            out = []
-            for i, ((index, node_id, axis, scale), (online, stale),
-                    (counts, statusword, mode, error_value, error, fault_text)) in enumerate(
-                        zip(self._info, flags, drives, strict=True)):
-                state = cia402.decode_state(statusword)
-                fault = None
-                if state is State.FAULT or state is State.FAULT_REACTION_ACTIVE:
-                    fault = fault_text or (describe_emcy(error_value) if error_value
-                                           else "fault")
-                out.append(WheelState(index, node_id, axis, state, statusword, mode, targets[i],
-                                      0.0 if stale else (travel[i] - travel0[i]) / span,
-                                      counts / scale, online,
-                                      fault, error, stale, *health[i]))
-            self._wheels = tuple(out)
-        return self._wheels
-
+        try:
+            return self._wheels
+        except AttributeError:
+            pass
+        # The measured rim speeds from the loop's speed window: (travel now, travel at the
+        # window's start, its span).
+        targets, (travel, travel0, span), flags, drives = self.wheel_values
+        health = self.health.wheels
+        out = []
+        for i, ((index, node_id, axis, scale), (online, stale),
+                (counts, statusword, mode, error_value, error, fault_text)) in enumerate(
+                    zip(self.info, flags, drives, strict=True)):
+            state = cia402.decode_state(statusword)
+            fault = None
+            if state is State.FAULT or state is State.FAULT_REACTION_ACTIVE:
+                fault = fault_text or (describe_emcy(error_value) if error_value
+                                       else "fault")
+            out.append(WheelState(index, node_id, axis, state, statusword, mode, targets[i],
+                                  0.0 if stale else (travel[i] - travel0[i]) / span,
+                                  counts / scale, online, fault, error, stale,
+                                  **health_values(health[i])))
+        self._wheels = wheels = tuple(out)
+        return wheels

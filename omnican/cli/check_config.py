@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 from omnican.cli.common import EXIT_OK, EXIT_USAGE, check_front_ends, fail, positive_int
 from omnican.config import ChassisConfig, load_config, reference_rows
 from omnican.errors import ConfigError
+from omnican.plan.health_fields import BY_QUANTITY, HEALTH_FIELDS
 
 if TYPE_CHECKING:
     from omnican.plan.node import NodeLayout
@@ -199,12 +200,12 @@ def host_loss_line(layout: NodeLayout) -> str:
 def health_lines(layout: NodeLayout) -> list[str]:
     """What a node reports of its health and how it is read; its e-stop; its vendor
     settings."""
-    from omnican.plan.health import PER_AXIS
-
+    # What the drives report (but a register), and the following error.
+    shown = {f.quantity for f in HEALTH_FIELDS if not f.register} | {"following_error"}
     lines = []
     for axis in layout.axes:
         reads = [r for r in layout.health.reads
-                 if axis.wheel_index in r.wheels and r.quantity in PER_AXIS | {"voltage"}]
+                 if axis.wheel_index in r.wheels and r.quantity in shown]
         if reads:
             what = ", ".join(f"{r.quantity.replace('_', ' ')} {r.entry.address}"
                              f"{_unit(r)}" for r in reads)
@@ -230,10 +231,11 @@ def _unit(read: Any) -> str:
         return " (per mille of 6075h, read at startup)"
     if read.quantity == "following_error":
         return " (where a PDO has room)"
-    if read.scale is None or read.quantity == "torque":
-        return ""
-    unit = {"current": "A", "voltage": "V", "temperature": "degC"}[read.quantity]
-    return f" x {read.scale:g} {unit}"
+    from omnican.plan.health import CONFIG_SCALED
+
+    if read.scale is None or read.quantity not in CONFIG_SCALED:
+        return ""  # not the config's scale: the standard's unit (6077h, per mille)
+    return f" x {read.scale:g} {BY_QUANTITY[read.quantity].unit}"
 
 
 def _fits(bits: int, hb_bits_per_s: float, rate_hz: float, bitrates: list[int]) -> str:

@@ -51,6 +51,7 @@ from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
 from omnican.errors import BaseStoppedError, ConfigError, OmnicanError
 from omnican.live import prepare, watch
+from omnican.plan.health_fields import HEALTH_FIELDS
 
 DEFAULT_DURATION_S = 1.0
 _BOTH_DRIVE = ("--foxglove-control takes the motion from Foxglove: give no motion, only "
@@ -202,14 +203,16 @@ def _fail_json(error: str, seen: dict[str, Any]) -> None:
                       **({"true_pose": seen["true_pose"]} if "true_pose" in seen else {})}))
 
 
+#: What --json gives of what each drive reports (omnican.plan.health_fields).
+JSON_HEALTH = tuple(f.name for f in HEALTH_FIELDS if f.in_drive_json)
+
+
 def wheels_json(wheels: Any) -> list[dict[str, Any]]:
     """Each wheel's drive as --json shows it (null: the drive does not give it)."""
     return [{"node_id": w.node_id, "axis": w.axis,
              "state": str(w.state) if w.online else "OFFLINE",
-             "current_a": rounded(w.current_a) if w.current_a is not None else None,
-             "voltage_v": rounded(w.voltage_v) if w.voltage_v is not None else None,
-             "temperature_c": rounded(w.temperature_c) if w.temperature_c is not None
-             else None} for w in wheels]
+             **{name: None if (value := getattr(w, name)) is None else rounded(value)
+                for name in JSON_HEALTH}} for w in wheels]
 
 
 class _StopSaidOnce(logging.Filter):

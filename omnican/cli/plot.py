@@ -41,6 +41,7 @@ from omnican.cli.common import (
 from omnican.command import motion
 from omnican.core.odometry import Pose2D
 from omnican.errors import BaseStoppedError
+from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.protocol.cia402 import State
 from omnican.record import replay
 
@@ -64,9 +65,9 @@ STATE_COLOURS: dict[State, str] = {
 }
 
 TRUTH_PERIOD_S = 0.02
-#: The panels of what the drives report, where the recording has it: (title, axis label).
-HEALTH_PANELS = {"current": ("motor current, as the drives report it", "current (A)"),
-                 "voltage": ("DC link voltage, as the drives report it", "voltage (V)")}
+#: The panels of what the drives report, where the recording has it
+#: (omnican.plan.health_fields: the values plotted).
+HEALTH_PANELS = tuple(f for f in HEALTH_FIELDS if f.plotted)
 
 
 def add_subparser(sub: Any) -> None:
@@ -136,8 +137,8 @@ def build_figure(rep: replay.Replay, title: str,
     from matplotlib.patches import Patch
 
     n = rep.num_wheels
-    health = [q for q in ("current", "voltage")
-              if any(len(ts) for ts, _ in rep.health.get(q, ()))]  # the drives reported them
+    health = [f for f in HEALTH_PANELS  # where the drives reported them
+              if any(len(ts) for ts, _ in rep.health.get(f.quantity, ()))]
     panels = n + len(health)
     fig = Figure(figsize=(14, 2.0 + 1.7 * (panels + 1)), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
@@ -216,18 +217,17 @@ def build_figure(rep: replay.Replay, title: str,
         for t, _node in rep.reboots:
             wax.axvline(t, color="purple", ls=":", lw=1.0)
 
-    # What the drives reported: motor current and DC link voltage, a line per wheel.
-    for k, quantity in enumerate(health):
+    # What the drives reported (the values plotted), a line per wheel.
+    for k, reported in enumerate(health):
         hax = fig.add_subplot(grid[n + k, 1], sharex=first)
-        for i, (times, values) in enumerate(rep.health[quantity]):
+        for i, (times, values) in enumerate(rep.health[reported.quantity]):
             if len(times):
                 # Each wheel narrower than the one before and drawn over it: wheels that
                 # report the same values (one DC link) show as bands, not one hiding another.
                 hax.plot(times, values, lw=overlap_width(i, n), color=f"C{i}",
                          label=f"wheel {i}", drawstyle="steps-post", zorder=2 + i * 0.01)
-        title, unit = HEALTH_PANELS[quantity]
-        hax.set_ylabel(unit, fontsize=9)
-        hax.set_title(title, loc="left")
+        hax.set_ylabel(reported.axis_label, fontsize=9)
+        hax.set_title(reported.plot_title, loc="left")
         hax.grid(True, alpha=0.4)
         hax.tick_params(labelbottom=False)
         if hax.get_legend_handles_labels()[0]:

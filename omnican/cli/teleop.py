@@ -52,6 +52,7 @@ from omnican.core.kinematics import Twist
 from omnican.errors import OmnicanError
 from omnican.gamepad.device import Gamepad, config_table, pad_command, teleop_model_for
 from omnican.live import prepare, watch
+from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.protocol.cia402 import State
 
 # The last byte of an arrow key's escape sequence -> the key it stands for.
@@ -221,9 +222,13 @@ def wrap_phrases(phrases: Sequence[str], width: int, gap: int = 4) -> str:
 # so that no row wraps (a wrapped row pushes the newest events off an 80x24 screen).
 FAULT_COLUMN_MIN_WIDTH = 110
 # The wheel table's columns; their units are in the panel's title (an 80-column screen
-# has room for the values, not for units beside each header).
-WHEEL_COLUMNS = ("wheel", "node", "state", "target", "actual", "travel", "A", "V", "°C")
-WHEEL_UNITS = "target, actual m/s; travel m; motor current A; DC link V; °C"
+# has room for the values, not for units beside each header). What the drives report:
+# the values of omnican.plan.health_fields that have a column.
+HEALTH_COLUMNS = tuple(f for f in HEALTH_FIELDS if f.column is not None)
+WHEEL_COLUMNS = ("wheel", "node", "state", "target", "actual", "travel",
+                 *(f.column or "" for f in HEALTH_COLUMNS))
+WHEEL_UNITS = "; ".join(("target, actual m/s", "travel m",
+                         *(f.legend for f in HEALTH_COLUMNS)))
 
 
 def bus_back_after_down(status: Any) -> bool:
@@ -317,10 +322,11 @@ def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
         trouble = w.fault or w.error or ""
         cells: list[Any] = [str(w.index), node, state, fixed(w.target_speed, 3, sign=True),
                             "-" if w.stale else fixed(w.actual_speed, 3, sign=True),
-                            fixed(w.travel, 3, sign=True),
-                            "-" if w.current_a is None else fixed(w.current_a, 2, sign=True),
-                            "-" if w.voltage_v is None else fixed(w.voltage_v, 1),
-                            "-" if w.temperature_c is None else fixed(w.temperature_c, 1)]
+                            fixed(w.travel, 3, sign=True)]
+        for reported in HEALTH_COLUMNS:  # what the drive reports
+            value = getattr(w, reported.name)
+            cells.append("-" if value is None else
+                         fixed(value, reported.places, sign=reported.signed))
         if fault_column:
             cells.append(Text(trouble, style="red"))
         elif trouble:

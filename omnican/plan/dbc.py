@@ -21,6 +21,8 @@ from cantools.database.namedsignalvalue import NamedSignalValue
 
 from omnican.config import ChassisConfig, default_config
 from omnican.plan.codec import PdoCodec, value_range
+from omnican.plan.health import CONFIG_SCALED
+from omnican.plan.health_fields import BY_QUANTITY
 from omnican.plan.node import NodeLayout, node_layouts
 from omnican.plan.pdo import PlannedPdo
 from omnican.protocol.cia301 import (
@@ -111,7 +113,7 @@ def _signal(name: str, start: int, bits: int, signed: bool, receivers: list[str]
 
 
 #: Units of what the drives report, in the config's scales (health reads).
-HEALTH_UNITS = {"current": "A", "voltage": "V", "temperature": "degC"}
+HEALTH_UNITS = {q: BY_QUANTITY[q].unit for q in CONFIG_SCALED}
 
 
 def _health_scale(layout: NodeLayout, entry: Entry) -> tuple[float, str] | None:

@@ -30,17 +30,28 @@ from canopen import objectdictionary as od
 
 from omnican.config import SCHEMA, EstopSettings, WheelConfig
 from omnican.errors import ConfigError
+from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.plan.pdo import MAX_PDO_BITS, SDO_TRANSFER_BITS, PdoSlot, PlannedPdo, frame_bits
 from omnican.protocol.cia301 import ERROR_REGISTER, TPDO_COMM, TRANS_EVENT, TRANS_SYNC_MAX
 from omnican.protocol.object_map import AxisObjects, Entry, Obj, entry_at, variable_at
 
-#: What is read, in the order the spare PDOs are filled (most wanted first).
-QUANTITIES = ("current", "torque", "voltage", "temperature", "error_register", "estop",
-              "following_error")
-PER_AXIS = frozenset({"current", "torque", "temperature", "following_error"})
+#: What is read, in the order the spare PDOs are filled (most wanted first): what the
+#: drives report (omnican.plan.health_fields), then what the checks alone read.
+QUANTITIES = (*(f.quantity for f in HEALTH_FIELDS), "estop", "following_error")
+PER_AXIS = frozenset({f.quantity for f in HEALTH_FIELDS if f.per_axis} | {"following_error"})
 TORQUE_PCT_PER_UNIT = 0.1  # 6077h: per mille -> percent
+#: SI per unit of a value whose config gives no ``<quantity>_scale`` (a standard's unit)
+FIXED_SCALES = {"torque": TORQUE_PCT_PER_UNIT}
 _ADDRESS = re.compile(r"0x([0-9a-fA-F]{1,4})(?::(?:0x)?([0-9a-fA-F]{1,2}))?")
-_DEFAULTS = {key: SCHEMA["wheel"][key].default for key in ("current", "torque", "voltage")}
+_WHEEL_KEYS = SCHEMA["wheel"]
+#: Per value a wheel's config names the object of (its key is the quantity), that
+#: config key and the one giving its scale (None: FIXED_SCALES'), in the table's order.
+_CONFIGURED = tuple((f.quantity, f"{f.quantity}_scale" if f"{f.quantity}_scale" in _WHEEL_KEYS
+                     else None) for f in HEALTH_FIELDS if f.quantity in _WHEEL_KEYS)
+#: The [[wheel]] keys that say what its drive reports: objects and their scales.
+CONFIG_KEYS = tuple(key for pair in _CONFIGURED for key in pair if key is not None)
+#: The values whose SI units per count the config gives (else a standard's: 6077h).
+CONFIG_SCALED = frozenset(quantity for quantity, key in _CONFIGURED if key is not None)
 
 
 @dataclass(frozen=True)
@@ -168,21 +179,20 @@ def _axis_copy(dictionary: od.ObjectDictionary, index: int, axis: int, what: str
 def wheel_reads(dictionary: od.ObjectDictionary, wheel_index: int,
                 wheel: WheelConfig) -> list[HealthRead]:
     """The health objects of one wheel, as its config names them (the defaults only
-    where the EDS has them). Raises ConfigError naming the key."""
+    where the EDS has them): for each value of :data:`~omnican.plan.health_fields.HEALTH_FIELDS`
+    whose object the config names (the key ``<quantity>``; ``<quantity>_scale``, SI per
+    unit), and the following error. Raises ConfigError naming the key."""
     out = []
-    specs: tuple[tuple[str, str | None, float | None], ...] = (
-        ("current", wheel.current, wheel.current_scale),
-        ("torque", wheel.torque, TORQUE_PCT_PER_UNIT),
-        ("voltage", wheel.voltage, wheel.voltage_scale),
-        ("temperature", wheel.temperature, wheel.temperature_scale),
-    )
-    for quantity, spec, scale in specs:
+    for quantity, scale_key in _CONFIGURED:
+        spec: str | None = getattr(wheel, quantity)
+        scale: float | None = (getattr(wheel, scale_key) if scale_key is not None else
+                               FIXED_SCALES.get(quantity, 1.0))
         if not spec:
             continue
         try:
             entry = find_object(dictionary, spec, wheel.axis)
         except ConfigError as exc:
-            if spec == _DEFAULTS.get(quantity):
+            if spec == _WHEEL_KEYS[quantity].default:
                 continue  # a standard object this drive does not have
             raise ConfigError(f"{quantity}: {exc}") from None
         if entry.bits > 32 or entry.bits % 8:

@@ -34,6 +34,7 @@ from omnican.core.odometry import Odometry
 from omnican.core.wheel_odometry import SPEED_WINDOW_S, EncoderCounters, Sample, WheelOdometry
 from omnican.errors import RecordingError
 from omnican.plan.codec import PdoCodec
+from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.plan.node import NodeLayout, node_layouts
 from omnican.protocol.cia301 import (
     EMCY_BASE,
@@ -129,8 +130,9 @@ class Replay:
     #: the configured nodes the recording has frames from (a heartbeat, an EMCY, a TPDO)
     nodes_heard: frozenset[int] = frozenset()
     cut: str | None = None  # cut short or damaged: what was read and what not (cut_note)
-    #: what the drives reported: quantity ("current" A, "torque" %, "voltage" V,
-    #: "temperature" degC) -> per wheel (times, values); empty arrays where none came
+    #: what the drives reported, each value of omnican.plan.health_fields but for a
+    #: register, in its unit: quantity ("current" A, "torque" %, "voltage" V, "temperature"
+    #: degC) -> per wheel (times, values); empty arrays where none came
     health: dict[str, tuple[tuple[FloatArray, FloatArray], ...]] = field(
         default_factory=dict)
 
@@ -185,7 +187,7 @@ class _HealthSeries:
     """The health values in a recording, as the base reads them: its health TPDOs and
     the answers to its SDO reads (6075h's too, the rated current 6078h counts in)."""
 
-    QUANTITIES = ("current", "torque", "voltage", "temperature")
+    QUANTITIES = tuple(f.quantity for f in HEALTH_FIELDS if not f.register)
 
     def __init__(self, layouts: Sequence[NodeLayout], wheels: int) -> None:
         self.pdos: dict[int, tuple[PdoCodec, list[tuple[int, Any]]]] = {}

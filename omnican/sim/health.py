@@ -22,6 +22,7 @@ from functools import partial
 
 from canopen import objectdictionary as od
 
+from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.protocol import cia402
 from omnican.protocol.object_map import Entry, Obj, entry_at
 from omnican.sim import electrical
@@ -35,7 +36,9 @@ Reader = Callable[[], int]
 ESTOP_INPUT_BIT = 16
 WARM_EVERY_S = 0.1  # temperatures are integrated in steps of at least this (tau: minutes)
 DEFAULT_COUNTS_PER_M = 10_000.0  # a drive on its own (no base says how its wheel rolls)
-QUANTITIES = ("current", "torque", "voltage", "temperature")
+#: What a config may name a vendor object for: what a drive reports (but a register,
+#: which the simulator serves as 1001h), by the health plan's word.
+QUANTITIES = tuple(f.quantity for f in HEALTH_FIELDS if not f.register)
 _STATUSWORD = int(Obj.STATUSWORD)
 
 
@@ -120,13 +123,18 @@ class DriveHealth:
                 self.model, self.temperature_c[k], self.current_a(ax), dt)
 
     def si_value(self, quantity: str, ax: Axis) -> float:
+        """``quantity`` (one of :data:`QUANTITIES`) of ``ax`` now, in its unit (the
+        table's: omnican.plan.health_fields). Raises ValueError for a value the
+        simulator has no model of."""
         if quantity == "current":
             return self.current_a(ax)
         if quantity == "torque":  # percent of the rated torque
             return 100.0 * self.current_a(ax) / self.rated_current_a()
         if quantity == "voltage":
             return self.voltage_v()
-        return self.temperature_c[ax.number]
+        if quantity == "temperature":
+            return self.temperature_c[ax.number]
+        raise ValueError(f"the simulator has no model of a drive's {quantity}")
 
     # ------------------------------------------------------------ as objects
 

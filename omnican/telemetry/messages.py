@@ -26,6 +26,7 @@ from typing import Any
 from omnican.chassis.state import ChassisStatus, WheelState
 from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
+from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.protocol.cia402 import State
 from omnican.telemetry.settings import TelemetrySettings
 
@@ -34,6 +35,9 @@ OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
 #: Bus load above this fraction of the bitrate is a warning.
 BUS_LOAD_WARN = 0.7
+#: What the drives report that varies over time (not a register): the /wheels topic's
+#: numbers, each absent when the drive does not give it.
+_SERIES = tuple(f for f in HEALTH_FIELDS if not f.register)
 
 
 @dataclass(frozen=True)
@@ -228,7 +232,8 @@ def wheel_level(w: WheelState) -> tuple[int, str]:
 
 
 def wheel_status(w: WheelState, prefix: str, joint: str) -> dict[str, Any]:
-    """One wheel's drive: CiA 402 state, faults (with the EMCY text), speeds, travel."""
+    """One wheel's drive: CiA 402 state, faults (with the EMCY text), speeds, travel,
+    and every value the drive reports (omnican.plan.health_fields)."""
     level, message = wheel_level(w)
     hardware = f"canopen node {w.node_id}" + (f" axis {w.axis}" if w.axis else "")
     return _status(level, f"{prefix}: wheel {w.index}", message, hardware, [
@@ -237,10 +242,7 @@ def wheel_status(w: WheelState, prefix: str, joint: str) -> dict[str, Any]:
         ("mode", w.mode), ("target_speed_m_s", w.target_speed),
         ("actual_speed_m_s", w.actual_speed), ("travel_m", w.travel), ("online", w.online),
         ("stale", w.stale), ("fault", w.fault), ("error", w.error),
-        ("current_a", w.current_a), ("torque_pct", w.torque_pct), ("voltage_v", w.voltage_v),
-        ("temperature_c", w.temperature_c),
-        ("error_register", f"0x{w.error_register:02X}" if w.error_register is not None
-         else None)])
+        *((f.name, f.text(getattr(w, f.name))) for f in HEALTH_FIELDS)])
 
 
 def diagnostics(s: Sample, settings: TelemetrySettings) -> dict[str, Any]:
@@ -317,16 +319,17 @@ def _given(out: dict[str, Any], **maybe: Any) -> dict[str, Any]:
 
 
 def wheels(s: Sample) -> dict[str, Any]:
-    """Each wheel's drive; ``statusword``, ``current_a``, ``torque_pct``, ``voltage_v`` and
-    ``temperature_c`` only when the drive gives them."""
+    """Each wheel's drive; ``statusword`` and what the drive reports (``current_a``,
+    ``torque_pct``, ``voltage_v``, ``temperature_c``: omnican.plan.health_fields, but for a
+    register) only when the drive gives them."""
     return {"timestamp": json_time(s.stamp_ns), "wheels": [_given({
         "index": w.index, "node_id": w.node_id, "axis": w.axis,
         "state": "OFFLINE" if not w.online else str(w.state),
         "target_speed": w.target_speed, "actual_speed": w.actual_speed, "travel": w.travel,
         "online": w.online, "stale": w.stale,
         "fault": w.fault or "", "error": w.error or ""},
-        statusword=w.statusword, current_a=w.current_a, torque_pct=w.torque_pct,
-        voltage_v=w.voltage_v, temperature_c=w.temperature_c) for w in s.wheels]}
+        statusword=w.statusword, **{f.name: getattr(w, f.name) for f in _SERIES})
+        for w in s.wheels]}
 
 
 def status(s: Sample) -> dict[str, Any]:
@@ -379,9 +382,7 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
             "statusword": _maybe(_INT, "no statusword came yet"),
             "target_speed": _NUM, "actual_speed": _NUM, "travel": _NUM, "online": _BOOL,
             "stale": _BOOL, "fault": _STR, "error": _STR,
-            "current_a": _maybe(_NUM, _BY_DRIVE), "torque_pct": _maybe(_NUM, _BY_DRIVE),
-            "voltage_v": _maybe(_NUM, _BY_DRIVE),
-            "temperature_c": _maybe(_NUM, _BY_DRIVE)}}}),
+            **{f.name: _maybe(_NUM, _BY_DRIVE) for f in _SERIES}}}}),
     "omnican.Status": _object(
         "omnican.Status", enabled=_BOOL, state=_STR, stopped_reason=_STR, loop_hz=_NUM,
         late_fraction=_NUM, cycles=_INT,

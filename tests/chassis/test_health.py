@@ -14,9 +14,11 @@ import can
 import pytest
 
 from omnican import Chassis, ChassisConfig, load_config
+from omnican.chassis.state import Snapshot, StatusHealth
 from omnican.clock import SimClock
 from omnican.errors import DriveError
 from omnican.io.lockstep import LockstepBus
+from omnican.plan.health_fields import health_values
 from omnican.protocol import can_state as cs
 from omnican.protocol.cia402 import State
 from omnican.sim import SimulatedBase
@@ -410,3 +412,25 @@ def test_a_rated_current_the_drive_will_not_give_is_one_warning_and_no_amps(
         "node 1: reading the rated current (0x6075:00) failed"), warned
     assert wheels[0].current_a is None and wheels[0].voltage_v is not None
     assert wheels[1].current_a is not None and wheels[2].current_a is not None
+
+
+def test_a_snapshot_carries_each_value_by_name(rig: Rig) -> None:
+    """The cycle fills every field of its snapshot; the status and the wheels are made of
+    them and of the health checks' record, name for name."""
+    clock, _sim, base = rig
+    drive_for(base, 0.5, vx=0.3)
+    snap = base._loop.snapshot
+    missing = [n for n in Snapshot.__slots__ if not n.startswith("_") and not hasattr(snap, n)]
+    assert not missing
+    status, health = snap.status, snap.health
+    assert (status.cycles, status.enabled, status.bus_up) == (snap.cycles, True, True)
+    for name in StatusHealth._fields:
+        expected = getattr(health.status, name)
+        if name == "warnings":
+            expected = snap.warnings + expected
+        assert getattr(status, name) == expected, name
+    assert status.battery_v == pytest.approx(24.0, abs=0.2)
+    assert [health_values(w) for w in snap.wheels] == [health_values(h) for h in health.wheels]
+    assert all(w.voltage_v is not None for w in snap.wheels)
+    clock.sleep(0.01)
+    assert base._loop.snapshot is not snap and snap.status is status  # made once, kept

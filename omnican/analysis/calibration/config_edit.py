@@ -22,6 +22,7 @@ from omnican.config import (
     parse_config,
 )
 from omnican.errors import ConfigError
+from omnican.plan.health import CONFIG_KEYS as HEALTH_CONFIG_KEYS
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -207,8 +208,7 @@ def render_config(cfg: ChassisConfig, comment: str = "", digits: int = 7) -> str
                 lines.append(f"{key} = {format_number(value)}")
         if w.mode is not None and w.mode != c.mode:
             lines.append(f'mode = "{w.mode.short}"')
-        for key in ("current", "current_scale", "torque", "voltage", "voltage_scale",
-                    "temperature", "temperature_scale"):  # what the drive reports
+        for key in HEALTH_CONFIG_KEYS:  # what the drive reports
             value = getattr(w, key)
             if value == SCHEMA["wheel"][key].default:
                 continue
