@@ -75,7 +75,8 @@ def teleop(out: Path) -> None:
     from rich.console import Console
 
     from omnican import Chassis, Twist
-    from omnican.cli.teleop import _Events, dashboard
+    from omnican.cli.dashboard import dashboard
+    from omnican.cli.teleop import _Events
     from omnican.clock import SimClock
     from omnican.command.teleop import TeleopModel
     from omnican.config import default_config

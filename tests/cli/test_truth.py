@@ -453,7 +453,7 @@ def test_teleop_shows_recovered_and_an_unknown_bitrate() -> None:
 
 
 def test_teleop_key_help_wraps_between_phrases_at_80_columns() -> None:
-    from omnican.cli.teleop import HELP_PHRASES
+    from omnican.cli.dashboard import HELP_PHRASES
 
     term = _teleop(columns=80)
     try:

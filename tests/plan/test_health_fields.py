@@ -15,7 +15,7 @@ from rich.console import Console
 
 from omnican import default_config
 from omnican.chassis.state import ChassisStatus, WheelState
-from omnican.cli import check_config, drive, plot, teleop
+from omnican.cli import check_config, dashboard, drive, plot, teleop
 from omnican.command.teleop import TeleopModel
 from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
@@ -134,13 +134,13 @@ def telemetry_status() -> ChassisStatus:
 
 def test_the_dashboard_has_a_column_per_value_with_one(channel: str) -> None:
     columns = [f for f in HEALTH_FIELDS if f.column is not None]
-    assert teleop.WHEEL_COLUMNS[-len(columns):] == tuple(f.column for f in columns)
-    assert all(f.legend in teleop.WHEEL_UNITS for f in columns)
+    assert dashboard.WHEEL_COLUMNS[-len(columns):] == tuple(f.column for f in columns)
+    assert all(f.legend in dashboard.WHEEL_UNITS for f in columns)
     with lockstep_rig(channel) as (_clock, _sim, base):
         drive_for(base, 1.0, vx=0.3)
         keys = TeleopModel.for_config(base.cfg, 0.3, 1.0, 0.6)
         console = Console(width=120, record=True, color_system=None, file=io.StringIO())
-        console.print(teleop.dashboard(base, keys, Twist(), "omnican teleop", teleop._Events(),
+        console.print(dashboard.dashboard(base, keys, Twist(), "omnican teleop", teleop._Events(),
                                        "", 120, 30))
         lines = console.export_text().splitlines()
         header = next(line for line in lines if "wheel" in line and "state" in line)
@@ -153,7 +153,7 @@ def test_the_dashboard_has_a_column_per_value_with_one(channel: str) -> None:
             for f in columns:
                 value = getattr(w, f.name)
                 assert value is not None, f
-                text = teleop.fixed(value, f.places, sign=f.signed)
+                text = dashboard.fixed(value, f.places, sign=f.signed)
                 assert text in cells and text.startswith(("+", "-")) == f.signed, (f, row)
 
 

@@ -14,7 +14,8 @@ from rich.console import Console
 
 from omnican import Chassis
 from omnican.cli import main
-from omnican.cli.teleop import _Events, dashboard
+from omnican.cli.dashboard import dashboard
+from omnican.cli.teleop import _Events
 from omnican.clock import SimClock
 from omnican.command.teleop import TeleopModel
 from omnican.core.kinematics import Twist
