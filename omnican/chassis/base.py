@@ -13,6 +13,13 @@ heartbeat, a drive reboot, a drive leaving OPERATIONAL or a bus that stays down 
 wheel stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
 host's heartbeat, so they stop by themselves if this process dies; leaving the ``with``
 block, a failed open, Ctrl-C or SIGTERM stops the wheels and disables every drive.
+
+Size: :class:`Chassis` is about 360 lines, above the 300 the package keeps to, on
+purpose: it is the public API, and most of it is the docstrings of the calls users make.
+The two sequences left in it, :meth:`Chassis.recover` and :meth:`Chassis.close`, run
+across the caller's thread and the loop's and hold this object's locks; the machinery
+behind them is the supervisor's, the configurator's and the cycle's. Opening is
+:mod:`omnican.chassis.opening`'s.
 """
 
 from __future__ import annotations
