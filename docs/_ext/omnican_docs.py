@@ -3,6 +3,8 @@
 - ``_generated/config.md``: the configuration reference, every key of
   :data:`omnican.config.SCHEMA` with its default, meaning, type and range, and per table
   the values the configurations the repository ships give (``examples/*.toml``);
+- ``_generated/modules.md``: every module of the package, folder by folder, with the
+  first sentence of its docstring (the architecture page's map of the tree);
 - ``_generated/*.svg|png``: the pictures of ``tools/gen_docs_pictures.py`` (the wheel
   geometry of each preset, the teleop dashboard, a plot, the layers).
 
@@ -13,6 +15,7 @@ page that includes them always shows what the code does now.
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -107,13 +110,37 @@ def config_reference() -> str:
     return "\n".join(out)
 
 
+def module_map() -> str:
+    """Every module of the package, folder by folder, with the first sentence of its
+    docstring: the tree as the code has it."""
+    import ast
+
+    package = ROOT / "omnican"
+    out = ["<!-- made from the package's modules at every docs build: do not edit -->", ""]
+    folders = sorted({p.parent for p in package.rglob("*.py") if "__pycache__" not in p.parts})
+    for folder in folders:
+        rel = folder.relative_to(ROOT).as_posix()
+        rows = []
+        for path in sorted(folder.glob("*.py")):
+            doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+            first = " ".join(doc.split("\n\n", 1)[0].split())
+            first = first.split(". ", 1)[0].rstrip(".")
+            first = re.sub(r":[a-z]+:`~?([^`]+)`", r"`\1`", first).replace("``", "`")
+            name = path.name if path.name != "__init__.py" else "(the folder)"
+            lines = path.read_text().count("\n")
+            rows.append(f"| `{name}` | {lines} | {_cell(first)} |")
+        out += [f"### `{rel}/`", "", "| module | lines | what it holds |", "|---|---|---|",
+                *rows, ""]
+    return "\n".join(out)
+
+
 def generate(app: Sphinx) -> None:
     out = Path(app.srcdir) / "_generated"
     out.mkdir(exist_ok=True)
-    text = config_reference()
-    target = out / "config.md"
-    if not target.exists() or target.read_text() != text:
-        target.write_text(text)
+    for name, text in (("config.md", config_reference()), ("modules.md", module_map())):
+        target = out / name
+        if not target.exists() or target.read_text() != text:
+            target.write_text(text)
     subprocess.run([sys.executable, str(ROOT / "tools" / "gen_docs_pictures.py"), str(out)],
                    check=True, cwd=ROOT)
 
