@@ -63,6 +63,16 @@ def free_port() -> int:
         return port
 
 
+def top_speed(path: str) -> float:
+    """The top linear speed the config's base can reach (what an unlimited
+    ``chassis.max_speed`` reads as, a number)."""
+    from omnican import load_config
+    from omnican.core.limits import top_speeds
+
+    cfg = load_config(path)
+    return top_speeds(cfg.limits(), cfg.kinematics())[0]
+
+
 def config(tmp_path: Path, timeout_s: float = 0.5, extra: str = "") -> str:
     path = tmp_path / "robot.toml"
     path.write_text(DEMO_BASE.format(timeout=timeout_s, extra=extra,
@@ -121,8 +131,9 @@ def test_teleop_twists_services_and_parameters_drive_the_simulated_base(
     and Lichtblick offer it) drives with JSON Twists after lowering chassis.max_speed,
     leaves control; a second on foxglove.sdk.v1 turns with CDR Twists, then uses the
     services. Where the simulator says the base went is what they commanded."""
-    s = start(sessions, modules, "drive", "--sim", "--config",
-              config(tmp_path, extra="[foxglove]\ncontrol = true\n"), "--foxglove",
+    toml = config(tmp_path, extra="[foxglove]\ncontrol = true\n")
+    top = top_speed(toml)
+    s = start(sessions, modules, "drive", "--sim", "--config", toml, "--foxglove",
               f"127.0.0.1:{free_port()}", "--duration", "14", "--json")
     a = s.client(LEGACY)
     opened = next(e for e in a.events if e["event"] == "open")
@@ -134,11 +145,15 @@ def test_teleop_twists_services_and_parameters_drive_the_simulated_base(
     # Parameters: named as the config keys; a value out of range is refused with the reason.
     a.send("getParameters", names=[], id="all")
     values = {p["name"]: p["value"] for p in a.wait("parameterValues")["parameters"]}
-    assert values["chassis.max_speed"] == "inf" and values["chassis.max_accel"] == 1
+    # unlimited: the top speed the base can reach, a number (Foxglove shows it as one)
+    assert values["chassis.max_speed"] == pytest.approx(top)
+    assert values["chassis.max_accel"] == 1
     assert values["chassis.max_wheel_speed"] == 1
     a.send("setParameters", parameters=[{"name": "chassis.max_speed", "value": -1}], id="bad")
     reply = a.wait("parameterValues", lambda e: e["id"] == "bad")
-    assert reply["parameters"] == [{"name": "chassis.max_speed", "value": "inf"}]
+    [unchanged] = reply["parameters"]
+    assert unchanged["name"] == "chassis.max_speed"
+    assert unchanged["value"] == pytest.approx(top)
     refusal = a.wait("status", lambda e: "refused" in e["message"])["message"]
     assert "chassis.max_speed: must be a positive number, got -1" in refusal
     a.send("setParameters", parameters=[{"name": "chassis.max_speed", "value": 0.1}], id="ok")
@@ -384,7 +399,8 @@ def test_only_the_foxglove_app_connects_and_only_with_the_token_does_it_drive(
     the app without the token may watch, and its Teleop panel's Twists are refused with
     the reason; the SDK's own port, reachable on loopback past the relay, takes nothing
     from anyone; the app with the token in the URL drives."""
-    s = start(sessions, modules, "drive", "--sim", "--config", config(tmp_path, 30.0),
+    toml = config(tmp_path, 30.0)
+    s = start(sessions, modules, "drive", "--sim", "--config", toml,
               "--foxglove-control", "--foxglove-token", "s3cret", "--foxglove",
               f"127.0.0.1:{free_port()}", "--duration", "12", "--json")
     for page in ("https://evil.example", "null", "http://localhost:8080"):
@@ -408,7 +424,9 @@ def test_only_the_foxglove_app_connects_and_only_with_the_token_does_it_drive(
         past.send("publish", channel=ch, twist=[0.0, 0.0, 1.0], rate_hz=10, seconds=1)
         past.send("setParameters", parameters=[{"name": "chassis.max_speed", "value": 0.01}],
                   id="p")
-        assert past.wait("parameterValues")["parameters"][0]["value"] == "inf"
+        # refused: still the (unlimited) top speed
+        assert past.wait("parameterValues")["parameters"][0]["value"] == pytest.approx(
+            top_speed(toml))
         past.wait("published", timeout=10)
     driver = s.client(LEGACY, origin=APP, query="/?token=s3cret")
     driver.send("advertise", encoding="cdr")
