@@ -6,7 +6,8 @@ lock-step simulation: nothing runs by itself; :meth:`SimClock.sleep` advances th
 time and, on the way, calls every registered task (the chassis's control cycle, the
 simulated drives' housekeeping) at its own period, in time order, on the calling
 thread. Runs are deterministic and as fast as the CPU allows, or paced at ``speed``
-times real time.
+times real time. :class:`PollThread` calls a function at a period on a thread of its own
+in real time (the front ends' pollers).
 
 No I/O: the clock only orders calls.
 """
@@ -15,7 +16,9 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import logging
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -60,6 +63,47 @@ class Clock:
 
 
 REAL_TIME = Clock()
+
+
+class PollThread:
+    """``poll()`` every ``period_s`` seconds of real time on a thread of its own (named
+    ``name``), from :meth:`start` to :meth:`stop`, as often as asked. A poll that fell
+    behind is followed by the next a period later, never by a burst; one that raises is
+    logged on ``logger`` as ``failed`` and the polling goes on."""
+
+    def __init__(self, poll: Callable[[], None], period_s: float, name: str,
+                 logger: logging.Logger, failed: str) -> None:
+        self.poll, self.period_s, self.name = poll, period_s, name
+        self._logger, self._failed = logger, failed
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+            self._thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop polling and wait (at most ``timeout_s``) for a poll under way. Idempotent."""
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(timeout=timeout_s)
+
+    def _run(self) -> None:
+        period = self.period_s
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self.poll()
+            except Exception:  # keep polling whatever one poll did
+                self._logger.exception(self._failed)
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < 0:  # fell behind: the next poll a period from now, no burst
+                next_t, delay = time.monotonic() + period, period
+            self._stop.wait(delay)
 
 
 @dataclass(order=True)

@@ -144,3 +144,37 @@ def test_a_lockstep_peer_receives_the_frame_as_sent(can_id: int, data: bytes, ex
     finally:
         sender.shutdown()
         peer.shutdown()
+
+
+def test_a_poll_thread_polls_survives_a_failing_poll_and_restarts() -> None:
+    """The front ends' poller (ROS 2, Zenoh): it keeps polling after a poll raised, stops
+    when asked (twice is fine) and starts again; no thread is left behind."""
+    import logging
+    import threading
+
+    from omnican.clock import PollThread
+
+    calls: list[int] = []
+    enough = threading.Event()
+
+    def poll() -> None:
+        calls.append(len(calls))
+        if len(calls) == 1:
+            raise RuntimeError("the first poll fails")
+        if len(calls) >= 3:
+            enough.set()
+
+    poller = PollThread(poll, 0.001, "omnican-test-poll", logging.getLogger("test"), "failed")
+    poller.start()
+    poller.start()  # already running: one thread
+    assert enough.wait(30.0)
+    poller.stop()
+    poller.stop()
+    assert not any(t.name == "omnican-test-poll" for t in threading.enumerate())
+    seen = len(calls)
+    enough.clear()
+    calls.clear()
+    poller.start()
+    assert enough.wait(30.0)
+    poller.stop()
+    assert seen >= 3

@@ -27,6 +27,7 @@ import time
 import typing
 from typing import TYPE_CHECKING, Any
 
+from omnican.clock import PollThread
 from omnican.errors import DriveError
 from omnican.log_throttle import Throttle
 from omnican.ros2.cmd_vel import CmdVel
@@ -151,9 +152,8 @@ class Bridge:
         self._take_recover = transport.reader(settings.topic("recover"), msgs.Empty,
                                               TopicQos(depth=1))
         self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
-        self._poll_thread: threading.Thread | None = None
-        self._poll_on_thread = poll_thread
-        self._stop_polling = threading.Event()
+        self._poller = (PollThread(self.poll, self.poll_period_s, "omnican-ros2-poll", logger,
+                                   "handling ROS 2 commands failed") if poll_thread else None)
         self._poll_lock = threading.Lock()
         self._polls = 0
         self._throttle = Throttle(logger)
@@ -278,37 +278,17 @@ class Bridge:
         if not self._started:
             self._started = True
             self._feed.add(self)
-            if self._poll_on_thread:
-                self._stop_polling.clear()
-                self._poll_thread = threading.Thread(target=self._poll_loop,
-                                                     name="omnican-ros2-poll", daemon=True)
-                self._poll_thread.start()
+            if self._poller is not None:
+                self._poller.start()
         return self
-
-    def _poll_loop(self) -> None:
-        period = self.poll_period_s
-        next_t = time.monotonic()
-        while not self._stop_polling.is_set():
-            try:
-                self.poll()
-            except Exception:  # keep taking commands whatever one did
-                logger.exception("handling ROS 2 commands failed")
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay < 0:  # fell behind: the next poll a period from now, no burst
-                next_t, delay = time.monotonic() + period, period
-            self._stop_polling.wait(delay)
 
     def close(self) -> None:
         """Stop publishing; wait for a recover under way. Idempotent."""
         if self._started:
             self._started = False
             self._feed.remove(self)
-        self._stop_polling.set()
-        poller = self._poll_thread
-        if poller is not None:
-            poller.join(timeout=5.0)
-            self._poll_thread = None
+        if self._poller is not None:
+            self._poller.stop()
         self._throttle.flush()
         self.cmd_vel.flush()
         worker = self._recover_thread

@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from typing import TYPE_CHECKING, Any
 
 from omnican.chassis.arbiter import CommandSource
+from omnican.clock import PollThread
 from omnican.core.kinematics import Twist
 from omnican.errors import ConfigError, DriveError, quote
 from omnican.log_throttle import Throttle
@@ -147,9 +147,8 @@ class ZenohBridge:
         self.services = Services(session, self.node, base, self.command_source,
                                  len(topics) + 2)
         self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
-        self._poll_on_thread = poll_thread
-        self._poll_thread: threading.Thread | None = None
-        self._stop_polling = threading.Event()
+        self._poller = (PollThread(self.poll, self.poll_period_s, "omnican-zenoh-poll", logger,
+                                   "handling Zenoh cmd_vel failed") if poll_thread else None)
         self._poll_lock = threading.Lock()
         self._publish_lock = threading.Lock()
         self._throttle = Throttle(logger)
@@ -282,26 +281,9 @@ class ZenohBridge:
         if not self._started:
             self._started = True
             feed_of(self.base).add(self)
-            if self._poll_on_thread:
-                self._stop_polling.clear()
-                self._poll_thread = threading.Thread(target=self._poll_loop,
-                                                     name="omnican-zenoh-poll", daemon=True)
-                self._poll_thread.start()
+            if self._poller is not None:
+                self._poller.start()
         return self
-
-    def _poll_loop(self) -> None:
-        period = self.poll_period_s
-        next_t = time.monotonic()
-        while not self._stop_polling.is_set():
-            try:
-                self.poll()
-            except Exception:  # keep taking commands whatever one did
-                logger.exception("handling Zenoh cmd_vel failed")
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay < 0:  # fell behind: the next poll a period from now, no burst
-                next_t, delay = time.monotonic() + period, period
-            self._stop_polling.wait(delay)
 
     def close(self) -> None:
         """Stop publishing and taking commands; withdraw the liveliness tokens (the graph
@@ -309,10 +291,8 @@ class ZenohBridge:
         if self._started:
             self._started = False
             feed_of(self.base).remove(self)
-        self._stop_polling.set()
-        if self._poll_thread is not None:
-            self._poll_thread.join(timeout=5.0)
-            self._poll_thread = None
+        if self._poller is not None:
+            self._poller.stop()
         with self._poll_lock, self._publish_lock:
             if self._closed:
                 return
