@@ -29,7 +29,18 @@ def add_subparser(sub: Any) -> None:
     p = sub.add_parser("zenoh", help="run the base on Zenoh (rmw_zenoh's format)",
                        description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    node = p.add_argument_group("ROS 2 graph")
+    add_graph_arguments(p)
+    add_network_arguments(p)
+    p.add_argument("--duration", type=positive_float, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C or 'quit')")
+    add_bus_arguments(p, sim_help="run against simulated drives in this process")
+    p.set_defaults(func=run)
+
+
+def add_graph_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where the base sits in the ROS 2 graph: --namespace, --node-name, --domain-id,
+    --cmd-vel-stamped."""
+    node = parser.add_argument_group("ROS 2 graph")
     node.add_argument("--namespace", metavar="NS", default="",
                       help="the robot's namespace, e.g. /robot1")
     node.add_argument("--node-name", metavar="NAME", default="omnican",
@@ -38,7 +49,12 @@ def add_subparser(sub: Any) -> None:
                       help="ROS domain 0-232: the first chunk of every key (default 0)")
     node.add_argument("--cmd-vel-stamped", action="store_true",
                       help="cmd_vel carries geometry_msgs/TwistStamped")
-    net = p.add_argument_group("Zenoh network")
+
+
+def add_network_arguments(parser: argparse.ArgumentParser) -> None:
+    """How a Zenoh session connects: --zenoh-connect, --zenoh-listen, --zenoh-mode,
+    --zenoh-multicast, --zenoh-config (the base's front end and ``omnican fleet`` alike)."""
+    net = parser.add_argument_group("Zenoh network")
     net.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                      help="connect to a router or peer, e.g. tcp/127.0.0.1:7447 (repeatable)")
     net.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
@@ -50,10 +66,6 @@ def add_subparser(sub: Any) -> None:
     net.add_argument("--zenoh-config", metavar="FILE",
                      help="a Zenoh JSON5 config (TLS, authentication, access control), "
                           "applied before the flags")
-    p.add_argument("--duration", type=positive_float, metavar="S",
-                   help="stop after S seconds (default: until Ctrl-C or 'quit')")
-    add_bus_arguments(p, sim_help="run against simulated drives in this process")
-    p.set_defaults(func=run)
 
 
 def settings_from(args: argparse.Namespace) -> Any:
