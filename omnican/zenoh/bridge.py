@@ -46,6 +46,9 @@ TWIST = "geometry_msgs/msg/Twist"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 #: The telemetry this front end publishes (tf with odom, joint states with wheel radii).
 PUBLISHED = ("/odom", "/tf", "/joint_states", "/diagnostics", "/battery_state")
+#: The simulator's true pose, published beside the odometry when the base runs against
+#: simulated drives in its own process (``sim=``).
+TRUE_POSE = "/sim/true_pose"
 TF_DEPTH = 100  # tf2's listener keeps 100
 CMD_VEL_DEPTH = 256  # samples kept between polls (the newest)
 MAX_POLL_HZ = 100.0
@@ -106,19 +109,23 @@ class ZenohBridge:
     its own; call :meth:`poll` (the lock-step tests do)."""
 
     def __init__(self, base: Chassis, settings: ZenohSettings, session: Any, *,
-                 poll_thread: bool = True) -> None:
+                 sim: Any = None, poll_thread: bool = True) -> None:
         import zenoh
 
         self.base = base
         self.settings = settings.validate()
         self.session = session
         feed = feed_of(base)
+        if sim is not None:
+            feed.truth = sim  # the simulator's ground truth goes along (sim/true_pose)
         ns = settings.ros_namespace
         self.node = rmw.Node(settings.domain_id, str(session.info.zid()), 0,
                              settings.node_name, namespace=ns)
         self._node_token = session.liveliness().declare_token(self.node.token())
         topics = [t for t in PUBLISHED
                   if t != "/joint_states" or feed.settings.wheel_radii is not None]
+        if sim is not None:
+            topics.append(TRUE_POSE)
         self.publishers: dict[str, _Publisher] = {}
         for entity_id, topic in enumerate(topics, start=1):
             qos = rmw.Qos(depth=TF_DEPTH if topic == "/tf" else 10)
@@ -177,7 +184,7 @@ class ZenohBridge:
             if pub is None:
                 continue
             topic = message.topic
-            if topic == "/tf":  # the transform goes with the odometry it belongs to
+            if topic in ("/tf", TRUE_POSE):  # they go with the odometry of their sample
                 due = self._odom_sent
             elif topic in self._every:
                 self._seen[topic] += 1

@@ -327,3 +327,31 @@ def test_a_stamped_cmd_vel_drives_when_asked_for(
                 pub.close()
     finally:
         session.close()
+
+
+def test_the_simulators_truth_goes_along_when_given(
+        stepped: tuple[SimClock, SimulatedBase, Chassis], router: str) -> None:
+    from omnican.core.kinematics import Twist
+    from omnican.telemetry import cdr
+    from omnican.zenoh.bridge import TRUE_POSE, ZenohBridge, open_session
+    from omnican.zenoh.settings import ZenohSettings
+
+    clock, sim, base = stepped
+    settings = ZenohSettings(mode="client", connect=(router,), namespace="/robot2")
+    session, watcher = open_session(settings), client(router)
+    got: list[bytes] = []
+    try:
+        with ZenohBridge(base, settings, session, sim=sim, poll_thread=False) as bridge:
+            pub = bridge.publishers[TRUE_POSE]
+            assert pub.name == "/robot2/sim/true_pose"
+            sub = watcher.declare_subscriber(pub.key,
+                                             lambda sample: got.append(sample.payload.to_bytes()))
+            forward = Twist(0.2, 0.0, 0.0)
+            assert run_until(clock, bridge, lambda: sim.true_pose.x > 0.05 and len(got) > 2,
+                             each=lambda: base.set_twist(forward))
+            sub.undeclare()
+            pose = cdr.decode("geometry_msgs/msg/PoseStamped", got[-1])["pose"]["position"]
+            assert 0.0 < pose["x"] <= sim.true_pose.x
+    finally:
+        watcher.close()
+        session.close()
