@@ -206,6 +206,16 @@ class Chassis:
         """Controlled stop now (at the stop deceleration); a new command moves again."""
         self._loop.command = (Twist(), self.clock.now())
 
+    def halt(self, reason: str) -> None:
+        """A stop held until :meth:`recover`: the base ramps to rest at the stop
+        deceleration and stays there whatever is commanded, with ``reason`` as the stop's
+        reason (one already held stays first). A remote operator's stop (the Zenoh
+        ``~/stop`` service, the fleet stop) is one; ``stop()`` lets the next command go."""
+        if self._closed:
+            raise DriveError("the base is closed")
+        self._loop.command = (Twist(), self.clock.now())
+        self._loop.call_soon(lambda: self._supervisor.latch(reason))
+
     def command_source(self, name: str) -> CommandSource:
         """The handle by which a front end commands this base as ``name`` (the name the
         others are told): one source drives at a time, by the base's one arbiter, shared
