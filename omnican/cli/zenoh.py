@@ -53,7 +53,7 @@ def add_subparser(sub: Any) -> None:
 ZENOH_HELP = ("also put the base on Zenoh, in rmw_zenoh's format (as omnican zenoh does: "
               "odom, tf, joint_states, diagnostics, battery_state out, cmd_vel in through "
               "the one arbiter, ~/stop, ~/recover, ~/reset_odometry); the [zenoh] table of "
-              "the config configures it, the flags below win over it; --no-zenoh keeps a "
+              "the config configures it, the flags win over it; --no-zenoh keeps the "
               "table's enabled = true off; needs the zenoh extra")
 
 
@@ -184,8 +184,8 @@ def zenoh_front_end(settings: ZenohSettings | None, base: Chassis, sim: Any = No
     with _zenoh_session(settings) as session, \
             ZenohBridge(base, settings, session, sim=sim) as bridge:
         if announce is not None:
-            announce(f"{node_line(bridge)}: in {bridge.cmd_topic}; out "
-                     f"{', '.join(bridge.publishers)}")
+            out = ", ".join(pub.name for pub in bridge.publishers.values())
+            announce(f"{node_line(bridge)}: in {bridge.cmd_topic}; out {out}")
         yield bridge
 
 
@@ -213,7 +213,7 @@ def node_line(front: Any) -> str:
     """``Zenoh node /robot1/omnican on domain 0 (session ..., peer; connect: ...;
     multicast off)``: the first line a Zenoh front end says."""
     s = front.settings
-    node = s.ros_namespace.rstrip("/") + "/" + s.node_name
+    node = s.node_fq_name
     where = ", ".join(s.connect) or "no router given"
     return (f"Zenoh node {node} on domain {s.domain_id} (session {front.node.session_id}, "
             f"{s.mode}; connect: {where}; multicast {'on' if s.multicast else 'off'})")
@@ -243,8 +243,7 @@ def run(args: argparse.Namespace) -> int:
 def _print_startup(bridge: Any, timeout_s: float) -> None:
     from omnican.zenoh.services import SERVICES
 
-    s = bridge.settings
-    node = s.ros_namespace.rstrip("/") + "/" + s.node_name
+    node = bridge.settings.node_fq_name
     print(node_line(bridge), flush=True)
     kind = bridge.cmd_type.rsplit("/", 1)[1]
     print(f"  in:  {bridge.cmd_topic} ({kind}; one publisher at a time; stop after "

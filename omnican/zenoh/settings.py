@@ -79,6 +79,11 @@ class ZenohSettings:
         """The namespace as ROS 2 writes it: "" -> "/", "robot1/" -> "/robot1"."""
         return "/" + "/".join(c for c in self.namespace.split("/") if c)
 
+    @property
+    def node_fq_name(self) -> str:
+        """The node's fully qualified name: "/robot1/omnican", "/omnican"."""
+        return self.ros_namespace.rstrip("/") + "/" + self.node_name
+
 
 def from_table(table: ZenohTable | None, origin: str = "config",
                graph: Mapping[str, Any] | None = None) -> ZenohSettings:
