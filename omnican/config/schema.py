@@ -383,7 +383,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "mode": Key((str,), "peer", "\"peer\" or \"client\" (of the router connected to)"),
         "connect": Key((list,), None, "routers or peers to connect to, e.g. "
                        "[\"tcp/192.168.1.10:7447\"] (rmw_zenoh's router port)"),
-        "listen": Key((list,), None, "endpoints to listen on, e.g. [\"tcp/0.0.0.0:7448\"]; "
+        "listen": Key((list,), None, "endpoints to listen on, e.g. [\"tcp/192.168.1.20:7448\"]; "
                       "default Zenoh's for the mode"),
         "multicast": Key((bool,), False, "find peers by multicast scouting"),
         "config_file": Key((str,), None, "a Zenoh JSON5 config (relative to the config "

@@ -87,6 +87,21 @@ def test_drive_sim_zenoh_publishes_odom(router: str, session: Any) -> None:
         proc.kill()
 
 
+def test_drive_without_a_motion_takes_cmd_vel_from_zenoh(router: str, session: Any) -> None:
+    proc = omnican("drive", "--sim", "--duration", "6", "--zenoh", "--zenoh-mode", "client",
+                   "--zenoh-connect", router)
+    try:
+        assert proc.read_until(lambda text: text.startswith("omnican: Zenoh node"), TIMEOUT_S)
+        with publishing(session, "/cmd_vel", 0.1, bytes(range(16))):
+            code, out = proc.finish(timeout=TIMEOUT_S)
+        assert code == 0, out
+        assert "took commands from Zenoh for 6.00 s" in out
+        pose = next(text for text in out.splitlines() if text.startswith("pose x="))
+        assert float(pose.split()[1].removeprefix("x=")) > 0.01, out
+    finally:
+        proc.kill()
+
+
 def test_a_stop_from_the_network_ends_a_scripted_drive(router: str, session: Any) -> None:
     """~/stop (the fleet stop's path) stops a base that drives a motion: the motion ends
     with exit 1 naming who stopped it; a cmd_vel publisher meanwhile is refused."""
