@@ -250,6 +250,10 @@ def check_front_ends(cfg: ChassisConfig) -> ChassisConfig:
         from omnican.live.settings import resolve
 
         resolve(cfg.foxglove, None, origin=origin, check_sdk=False)
+    if cfg.zenoh is not None:
+        from omnican.zenoh.settings import from_table as zenoh_table
+
+        zenoh_table(cfg.zenoh, origin)
     return cfg
 
 

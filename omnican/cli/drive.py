@@ -8,7 +8,10 @@ the base's limits are scaled down to them, with a warning.
 
 With --foxglove-control and no motion, the base stands still for --duration seconds
 (until Ctrl-C without one) and takes its commands from Foxglove (the Teleop panel,
-services, parameters), then prints the same.
+services, parameters), then prints the same. --zenoh puts the base on Zenoh beside it
+(as omnican zenoh does): with no motion it takes cmd_vel from there the same way; with
+a motion, the motion holds control (a cmd_vel publisher is refused) and a stop from the
+network (~/stop, a fleet stop) ends it, exit 1.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from omnican.cli.common import (
     rounded,
     session,
 )
+from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command import motion
 from omnican.command.motion import Leg
 from omnican.core.kinematics import Twist
@@ -57,7 +61,7 @@ DEFAULT_DURATION_S = 1.0
 _BOTH_DRIVE = ("--foxglove-control takes the motion from Foxglove: give no motion, only "
                "--duration (or --no-foxglove-control to drive the motion given)")
 _NO_MOTION = ("give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega, --square SIDE, "
-              "or --foxglove-control to take it from Foxglove")
+              "or --foxglove-control or --zenoh to take it from Foxglove or Zenoh")
 SQUARE_SPEED, SQUARE_OMEGA = 0.3, 1.0  # m/s, rad/s
 
 
@@ -92,6 +96,7 @@ def add_subparser(sub: Any) -> None:
                         '--sim); a run-time failure prints {"error", "pose", ...} and exits 1')
     add_record_argument(p)
     add_foxglove_arguments(p)
+    add_zenoh_arguments(p)
     add_bus_arguments(p)
     add_sim_time_arguments(p)
     p.set_defaults(func=run)
@@ -147,21 +152,45 @@ def execute(base: Chassis, plan: list[Leg]) -> motion.MotionResult:
         return motion.run(base, plan, bar)
 
 
-def take_commands(base: Chassis, duration_s: float | None) -> motion.MotionResult:
-    """Command nothing for ``duration_s`` (None: until Ctrl-C) while Foxglove drives;
-    the measured twist at the end."""
+def take_commands(base: Chassis, duration_s: float | None,
+                  whence: str = "Foxglove") -> motion.MotionResult:
+    """Command nothing for ``duration_s`` (None: until Ctrl-C) while ``whence``
+    (Foxglove, Zenoh) drives; the measured twist at the end."""
     clock = base.clock
     start = clock.now()
     end = start + duration_s if duration_s is not None else math.inf
     twist = Twist()
     with progress_bar(duration_s or 0.0) as bar:
         while (now := clock.now()) < end:
-            bar(now - start, duration_s or 0.0, "Foxglove")
+            bar(now - start, duration_s or 0.0, whence)
             clock.sleep(min(0.05, end - now))
             twist = base.twist
     elapsed = clock.now() - start
     motion.settle(base)  # the pose printed is where it stopped
     return motion.MotionResult(twist, elapsed)
+
+
+class Arbitrated:
+    """The base as a motion drives it beside front ends that drive too (Zenoh): its
+    commands go through a command source of the base's one arbiter, so that a cmd_vel
+    publisher cannot take the base over mid-motion (it is refused while the motion
+    drives), and a stop from another source (~/stop, a fleet stop) ends the motion:
+    BaseStoppedError naming who stopped it. The rest is the base's."""
+
+    SOURCE = "the scripted motion"
+
+    def __init__(self, base: Chassis) -> None:
+        self._base = base
+        self._source = base.command_source(self.SOURCE)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._base, name)
+
+    def set_velocity(self, vx: float, vy: float, wz: float) -> None:
+        other = self._source.send(Twist(vx, vy, wz))
+        if other is not None:
+            how = "stopped by" if self._source.stopped_by() else "taken over by"
+            raise BaseStoppedError(f"{how} {other}")
 
 
 def _number(value: float) -> str:
@@ -174,7 +203,8 @@ def _note(text: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     plan = legs(args)
-    if plan is None and args.foxglove is None and not args.foxglove_control:
+    if plan is None and args.foxglove is None and not args.foxglove_control \
+            and not args.zenoh and not args.config:  # a config may turn Zenoh on
         raise UsageError(_NO_MOTION)  # no server, so no Foxglove to drive
     seen: dict[str, Any] = {}  # what is known when a run-time failure ends the run
     try:
@@ -250,13 +280,16 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
     with session(args) as s, _stop_said_once() as stops:
         fox = foxglove_settings(args, s.cfg)
         control = fox is not None and fox.control
-        if given is None and not control:
+        zenoh = front_end_settings(args, s.cfg)
+        if given is None and not (control or zenoh):
             raise UsageError(_NO_MOTION)
         if given is not None and control:
             raise UsageError(_BOTH_DRIVE)
         if control and s.clock.lockstep:
             raise UsageError("--foxglove-control drives in real time: drop --fast and "
                              "--sim-speed")
+        if zenoh and s.clock.lockstep:
+            raise UsageError("--zenoh runs in real time: drop --fast and --sim-speed")
         plan: list[Leg] = given or []
         plan, clamps = motion.fit_to_limits(plan, s.cfg) if plan else (plan, [])
         for c in clamps:
@@ -266,10 +299,16 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
                   f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
         if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
+        whence = "Foxglove" if control else "Zenoh"
+        if control and zenoh:
+            whence = "Foxglove and Zenoh"
         with Chassis.open(s.cfg, record=recording(args.record), clock=s.clock) as base, \
-                watch(base, s.sim, fox, announce=_note):
+                watch(base, s.sim, fox, announce=_note), \
+                zenoh_front_end(zenoh, base, s.sim, _note):
+            driven: Any = Arbitrated(base) if zenoh else base
             try:
-                result = execute(base, plan) if plan else take_commands(base, args.duration)
+                result = (execute(driven, plan) if plan else
+                          take_commands(base, args.duration, whence))
             except BaseStoppedError as exc:
                 print(f"omnican: error: base stopped: {exc}", file=sys.stderr)
                 stops.said = True
@@ -313,7 +352,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
     else:
         t = result.twist
         when = "once stopped on the goal" if plan and plan[-1].is_goal else "before the stop"
-        what = "drove" if plan else "took commands from Foxglove for"
+        what = "drove" if plan else f"took commands from {whence} for"
         print(f"{what} {result.elapsed_s:.2f} s; measured twist {when}: vx={fixed(t.vx, 3)} "
               f"vy={fixed(t.vy, 3)} wz={fixed(t.wz, 3)}")
         if "true_pose" in out:

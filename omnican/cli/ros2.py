@@ -4,7 +4,9 @@ Subscribes cmd_vel (geometry_msgs/Twist, or TwistStamped; one publisher drives a
 time, the newest of its samples taken up to 100 times a second); publishes odom
 (nav_msgs/Odometry), tf (odom -> base_link), joint_states, diagnostics and
 battery_state (sensor_msgs/BatteryState); an std_msgs/Empty on ~/recover clears a
-latched stop. Needs cyclonedds (the ros2 extra).
+latched stop. Needs cyclonedds (the ros2 extra). --zenoh puts the same node on Zenoh
+beside it, in rmw_zenoh's format (its namespace, name, domain and cmd_vel type unless
+the [zenoh] table says otherwise; the flags below set both).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from omnican.cli.common import (
     serve_lines,
     session,
 )
+from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.errors import ConfigError
 from omnican.live import prepare, watch
 
@@ -86,6 +89,7 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
     add_foxglove_arguments(p)
+    add_zenoh_arguments(p, graph=False)  # the ROS 2 graph's flags above serve both
     add_record_argument(p)
     add_bus_arguments(p, sim_help="run against simulated drives in this process; DDS stays "
                       "on loopback unless --dds-interface or --dds-peer says otherwise")
@@ -158,6 +162,9 @@ def run(args: argparse.Namespace) -> int:
     cfg = load(args)
     origin = str(cfg.source) if cfg.source else "command line"
     settings = settings_from(args, dict(cfg.ros2) if cfg.ros2 else None, origin)
+    from omnican.zenoh.settings import GRAPH_KEYS
+
+    zenoh = front_end_settings(args, cfg, {key: getattr(settings, key) for key in GRAPH_KEYS})
     with session(args) as sess:
         # What every front end says alike (frames, joints, rates) is read from [ros2] by
         # the base's telemetry: the command line's values go there too.
@@ -175,7 +182,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             with Chassis.open(run_cfg, record=recording(args.record)) as base, \
                     Bridge(base, settings, transport, sim=sess.sim) as bridge, \
-                    watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True)):
+                    watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True)), \
+                    zenoh_front_end(zenoh, base, sess.sim, lambda t: print(t, flush=True)):
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
                     serve_lines(lambda line: command(bridge, line), args.duration)

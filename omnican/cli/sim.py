@@ -7,7 +7,9 @@ them with:
 
 On Linux they can also sit on a SocketCAN interface (-i socketcan -c vcan0),
 where any CAN tool sees them. Commands typed on stdin inject faults while it runs
-(listed below). A port already in use is a run-time failure (exit 1).
+(listed below). A port already in use is a run-time failure (exit 1). --zenoh publishes
+the simulated robot's true pose on Zenoh (NS/sim/true_pose), beside what a base that
+drives it publishes there.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from omnican.cli.common import (
     positive_float,
     serve_lines,
 )
+from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_truth
 from omnican.io.hub import DEFAULT_PORT, LoopbackHub
 from omnican.live import foxglove_address, prepare, watch
 from omnican.sim import SimulatedBase
@@ -52,8 +55,16 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
                    metavar="[HOST:]PORT", help="serve the ground truth and the bus to Foxglove on "
                    "[HOST:]PORT (default 127.0.0.1:8765; loopback unless a host is given)")
+    add_zenoh_arguments(p, commands=False, what=ZENOH_HELP)
     can.cli.add_bus_arguments(p, group_title="bus arguments (serve on this bus instead of a hub)")
     p.set_defaults(func=run)
+
+
+ZENOH_HELP = ("publish the ground truth on Zenoh in rmw_zenoh's format: NS/sim/true_pose "
+              "(geometry_msgs/PoseStamped) at the [zenoh] odom rate, from the node "
+              "NAME_sim (omnican_sim); the [zenoh] table of the config configures it, the "
+              "flags win over it; --no-zenoh keeps the table's enabled = true off; needs "
+              "the zenoh extra")
 
 
 def parse_serve(text: str | None) -> tuple[str, int]:
@@ -90,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.frame_loss <= 1:
         raise UsageError(f"--frame-loss must be 0-1, got {args.frame_loss:g}")
     options = {"encoder_noise": args.encoder_noise, "frame_loss": args.frame_loss}
+    zenoh = front_end_settings(args, cfg)
     hub = None
     if on_bus:
         check_bus(cfg.bus)
@@ -113,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)
             print("type a command here: " + ", ".join(syntax for syntax, _ in COMMANDS),
                   flush=True)
-            with watch(None, sim, args.foxglove, announce=lambda t: print(t, flush=True)):
+            with watch(None, sim, args.foxglove, announce=_say), \
+                    zenoh_truth(zenoh, sim, _say):
                 serve(sim, args.duration)
             if hub is not None:  # its clients see the bus go before the drives go quiet
                 hub.close()
@@ -122,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
             hub.close()
     print("simulator stopped", flush=True)
     return 0
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
 
 
 def _bus_flags(bus: Mapping[str, Any]) -> list[str]:

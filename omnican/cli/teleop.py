@@ -45,6 +45,7 @@ from omnican.cli.common import (
 from omnican.cli.dashboard import (
     dashboard,
 )
+from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command.teleop import ESC, Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
 from omnican.errors import OmnicanError
@@ -72,6 +73,7 @@ def add_subparser(sub: Any) -> None:
                    help="drive with a gamepad (evdev; default: the first one found, or e.g. "
                         "/dev/input/event5): hold LB/L1 to move, RB/R1 for turbo, left stick "
                         "moves, right stick turns; the [gamepad] table of --config maps it")
+    add_zenoh_arguments(p)
     add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
     p.set_defaults(func=run)
 
@@ -280,7 +282,9 @@ def run(args: argparse.Namespace) -> int:
         if pad is not None:
             title += f" - gamepad {pad.name}"
         fox = foxglove_settings(args, s.cfg)
-        shared = fox is not None and fox.control  # Foxglove's clients may drive too
+        zenoh = front_end_settings(args, s.cfg)
+        # Foxglove's clients, Zenoh's cmd_vel publishers may drive too
+        shared = (fox is not None and fox.control) or zenoh is not None
         console.print(f"{title}: bringing the drives up...", style="dim")
         if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
@@ -291,10 +295,13 @@ def run(args: argparse.Namespace) -> int:
 
         with Chassis.open(s.cfg, record=recording(args.record)) as base, \
                 watch(base, s.sim, fox, announce=announce) as view, \
+                zenoh_front_end(zenoh, base, s.sim, announce) as bridge, \
                 cbreak(fd, lambda: events.say(SUSPEND_REFUSED)), logs_into(events), \
                 Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
             if view is not None:
                 title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
+            if bridge is not None:
+                title += f" - Zenoh {bridge.settings.node_fq_name}"
             try:
                 drive_loop(base, keys, fd, live, title, events, pad, shared)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc

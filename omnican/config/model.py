@@ -114,6 +114,35 @@ class SimTruth:
     position_scale: tuple[float, ...] | None = None  # one per wheel, counts per m
 
 
+_ZENOH = schema_defaults("zenoh")
+
+
+@dataclass(frozen=True)
+class ZenohTable:
+    """The ``[zenoh]`` table, its types and ranges checked (the names and endpoints are
+    checked where they are used, by ``omnican.zenoh.settings``). ``config_file`` is made
+    whole against the config file's folder; ``given``: the keys the table gave (under
+    ``omnican ros2 --zenoh`` the others of the ROS graph are the ROS 2 node's)."""
+
+    enabled: bool = _ZENOH["enabled"]
+    domain_id: int = _ZENOH["domain_id"]
+    namespace: str = _ZENOH["namespace"]
+    node_name: str = _ZENOH["node_name"]
+    mode: str = _ZENOH["mode"]
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    multicast: bool = _ZENOH["multicast"]
+    config_file: str | None = _ZENOH["config_file"]
+    cmd_vel_stamped: bool = _ZENOH["cmd_vel_stamped"]
+    odom_rate_hz: float = _ZENOH["odom_rate_hz"]
+    joint_states_rate_hz: float = _ZENOH["joint_states_rate_hz"]
+    battery_state_rate_hz: float = _ZENOH["battery_state_rate_hz"]
+    status_rate_hz: float = _ZENOH["status_rate_hz"]
+    wheels_rate_hz: float = _ZENOH["wheels_rate_hz"]
+    summary_rate_hz: float = _ZENOH["summary_rate_hz"]
+    given: frozenset[str] = field(default=frozenset(), compare=False)
+
+
 #: What a ``[chassis]`` table must give (or may leave to the wheels' angle_deg), for a
 #: ChassisSettings made in code: the demo base's (:func:`default_config`).
 DEMO_CHASSIS: dict[str, Any] = {"layout": "b21", "base_radius": 0.19}
@@ -185,6 +214,7 @@ class ChassisConfig:
     sim: SimTruth | None = field(default=None, compare=False)
     # The [gamepad] table as given, checked (omnican.command.gamepad maps a pad with it).
     gamepad: Mapping[str, Any] | None = None
+    zenoh: ZenohTable | None = None  # the [zenoh] table (--zenoh, omnican zenoh)
 
     def kinematics(self) -> OmniKinematics:
         c = self.chassis

@@ -22,6 +22,7 @@ from omnican.config.model import (
     PowerSettings,
     SimTruth,
     WheelConfig,
+    ZenohTable,
 )
 from omnican.config.reader import Reader, suggest
 from omnican.config.schema import (
@@ -36,6 +37,7 @@ from omnican.config.schema import (
     NUMBER,
     PDO_MAPPINGS,
     SCHEMA,
+    ZENOH_MODES,
 )
 from omnican.config.wheels import check_eds_files, check_wheels, parse_wheel
 from omnican.core.kinematics import LAYOUTS
@@ -143,8 +145,10 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
     foxglove = _foxglove_table(r, data["foxglove"], base_dir) if "foxglove" in data else None
     sim = _parse_sim(r, data["sim"], len(wheels)) if "sim" in data else None
+    zenoh = _parse_zenoh(r, data["zenoh"], base_dir) if "zenoh" in data else None
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2, power=power,
-                        estop=estop, foxglove=foxglove, sim=sim, gamepad=gamepad)
+                        estop=estop, foxglove=foxglove, sim=sim, gamepad=gamepad,
+                        zenoh=zenoh)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -174,6 +178,26 @@ def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
     radius = t["base_radius"]
     return SimTruth(None if radius is None else float(radius),
                     None if values is None else tuple(float(v) for v in values))
+
+
+def _parse_zenoh(r: Reader, data: Any, base_dir: Path | None) -> ZenohTable:
+    """The ``[zenoh]`` table: types, ranges, the mode; the config file's path made whole
+    (omnican.zenoh.settings checks the names and endpoints)."""
+    t = r.table("zenoh", data, "zenoh")
+    if t["mode"] not in ZENOH_MODES:
+        raise r.fail("zenoh.mode", f"must be one of {', '.join(ZENOH_MODES)}, got "
+                     f"{_short(t['mode'])}")
+    for key in ("connect", "listen"):
+        t[key] = t[key] or []
+        if not all(isinstance(v, str) for v in t[key]):
+            raise r.fail(f"zenoh.{key}", "must be an array of endpoints (strings), e.g. "
+                         "[\"tcp/192.168.1.10:7447\"]")
+        t[key] = tuple(t[key])
+    if t["config_file"] is not None:
+        p = Path(t["config_file"]).expanduser()
+        t["config_file"] = str(p if p.is_absolute() or base_dir is None else base_dir / p)
+    numbers = {k: float(v) for k, v in t.items() if SCHEMA["zenoh"][k].types == NUMBER}
+    return ZenohTable(**{**t, **numbers}, given=frozenset(data))
 
 
 def _parse_power(r: Reader, table: Any) -> PowerSettings:

@@ -113,6 +113,21 @@ _RATE = (0.01, 5000.0)  # Hz
 _SCALE = (1e-6, 1e12)  # units per SI unit, either sign
 _ROS_RATE = (0.01, 1000.0)  # Hz, a topic's publish rate
 
+#: Values of zenoh.mode (a router is a process of its own: zenohd, rmw_zenohd).
+ZENOH_MODES = ("peer", "client")
+#: The [zenoh] rate keys and the topic each sets (omnican.zenoh.settings'
+#: ``ZenohSettings.rates_hz``; tf goes with odom).
+ZENOH_RATES: dict[str, str] = {
+    "odom_rate_hz": "/odom", "joint_states_rate_hz": "/joint_states",
+    "battery_state_rate_hz": "/battery_state", "status_rate_hz": "/status",
+    "wheels_rate_hz": "/wheels", "summary_rate_hz": "/base_summary",
+}
+_ZENOH_RATE_DEFAULTS = {"odom_rate_hz": 50.0, "joint_states_rate_hz": 50.0,
+                        "battery_state_rate_hz": 1.0, "status_rate_hz": 10.0,
+                        "wheels_rate_hz": 10.0, "summary_rate_hz": 2.0}
+_ZENOH_RATE_NOTES = {"odom_rate_hz": " (tf with it)",
+                     "summary_rate_hz": " (the fleet's view; and at once on a change)"}
+
 
 #: The highest chassis.rt_priority: Linux's highest SCHED_FIFO priority.
 MAX_RT_PRIORITY = 99
@@ -355,6 +370,29 @@ SCHEMA: dict[str, dict[str, Key]] = {
                        "--foxglove-origin adds one"),
         "token": Key((str,), None, "a secret a client must give to drive (ws://host:port/"
                      "?token=...): without it, it may only watch; --foxglove-token"),
+    },
+    # Read by the Zenoh front end (omnican zenoh, --zenoh; omnican/zenoh/settings.py
+    # checks the names and endpoints). The command line's flags win over it.
+    "zenoh": {
+        "enabled": Key((bool,), False, "turn the Zenoh front end on for teleop, drive, ros2 "
+                       "and sim without --zenoh (--no-zenoh keeps it off)"),
+        "domain_id": Key((int,), 0, "ROS domain: the first chunk of every key "
+                         "(rmw_zenoh's ROS_DOMAIN_ID)", range=(0, 232)),
+        "namespace": Key((str,), "", "the robot's namespace, e.g. \"/robot1\""),
+        "node_name": Key((str,), "omnican", "node name (omnican sim's is this + \"_sim\")"),
+        "mode": Key((str,), "peer", "\"peer\" or \"client\" (of the router connected to)"),
+        "connect": Key((list,), None, "routers or peers to connect to, e.g. "
+                       "[\"tcp/192.168.1.10:7447\"] (rmw_zenoh's router port)"),
+        "listen": Key((list,), None, "endpoints to listen on, e.g. [\"tcp/192.168.1.20:7448\"]; "
+                      "default Zenoh's for the mode"),
+        "multicast": Key((bool,), False, "find peers by multicast scouting"),
+        "config_file": Key((str,), None, "a Zenoh JSON5 config (relative to the config "
+                           "file): TLS, authentication, access control; applied first"),
+        "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of "
+                               "Twist"),
+        **{key: Key(NUMBER, _ZENOH_RATE_DEFAULTS[key], f"{topic[1:]} publish rate"
+                    + _ZENOH_RATE_NOTES.get(key, ""), range=_ROS_RATE)
+           for key, topic in ZENOH_RATES.items()},
     },
     # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
     # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.

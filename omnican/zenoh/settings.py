@@ -7,6 +7,9 @@ Multicast scouting is off unless asked for (rmw_zenoh's default too): a base fin
 peers through the router it connects to (``tcp/HOST:7447``, rmw_zenoh's default port),
 and sends nothing to a network it was not pointed at. A Zenoh JSON5 file, if given, is
 read first (TLS, user/password, access control pass through it); what is set here wins.
+
+The defaults are the ``[zenoh]`` table's (:data:`omnican.config.SCHEMA`);
+:func:`from_table` makes settings of a config's table.
 """
 
 from __future__ import annotations
@@ -14,8 +17,11 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
+from omnican.config import ZENOH_RATES, ZenohTable, schema_defaults
 from omnican.errors import ConfigError
 
 MODES = ("peer", "client", "router")
@@ -24,21 +30,27 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _ENDPOINT = re.compile(r"^(tcp|udp|quic|tls|ws|unixsock-stream)/\S+$")
 
 
+_D = schema_defaults("zenoh")
+#: Where the base sits in the ROS graph: under ``omnican ros2 --zenoh`` the ROS 2
+#: node's, unless the [zenoh] table or a flag says otherwise.
+GRAPH_KEYS = ("domain_id", "namespace", "node_name", "cmd_vel_stamped")
+
+
 def _default_rates() -> dict[str, float]:
-    return {"/odom": 50.0, "/joint_states": 50.0, "/battery_state": 1.0}
+    return {topic: float(_D[key]) for key, topic in ZENOH_RATES.items()}
 
 
 @dataclass(frozen=True)
 class ZenohSettings:
-    domain_id: int = 0  # ROS_DOMAIN_ID: the first chunk of every key
-    namespace: str = ""  # the robot's: "/robot1" -> 0/robot1/odom/...
-    node_name: str = "omnican"
-    mode: str = "peer"
+    domain_id: int = _D["domain_id"]  # ROS_DOMAIN_ID: the first chunk of every key
+    namespace: str = _D["namespace"]  # the robot's: "/robot1" -> 0/robot1/odom/...
+    node_name: str = _D["node_name"]
+    mode: str = _D["mode"]
     connect: tuple[str, ...] = ()  # e.g. ("tcp/192.168.1.10:7447",)
     listen: tuple[str, ...] = ()  # empty: Zenoh's default for the mode
-    multicast: bool = False  # multicast scouting
-    config_file: str | None = None  # a Zenoh JSON5 file, applied first
-    cmd_vel_stamped: bool = False  # cmd_vel carries geometry_msgs/msg/TwistStamped
+    multicast: bool = _D["multicast"]  # multicast scouting
+    config_file: str | None = _D["config_file"]  # a Zenoh JSON5 file, applied first
+    cmd_vel_stamped: bool = _D["cmd_vel_stamped"]  # cmd_vel: geometry_msgs/msg/TwistStamped
     #: Hz per telemetry topic (tf goes with odom; diagnostics at the telemetry's pace).
     rates_hz: dict[str, float] = field(default_factory=_default_rates)
 
@@ -66,6 +78,36 @@ class ZenohSettings:
     def ros_namespace(self) -> str:
         """The namespace as ROS 2 writes it: "" -> "/", "robot1/" -> "/robot1"."""
         return "/" + "/".join(c for c in self.namespace.split("/") if c)
+
+    @property
+    def node_fq_name(self) -> str:
+        """The node's fully qualified name: "/robot1/omnican", "/omnican"."""
+        return self.ros_namespace.rstrip("/") + "/" + self.node_name
+
+
+def from_table(table: ZenohTable | None, origin: str = "config",
+               graph: Mapping[str, Any] | None = None) -> ZenohSettings:
+    """Settings of a config's ``[zenoh]`` table (None: none given: the defaults),
+    validated; a ConfigError begins with ``origin`` (the file). ``graph``: where the ROS
+    graph puts the node when the table does not say (:data:`GRAPH_KEYS`; ``omnican ros2
+    --zenoh`` passes its ROS 2 node's)."""
+    t = table or ZenohTable()
+    names = {f.name for f in fields(ZenohSettings)} - {"rates_hz"}
+    values = {name: getattr(t, name) for name in names}
+    for key, value in (graph or {}).items():
+        if key in GRAPH_KEYS and key not in t.given:
+            values[key] = value
+    rates = {topic: float(getattr(t, key)) for key, topic in ZENOH_RATES.items()}
+    return checked(ZenohSettings(**values, rates_hz=rates), origin)
+
+
+def checked(settings: ZenohSettings, origin: str = "command line",
+            **changes: Any) -> ZenohSettings:
+    """``settings`` with ``changes``, validated; a ConfigError begins with ``origin``."""
+    try:
+        return replace(settings, **changes).validate()
+    except ConfigError as exc:
+        raise ConfigError(f"{origin}: {exc}") from None
 
 
 def config_entries(s: ZenohSettings) -> list[tuple[str, str]]:

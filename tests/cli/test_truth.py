@@ -238,7 +238,8 @@ def test_the_sim_banner_lists_the_commands() -> None:
                                           "base (at most 100"),
     (["drive", "--sim", "--speed", "1e200"], "motion refused: vx 1e+200 m/s is beyond"),
     (["drive", "--sim"], "give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega, "
-                         "--square SIDE, or --foxglove-control to take it from Foxglove"),
+                         "--square SIDE, or --foxglove-control or --zenoh to take it from "
+                         "Foxglove or Zenoh"),
     (["drive", "--sim", "--duration", "2"], "give a motion"),
     (["drive", "--sim", "--foxglove-control", "--vx", "0.1"],
      "--foxglove-control takes the motion from Foxglove: give no motion, only --duration"),
