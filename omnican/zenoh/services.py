@@ -43,6 +43,24 @@ def trigger_response(success: bool, message: str) -> bytes:
     return _CDR_LE + struct.pack("<?3xI", success, len(text)) + text
 
 
+#: CDR (with its header) of a std_srvs/srv/Trigger_Request: an empty struct is one byte.
+TRIGGER_REQUEST = _CDR_LE + b"\x00"
+
+
+def read_trigger_response(data: bytes) -> tuple[bool, str]:
+    """(success, message) of a Trigger_Response's CDR (little or big endian); ValueError
+    for bytes that are not one (the inverse of :func:`trigger_response`)."""
+    if len(data) < 12 or data[0] != 0 or data[1] not in (0, 1):
+        raise ValueError(f"not a CDR Trigger response ({len(data)} bytes)")
+    order = "<" if data[1] == 1 else ">"
+    success, size = struct.unpack_from(f"{order}?3xI", data, 4)
+    text = data[12:12 + size]
+    if size == 0 or len(text) != size or text[-1] != 0:
+        raise ValueError(f"not a CDR Trigger response (a {size}-byte string in "
+                         f"{len(data) - 12} bytes)")
+    return success, text[:-1].decode("utf-8", "replace")
+
+
 def trigger_hash() -> str:
     return rmw.service_type_hash(TRIGGER, "", "bool success\nstring message")
 

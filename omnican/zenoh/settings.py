@@ -25,7 +25,8 @@ _ENDPOINT = re.compile(r"^(tcp|udp|quic|tls|ws|unixsock-stream)/\S+$")
 
 
 def _default_rates() -> dict[str, float]:
-    return {"/odom": 50.0, "/joint_states": 50.0, "/battery_state": 1.0}
+    return {"/odom": 50.0, "/joint_states": 50.0, "/battery_state": 1.0, "/status": 10.0,
+            "/wheels": 10.0, "/base_summary": 2.0}
 
 
 @dataclass(frozen=True)
