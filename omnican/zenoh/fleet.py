@@ -150,16 +150,22 @@ class Fleet:
         hash_ = rmw.type_hash(STRING)
         self.summary_key = (f"{domain_id}/**/{SUMMARY_TOPIC}/"
                             f"{rmw.dds_type_name(STRING)}/{hash_}")
-        self._hash = hash_
+        self._closed = False
+        self._zenoh = zenoh
+        # Last: their callbacks start at once (the tokens already there come with them).
         self._summary_sub = session.declare_subscriber(self.summary_key, self._on_summary)
         self._tokens = session.liveliness().declare_subscriber(
             f"{rmw.ADMIN_SPACE}/{domain_id}/**", self._on_token, history=True)
-        self._closed = False
-        self._zenoh = zenoh
 
     # ------------------------------------------------------------ what is heard
 
     def _on_token(self, sample: Any) -> None:
+        try:
+            self._token_changed(sample)
+        except Exception:  # in Zenoh's thread: say it, never stop hearing
+            logger.exception("a liveliness token not handled")
+
+    def _token_changed(self, sample: Any) -> None:
         key = str(sample.key_expr)
         if sample.kind == self._zenoh.SampleKind.DELETE:
             with self._lock:
@@ -252,8 +258,10 @@ class Fleet:
             if node is None:
                 call._settle(Answer(name, False, False, "no such base"))
                 continue
-            self._seq += 1
-            self._ask(call, name, service_key(node, service), self._seq)
+            with self._lock:
+                self._seq += 1
+                seq = self._seq
+            self._ask(call, name, service_key(node, service), seq)
         return call
 
     def _ask(self, call: Call, name: str, key: str, seq: int) -> None:

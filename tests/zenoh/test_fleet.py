@@ -213,3 +213,27 @@ def test_malformed_summaries_are_counted_not_shown(router: str, fleet: Any) -> N
         pub.undeclare()
     finally:
         session.close()
+
+
+def test_status_and_wheels_go_out_as_strings_of_the_models_json(
+        two: tuple[Rig, Rig], router: str) -> None:
+    from omnican.telemetry import cdr
+    from omnican.zenoh import rmw
+
+    session = client(router)
+    got: dict[str, list[dict[str, Any]]] = {"status": [], "wheels": []}
+    try:
+        subs = []
+        for topic in got:
+            key = rmw.data_key(0, f"/robot2/{topic}", "std_msgs/msg/String",
+                               rmw.type_hash("std_msgs/msg/String"))
+            assert key == two[1][3].publishers[f"/{topic}"].key
+            subs.append(session.declare_subscriber(key, lambda sample, t=topic: got[t].append(
+                json.loads(cdr.decode("std_msgs/msg/String", sample.payload.to_bytes())["data"]))))
+        assert run_until(two, lambda: bool(got["status"] and got["wheels"]))
+        assert got["status"][-1]["state"] in ("RUNNING", "STARTING")
+        assert [w["index"] for w in got["wheels"][-1]["wheels"]] == [0, 1, 2]
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        session.close()
