@@ -206,14 +206,21 @@ class Fleet:
         with self._lock:
             self._summaries[topic] = (summary, self.clock())
 
-    def discover(self, timeout_s: float = TIMEOUT_S) -> None:
+    def discover(self, timeout_s: float = TIMEOUT_S) -> int:
         """Ask the network for the tokens there now and wait for the answer (what the
-        subscriber's history also brings, but with an end: ``--once`` knows when)."""
-        replies = self.session.liveliness().get(f"{rmw.ADMIN_SPACE}/{self.domain_id}/**",
-                                                timeout=timeout_s)
-        for reply in replies:
-            if reply.ok is not None:
-                self._found(str(reply.ok.key_expr))
+        subscriber's history also brings, but with an end: ``--once`` knows when).
+        A session just opened may be answered with nothing at all: asked again then,
+        until ``timeout_s``. Returns how many tokens came."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            left = max(0.01, deadline - time.monotonic())
+            tokens = [str(r.ok.key_expr) for r in self.session.liveliness().get(
+                f"{rmw.ADMIN_SPACE}/{self.domain_id}/**", timeout=left) if r.ok is not None]
+            for key in tokens:
+                self._found(key)
+            if tokens or time.monotonic() >= deadline:
+                return len(tokens)
+            time.sleep(0.05)
 
     # ------------------------------------------------------------ what is shown
 
