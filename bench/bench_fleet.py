@@ -25,11 +25,16 @@ Run: ``python bench/bench_fleet.py`` (both parts; ``--part loop|fleet``, ``--sec
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
+import math
 import os
+import signal
 import socket
 import statistics
+import subprocess
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -231,6 +236,246 @@ def loop_part(seconds: float, rounds: int) -> None:
          bytes_per_s=statistics.median(r["bytes_per_s"] for r in on))
 
 
+# ------------------------------------------------------------ ten bases, one router
+
+
+class BaseProcess:
+    """One ``omnican zenoh --sim`` process, a client of the router, in namespace ``ns``."""
+
+    def __init__(self, ns: str, endpoint: str) -> None:
+        self.ns = ns
+        self.name = f"{ns}/omnican"
+        self.spawned = time.monotonic()
+        self.ready: float | None = None  # its front end up ("Ctrl-C to stop")
+        self.seen: float | None = None  # its row in the fleet view
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "omnican", "zenoh", "--sim", "--namespace", ns,
+             "--zenoh-mode", "client", "--zenoh-connect", endpoint],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip())
+            if self.ready is None and "Ctrl-C to stop" in line:
+                self.ready = time.monotonic()
+
+    def cpu_s(self) -> float:
+        with open(f"/proc/{self.proc.pid}/stat") as f:
+            stat = f.read()
+        fields = stat[stat.rindex(")") + 2:].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def quit(self) -> None:
+        if self.proc.poll() is None:
+            with contextlib.suppress(OSError):
+                assert self.proc.stdin is not None
+                self.proc.stdin.write("quit\n")
+                self.proc.stdin.flush()
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+def tcp_bytes_sent(pids: dict[int, str]) -> dict[str, int]:
+    """Bytes each process has sent over its TCP sockets (``ss -tinp``'s bytes_sent)."""
+    out = dict.fromkeys(pids.values(), 0)
+    text = subprocess.run(["ss", "-tinpH"], capture_output=True, text=True,
+                          check=False).stdout
+    owner: str | None = None
+    for line in text.splitlines():
+        if not line.startswith((" ", "\t")):
+            owner = None
+            for pid, name in pids.items():
+                if f"pid={pid}," in line:
+                    owner = name
+        elif owner is not None:
+            for word in line.split():
+                if word.startswith("bytes_sent:"):
+                    out[owner] += int(word.split(":", 1)[1])
+    return out
+
+
+class Truth:
+    """Each base's ``sim/true_pose`` as it arrives: (arrival, x, y) per base."""
+
+    def __init__(self, session: Any, names: list[str]) -> None:
+        ptype = "geometry_msgs/msg/PoseStamped"
+        self.poses: dict[str, list[tuple[float, float, float]]] = {n: [] for n in names}
+        self._subs = []
+        for name in names:
+            ns = name.rsplit("/", 1)[0]
+            key = rmw.data_key(0, f"{ns}/sim/true_pose", ptype, rmw.type_hash(ptype))
+            self._subs.append(session.declare_subscriber(key, self._on(name)))
+
+    def _on(self, name: str) -> Any:
+        def on(sample: Any) -> None:
+            pos = cdr.decode("geometry_msgs/msg/PoseStamped",
+                             sample.payload.to_bytes())["pose"]["position"]
+            self.poses[name].append((time.monotonic(), pos["x"], pos["y"]))
+        return on
+
+    def moving(self, name: str, since: float) -> bool:
+        recent = [p for p in self.poses[name] if p[0] >= since]
+        return len(recent) > 1 and math.dist(recent[0][1:], recent[-1][1:]) > 0.01
+
+    def at_rest_since(self, name: str, after: float, still_m: float = 1e-4) -> float | None:
+        """When the base's last motion after ``after`` ended (the arrival of the first
+        pose of the final still run), None if it never moved after then."""
+        poses = [p for p in self.poses[name] if p[0] >= after]
+        last_move = None
+        for a, b in itertools.pairwise(poses):
+            if math.dist(a[1:], b[1:]) > still_m:
+                last_move = b[0]
+        return last_move
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+def fleet_part(count: int, seconds: float) -> None:
+    from omnican.zenoh.fleet import Fleet
+
+    with router() as endpoint:
+        view_session, watcher = client(endpoint), client(endpoint)
+        bases: list[BaseProcess] = []
+        fleet = Fleet(view_session, 0)
+        cmds: list[CmdVel] = []
+        truth: Truth | None = None
+        try:
+            t0 = time.monotonic()
+            bases = [BaseProcess(f"/robot{i}", endpoint) for i in range(count)]
+            deadline = t0 + 120
+            while time.monotonic() < deadline and any(b.seen is None for b in bases):
+                rows = {v.name: v for v in fleet.bases()}
+                now = time.monotonic()
+                for b in bases:
+                    row = rows.get(b.name)
+                    if b.seen is None and row is not None and row.summary is not None:
+                        b.seen = now
+                time.sleep(0.01)
+            from_spawn = [b.seen - b.spawned for b in bases if b.seen is not None]
+            from_ready = [b.seen - b.ready for b in bases
+                          if b.seen is not None and b.ready is not None]
+            emit(bench="fleet.discovery", bases=count, seen=len(from_spawn),
+                 all_seen_s_after_first_spawn=round(max(b.seen or math.inf for b in bases)
+                                                    - t0, 2),
+                 from_spawn_s={"median": round(statistics.median(from_spawn), 2),
+                               "max": round(max(from_spawn), 2)},
+                 from_front_end_up_s={"median": round(statistics.median(from_ready), 3),
+                                      "max": round(max(from_ready), 3)})
+
+            # What each base sends while only the fleet view listens (its summaries), and
+            # while another session takes every key (the whole telemetry).
+            pids = {b.proc.pid: b.name for b in bases}
+            for label, wire in (("fleet view only", None), ("every key", Wire(watcher))):
+                sent0, cpu0 = tcp_bytes_sent(pids), {b.name: b.cpu_s() for b in bases}
+                if wire is not None:
+                    time.sleep(1.0)
+                    wire.take()
+                    sent0 = tcp_bytes_sent(pids)
+                t1 = time.monotonic()
+                time.sleep(seconds)
+                elapsed = time.monotonic() - t1
+                sent = tcp_bytes_sent(pids)
+                cpu = {b.name: (b.cpu_s() - cpu0[b.name]) / elapsed * 100 for b in bases}
+                fields: dict[str, Any] = {
+                    "bench": "fleet.wire", "listening": label,
+                    "tcp_bytes_per_s_per_base": round(statistics.median(
+                        (sent[n] - sent0[n]) / elapsed for n in sent)),
+                    "cpu_percent_per_base": {"median": round(statistics.median(cpu.values()),
+                                                             1),
+                                             "max": round(max(cpu.values()), 1)},
+                    "load": [round(x, 1) for x in os.getloadavg()]}
+                if wire is not None:
+                    messages, sizes = wire.take()
+                    wire.close()
+                    per_base_msgs: dict[str, int] = defaultdict(int)
+                    per_base_bytes: dict[str, int] = defaultdict(int)
+                    for key, n in messages.items():
+                        per_base_msgs[key.split("/")[1]] += n
+                        per_base_bytes[key.split("/")[1]] += sizes[key]
+                    fields["received_msgs_per_s_per_base"] = round(statistics.median(
+                        per_base_msgs.values()) / elapsed, 1)
+                    fields["received_bytes_per_s_per_base"] = round(statistics.median(
+                        per_base_bytes.values()) / elapsed)
+                emit(**fields)
+
+            # The fleet stop: every base driven at 0.3 m/s by a cmd_vel publisher that
+            # keeps sending (a navigation stack does), then one call.
+            names = [b.name for b in bases]
+            truth = Truth(watcher, names)
+            cmds = [CmdVel(watcher, f"{b.ns}/cmd_vel", bytes([i + 1] * 16))
+                    for i, b in enumerate(bases)]
+            sending = threading.Event()
+            sending.set()
+
+            def drive() -> None:
+                while sending.is_set():
+                    for c in cmds:
+                        c.send(0.3)
+                    time.sleep(1.0 / CMD_HZ)
+
+            driver = threading.Thread(target=drive, daemon=True)
+            driver.start()
+            since = time.monotonic()
+            deadline = since + 60
+            time.sleep(1.0)
+            while time.monotonic() < deadline and not all(
+                    truth.moving(n, time.monotonic() - 0.5) for n in names):
+                time.sleep(0.05)
+            moving = sum(truth.moving(n, time.monotonic() - 0.5) for n in names)
+            key = time.monotonic()
+            answers = fleet.stop_all()
+            answered = time.monotonic()
+            time.sleep(3.0)  # the ramps end; cmd_vel still arrives
+            rest = [truth.at_rest_since(n, key) for n in names]
+            still_moving = sum(truth.moving(n, time.monotonic() - 0.5) for n in names)
+            sending.clear()
+            driver.join()
+            emit(bench="fleet.stop", bases=count, moving_before=moving,
+                 answered_ok=sum(a.answered and a.success for a in answers),
+                 every_answer_s=round(answered - key, 3),
+                 last_wheels_at_rest_s=round(max(r for r in rest if r is not None) - key, 3)
+                 if any(r is not None for r in rest) else None,
+                 median_at_rest_s=round(statistics.median(
+                     r - key for r in rest if r is not None), 3)
+                 if any(r is not None for r in rest) else None,
+                 moving_3s_later=still_moving,
+                 answers=[str(a) for a in answers[:2]])
+
+            # A base killed: how long until the fleet view says it is lost.
+            victim = bases[0]
+            victim.proc.send_signal(signal.SIGKILL)
+            killed = time.monotonic()
+            lost_at = None
+            while time.monotonic() < killed + 30:
+                row = next((v for v in fleet.bases() if v.name == victim.name), None)
+                if row is None or row.lost:
+                    lost_at = time.monotonic()
+                    break
+                time.sleep(0.005)
+            emit(bench="fleet.lost", killed=victim.name,
+                 shown_lost_s=round(lost_at - killed, 3) if lost_at else None)
+        finally:
+            for c in cmds:
+                c.close()
+            if truth is not None:
+                truth.close()
+            fleet.close()
+            for b in bases:
+                b.quit()
+            view_session.close()
+            watcher.close()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--part", choices=("loop", "fleet", "both"), default="both")
@@ -241,6 +486,8 @@ def main() -> None:
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     if args.part in ("loop", "both"):
         loop_part(args.seconds, args.rounds)
+    if args.part in ("fleet", "both"):
+        fleet_part(args.bases, args.seconds)
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "check-config": ("check_config", "validate config files and their EDS files offline", None),
     "ros2": ("ros2", "run the base as a ROS 2 node (DDS; no ROS install)", "ros2"),
     "zenoh": ("zenoh", "run the base on Zenoh (rmw_zenoh's format)", "zenoh"),
+    "fleet": ("fleet", "every base on the Zenoh network: view, stop, recover", "zenoh"),
 }
 #: The modules of the subcommands, in the order ``--help`` lists them.
 SUBCOMMANDS = tuple(module for module, _, _ in COMMANDS.values())

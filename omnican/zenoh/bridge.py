@@ -5,9 +5,12 @@ The telemetry is the one model's (:mod:`omnican.telemetry`): the bridge is a sin
 base's telemetry feed (:func:`~omnican.telemetry.attach.feed_of`) and puts each
 message's CDR bytes, built once for every front end, on its rmw_zenoh key with the
 attachment (sequence number one higher each message, the sample's time, a fixed GID per
-publisher). It declares the liveliness tokens a ROS 2 graph reads: the node (``NN``),
-each publisher (``MP``) and the cmd_vel subscription (``MS``). Publishing is on the
-feed's thread, never the control loop's.
+publisher). The model's JSON topics ``status`` and ``wheels`` go out as
+``std_msgs/msg/String`` (the JSON as the string's text), and ``base_summary``, the
+fleet's view of the base (:mod:`omnican.zenoh.summary`: made from the same sample's
+messages, once a period and at once on a stop or a fault). It declares the liveliness
+tokens a ROS 2 graph reads: the node (``NN``), each publisher (``MP``) and the cmd_vel
+subscription (``MS``). Publishing is on the feed's thread, never the control loop's.
 
 cmd_vel (``geometry_msgs/msg/Twist``, or TwistStamped if the settings say) arrives in a
 ring of :data:`CMD_VEL_DEPTH` samples (a flood costs the oldest, in Zenoh's threads) and
@@ -22,6 +25,7 @@ line and moves nothing.
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from typing import TYPE_CHECKING, Any
@@ -31,11 +35,12 @@ from omnican.clock import PollThread
 from omnican.core.kinematics import Twist
 from omnican.errors import ConfigError, DriveError, quote
 from omnican.log_throttle import Throttle
-from omnican.telemetry import TOPICS, Message
+from omnican.telemetry import JSON, TOPICS, Message
 from omnican.telemetry.attach import feed_of
 from omnican.zenoh import rmw
 from omnican.zenoh.services import Services
 from omnican.zenoh.settings import ZenohSettings, config_entries
+from omnican.zenoh.summary import SOURCES, Summarizer
 
 if TYPE_CHECKING:
     from omnican.chassis import Chassis
@@ -45,7 +50,11 @@ logger = logging.getLogger(__name__)
 TWIST = "geometry_msgs/msg/Twist"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 #: The telemetry this front end publishes (tf with odom, joint states with wheel radii).
-PUBLISHED = ("/odom", "/tf", "/joint_states", "/diagnostics", "/battery_state")
+PUBLISHED = ("/odom", "/tf", "/joint_states", "/diagnostics", "/battery_state",
+             "/status", "/wheels")
+STRING = "std_msgs/msg/String"  # what the JSON topics travel as (the JSON its text)
+#: The fleet's view of the base (:mod:`omnican.zenoh.summary`).
+SUMMARY = "/base_summary"
 #: The simulator's true pose, published beside the odometry when the base runs against
 #: simulated drives in its own process (``sim=``).
 TRUE_POSE = "/sim/true_pose"
@@ -57,6 +66,19 @@ MAX_POLL_HZ = 100.0
 MAX_CMD_BYTES = 1024
 MAX_PARSED_PER_POLL = 4
 SOURCE = "Zenoh cmd_vel publisher"
+
+
+def string_cdr(text: bytes) -> bytes:
+    """``text`` (UTF-8: a JSON topic's payload) as a std_msgs/msg/String's CDR."""
+    from omnican.telemetry import cdr
+
+    return cdr.encode(STRING, {"data": text.decode()})
+
+
+def _type_of(topic: str) -> str:
+    """The ROS 2 type ``topic`` travels as: its own, or a String carrying its JSON."""
+    schema, kind = TOPICS.get(topic, (STRING, JSON))
+    return STRING if kind == JSON else schema
 
 
 def open_session(settings: ZenohSettings) -> Any:
@@ -126,16 +148,19 @@ class ZenohBridge:
                   if t != "/joint_states" or feed.settings.wheel_radii is not None]
         if sim is not None:
             topics.append(TRUE_POSE)
+        topics.append(SUMMARY)
         self.publishers: dict[str, _Publisher] = {}
         for entity_id, topic in enumerate(topics, start=1):
             qos = rmw.Qos(depth=TF_DEPTH if topic == "/tf" else 10)
             self.publishers[topic] = _Publisher(session, self.node, entity_id,
                                                 rmw.fully_qualified(ns, topic[1:]),
-                                                TOPICS[topic][0], qos)
+                                                _type_of(topic), qos)
         state_rate = feed.settings.state_rate_hz
         self._every = {t: max(1, round(state_rate / r)) for t, r in settings.rates_hz.items()}
         self._seen = dict.fromkeys(self._every, 0)
         self._odom_sent = False
+        self._summary = Summarizer(rmw.fully_qualified(ns, settings.node_name),
+                                   1.0 / settings.rates_hz.get(SUMMARY, 2.0))
 
         self.cmd_topic = rmw.fully_qualified(ns, "cmd_vel")
         self.cmd_type = TWIST_STAMPED if settings.cmd_vel_stamped else TWIST
@@ -171,7 +196,7 @@ class ZenohBridge:
     # ------------------------------------------------------------ outputs (the sink)
 
     def wants(self, topic: str) -> bool:
-        return topic in self.publishers
+        return topic in self.publishers or topic in SOURCES
 
     def publish(self, messages: list[Message]) -> None:
         with self._publish_lock:  # close() may run meanwhile (the feed's thread is ours)
@@ -179,6 +204,7 @@ class ZenohBridge:
                 self._publish(messages)
 
     def _publish(self, messages: list[Message]) -> None:
+        data = {m.topic: m.data for m in messages if m.topic in SOURCES and m.data}
         for message in messages:
             pub = self.publishers.get(message.topic)
             if pub is None:
@@ -194,7 +220,15 @@ class ZenohBridge:
             else:
                 due = True
             if due:
-                pub.put(message.payload(), message.stamp_ns)
+                payload = message.payload()
+                pub.put(string_cdr(payload) if message.kind == JSON else payload,
+                        message.stamp_ns)
+        if data:  # the fleet's view, from the same sample
+            stamp_ns = next(m.stamp_ns for m in messages if m.topic in data)
+            summary = self._summary.offer(data, stamp_ns, self.holder())
+            if summary is not None:
+                self.publishers[SUMMARY].put(string_cdr(json.dumps(summary).encode()),
+                                             stamp_ns)
 
     # ------------------------------------------------------------ inputs
 

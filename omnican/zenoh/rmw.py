@@ -243,3 +243,52 @@ class Attachment:
             raise ValueError(f"not an rmw_zenoh attachment ({len(data)} bytes)")
         seq, stamp = _HEAD.unpack_from(data)
         return Attachment(seq, stamp, bytes(data[_HEAD.size + 1:]))
+
+
+_KINDS = {k.value: k for k in Kind}
+_HASH = re.compile(r"^RIHS01_[0-9a-f]{64}$")
+
+
+@dataclass(frozen=True)
+class Token:
+    """A liveliness token read back into its fields (:func:`parse_token`): the node that
+    declared it and, for an endpoint, what it announces. ``name`` is the endpoint's fully
+    qualified name (``/robot1/base_summary``) and ``type_name`` its ROS 2 type."""
+
+    node: Node
+    entity_id: int
+    kind: Kind
+    name: str = ""
+    type_name: str = ""
+    hash_: str = ""
+    qos: Qos | None = None
+
+    @property
+    def node_name(self) -> str:
+        """The node's fully qualified name (``/robot1/omnican``)."""
+        return fully_qualified(self.node.namespace, self.node.name)
+
+
+def parse_token(key: str) -> Token:
+    """The inverse of :meth:`Node.token` and :meth:`Node.endpoint_token`: a token's key
+    expression in, its fields out (an empty namespace or enclave reads back as ``/``,
+    which writes the same ``%``). ValueError for a key that is not such a token."""
+    chunks = key.split("/")
+    if len(chunks) not in (9, 13) or chunks[0] != ADMIN_SPACE:
+        raise ValueError(f"not an rmw_zenoh liveliness token: {key!r}")
+    domain, session, node_id, entity_id, kind_text, enclave, namespace, name = chunks[1:9]
+    kind = _KINDS.get(kind_text)
+    if kind is None or (kind is Kind.NODE) != (len(chunks) == 9):
+        raise ValueError(f"not an rmw_zenoh liveliness token (kind {kind_text!r}): {key!r}")
+    if not all(c.isdigit() for c in (domain, node_id, entity_id)) or not session \
+            or not name or "%" in name:
+        raise ValueError(f"not an rmw_zenoh liveliness token: {key!r}")
+    node = Node(int(domain), session, int(node_id), name, namespace=unmangle(namespace),
+                enclave=unmangle(enclave))
+    if kind is Kind.NODE:
+        return Token(node, int(entity_id), kind)
+    fq_name, dds_name, hash_, qos = chunks[9:]
+    if not fq_name.startswith("%") or _HASH.match(hash_) is None:
+        raise ValueError(f"not an rmw_zenoh endpoint token: {key!r}")
+    return Token(node, int(entity_id), kind, unmangle(fq_name), ros_type_name(dds_name),
+                 hash_, Qos.decode(qos))

@@ -9,8 +9,10 @@ server also declares a liveliness token of kind ``SS``.
 
 Requests are queued and answered from the bridge's poll, not in Zenoh's threads: a
 recover takes as long as the drives take to enable, and a lock-step base runs only when
-its clock is stepped. Anyone may stop the base (a stop is not a command); recover and
-reset odometry are refused while another source drives it.
+its clock is stepped. Anyone may stop the base (a stop is not a command), and the stop
+holds until ``~/recover`` (:meth:`~omnican.chassis.Chassis.halt`): a remote operator's
+stop must not end when the next cmd_vel arrives. Recover and reset odometry are refused
+while another source drives it.
 """
 
 from __future__ import annotations
@@ -41,6 +43,24 @@ def trigger_response(success: bool, message: str) -> bytes:
     """CDR (little endian, with its header) of a std_srvs/srv/Trigger_Response."""
     text = message.encode("utf-8", "replace") + b"\x00"
     return _CDR_LE + struct.pack("<?3xI", success, len(text)) + text
+
+
+#: CDR (with its header) of a std_srvs/srv/Trigger_Request: an empty struct is one byte.
+TRIGGER_REQUEST = _CDR_LE + b"\x00"
+
+
+def read_trigger_response(data: bytes) -> tuple[bool, str]:
+    """(success, message) of a Trigger_Response's CDR (little or big endian); ValueError
+    for bytes that are not one (the inverse of :func:`trigger_response`)."""
+    if len(data) < 12 or data[0] != 0 or data[1] not in (0, 1):
+        raise ValueError(f"not a CDR Trigger response ({len(data)} bytes)")
+    order = "<" if data[1] == 1 else ">"
+    success, size = struct.unpack_from(f"{order}?3xI", data, 4)
+    text = data[12:12 + size]
+    if size == 0 or len(text) != size or text[-1] != 0:
+        raise ValueError(f"not a CDR Trigger response (a {size}-byte string in "
+                         f"{len(data) - 12} bytes)")
+    return success, text[:-1].decode("utf-8", "replace")
 
 
 def trigger_hash() -> str:
@@ -101,11 +121,14 @@ class Services:
         self.answered += 1
 
     def _stop(self, source: str) -> tuple[bool, str]:
+        """A stop held until ``~/recover``: whoever drove loses control, and no command
+        (theirs or another's) moves the base until then."""
         try:
             self.source_of(source).stop()
+            self.base.halt(f"stopped by {source}")
         except DriveError as exc:
             return False, quote(str(exc), 200)
-        return True, "stopped"
+        return True, "stopped: held until recover"
 
     def _recover(self, source: str) -> tuple[bool, str]:
         other = self.source_of(source).may_act()

@@ -107,8 +107,8 @@ def test_the_index_lists_every_page() -> None:
     text = (DOCS / "index.md").read_text()
     listed = [line.strip() for b in fenced_blocks(text, "index.md") if b.lang == "{toctree}"
               for line in b.body.splitlines() if line.strip() and not line.startswith(":")]
-    assert listed[:10] == ["getting-started", "driving", "python-api", "bring-up", "safety",
-                           "ros2", "zenoh", "foxglove", "mcap", "calibration"]
+    assert listed[:11] == ["getting-started", "driving", "python-api", "bring-up", "safety",
+                           "ros2", "zenoh", "fleet", "foxglove", "mcap", "calibration"]
     pages = {p.stem for p in DOCS.glob("*.md")} - {"index"}
     assert pages <= set(listed), pages - set(listed)
 

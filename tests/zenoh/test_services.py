@@ -143,7 +143,7 @@ def test_the_sdks_service_client_stops_the_base(
                 done = threading.Event()
                 caller.call_async(lambda response: (got.append(response), done.set()))
                 assert run_until(clock, bridge, done.is_set)
-                assert got[0] is not None and got[0].success and got[0].message == "stopped"
+                assert got[0] is not None and got[0].success and got[0].message == "stopped: held until recover"
                 assert run_until(clock, bridge, lambda: abs(sim.true_twist.vx) < 1e-3)
             finally:
                 caller.close()

@@ -1,0 +1,133 @@
+"""omnican fleet as a user runs it: a router on loopback, two 'omnican zenoh --sim'
+processes (clients of it, /robot1 and /robot2), and the fleet view in scripts (--once
+--json, --stop all, --json lines while one base is killed) and in a terminal (the
+dashboard: both rows, space stops both)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+
+import pytest
+
+from tests.interop.ros2_interop.harness import Proc
+from tests.support import terminal
+from tests.support.helpers import one_error_line
+
+pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed "
+                    "(pip install 'omnican[zenoh]')")
+
+TIMEOUT_S = 120.0  # real seconds, generous: processes starting on a loaded machine
+NAMES = ["/robot1/omnican", "/robot2/omnican"]
+
+
+@contextlib.contextmanager
+def bases(router: str, count: int = 2) -> Iterator[list[Proc]]:
+    """``count`` simulated bases, /robot1.., each a client of ``router``, running."""
+    procs = []
+    try:
+        for n in range(1, count + 1):
+            procs.append(Proc([sys.executable, "-m", "omnican", "zenoh", "--sim",
+                               "--zenoh-mode", "client", "--zenoh-connect", router,
+                               "--namespace", f"/robot{n}"], env=dict(os.environ)))
+        for proc in procs:
+            assert proc.read_until(lambda line: "Ctrl-C to stop" in line, TIMEOUT_S), \
+                proc.lines
+        yield procs
+    finally:
+        for proc in procs:
+            proc.kill()
+
+
+def fleet(router: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "omnican", "fleet", "--zenoh-mode", "client",
+                           "--zenoh-connect", router, *args], capture_output=True, text=True,
+                          timeout=TIMEOUT_S, check=False)
+
+
+def test_scripts_list_stop_and_see_a_killed_base_lost(router: str) -> None:
+    with bases(router) as procs:
+        done = fleet(router, "--once", "--json", "--wait", "30")
+        assert done.returncode == 0, done.stderr
+        snapshot = json.loads(done.stdout)
+        assert [b["name"] for b in snapshot["bases"]] == NAMES
+        assert all(b["summary"]["state"] == "RUNNING" and b["summary"]["battery_v"] > 20
+                   for b in snapshot["bases"]), snapshot
+
+        done = fleet(router, "--stop", "all", "--wait", "30", "--timeout", "30")
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert done.stdout.splitlines() == [f"stop {name}: ok: stopped: held until recover" for name in NAMES]
+
+        done = fleet(router, "--stop", "robot2", "--recover", "/robot1/omnican", "--json",
+                     "--wait", "30", "--timeout", "30")
+        assert done.returncode == 0, done.stdout + done.stderr
+        got = [json.loads(line) for line in done.stdout.splitlines()]
+        assert [(g["service"], g["base"], g["success"]) for g in got] == [
+            ("stop", "/robot2/omnican", True), ("recover", "/robot1/omnican", True)]
+
+        watch = Proc([sys.executable, "-m", "omnican", "fleet", "--json", "--zenoh-mode",
+                      "client", "--zenoh-connect", router], env=dict(os.environ))
+        try:
+            def states(line: str) -> dict[str, str]:
+                try:
+                    return {b["name"]: b["state"] for b in json.loads(line)["bases"]}
+                except (ValueError, KeyError, TypeError):
+                    return {}
+
+            assert watch.read_until(lambda line: sorted(states(line)) == NAMES
+                                    and "LOST" not in states(line).values(), TIMEOUT_S)
+            procs[1].p.send_signal(signal.SIGKILL)
+            line = watch.read_until(lambda line: states(line).get(NAMES[1]) == "LOST",
+                                    TIMEOUT_S)
+            assert line is not None, watch.lines[-3:]
+            assert states(line)[NAMES[0]] != "LOST"
+        finally:
+            watch.kill()
+
+
+def test_the_dashboard_shows_both_and_space_stops_all(router: str) -> None:
+    with bases(router):
+        term = terminal.Pty("fleet", "--zenoh-mode", "client", "--zenoh-connect", router,
+                            "--timeout", "30", columns=80, lines=24)
+        try:
+            frame = term.wait_for_frame("/robot2/omnican", TIMEOUT_S)
+            rows = [line for line in frame if "/robot" in line and "session" not in line]
+            assert len(rows) == 2 and rows[0].startswith(">"), frame
+            assert all("RUNNING" in row for row in rows), frame
+            assert all(len(line) <= 80 for line in frame), frame
+            term.keys(" ")
+            for name in NAMES:
+                term.wait_for(f"stop {name}: ok: stopped: held until recover", TIMEOUT_S)
+            term.keys("j")  # the second row selected
+            frame = term.wait_for_frame("> /robot2/omnican", TIMEOUT_S)
+            term.keys("q")
+            assert term.exit_code(TIMEOUT_S) == 0
+        finally:
+            term.close()
+
+
+def test_an_unknown_base_is_one_line_exit_2(router: str,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    from omnican.cli import main
+
+    code = main(["fleet", "--stop", "robot9", "--wait", "0.5", "--zenoh-mode", "client",
+                 "--zenoh-connect", router])
+    assert code == 2
+    assert "fleet: no base named 'robot9' (found: none)" in one_error_line(
+        capsys.readouterr().err)
+
+
+def test_the_dashboard_wants_a_terminal(router: str, capsys: pytest.CaptureFixture[str],
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+
+    from omnican.cli import main
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    assert main(["fleet", "--zenoh-connect", router]) == 2
+    assert "reads keys from a terminal" in one_error_line(capsys.readouterr().err)
