@@ -248,6 +248,7 @@ class BaseProcess:
         self.spawned = time.monotonic()
         self.ready: float | None = None  # its front end up ("Ctrl-C to stop")
         self.seen: float | None = None  # its row in the fleet view
+        self.token_at: float | None = None  # its liveliness token heard
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "omnican", "zenoh", "--sim", "--namespace", ns,
              "--zenoh-mode", "client", "--zenoh-connect", endpoint],
@@ -361,6 +362,10 @@ def fleet_part(count: int, seconds: float) -> None:
                     if b.seen is None and row is not None and row.summary is not None:
                         b.seen = now
                 time.sleep(0.01)
+            with fleet._lock:  # when each base's token came, and its first summary
+                for b in bases:
+                    known = fleet._bases.get(b.name)
+                    b.token_at = known.found_at if known is not None else None
             from_spawn = [b.seen - b.spawned for b in bases if b.seen is not None]
             from_ready = [b.seen - b.ready for b in bases
                           if b.seen is not None and b.ready is not None]
@@ -370,12 +375,17 @@ def fleet_part(count: int, seconds: float) -> None:
                  from_spawn_s={"median": round(statistics.median(from_spawn), 2),
                                "max": round(max(from_spawn), 2)},
                  from_front_end_up_s={"median": round(statistics.median(from_ready), 3),
-                                      "max": round(max(from_ready), 3)})
+                                      "max": round(max(from_ready), 3)},
+                 token_from_front_end_up_s=[round(b.token_at - b.ready, 3) for b in bases
+                                            if b.token_at is not None and b.ready],
+                 seen_from_front_end_up_s=[round(b.seen - b.ready, 3) for b in bases
+                                           if b.seen is not None and b.ready])
 
             # What each base sends while only the fleet view listens (its summaries), and
             # while another session takes every key (the whole telemetry).
             pids = {b.proc.pid: b.name for b in bases}
-            for label, wire in (("fleet view only", None), ("every key", Wire(watcher))):
+            for label in ("fleet view only", "every key"):
+                wire = Wire(watcher) if label == "every key" else None
                 sent0, cpu0 = tcp_bytes_sent(pids), {b.name: b.cpu_s() for b in bases}
                 if wire is not None:
                     time.sleep(1.0)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import logging
+import struct
 import threading
 from typing import TYPE_CHECKING, Any
 
@@ -69,10 +70,10 @@ SOURCE = "Zenoh cmd_vel publisher"
 
 
 def string_cdr(text: bytes) -> bytes:
-    """``text`` (UTF-8: a JSON topic's payload) as a std_msgs/msg/String's CDR."""
-    from omnican.telemetry import cdr
-
-    return cdr.encode(STRING, {"data": text.decode()})
+    """``text`` (UTF-8: a JSON topic's payload) as a std_msgs/msg/String's CDR: the
+    little-endian header, the length with the terminating NUL, the bytes and the NUL
+    (made directly: no type store on the way of a base's first summary)."""
+    return b"\x00\x01\x00\x00" + struct.pack("<I", len(text) + 1) + text + b"\x00"
 
 
 def _type_of(topic: str) -> str:
@@ -205,6 +206,12 @@ class ZenohBridge:
 
     def _publish(self, messages: list[Message]) -> None:
         data = {m.topic: m.data for m in messages if m.topic in SOURCES and m.data}
+        if data:  # the fleet's view first: a stop or a new base is heard before the rest
+            stamp_ns = next(m.stamp_ns for m in messages if m.topic in data)
+            summary = self._summary.offer(data, stamp_ns, self.holder())
+            if summary is not None:
+                self.publishers[SUMMARY].put(string_cdr(json.dumps(summary).encode()),
+                                             stamp_ns)
         for message in messages:
             pub = self.publishers.get(message.topic)
             if pub is None:
@@ -223,12 +230,6 @@ class ZenohBridge:
                 payload = message.payload()
                 pub.put(string_cdr(payload) if message.kind == JSON else payload,
                         message.stamp_ns)
-        if data:  # the fleet's view, from the same sample
-            stamp_ns = next(m.stamp_ns for m in messages if m.topic in data)
-            summary = self._summary.offer(data, stamp_ns, self.holder())
-            if summary is not None:
-                self.publishers[SUMMARY].put(string_cdr(json.dumps(summary).encode()),
-                                             stamp_ns)
 
     # ------------------------------------------------------------ inputs
 

@@ -176,3 +176,16 @@ def test_trigger_responses_read_back(success: bool, message: str) -> None:
 def test_what_is_not_a_trigger_response_is_refused(data: bytes) -> None:
     with pytest.raises(ValueError):
         read_trigger_response(data)
+
+
+@given(st.text())
+def test_a_json_topic_travels_as_the_string_ros_encodes(text: str) -> None:
+    """The bridge writes std_msgs/msg/String's CDR directly: the same bytes as the ROS
+    type store's encoding, which reads it back."""
+    pytest.importorskip("rosbags", reason="needs the zenoh extra")
+    from omnican.telemetry import cdr
+    from omnican.zenoh.bridge import STRING, string_cdr
+
+    data = text.encode()
+    assert string_cdr(data) == cdr.encode(STRING, {"data": text})
+    assert cdr.decode(STRING, string_cdr(data))["data"] == text
