@@ -76,7 +76,7 @@ def teleop(out: Path) -> None:
 
     from omnican import Chassis, Twist
     from omnican.cli.dashboard import dashboard
-    from omnican.cli.teleop import _Events
+    from omnican.cli.terminal import Events
     from omnican.clock import SimClock
     from omnican.command.teleop import TeleopModel
     from omnican.config import default_config
@@ -92,7 +92,7 @@ def teleop(out: Path) -> None:
         while clock.now() < end:
             base.set_velocity(command.vx, command.vy, command.wz)
             clock.sleep(0.05)
-        events = _Events()
+        events = Events()
         events.lines.append("12:00:00 base running: the keys drive it")
         screen = dashboard(base, keys, command, "omnican teleop - simulated base, nodes 1, 2, 3",
                            events, "", width=100)

@@ -1,7 +1,7 @@
 """What every subcommand shares: argument builders, the bus/config/--sim resolution,
 one-line errors and exit codes (0 success, 2 bad usage/config/EDS, 1 run-time failure).
 
-Size: about 490 lines, above the 450 the package keeps to, on purpose: every piece here
+Size: about 500 lines, above the 450 the package keeps to, on purpose: every piece here
 is small and used by several subcommands (argument types, the session, progress, output
 formats, logging), and one place for what they share is what keeps the subcommands
 thin.

@@ -35,10 +35,11 @@ from omnican.cli.common import EXIT_FAILURE, EXIT_OK, UsageError, fixed, positiv
 REFRESH_S = 0.25
 MIN_EVENTS = 3  # event lines kept on screen however many bases there are
 RECOVER_TIMEOUT_S = 15.0  # a recover waits for the drives to enable
-HELP = "up/down j/k: select   s: stop it   r: recover it   space: STOP ALL   q/Esc: quit"
+HELP = "up/down k/j: select   s: stop it   r: recover it   space: STOP ALL   q/Esc: quit"
 STATE_STYLE = {"RUNNING": "green", "STARTING": "yellow", "STOPPED": "bold red",
                "LOST": "bold red reverse", "SILENT": "bold yellow", "?": "dim"}
-UP, DOWN = frozenset({"i", "k"}), frozenset({",", "j"})  # teleop's keys: arrows are i and ,
+UP, DOWN = frozenset({"k"}), frozenset({"j"})
+ARROWS = {"A": "k", "B": "j"}  # up and down select; left and right do nothing
 QUIT = frozenset({"q", "Q", "\x1b", "\x03"})
 
 
@@ -282,11 +283,11 @@ def detail_lines(view: Any) -> int:
 def dashboard(fleet: Any, args: argparse.Namespace) -> int:
     from rich.live import Live
 
-    from omnican.cli.teleop import _Events, cbreak, logs_into, read_keys
+    from omnican.cli.terminal import Events, cbreak, logs_into, read_keys
 
     fd = sys.stdin.fileno()
     console = Console()
-    events = _Events()
+    events = Events()
     where = ", ".join(args.zenoh_connect) or "peers"
     title = f"omnican fleet - domain {args.domain_id} via {where}"
     selected: str | None = None
@@ -300,7 +301,7 @@ def dashboard(fleet: Any, args: argparse.Namespace) -> int:
                 names = [v.name for v in views]
                 if selected not in names:
                     selected = names[0] if names else None
-                for key in read_keys(fd, REFRESH_S):
+                for key in read_keys(fd, REFRESH_S, ARROWS):
                     if key in QUIT:
                         return EXIT_OK
                     if key in UP | DOWN and names:

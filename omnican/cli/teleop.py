@@ -11,19 +11,10 @@ drive is disabled and the final pose is printed as 'pose x=<m> y=<m> theta=<rad>
 from __future__ import annotations
 
 import argparse
-import collections
 import contextlib
-import logging
 import math
-import os
-import re
-import select
-import signal
 import sys
-import termios
 import time
-import tty
-from collections.abc import Callable, Iterator
 from typing import Any
 
 from rich.console import Console
@@ -45,15 +36,14 @@ from omnican.cli.common import (
 from omnican.cli.dashboard import (
     dashboard,
 )
+from omnican.cli.terminal import Events, cbreak, logs_into, read_keys
 from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
-from omnican.command.teleop import ESC, Intent, TeleopModel, key_help
+from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
 from omnican.errors import OmnicanError
 from omnican.gamepad.device import Gamepad, config_table, pad_command, teleop_model_for
 from omnican.live import prepare, watch
 
-# The last byte of an arrow key's escape sequence -> the key it stands for.
-ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}  # up, down, right, left
 LOOP_S = 0.05
 
 
@@ -99,96 +89,6 @@ def bus_name(bus: Any) -> str:
     return " ".join(str(bus[k]) for k in ("interface", "channel") if bus.get(k) is not None)
 
 
-def read_keys(fd: int, timeout: float) -> list[str]:
-    """Keys typed within ``timeout`` s; arrow keys become i , l j; a lone Esc is Esc."""
-    ready, _, _ = select.select([fd], [], [], timeout)
-    if not ready:
-        return []
-    data = os.read(fd, 64).decode("utf-8", "replace")
-    keys: list[str] = []
-    i = 0
-    while i < len(data):
-        ch = data[i]
-        if ch == ESC and i + 2 < len(data) + 1 and data[i + 1 : i + 2] == "[":
-            code = data[i + 2 : i + 3]
-            keys.append(ARROWS.get(code, ""))
-            i += 3
-            continue
-        if ch == ESC and i + 1 == len(data):
-            more, _, _ = select.select([fd], [], [], 0.03)  # an escape sequence on its way?
-            if more:
-                data += os.read(fd, 64).decode("utf-8", "replace")
-                continue
-        keys.append(ch)
-        i += 1
-    return [k for k in keys if k]
-
-
-@contextlib.contextmanager
-def cbreak(fd: int, on_suspend: Callable[[], None] | None = None) -> Iterator[None]:
-    """Keys without Enter and without echo; Ctrl-C still interrupts. Ctrl-Z does not
-    suspend (``on_suspend`` is told): stopped, teleop would leave the drives without the
-    host's heartbeat and come back to a terminal the shell had reset, deaf to its keys.
-    A SIGCONT (after a SIGSTOP from elsewhere) puts the keys back without Enter."""
-    old = termios.tcgetattr(fd)
-
-    def suspend(signum: int, frame: Any) -> None:
-        if on_suspend is not None:
-            on_suspend()
-
-    def resumed(signum: int, frame: Any) -> None:
-        with contextlib.suppress(termios.error, OSError):
-            if os.tcgetpgrp(fd) == os.getpgrp():  # in the foreground: it owns the terminal
-                tty.setcbreak(fd)
-
-    saved = {signal.SIGTSTP: signal.signal(signal.SIGTSTP, suspend),
-             signal.SIGCONT: signal.signal(signal.SIGCONT, resumed)}
-    try:
-        tty.setcbreak(fd)
-        yield
-    finally:
-        termios.tcsetattr(fd, termios.TCSADRAIN, old)
-        for sig, handler in saved.items():
-            signal.signal(sig, handler)
-
-
-# The library names its call ("e-stop released: recover() starts the base again"); here
-# the user's move is a key.
-API_TO_KEYS = re.compile(r"recover\(\) starts( |$)")
-
-
-class _Events(logging.Handler):
-    """Log records go to the dashboard instead of over it."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.INFO)
-        self.lines: collections.deque[str] = collections.deque(maxlen=5)
-
-    def emit(self, record: logging.LogRecord) -> None:
-        text = API_TO_KEYS.sub(r"press r to start\1", record.getMessage())
-        self.say(text)
-
-    def say(self, text: str) -> None:
-        self.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
-
-
-@contextlib.contextmanager
-def logs_into(handler: logging.Handler) -> Iterator[None]:
-    """Log records into the dashboard, omnican's own from INFO on: what the base did
-    (recovered, re-configured a rebooted drive) belongs in the events panel."""
-    root = logging.getLogger()
-    ours = logging.getLogger("omnican")
-    saved, saved_level = root.handlers[:], ours.level
-    root.handlers = [handler]
-    if ours.getEffectiveLevel() > logging.INFO:
-        ours.setLevel(logging.INFO)
-    try:
-        yield
-    finally:
-        root.handlers = saved
-        ours.setLevel(saved_level)
-
-
 SUSPEND_REFUSED = ("Ctrl-Z: teleop does not suspend (the drives would lose this host's "
                    "heartbeat); Esc quits")
 
@@ -204,7 +104,7 @@ def share_command(source: CommandSource, command: Twist) -> str | None:
 
 
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: _Events, pad: Gamepad | None = None, shared: bool = False) -> None:
+               events: Events, pad: Gamepad | None = None, shared: bool = False) -> None:
     """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. When
     ``shared`` (Foxglove may drive too) the keys command only while they move the base
     and no one else drives; a stop key stops the base whoever drives."""
@@ -263,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--key-timeout must be 0 or more seconds, got {args.key_timeout}")
     fd = sys.stdin.fileno()
     console = Console()
-    events = _Events()
+    events = Events()
     final = None
     pad = None
     if args.gamepad is not None:  # before the drives come up: no pad, nothing moves
