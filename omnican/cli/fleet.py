@@ -33,6 +33,7 @@ from rich.text import Text
 from omnican.cli.common import EXIT_FAILURE, EXIT_OK, UsageError, fixed, positive_float
 
 REFRESH_S = 0.25
+ROUTER_LISTEN = "tcp/127.0.0.1:7447"  # rmw_zenoh's port, loopback unless told
 MIN_EVENTS = 3  # event lines kept on screen however many bases there are
 RECOVER_TIMEOUT_S = 15.0  # a recover waits for the drives to enable
 HELP = "up/down k/j: select   s: stop it   r: recover it   space: STOP ALL   q/Esc: quit"
@@ -64,14 +65,26 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--domain-id", type=int, metavar="N", default=0,
                    help="ROS domain 0-232 of the bases (default 0)")
     add_network_arguments(p)
+    p.add_argument("--router", action="store_true",
+                   help="be the Zenoh router the bases connect to (listening on "
+                        f"--zenoh-listen, default {ROUTER_LISTEN}): one machine, no zenohd; "
+                        "a fleet on a network runs zenohd or rmw_zenohd instead")
     p.set_defaults(func=run)
 
 
 def settings_of(args: argparse.Namespace) -> Any:
     """The fleet view's session settings: the flags, else the defaults (multicast off)."""
+    from dataclasses import replace
+
     from omnican.cli.zenoh import settings_from
 
-    return settings_from(args)
+    settings = settings_from(args)
+    if not getattr(args, "router", False):
+        return settings
+    if args.zenoh_mode is not None:
+        raise UsageError("--router makes this view the Zenoh router: drop --zenoh-mode")
+    return replace(settings, mode="router",
+                   listen=settings.listen or (ROUTER_LISTEN,)).validate()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -288,7 +301,8 @@ def dashboard(fleet: Any, args: argparse.Namespace) -> int:
     fd = sys.stdin.fileno()
     console = Console()
     events = Events()
-    where = ", ".join(args.zenoh_connect) or "peers"
+    where = ("the router on " + (", ".join(args.zenoh_listen) or ROUTER_LISTEN)
+             if getattr(args, "router", False) else ", ".join(args.zenoh_connect) or "peers")
     title = f"omnican fleet - domain {args.domain_id} via {where}"
     selected: str | None = None
     calls: list[Any] = []
@@ -323,7 +337,10 @@ def dashboard(fleet: Any, args: argparse.Namespace) -> int:
                     calls.remove(call)
                     for answer in call.answers():
                         events.say(f"{call.service} {answer}")
-                live.update(screen(fleet.bases(), selected, title, events.lines,
+                views = fleet.bases()  # as they are now, the selection among them
+                if selected not in [v.name for v in views]:
+                    selected = views[0].name if views else None
+                live.update(screen(views, selected, title, events.lines,
                                    live.console.width, live.console.height), refresh=True)
         except KeyboardInterrupt:  # Ctrl-C quits like q
             return EXIT_OK

@@ -11,7 +11,8 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 
 import pytest
 
@@ -90,21 +91,39 @@ def test_scripts_list_stop_and_see_a_killed_base_lost(router: str) -> None:
             watch.kill()
 
 
+def rows_when(term: terminal.Pty, ok: Callable[[list[str]], bool]) -> list[str]:
+    """The table's rows of the first whole frame whose rows ``ok`` accepts."""
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline:
+        term.read(0.1)
+        rows = [line for line in term.frame() if "/robot" in line and "session" not in line
+                and not line.startswith("│")]
+        if ok(rows):
+            return rows
+    raise AssertionError("no such frame:\n" + "\n".join(term.frame()))
+
+
 def test_the_dashboard_shows_both_and_space_stops_all(router: str) -> None:
     with bases(router):
         term = terminal.Pty("fleet", "--zenoh-mode", "client", "--zenoh-connect", router,
                             "--timeout", "30", columns=80, lines=24)
         try:
-            frame = term.wait_for_frame("/robot2/omnican", TIMEOUT_S)
-            rows = [line for line in frame if "/robot" in line and "session" not in line]
-            assert len(rows) == 2 and rows[0].startswith(">"), frame
-            assert all("RUNNING" in row for row in rows), frame
-            assert all(len(line) <= 80 for line in frame), frame
+            rows = rows_when(term, lambda rows: len(rows) == 2
+                             and all("RUNNING" in row for row in rows))
+            assert rows[0].startswith("> /robot1") and rows[1].startswith("  /robot2"), rows
+            assert all(len(line) <= 80 for line in term.frame()), term.frame()
             term.keys(" ")
             for name in NAMES:
                 term.wait_for(f"stop {name}: ok: stopped: held until recover", TIMEOUT_S)
-            term.keys("j")  # the second row selected
-            frame = term.wait_for_frame("> /robot2/omnican", TIMEOUT_S)
+            rows_when(term, lambda rows: len(rows) == 2
+                      and all("STOPPED" in row for row in rows))
+            term.keys("\x1b[B")  # the down arrow selects the second row
+            rows_when(term, lambda rows: rows[1].startswith("> /robot2"))
+            term.keys("\x1b[D")  # left selects nothing else
+            term.keys("r")  # recover the selected base, and only it
+            term.wait_for("recover /robot2/omnican: ok: recovered", TIMEOUT_S)
+            rows = rows_when(term, lambda rows: "RUNNING" in rows[1])
+            assert rows[1].startswith("> /robot2") and "STOPPED" in rows[0], rows
             term.keys("q")
             assert term.exit_code(TIMEOUT_S) == 0
         finally:
@@ -131,3 +150,37 @@ def test_the_dashboard_wants_a_terminal(router: str, capsys: pytest.CaptureFixtu
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))
     assert main(["fleet", "--zenoh-connect", router]) == 2
     assert "reads keys from a terminal" in one_error_line(capsys.readouterr().err)
+
+
+def test_the_fleet_view_can_be_the_router(tmp_path: object) -> None:
+    """One machine, no zenohd: ``omnican fleet --router`` listens and a base (a peer that
+    keeps trying its --zenoh-connect, started first) joins it."""
+    from tests.zenoh.conftest import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    base = Proc([sys.executable, "-m", "omnican", "zenoh", "--sim", "--zenoh-connect",
+                 endpoint, "--namespace", "/robot1"], env=dict(os.environ))
+    watch = Proc([sys.executable, "-m", "omnican", "fleet", "--router", "--json",
+                  "--zenoh-listen", endpoint], env=dict(os.environ))
+    try:
+        assert base.read_until(lambda line: "Ctrl-C to stop" in line, TIMEOUT_S), base.lines
+
+        def running(line: str) -> bool:
+            try:
+                return [(b["name"], b["state"]) for b in json.loads(line)["bases"]] == [
+                    (NAMES[0], "RUNNING")]
+            except (ValueError, KeyError, TypeError):
+                return False
+
+        assert watch.read_until(running, TIMEOUT_S), watch.lines[-3:]
+    finally:
+        watch.kill()
+        base.kill()
+
+
+def test_router_and_a_mode_together_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    from omnican.cli import main
+
+    assert main(["fleet", "--router", "--zenoh-mode", "client", "--once"]) == 2
+    assert "--router makes this view the Zenoh router: drop --zenoh-mode" in one_error_line(
+        capsys.readouterr().err)
