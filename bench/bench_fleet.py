@@ -486,18 +486,132 @@ def fleet_part(count: int, seconds: float) -> None:
             watcher.close()
 
 
+# ------------------------------------------------------------ one view, many bases
+
+
+def stand_ins(endpoint: str, count: int, seconds: float) -> None:
+    """The other process of ``--part view``: ``count`` stand-in bases in one session, each
+    with its summary publisher's liveliness token, their summaries at 2 Hz each."""
+    from omnican.zenoh.bridge import STRING, string_cdr
+    from omnican.zenoh.services import service_key, trigger_response
+
+    session = client(endpoint)
+    hash_ = rmw.type_hash(STRING)
+    pubs, tokens, queryables = [], [], []
+    stopped = trigger_response(True, "stopped: held until recover")
+
+    def answer(query: Any) -> None:
+        asked = rmw.Attachment.decode(query.attachment.to_bytes())
+        query.reply(query.key_expr, stopped, attachment=rmw.Attachment(
+            asked.sequence, time.time_ns(), asked.gid).encode())
+
+    zid = str(session.info.zid())
+    for i in range(count):
+        node = rmw.Node(0, zid, i, "omnican", namespace=f"/robot{i}")
+        fq = f"/robot{i}/base_summary"
+        tokens.append(session.liveliness().declare_token(node.endpoint_token(
+            1, rmw.Kind.PUBLISHER, fq, STRING, hash_, rmw.Qos())))
+        pubs.append(session.declare_publisher(rmw.data_key(0, fq, STRING, hash_)))
+        # ~/stop answered at once, as a base's poll would (the time of the network alone)
+        queryables.append(session.declare_queryable(service_key(node, "stop"), answer,
+                                                    complete=True))
+    print("ready", flush=True)
+    period = 0.5
+    start = time.monotonic()
+    n = 0
+    while time.monotonic() < start + seconds:
+        for i, pub in enumerate(pubs):
+            text = json.dumps({
+                "node": f"/robot{i}/omnican", "state": "RUNNING", "stopped_reason": "",
+                "enabled": True, "estop": False,
+                "pose": {"x": 1.0 + i, "y": 2.0, "theta": 0.5},
+                "speed": {"vx": 0.2, "vy": 0.0, "wz": 0.1}, "battery_v": 24.0, "faults": [],
+                "driver": "Zenoh cmd_vel publisher 000102030405060708090a0b0c0d0e0f",
+                "stamp": time.time(), "period_s": period}).encode()
+            pub.put(string_cdr(text), attachment=rmw.Attachment(
+                n + 1, time.time_ns(), bytes(16)).encode())
+        n += 1
+        time.sleep(max(0.0, start + n * period - time.monotonic()))
+    print(json.dumps({"rounds": n, "bytes_per_summary": len(string_cdr(text))}), flush=True)
+    for token in tokens:
+        token.undeclare()
+    for queryable in queryables:
+        queryable.undeclare()
+    session.close()
+
+
+def view_part(count: int, seconds: float) -> None:
+    from omnican.zenoh.fleet import Fleet
+
+    with router() as endpoint:
+        view_session = client(endpoint)
+        fleet = Fleet(view_session, 0)
+        child = subprocess.Popen([sys.executable, __file__, "--stand-ins", endpoint,
+                                  str(count), str(seconds)], stdout=subprocess.PIPE, text=True,
+                                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            assert child.stdout is not None
+            assert child.stdout.readline().strip() == "ready"
+            t0 = time.monotonic()
+            while time.monotonic() < t0 + 60 and sum(
+                    v.summary is not None for v in fleet.bases()) < count:
+                time.sleep(0.05)
+            found_s = time.monotonic() - t0
+            cpu0, t1 = thread_cpu_s(), time.monotonic()
+            calls = 0
+            while time.monotonic() < t1 + min(seconds / 2, 10):
+                views = fleet.bases()  # what a dashboard asks four times a second
+                calls += 1
+                time.sleep(0.25)
+            elapsed = time.monotonic() - t1
+            cpu = {k: v - cpu0.get(k, 0.0) for k, v in thread_cpu_s().items()}
+            t2 = time.perf_counter()
+            for _ in range(10):
+                fleet.bases()
+            bases_ms = (time.perf_counter() - t2) / 10 * 1e3
+            t3 = time.monotonic()
+            answers = fleet.stop_all(timeout_s=10.0)  # the network's share of a fleet stop
+            stop_s = time.monotonic() - t3
+            tail = json.loads(child.stdout.readline() or "{}")
+            child.wait(timeout=60)
+            emit(bench="fleet.view", bases=count, summaries_per_s=2 * count,
+                 all_summarized_s=round(found_s, 2), seen=len(views),
+                 cpu_percent_process=round(sum(cpu.values()) / elapsed * 100, 1),
+                 cpu_percent_by_thread={k: round(v / elapsed * 100, 1)
+                                        for k, v in sorted(cpu.items(), key=lambda kv: -kv[1])
+                                        if v / elapsed >= 0.005},
+                 fleet_bases_call_ms=round(bases_ms, 2),
+                 stop_all_answered=sum(a.answered and a.success for a in answers),
+                 stop_all_every_answer_s=round(stop_s, 3), **tail)
+        finally:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
+            fleet.close()
+            view_session.close()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--part", choices=("loop", "fleet", "both"), default="both")
+    parser.add_argument("--part", choices=("loop", "fleet", "view", "all"), default="all")
+    parser.add_argument("--view-bases", type=int, default=1000,
+                        help="stand-in bases for --part view (default 1000)")
+    parser.add_argument("--stand-ins", nargs=3, help=argparse.SUPPRESS)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--bases", type=int, default=10)
     args = parser.parse_args()
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    if args.part in ("loop", "both"):
+    if args.stand_ins:
+        stand_ins(args.stand_ins[0], int(args.stand_ins[1]), float(args.stand_ins[2]))
+        return
+    if args.part in ("loop", "all"):
         loop_part(args.seconds, args.rounds)
-    if args.part in ("fleet", "both"):
+    if args.part in ("fleet", "all"):
         fleet_part(args.bases, args.seconds)
+    if args.part in ("view", "all"):
+        for count in (100, args.view_bases):
+            view_part(count, max(args.seconds, 20.0))
 
 
 if __name__ == "__main__":
