@@ -228,8 +228,10 @@ def loop_part(seconds: float, rounds: int) -> None:
             runs[on].append(result)
     off, on = runs[False], runs[True]
     emit(bench="fleet.loop.summary",
-         loop_cpu_us_per_cycle_without=statistics.median(r["loop_cpu_us_per_cycle"] for r in off),
-         loop_cpu_us_per_cycle_with=statistics.median(r["loop_cpu_us_per_cycle"] for r in on),
+         loop_cpu_us_per_cycle_without=round(statistics.median(
+             r["loop_cpu_us_per_cycle"] for r in off), 1),
+         loop_cpu_us_per_cycle_with=round(statistics.median(
+             r["loop_cpu_us_per_cycle"] for r in on), 1),
          loop_longest_gap_ms_without=max(r["loop_longest_gap_ms"] for r in off),
          loop_longest_gap_ms_with=max(r["loop_longest_gap_ms"] for r in on),
          msgs_per_s=statistics.median(r["msgs_per_s"] for r in on),
