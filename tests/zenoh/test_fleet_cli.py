@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 
@@ -51,6 +52,54 @@ def fleet(router: str, *args: str) -> subprocess.CompletedProcess[str]:
                           timeout=TIMEOUT_S, check=False)
 
 
+@contextlib.contextmanager
+def cmd_vel(router: str, topic: str, vx: float) -> Iterator[None]:
+    """A Twist of ``vx`` on ``topic`` at 20 Hz from another process (rmw_zenoh's format)
+    while the block runs."""
+    code = f"""
+import sys, time
+from omnican.telemetry import cdr
+from omnican.zenoh import rmw
+from tests.zenoh.conftest import client
+s = client({router!r})
+key = rmw.data_key(0, {topic!r}, "geometry_msgs/msg/Twist",
+                   rmw.type_hash("geometry_msgs/msg/Twist"))
+pub = s.declare_publisher(key)
+data = cdr.encode("geometry_msgs/msg/Twist", {{"linear": {{"x": {vx}, "y": 0.0, "z": 0.0}},
+                                              "angular": {{"x": 0.0, "y": 0.0, "z": 0.0}}}})
+n = 0
+while True:
+    n += 1
+    pub.put(data, attachment=rmw.Attachment(n, time.time_ns(), bytes(range(16))).encode())
+    time.sleep(0.05)
+"""
+    proc = subprocess.Popen([sys.executable, "-c", code], env=dict(os.environ))
+    try:
+        yield
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def summaries_until(router: str, ok: Callable[[dict[str, Any]], bool]) -> bool:
+    """``omnican fleet --json`` (another process) until a line's summaries by base name
+    satisfy ``ok``."""
+    watch = Proc([sys.executable, "-m", "omnican", "fleet", "--json", "--zenoh-mode",
+                  "client", "--zenoh-connect", router], env=dict(os.environ))
+
+    def good(line: str) -> bool:
+        try:
+            got = {b["name"]: b["summary"] for b in json.loads(line)["bases"]}
+            return sorted(got) == NAMES and ok(got)
+        except (ValueError, KeyError, TypeError):
+            return False
+
+    try:
+        return watch.read_until(good, TIMEOUT_S) is not None
+    finally:
+        watch.kill()
+
+
 def test_scripts_list_stop_and_see_a_killed_base_lost(router: str) -> None:
     with bases(router) as procs:
         done = fleet(router, "--once", "--json", "--wait", "30")
@@ -60,9 +109,18 @@ def test_scripts_list_stop_and_see_a_killed_base_lost(router: str) -> None:
         assert all(b["summary"]["state"] == "RUNNING" and b["summary"]["battery_v"] > 20
                    for b in snapshot["bases"]), snapshot
 
-        done = fleet(router, "--stop", "all", "--wait", "30", "--timeout", "30")
-        assert done.returncode == 0, done.stdout + done.stderr
-        assert done.stdout.splitlines() == [f"stop {name}: ok: stopped: held until recover" for name in NAMES]
+        # robot1 driven by a cmd_vel publisher of a third process that keeps sending
+        # through the fleet stop, as a navigation stack would.
+        with cmd_vel(router, "/robot1/cmd_vel", 0.2):
+            assert summaries_until(router, lambda b: b["/robot1/omnican"]["speed"]["vx"] > 0.1)
+            done = fleet(router, "--stop", "all", "--wait", "30", "--timeout", "30")
+            assert done.returncode == 0, done.stdout + done.stderr
+            assert done.stdout.splitlines() == [
+                f"stop {name}: ok: stopped: held until recover" for name in NAMES]
+            held = summaries_until(router, lambda b: all(
+                s["state"] == "STOPPED" and s["stopped_reason"].startswith("stopped by Zenoh")
+                and s["true_speed"]["vx"] == 0.0 for s in b.values()))
+            assert held, "the bases did not come to rest, held stopped"
 
         done = fleet(router, "--stop", "robot2", "--recover", "/robot1/omnican", "--json",
                      "--wait", "30", "--timeout", "30")
