@@ -8,12 +8,14 @@ whose Zenoh session went is LOST (at once for a killed process; after the Zenoh 
 
 keys: up/down or k/j select a base;  s  stop it;  r  recover it;
       space  STOP EVERY BASE (each base's own ~/stop, all at once);  q, Esc or Ctrl-C quit.
+A stop holds until the base is recovered (r, or --recover): no cmd_vel ends it.
 
 For scripts: --json prints one JSON object per refresh (every base); --once waits for
 discovery (--wait) and prints one snapshot; --stop NAME (repeatable; 'all': every base)
 and --recover NAME act, print each base's answer and exit 0 when every one succeeded.
 A NAME is a base's node name (/robot1/omnican) or its namespace (robot1). Point it at
-the router the bases use (--zenoh-connect tcp/HOST:7447). Needs eclipse-zenoh.
+the router the bases use (--zenoh-connect tcp/HOST:7447), or on one machine let it be
+the router (--router). Needs eclipse-zenoh.
 """
 
 from __future__ import annotations
