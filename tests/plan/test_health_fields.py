@@ -15,7 +15,7 @@ from rich.console import Console
 
 from omnican import default_config
 from omnican.chassis.state import ChassisStatus, WheelState
-from omnican.cli import check_config, dashboard, drive, plot, teleop
+from omnican.cli import check_config, dashboard, drive, plot, terminal
 from omnican.command.teleop import TeleopModel
 from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
@@ -140,7 +140,7 @@ def test_the_dashboard_has_a_column_per_value_with_one(channel: str) -> None:
         drive_for(base, 1.0, vx=0.3)
         keys = TeleopModel.for_config(base.cfg, 0.3, 1.0, 0.6)
         console = Console(width=120, record=True, color_system=None, file=io.StringIO())
-        console.print(dashboard.dashboard(base, keys, Twist(), "omnican teleop", teleop._Events(),
+        console.print(dashboard.dashboard(base, keys, Twist(), "omnican teleop", terminal.Events(),
                                        "", 120, 30))
         lines = console.export_text().splitlines()
         header = next(line for line in lines if "wheel" in line and "state" in line)
