@@ -5,7 +5,8 @@ Each publisher (by its DDS GUID) is a source of commands of the base's own
 Foxglove's clients when ``--foxglove-control`` is on; another is ignored, and told so in
 the log, until the first has sent nothing for the command timeout. Of what arrived
 since the last poll only the newest sample of each publisher is read, the driver's
-first, and at most :data:`MAX_PARSED_PER_POLL` of them; the others are dropped unparsed.
+first, and at most :data:`MAX_PARSED_PER_POLL` of them; the others are dropped unparsed
+(:mod:`omnican.command.intake`, which the Zenoh front end shares).
 A publisher of another type on the cmd_vel topic (DDS does not connect it) is named in
 the log once, from DDS discovery.
 """
@@ -16,10 +17,9 @@ import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from omnican.command.intake import MAX_CMD_BYTES, MAX_PARSED_PER_POLL, QUOTE_CHARS, CmdVelIntake
 from omnican.core.kinematics import Twist
-from omnican.errors import DriveError
 from omnican.errors import quote as _quote
-from omnican.log_throttle import Throttle
 from omnican.ros2.settings import Ros2Settings
 from omnican.ros2.transport import TopicQos, Transport, ros_type_name
 
@@ -27,20 +27,15 @@ if TYPE_CHECKING:
     from omnican.chassis import Chassis
     from omnican.chassis.arbiter import CommandSource
 
+__all__ = ["CMD_VEL_DEPTH", "MAX_CMD_BYTES", "MAX_PARSED_PER_POLL", "QUOTE_CHARS", "CmdVel",
+           "quote", "twist_from_msg"]
+
 logger = logging.getLogger(__name__)
 
 #: cmd_vel's reader keeps the newest this many samples between polls: enough that the
 #: driving publisher's samples survive beside another's flood of 10 kHz (at 100 polls a
 #: second about 100 samples arrive per poll), few enough that taking them is cheap.
 CMD_VEL_DEPTH = 256
-#: A Twist is 52 bytes on the wire, a TwistStamped 76 plus its frame id: a larger sample
-#: is refused before it is parsed.
-MAX_CMD_BYTES = 1024
-#: Quoted values and texts from clients are cut to this many characters in the log.
-QUOTE_CHARS = 60
-#: At most this many samples are parsed a poll: the driver's, and while no one drives,
-#: those of a few others that may take control (so many writers cost no more than few).
-MAX_PARSED_PER_POLL = 4
 #: At most this many writers of a wrong type are named (a hostile peer may make many).
 MAX_NAMED_WRITERS = 100
 CMD_VEL_SOURCE = "ROS 2 cmd_vel"  # what the other sources of commands are told
@@ -72,12 +67,9 @@ class CmdVel:
         # publication handle -> its source of commands
         self._writers: dict[int, CommandSource] = {}
         self._told_types: set[str] = set()
-        self._throttle = Throttle(logger)
-        self.driver: str | None = None  # the source that drove last
+        #: what became of the samples (parsed, rejected, refused, the driver)
+        self.intake = CmdVelIntake(logger, self._type_name(), self._read)
         self.received = 0  # samples taken from DDS
-        self.parsed = 0  # the newest of a publisher's samples, parsed
-        self.rejected = 0  # unreadable, not finite, or refused by the base
-        self.refused = 0  # ignored: another source held control
         self.wrong_types: dict[str, str] = {}  # cmd_vel writers of another type: guid -> type
 
     def take(self, check_publications: bool = False) -> None:
@@ -91,23 +83,28 @@ class CmdVel:
         for r in received:  # oldest first: the last of each writer stays
             newest.pop(r.writer, None)
             newest[r.writer] = r.data
-        sources = {writer: self._source(writer) for writer in newest}
-        holder = next(iter(sources.values())).holder() if sources else None
-        parsed = 0
-        # The driver's sample first; another's only while no one drives (then it is
-        # parsed to see whether it may take control), a few a poll at most.
-        for writer in sorted(newest, key=lambda w: sources[w].name != holder):
-            source = sources[writer]
-            other = source.may_act()
-            if other is not None:
-                self._refuse(source, other)
-            elif parsed < MAX_PARSED_PER_POLL:
-                parsed += 1
-                self._on_cmd_vel(source, newest[writer])
+        self.intake.take({self._source(writer): data for writer, data in newest.items()})
 
     def flush(self) -> None:
         """Log what the throttle held back."""
-        self._throttle.flush()
+        self.intake.flush()
+
+    @property
+    def driver(self) -> str | None:
+        """The source that drove last."""
+        return self.intake.driver
+
+    @property
+    def parsed(self) -> int:
+        return self.intake.parsed
+
+    @property
+    def rejected(self) -> int:
+        return self.intake.rejected
+
+    @property
+    def refused(self) -> int:
+        return self.intake.refused
 
     def _source(self, writer: int) -> CommandSource:
         source = self._writers.get(writer)
@@ -120,49 +117,11 @@ class CmdVel:
             self._writers[writer] = source
         return source
 
-    def _on_cmd_vel(self, source: CommandSource, data: bytes) -> None:
-        self.parsed += 1
-        if len(data) > MAX_CMD_BYTES:
-            self._reject(source, f"a {len(data)}-byte sample, not read (more than the "
-                         f"{MAX_CMD_BYTES} bytes a {self._type_name()} may have here)")
-            return
-        try:
-            msg = self.cmd_type.deserialize(data)
-        except Exception as exc:  # whatever a broken sample raises
-            self._reject(source, f"cannot be read as a {self._type_name()}: {quote(str(exc))}")
-            return
+    def _read(self, data: bytes) -> Twist:
+        msg = self.cmd_type.deserialize(data)
         twist = msg.twist if self.settings.cmd_vel_stamped else msg
-        t = twist_from_msg((twist.linear.x, twist.linear.y, twist.linear.z),
-                           (twist.angular.x, twist.angular.y, twist.angular.z))
-        if not t.is_finite():
-            self._reject(source, f"not finite: vx={quote(t.vx)} vy={quote(t.vy)} "
-                         f"wz={quote(t.wz)}")
-            return
-        try:
-            holder = source.send(t)
-        except ValueError as exc:
-            self._reject(source, quote(str(exc), 200))
-            return
-        except DriveError:
-            return  # closing
-        if holder is not None:  # someone else drives (another publisher, a Foxglove client)
-            self._refuse(source, holder)
-            return
-        if self.driver != source.name:
-            self.driver = source.name
-            logger.info("%s drives the base", source.name)
-
-    def _refuse(self, source: CommandSource, holder: str) -> None:
-        self.refused += 1
-        self._throttle.warning(("refused", source.name), "cmd_vel from %s ignored: %s is "
-                               "driving the base (one publisher at a time; it drives once "
-                               "%s has sent nothing for %g s)", source.name, holder, holder,
-                               source.timeout_s)
-
-    def _reject(self, source: CommandSource, why: str) -> None:
-        self.rejected += 1
-        self._throttle.warning(("rejected", source.name), "cmd_vel from %s ignored: %s",
-                               source.name, why)
+        return twist_from_msg((twist.linear.x, twist.linear.y, twist.linear.z),
+                              (twist.angular.x, twist.angular.y, twist.angular.z))
 
     def _type_name(self) -> str:
         return ros_type_name(self.cmd_type.__idl_typename__)

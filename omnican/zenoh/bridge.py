@@ -14,8 +14,9 @@ subscription (``MS``). Publishing is on the feed's thread, never the control loo
 
 cmd_vel (``geometry_msgs/msg/Twist``, or TwistStamped if the settings say) arrives in a
 ring of :data:`CMD_VEL_DEPTH` samples (a flood costs the oldest, in Zenoh's threads) and
-is polled, as the ROS 2 bridge does: the newest sample of each publisher (told apart by
-its attachment's GID) is parsed, up to :data:`MAX_PARSED_PER_POLL` a poll. One
+is polled, by the ROS 2 bridge's rules (:mod:`omnican.command.intake`): the newest
+sample of each publisher (told apart by its attachment's GID) is parsed, up to
+:data:`~omnican.command.intake.MAX_PARSED_PER_POLL` a poll. One
 publisher drives at a time, each through its own command source
 (:meth:`~omnican.chassis.Chassis.command_source`, the base's one arbiter);
 the chassis watchdog stops the base when its commands stop (a dropped network stops
@@ -33,9 +34,9 @@ from typing import TYPE_CHECKING, Any
 
 from omnican.chassis.arbiter import CommandSource
 from omnican.clock import PollThread
+from omnican.command.intake import CmdVelIntake
 from omnican.core.kinematics import Twist
-from omnican.errors import ConfigError, DriveError, quote
-from omnican.log_throttle import Throttle
+from omnican.errors import ConfigError
 from omnican.telemetry import JSON, TOPICS, Message
 from omnican.telemetry.attach import feed_of
 from omnican.zenoh import rmw
@@ -62,10 +63,6 @@ TRUE_POSE = "/sim/true_pose"
 TF_DEPTH = 100  # tf2's listener keeps 100
 CMD_VEL_DEPTH = 256  # samples kept between polls (the newest)
 MAX_POLL_HZ = 100.0
-#: A Twist is 52 bytes with its header, a TwistStamped 76 and its frame id: a larger
-#: sample is refused unread.
-MAX_CMD_BYTES = 1024
-MAX_PARSED_PER_POLL = 4
 SOURCE = "Zenoh cmd_vel publisher"
 
 
@@ -184,15 +181,12 @@ class ZenohBridge:
                                    "handling Zenoh cmd_vel failed") if poll_thread else None)
         self._poll_lock = threading.Lock()
         self._publish_lock = threading.Lock()
-        self._throttle = Throttle(logger)
-        self._driver: str | None = None
+        #: what became of cmd_vel's samples (the ROS 2 bridge's rules: omnican.command.intake)
+        self.intake = CmdVelIntake(logger, self.cmd_type, self._read)
         self._started = False
         self._closed = False
         self.polls = 0
         self.cmd_vel_count = 0  # samples taken
-        self.cmd_vel_parsed = 0
-        self.cmd_vel_rejected = 0  # not a Twist one may drive with
-        self.cmd_vel_refused = 0  # another source held control
 
     # ------------------------------------------------------------ outputs (the sink)
 
@@ -249,51 +243,18 @@ class ZenohBridge:
                 source = _source(sample.attachment)
                 newest.pop(source, None)  # oldest first: the last of each stays
                 newest[source] = sample.payload.to_bytes()
-            holder = self._anyone.holder()
-            parsed = 0
-            for source in sorted(newest, key=lambda s: s != holder):  # the driver's first
-                other = self.command_source(source).may_act()
-                if other is not None:
-                    self._refuse(source, other)
-                elif parsed < MAX_PARSED_PER_POLL:
-                    parsed += 1
-                    self._on_cmd_vel(source, newest[source])
+            self.intake.take({self.command_source(name): data
+                              for name, data in newest.items()})
             self.services.poll()
 
-    def _on_cmd_vel(self, source: str, data: bytes) -> None:
+    def _read(self, data: bytes) -> Twist:
         from omnican.telemetry import cdr
 
-        self.cmd_vel_parsed += 1
-        if len(data) > MAX_CMD_BYTES:
-            self._reject(source, f"a {len(data)}-byte sample, not read (more than the "
-                         f"{MAX_CMD_BYTES} bytes a {self.cmd_type} may have here)")
-            return
-        try:
-            msg = cdr.decode(self.cmd_type, data)
-            if self.cmd_type == TWIST_STAMPED:
-                msg = msg["twist"]
-            t = Twist(float(msg["linear"]["x"]), float(msg["linear"]["y"]),
-                      float(msg["angular"]["z"]))
-        except Exception as exc:  # whatever a broken sample raises
-            self._reject(source, f"cannot be read as a {self.cmd_type}: "
-                         f"{quote(str(exc), 60)}")
-            return
-        if not t.is_finite():
-            self._reject(source, f"not finite: vx={quote(t.vx, 60)} vy={quote(t.vy, 60)} "
-                         f"wz={quote(t.wz, 60)}")
-            return
-        try:
-            holder = self.command_source(source).send(t)
-        except ValueError as exc:
-            self._reject(source, quote(str(exc), 200))
-            return
-        except DriveError:
-            return  # closing
-        if holder is not None:
-            self._refuse(source, holder)
-        elif self._driver != source:
-            self._driver = source
-            logger.info("%s drives the base", source)
+        msg = cdr.decode(self.cmd_type, data)
+        if self.cmd_type == TWIST_STAMPED:
+            msg = msg["twist"]
+        return Twist(float(msg["linear"]["x"]), float(msg["linear"]["y"]),
+                     float(msg["angular"]["z"]))
 
     def command_source(self, name: str) -> CommandSource:
         """The base's command source for the cmd_vel publisher or service client ``name``."""
@@ -306,16 +267,19 @@ class ZenohBridge:
         """Who drives the base now, of every front end (None: no one)."""
         return self._anyone.holder()
 
-    def _refuse(self, source: str, holder: str) -> None:
-        self.cmd_vel_refused += 1
-        self._throttle.warning(("refused", source), "cmd_vel from %s ignored: %s is driving "
-                               "the base (it drives once %s has sent nothing for %g s)",
-                               source, holder, holder, self._anyone.timeout_s)
+    @property
+    def cmd_vel_parsed(self) -> int:
+        return self.intake.parsed
 
-    def _reject(self, source: str, why: str) -> None:
-        self.cmd_vel_rejected += 1
-        self._throttle.warning(("rejected", source), "cmd_vel from %s ignored: %s",
-                               source, why)
+    @property
+    def cmd_vel_rejected(self) -> int:
+        """Samples refused: not a Twist one may drive with."""
+        return self.intake.rejected
+
+    @property
+    def cmd_vel_refused(self) -> int:
+        """Samples ignored: another source held control."""
+        return self.intake.refused
 
     # ------------------------------------------------------------ lifecycle
 
@@ -339,7 +303,7 @@ class ZenohBridge:
             if self._closed:
                 return
             self._closed = True
-        self._throttle.flush()
+        self.intake.flush()
         self._cmd_sub.undeclare()
         self._cmd_token.undeclare()
         self.services.close()
