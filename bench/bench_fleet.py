@@ -49,6 +49,8 @@ from omnican import Chassis
 from omnican.sim import SimulatedBase
 from omnican.telemetry import cdr
 from omnican.zenoh import rmw
+from omnican.zenoh.bridge import open_session
+from omnican.zenoh.settings import ZenohSettings
 
 RATE_HZ = 100.0
 CMD_HZ = 20.0
@@ -62,24 +64,12 @@ def free_port() -> int:
         return port
 
 
-def _config(mode: str, endpoints: list[str], listen: bool = False) -> Any:
-    import zenoh
-
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("listen/endpoints" if listen else "connect/endpoints",
-                      json.dumps(endpoints))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return conf
-
-
 @contextmanager
 def router() -> Iterator[str]:
-    """A Zenoh router in this process on tcp/127.0.0.1:<free port>; yields its endpoint."""
-    import zenoh
-
+    """A Zenoh router in this process on tcp/127.0.0.1:<free port>, multicast scouting
+    off; yields its endpoint."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    session = zenoh.open(_config("router", [endpoint], listen=True))
+    session = open_session(ZenohSettings(mode="router", listen=(endpoint,)))
     try:
         yield endpoint
     finally:
@@ -87,9 +77,8 @@ def router() -> Iterator[str]:
 
 
 def client(endpoint: str) -> Any:
-    import zenoh
-
-    return zenoh.open(_config("client", [endpoint]))
+    """A client session of the router at ``endpoint`` (multicast scouting off)."""
+    return open_session(ZenohSettings(mode="client", connect=(endpoint,)))
 
 
 class Wire:
@@ -153,8 +142,7 @@ def _topic(key: str) -> str:
 
 
 def loop_run(seconds: float, bridge_on: bool) -> dict[str, Any]:
-    from omnican.zenoh.bridge import ZenohBridge, open_session
-    from omnican.zenoh.settings import ZenohSettings
+    from omnican.zenoh.bridge import ZenohBridge
 
     cfg = config(RATE_HZ)
     with router() as endpoint, SimulatedBase.from_config(cfg) as sim, \
