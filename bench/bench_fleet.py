@@ -132,12 +132,6 @@ class CmdVel:
         self._pub.undeclare()
 
 
-def _topic(key: str) -> str:
-    """The ROS topic of an rmw_zenoh data key (its chunks between the domain and the type)."""
-    parts = key.split("/")
-    return "/" + "/".join(parts[1:-2]) if len(parts) > 3 else key
-
-
 # ------------------------------------------------------------ one base: the loop's share
 
 
@@ -190,7 +184,7 @@ def loop_run(seconds: float, bridge_on: bool) -> dict[str, Any]:
                 for key, n in messages.items():
                     if key == cmd.key if cmd is not None else False:
                         continue
-                    per_topic[_topic(key)] = [round(n / elapsed, 1),
+                    per_topic[rmw.topic_of(key)] = [round(n / elapsed, 1),
                                               round(sizes[key] / elapsed)]
                 out["per_topic_msgs_bytes_per_s"] = dict(sorted(per_topic.items()))
                 out["msgs_per_s"] = round(sum(v[0] for v in per_topic.values()), 1)

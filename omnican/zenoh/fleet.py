@@ -196,7 +196,7 @@ class Fleet:
         from omnican.telemetry import cdr
 
         key = str(sample.key_expr)
-        topic = "/" + "/".join(key.split("/")[1:-2])
+        topic = rmw.topic_of(key)
         try:
             summary = parse(cdr.decode(STRING, sample.payload.to_bytes())["data"])
         except Exception as exc:  # whatever a broken sample raises: from the network

@@ -142,6 +142,15 @@ def data_key(domain_id: int, fq_name: str, type_name: str, hash_: str) -> str:
     return f"{domain_id}/{fq_name[1:]}/{dds_type_name(type_name)}/{hash_}"
 
 
+def topic_of(key: str) -> str:
+    """The fully qualified name a data key (:func:`data_key`) carries: its chunks between
+    the domain and the type. ValueError for a key with no name in it."""
+    parts = key.split("/")
+    if len(parts) < 4:
+        raise ValueError(f"not an rmw_zenoh data key: {key!r}")
+    return "/" + "/".join(parts[1:-2])
+
+
 class Reliability(Enum):
     RELIABLE = 1
     BEST_EFFORT = 2

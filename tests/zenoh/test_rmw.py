@@ -149,3 +149,16 @@ def test_tokens_have_no_empty_chunk_and_name_the_endpoint(ns: list[str], node: s
     assert chunks[:6] == ["@ros2_lv", str(domain), "0123abcd", "0", "1", "MP"]
     assert rmw.unmangle(chunks[9]) == n.namespace + "/odom"
     assert rmw.gid_of(token) == rmw.gid_of(token) and len(rmw.gid_of(token)) == 16
+
+
+@given(st.integers(0, 232), st.lists(_ident, min_size=1, max_size=4), _ident, _ident)
+def test_a_data_key_gives_its_topic_back(domain: int, chunks: list[str], package: str,
+                                          name: str) -> None:
+    fq = "/" + "/".join(chunks)
+    key = rmw.data_key(domain, fq, f"{package}/msg/{name}", "RIHS01_" + "0" * 64)
+    assert rmw.topic_of(key) == fq
+
+
+def test_a_key_without_a_name_is_not_a_data_key() -> None:
+    with pytest.raises(ValueError, match="not an rmw_zenoh data key"):
+        rmw.topic_of("0/std_msgs::msg::dds_::String_/RIHS01_x")
