@@ -158,17 +158,6 @@ def front_end_settings(args: argparse.Namespace, cfg: ChassisConfig,
 
 
 @contextlib.contextmanager
-def _zenoh_session(settings: ZenohSettings) -> Iterator[Any]:
-    from omnican.zenoh.bridge import open_session
-
-    session = open_session(settings)
-    try:
-        yield session
-    finally:
-        session.close()
-
-
-@contextlib.contextmanager
 def zenoh_front_end(settings: ZenohSettings | None, base: Chassis, sim: Any = None,
                     announce: Callable[[str], None] | None = None) -> Iterator[Any]:
     """The base on Zenoh while the block runs (yields the
@@ -179,9 +168,9 @@ def zenoh_front_end(settings: ZenohSettings | None, base: Chassis, sim: Any = No
     if settings is None:
         yield None
         return
-    from omnican.zenoh.bridge import ZenohBridge
+    from omnican.zenoh.bridge import ZenohBridge, open_session
 
-    with _zenoh_session(settings) as session, \
+    with contextlib.closing(open_session(settings)) as session, \
             ZenohBridge(base, settings, session, sim=sim) as bridge:
         if announce is not None:
             out = ", ".join(pub.name for pub in bridge.publishers.values())
@@ -198,10 +187,11 @@ def zenoh_truth(settings: ZenohSettings | None, sim: Any,
     if settings is None:
         yield None
         return
+    from omnican.zenoh.bridge import open_session
     from omnican.zenoh.simulator import publish_truth
 
     settings = replace(settings, node_name=f"{settings.node_name}_sim")
-    with _zenoh_session(settings) as session, \
+    with contextlib.closing(open_session(settings)) as session, \
             publish_truth(sim, settings, session) as truth:
         if announce is not None:
             announce(f"{node_line(truth)}: out {truth.publisher.name} "
