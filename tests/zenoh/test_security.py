@@ -460,3 +460,37 @@ def test_credentials_that_are_not_there_are_named(fleet_dir: Path, tmp_path: Pat
     with pytest.raises(ConfigError, match=r"no base/robot9/cert\.pem for base/robot9 \(no "
                                           r"base/robot9 there"):
         session_config(settings(fleet_dir, "base/robot9"))
+
+
+def test_the_credentials_command_says_what_it_made(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("cryptography")
+    from omnican.cli import main
+
+    root = tmp_path / "fleet"
+    assert main(["zenoh", "credentials", str(root), "--base", "robot1", "--operator",
+                 "alice", "--viewer", "bob"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith(f"CA: made {root}/ca.pem (omnican fleet CA ")
+    assert [line.split(":")[0] for line in out[1:5]] == [
+        "router router", "base robot1", "operator alice", "viewer bob"]
+    assert out[5] == (f"fleet of domain 0 in {root}: 1 router, 1 base, 1 operator, 1 viewer "
+                      "(made 4, kept 0); every zenoh.json5 reads in Zenoh")
+    assert any(f"--zenoh-credentials {root} --zenoh-identity base/NAME --namespace /NAME"
+               in line for line in out)
+
+    assert main(["zenoh", "credentials", str(root), "--operator", "carol"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith(f"CA: kept {root}/ca.pem")
+    assert "(made 1, kept 4)" in out[2]
+    assert out[3].startswith("the access control changed: give every base and router")
+
+    for argv, words in ((["--base", "robot-1"], "--base robot-1: base name 'robot-1' is "
+                         "not a namespace chunk"),
+                        (["--viewer", "carol"], "'carol' is already a operator"),
+                        ([], None)):
+        fresh = root if argv else tmp_path / "empty"
+        assert main(["zenoh", "credentials", str(fresh), *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1
+        assert (words or "name the members: --base NAME") in err
