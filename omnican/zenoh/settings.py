@@ -31,7 +31,7 @@ from typing import Any
 
 from omnican.config import ZENOH_RATES, ZENOH_SECURITY, ZenohTable, schema_defaults
 from omnican.errors import ConfigError
-from omnican.zenoh.security import ENFORCING, Identity
+from omnican.zenoh.security import Identity
 
 MODES = ("peer", "client", "router")
 #: A ROS 2 name chunk: what rmw_zenoh's key expressions can carry unchanged.
@@ -193,12 +193,6 @@ def base_problem(s: ZenohSettings) -> str | None:
                 f"may publish there only), not {s.ros_namespace}: give --namespace "
                 f"{who.namespace}")
     return None
-
-
-def enforces(s: ZenohSettings) -> bool:
-    """The session enforces the fleet's access control (a base's or a router's)."""
-    who = s.who
-    return who is not None and who.role in ENFORCING
 
 
 def default_listen(s: ZenohSettings) -> tuple[str, ...]:

@@ -364,3 +364,38 @@ def test_the_sdk_under_an_operators_certificate_drives_through_the_router(
         finally:
             pub.close()
             sub.close()
+
+
+def test_the_sdk_under_a_viewers_certificate_stops_but_does_not_drive(
+        channel: str, creds: Creds, sdk_as: Callable[[str, str], Any]) -> None:
+    """zenoh-ros2-sdk as a viewer behind the router: its Twists never reach the base; its
+    service client's ~/stop, sent after them, is answered and stops the base."""
+    from tests.zenoh.test_services import TRIGGER_HASH
+
+    with secured_base(channel, creds.root, behind_router=True) as rig:
+        sdk = sdk_as("viewer/bob", rig.endpoint)
+        pub = sdk.ROS2Publisher("/robot1/cmd_vel", TWIST, router_port=1)
+        caller = sdk.ROS2ServiceClient(
+            "/robot1/omnican/stop", "std_srvs/srv/Trigger",
+            request_definition="uint8 structure_needs_at_least_one_member",
+            response_definition="bool success\nstring message", type_hash=TRIGGER_HASH,
+            router_port=1)
+        try:
+            assert wait_real(lambda: caller.querier.matching_status.matching)
+            types = pub.session_mgr.store.types
+            vec = types["geometry_msgs/msg/Vector3"]
+            forward = {"linear": vec(0.2, 0.0, 0.0), "angular": vec(0.0, 0.0, 0.0)}
+            for _ in range(50):
+                pub.publish(**forward)
+                rig.clock.sleep(0.02)
+                rig.bridge.poll()
+            got: list[Any] = []
+            done = threading.Event()
+            caller.call_async(lambda response: (got.append(response), done.set()))
+            assert run_until(rig.clock, rig.bridge, done.is_set)
+            assert got[0] is not None and got[0].success, got
+            assert got[0].message == "stopped: held until recover"
+            assert rig.bridge.cmd_vel_count == 0 and at_rest(rig)
+        finally:
+            caller.close()
+            pub.close()
