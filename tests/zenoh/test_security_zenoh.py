@@ -331,7 +331,8 @@ def sdk_as(creds: Creds, monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[[
                                           str(folder / "key.pem"))[1][1]))
         monkeypatch.setenv("ZENOH_CONFIG_OVERRIDE", ";".join((
             f"connect/endpoints={json.dumps([endpoint])}",
-            'listen/endpoints=["tls/127.0.0.1:0"]', 'transport/link/protocols=["tls"]',
+            'listen/endpoints=["tls/127.0.0.1:0"]', "scouting/multicast/enabled=false",
+            'transport/link/protocols=["tls"]',
             f"transport/link/tls={json.dumps(tls)}")))
         opened.append(ZenohSession.get_instance("127.0.0.1", 1))
         return sdk
