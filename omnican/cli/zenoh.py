@@ -52,8 +52,8 @@ def add_subparser(sub: Any) -> None:
     p.set_defaults(func=run)
     from omnican.cli import zenoh_credentials
 
-    more = p.add_subparsers(title="more", metavar="credentials",
-                            parser_class=type(p))
+    more = p.add_subparsers(title="subcommand (instead of running the base)",
+                            metavar="credentials", parser_class=type(p))
     zenoh_credentials.add_subparser(more)
 
 
