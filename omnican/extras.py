@@ -21,6 +21,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "mcap": ("mcap", "rosbags"),
     "gamepad": ("evdev",),
     "zenoh": ("zenoh", "rosbags"),
+    "zenoh-security": ("zenoh", "rosbags", "cryptography"),
 }
 
 

@@ -85,8 +85,10 @@ def settings_of(args: argparse.Namespace) -> Any:
         return settings
     if args.zenoh_mode is not None:
         raise UsageError("--router makes this view the Zenoh router: drop --zenoh-mode")
-    return replace(settings, mode="router",
-                   listen=settings.listen or (ROUTER_LISTEN,)).validate()
+    from omnican.zenoh.settings import default_listen
+
+    router = replace(settings, mode="router")  # loopback (tls/ with credentials) unless told
+    return replace(router, listen=settings.listen or default_listen(router)).validate()
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,9 +6,12 @@ it publishes odom, tf, joint_states, diagnostics and battery_state, takes cmd_ve
 the base stops when cmd_vel stops) and answers ~/stop, ~/recover and ~/reset_odometry
 (std_srvs/Trigger).
 Multicast scouting is off unless --zenoh-multicast: point it at a router
-(--zenoh-connect tcp/HOST:7447, rmw_zenoh's default port). The [zenoh] table of
---config says all of this too; the flags win over it. Needs eclipse-zenoh (the zenoh
-extra). teleop, drive, ros2 and sim take --zenoh to run the same beside what they do.
+(--zenoh-connect tcp/HOST:7447, rmw_zenoh's default port). It listens on loopback
+unless told (--zenoh-listen); beyond loopback it needs credentials (--zenoh-credentials
+DIR --zenoh-identity base/NAME, made by 'omnican zenoh credentials': mutual TLS, and only
+operators drive) or --zenoh-allow-insecure. The [zenoh] table of --config says all of
+this too; the flags win over it. Needs eclipse-zenoh (the zenoh extra). teleop, drive,
+ros2 and sim take --zenoh to run the same beside what they do.
 """
 
 from __future__ import annotations
@@ -17,7 +20,6 @@ import argparse
 import contextlib
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from omnican.cli.common import (
@@ -29,7 +31,7 @@ from omnican.cli.common import (
     serve_lines,
     session,
 )
-from omnican.config import ZENOH_MODES
+from omnican.config import ZENOH_MODES, ZENOH_SECURITY
 from omnican.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -48,6 +50,11 @@ def add_subparser(sub: Any) -> None:
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
     add_bus_arguments(p, sim_help="run against simulated drives in this process")
     p.set_defaults(func=run)
+    from omnican.cli import zenoh_credentials
+
+    more = p.add_subparsers(title="subcommand (instead of running the base)",
+                            metavar="credentials", parser_class=type(p))
+    zenoh_credentials.add_subparser(more)
 
 
 ZENOH_HELP = ("also put the base on Zenoh, in rmw_zenoh's format (as omnican zenoh does: "
@@ -104,13 +111,27 @@ def add_network_arguments(parser: argparse.ArgumentParser) -> None:
     net.add_argument("--zenoh-config", metavar="FILE",
                      help="a Zenoh JSON5 config (TLS, authentication, access control), "
                           "applied before the flags")
+    net.add_argument("--zenoh-credentials", metavar="DIR",
+                     help="the fleet's credentials ('omnican zenoh credentials' made them): "
+                          "mutual TLS, and a base's or router's access control")
+    net.add_argument("--zenoh-identity", metavar="ROLE/NAME",
+                     help="whose credentials: base/NAME (runs under /NAME), operator/NAME, "
+                          "viewer/NAME, router/NAME")
+    net.add_argument("--zenoh-security", choices=ZENOH_SECURITY, default=None,
+                     help="mtls (the default with --zenoh-credentials) or none")
+    net.add_argument("--zenoh-allow-insecure", action="store_true", default=None,
+                     help="listen beyond loopback without credentials: anyone who reaches "
+                          "it could drive the robot")
 
 
 #: flag (argparse's name) -> the ZenohSettings field it sets.
 _FLAGS = {"domain_id": "domain_id", "namespace": "namespace", "node_name": "node_name",
           "cmd_vel_stamped": "cmd_vel_stamped", "zenoh_mode": "mode",
-          "zenoh_multicast": "multicast", "zenoh_config": "config_file"}
-_NETWORK = ("zenoh_connect", "zenoh_listen", "zenoh_mode", "zenoh_multicast", "zenoh_config")
+          "zenoh_multicast": "multicast", "zenoh_config": "config_file",
+          "zenoh_credentials": "credentials", "zenoh_identity": "identity",
+          "zenoh_security": "security", "zenoh_allow_insecure": "allow_insecure"}
+_NETWORK = ("zenoh_connect", "zenoh_listen", "zenoh_mode", "zenoh_multicast", "zenoh_config",
+            "zenoh_credentials", "zenoh_identity", "zenoh_security", "zenoh_allow_insecure")
 
 
 def settings_from(args: argparse.Namespace, cfg: ChassisConfig | None = None,
@@ -152,9 +173,22 @@ def front_end_settings(args: argparse.Namespace, cfg: ChassisConfig,
     if why is not None:
         raise UsageError(why)
     settings = settings_from(args, cfg, graph)
-    if settings.config_file is not None and not Path(settings.config_file).is_file():
-        raise ConfigError(f"Zenoh config {settings.config_file}: no such file")
+    preflight(settings)
     return settings
+
+
+def preflight(settings: ZenohSettings, base: bool = True) -> None:
+    """What opening the session would refuse, refused now, before any drive comes up: a
+    Zenoh config or credentials that are not there (named), credentials not a base's
+    (``base``: the session is a base's) or not its namespace's, a session that would
+    listen beyond loopback without credentials. ConfigError, one line."""
+    from omnican.zenoh.bridge import session_config
+    from omnican.zenoh.settings import base_problem
+
+    problem = base_problem(settings) if base else None
+    if problem is not None:
+        raise ConfigError(problem)
+    session_config(settings)
 
 
 @contextlib.contextmanager
@@ -205,8 +239,11 @@ def node_line(front: Any) -> str:
     s = front.settings
     node = s.node_fq_name
     where = ", ".join(s.connect) or "no router given"
+    who = s.who
+    secured = f"mTLS as {who}" if who is not None else "no credentials"
     return (f"Zenoh node {node} on domain {s.domain_id} (session {front.node.session_id}, "
-            f"{s.mode}; connect: {where}; multicast {'on' if s.multicast else 'off'})")
+            f"{s.mode}; connect: {where}; multicast {'on' if s.multicast else 'off'}; "
+            f"{secured})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -218,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
     from omnican.chassis import Chassis
 
     settings = settings_from(args, load(args))
+    preflight(settings)
     with session(args) as sess, Chassis.open(sess.cfg) as base, \
             zenoh_front_end(settings, base, sess.sim) as bridge:
         _print_startup(bridge, base.cfg.chassis.cmd_timeout_s)

@@ -120,9 +120,10 @@ _ZENOH = schema_defaults("zenoh")
 @dataclass(frozen=True)
 class ZenohTable:
     """The ``[zenoh]`` table, its types and ranges checked (the names and endpoints are
-    checked where they are used, by ``omnican.zenoh.settings``). ``config_file`` is made
-    whole against the config file's folder; ``given``: the keys the table gave (under
-    ``omnican ros2 --zenoh`` the others of the ROS graph are the ROS 2 node's)."""
+    checked where they are used, by ``omnican.zenoh.settings``). ``config_file`` and
+    ``credentials`` are made whole against the config file's folder; ``given``: the keys
+    the table gave (under ``omnican ros2 --zenoh`` the others of the ROS graph are the
+    ROS 2 node's)."""
 
     enabled: bool = _ZENOH["enabled"]
     domain_id: int = _ZENOH["domain_id"]
@@ -140,6 +141,10 @@ class ZenohTable:
     status_rate_hz: float = _ZENOH["status_rate_hz"]
     wheels_rate_hz: float = _ZENOH["wheels_rate_hz"]
     summary_rate_hz: float = _ZENOH["summary_rate_hz"]
+    security: str | None = _ZENOH["security"]
+    credentials: str | None = _ZENOH["credentials"]
+    identity: str | None = _ZENOH["identity"]
+    allow_insecure: bool = _ZENOH["allow_insecure"]
     given: frozenset[str] = field(default=frozenset(), compare=False)
 
 

@@ -38,6 +38,7 @@ from omnican.config.schema import (
     PDO_MAPPINGS,
     SCHEMA,
     ZENOH_MODES,
+    ZENOH_SECURITY,
 )
 from omnican.config.wheels import check_eds_files, check_wheels, parse_wheel
 from omnican.core.kinematics import LAYOUTS
@@ -181,8 +182,9 @@ def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
 
 
 def _parse_zenoh(r: Reader, data: Any, base_dir: Path | None) -> ZenohTable:
-    """The ``[zenoh]`` table: types, ranges, the mode; the config file's path made whole
-    (omnican.zenoh.settings checks the names and endpoints)."""
+    """The ``[zenoh]`` table: types, ranges, the mode and security; the paths of the config
+    file and the credentials made whole (omnican.zenoh.settings checks the names, the
+    endpoints and the identity)."""
     t = r.table("zenoh", data, "zenoh")
     if t["mode"] not in ZENOH_MODES:
         raise r.fail("zenoh.mode", f"must be one of {', '.join(ZENOH_MODES)}, got "
@@ -193,9 +195,13 @@ def _parse_zenoh(r: Reader, data: Any, base_dir: Path | None) -> ZenohTable:
             raise r.fail(f"zenoh.{key}", "must be an array of endpoints (strings), e.g. "
                          "[\"tcp/192.168.1.10:7447\"]")
         t[key] = tuple(t[key])
-    if t["config_file"] is not None:
-        p = Path(t["config_file"]).expanduser()
-        t["config_file"] = str(p if p.is_absolute() or base_dir is None else base_dir / p)
+    if t["security"] is not None and t["security"] not in ZENOH_SECURITY:
+        raise r.fail("zenoh.security", f"must be one of {', '.join(ZENOH_SECURITY)}, got "
+                     f"{_short(t['security'])}")
+    for key in ("config_file", "credentials"):
+        if t[key] is not None:
+            p = Path(t[key]).expanduser()
+            t[key] = str(p if p.is_absolute() or base_dir is None else base_dir / p)
     numbers = {k: float(v) for k, v in t.items() if SCHEMA["zenoh"][k].types == NUMBER}
     return ZenohTable(**{**t, **numbers}, given=frozenset(data))
 

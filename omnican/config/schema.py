@@ -115,6 +115,8 @@ _ROS_RATE = (0.01, 1000.0)  # Hz, a topic's publish rate
 
 #: Values of zenoh.mode (a router is a process of its own: zenohd, rmw_zenohd).
 ZENOH_MODES = ("peer", "client")
+#: Values of zenoh.security (omnican.zenoh.security: the fleet's certificates and roles).
+ZENOH_SECURITY = ("none", "mtls")
 #: The [zenoh] rate keys and the topic each sets (omnican.zenoh.settings'
 #: ``ZenohSettings.rates_hz``; tf goes with odom).
 ZENOH_RATES: dict[str, str] = {
@@ -383,13 +385,27 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "mode": Key((str,), "peer", "\"peer\" or \"client\" (of the router connected to)"),
         "connect": Key((list,), None, "routers or peers to connect to, e.g. "
                        "[\"tcp/192.168.1.10:7447\"] (rmw_zenoh's router port)"),
-        "listen": Key((list,), None, "endpoints to listen on, e.g. [\"tcp/192.168.1.20:7448\"]; "
-                      "default Zenoh's for the mode"),
+        "listen": Key((list,), None, "endpoints to listen on, e.g. [\"tls/192.168.1.20:7448\"]; "
+                      "default loopback (a peer: tcp/127.0.0.1:0; tls/ with credentials); "
+                      "beyond loopback needs credentials or allow_insecure"),
         "multicast": Key((bool,), False, "find peers by multicast scouting"),
         "config_file": Key((str,), None, "a Zenoh JSON5 config (relative to the config "
                            "file): TLS, authentication, access control; applied first"),
         "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of "
                                "Twist"),
+        "security": Key((str,), None, "\"mtls\": TLS links with the fleet's certificates "
+                        "both ways, and a base's or router's access control (who may drive); "
+                        "\"none\"; default \"mtls\" when credentials is given, else "
+                        "\"none\""),
+        "credentials": Key((str,), None, "the folder 'omnican zenoh credentials' made "
+                           "(relative to the config file): its ca.pem and the identity's "
+                           "folder"),
+        "identity": Key((str,), None, "whose certificate the session presents: "
+                        "\"base/NAME\" (the base runs under /NAME), \"operator/NAME\", "
+                        "\"viewer/NAME\" or \"router/NAME\""),
+        "allow_insecure": Key((bool,), False, "listen beyond loopback without credentials "
+                              "(anyone who reaches it could drive the robot); "
+                              "--zenoh-allow-insecure"),
         **{key: Key(NUMBER, _ZENOH_RATE_DEFAULTS[key], f"{topic[1:]} publish rate"
                     + _ZENOH_RATE_NOTES.get(key, ""), range=_ROS_RATE)
            for key, topic in ZENOH_RATES.items()},

@@ -28,8 +28,10 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import struct
 import threading
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from omnican.chassis.arbiter import CommandSource
@@ -40,8 +42,16 @@ from omnican.errors import ConfigError
 from omnican.telemetry import JSON, TOPICS, Message
 from omnican.telemetry.attach import feed_of
 from omnican.zenoh import rmw
+from omnican.zenoh.security import ENFORCING, tls_entries
 from omnican.zenoh.services import Services
-from omnican.zenoh.settings import ZenohSettings, config_entries
+from omnican.zenoh.settings import (
+    ZenohSettings,
+    config_entries,
+    default_listen,
+    exposed,
+    exposed_refusal,
+    role_problem,
+)
 from omnican.zenoh.summary import SOURCES, Summarizer
 
 if TYPE_CHECKING:
@@ -80,19 +90,111 @@ def _type_of(topic: str) -> str:
 
 
 def open_session(settings: ZenohSettings) -> Any:
-    """A Zenoh session as ``settings`` say (the config file first, then the settings).
-    ConfigError with Zenoh's words when it cannot open."""
+    """A Zenoh session as ``settings`` say (:func:`session_config`). ConfigError, one
+    line, when it cannot open (Zenoh's words, without the place in its source)."""
+    import zenoh
+
+    conf = session_config(settings)
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise ConfigError(f"cannot open a Zenoh session: {zenoh_words(exc)}") from None
+
+
+def session_config(settings: ZenohSettings) -> Any:
+    """The ``zenoh.Config`` of a session as ``settings`` say: the config file first, then
+    the credentials' certificates and (a base's, a router's) access control, then the
+    settings; where nothing says where to listen, loopback
+    (:func:`~omnican.zenoh.settings.default_listen`). ConfigError, one line, for a file
+    that is not there or not a Zenoh config (named), credentials that do not fit, or a
+    session that would listen beyond loopback without credentials
+    (:func:`~omnican.zenoh.settings.exposed`) unless ``allow_insecure``. Opens nothing:
+    a command calls it before its drives come up."""
     import zenoh
 
     settings.validate()
+    problem = role_problem(settings)
+    if problem is not None:
+        raise ConfigError(problem)
+    conf = _read_config(settings.config_file, "Zenoh config") if settings.config_file \
+        else zenoh.Config()
+    zenoh_default_listen = conf.get_json("listen/endpoints") == \
+        zenoh.Config().get_json("listen/endpoints")
     try:
-        conf = (zenoh.Config.from_file(settings.config_file) if settings.config_file
-                else zenoh.Config())
+        if settings.mtls:
+            _put_credentials(conf, settings)
         for path, value in config_entries(settings):
             conf.insert_json5(path, value)
-        return zenoh.open(conf)
+        if not settings.listen and zenoh_default_listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(default_listen(settings))))
     except zenoh.ZError as exc:
-        raise ConfigError(f"cannot open a Zenoh session: {exc}") from None
+        raise ConfigError(f"Zenoh config: {zenoh_words(exc)}") from None
+    if not settings.allow_insecure:
+        open_to = exposed(_listening(conf, settings.mode), mtls=_mutual_tls(conf),
+                          password=_passwords(conf))
+        if open_to:
+            raise ConfigError(exposed_refusal(settings, open_to))
+    return conf
+
+
+def zenoh_words(exc: BaseException) -> str:
+    """Zenoh's message without the place in its Rust source (`` at /root/.cargo/...rs:1507.``)."""
+    return re.sub(r"\s+at\s+\S+\.rs:\d+\.?\s*$", "", str(exc)).strip()
+
+
+def _read_config(path: str | Path, what: str) -> Any:
+    """A Zenoh JSON5 file as a ``zenoh.Config``; ConfigError naming it (``what PATH: ...``)
+    when it is not there or not a Zenoh config."""
+    import zenoh
+
+    if not Path(path).is_file():
+        raise ConfigError(f"{what} {path}: no such file")
+    try:
+        return zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise ConfigError(f"{what} {path}: {zenoh_words(exc)}") from None
+
+
+def _put_credentials(conf: Any, settings: ZenohSettings) -> None:
+    """The identity's certificates (found in the credentials' folder, wherever it is now)
+    and, for a base or router, the access control of its ``zenoh.json5``, into ``conf``."""
+    from omnican.zenoh.credentials import files_for
+
+    assert settings.credentials is not None and settings.identity is not None
+    who, files = files_for(settings.credentials, settings.identity)
+    for path, value in tls_entries(str(files.ca), str(files.cert), str(files.key)):
+        conf.insert_json5(path, value)
+    if who.role in ENFORCING:
+        acl = json.loads(_read_config(files.config, "Zenoh credentials").get_json(
+            "access_control"))
+        if not (isinstance(acl, dict) and acl.get("enabled") is True):
+            raise ConfigError(f"Zenoh credentials {files.config}: its access control is "
+                              f"off, and a {who.role} must say who may drive")
+        conf.insert_json5("access_control", json.dumps(acl))
+
+
+def _listening(conf: Any, mode: str) -> list[str]:
+    """The endpoints ``conf`` listens on in ``mode`` (Zenoh's per-mode defaults read)."""
+    value = json.loads(conf.get_json("listen/endpoints"))
+    if isinstance(value, dict):
+        value = value.get(mode, [])
+    return [str(v) for v in value or []]
+
+
+def _mutual_tls(conf: Any) -> bool:
+    tls = json.loads(conf.get_json("transport/link/tls"))
+    return bool(isinstance(tls, dict) and tls.get("enable_mtls")
+                and tls.get("root_ca_certificate"))
+
+
+def _passwords(conf: Any) -> bool:
+    """Every session that links must give a user and password (a dictionary is set)."""
+    import zenoh
+
+    try:
+        return bool(json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file")))
+    except zenoh.ZError:  # a Zenoh without the key: no passwords
+        return False
 
 
 class _Publisher:

@@ -8,21 +8,30 @@ peers through the router it connects to (``tcp/HOST:7447``, rmw_zenoh's default 
 and sends nothing to a network it was not pointed at. A Zenoh JSON5 file, if given, is
 read first (TLS, user/password, access control pass through it); what is set here wins.
 
+A session listens on loopback unless told where (:func:`default_listen`; Zenoh's own
+default is every interface), and one that would listen beyond loopback with nothing to
+tell who may connect is refused (:func:`exposed`) unless ``allow_insecure``: anyone who
+reached it could drive the robot. ``security = "mtls"`` gives the session the fleet's
+certificates and, for a base or a router, its access control
+(:mod:`omnican.zenoh.security`, made by ``omnican zenoh credentials``).
+
 The defaults are the ``[zenoh]`` table's (:data:`omnican.config.SCHEMA`);
 :func:`from_table` makes settings of a config's table.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from omnican.config import ZENOH_RATES, ZenohTable, schema_defaults
+from omnican.config import ZENOH_RATES, ZENOH_SECURITY, ZenohTable, schema_defaults
 from omnican.errors import ConfigError
+from omnican.zenoh.security import Identity
 
 MODES = ("peer", "client", "router")
 #: A ROS 2 name chunk: what rmw_zenoh's key expressions can carry unchanged.
@@ -53,6 +62,11 @@ class ZenohSettings:
     cmd_vel_stamped: bool = _D["cmd_vel_stamped"]  # cmd_vel: geometry_msgs/msg/TwistStamped
     #: Hz per telemetry topic (tf goes with odom; diagnostics at the telemetry's pace).
     rates_hz: dict[str, float] = field(default_factory=_default_rates)
+    #: "mtls", "none"; None: "mtls" when credentials are given, else "none"
+    security: str | None = _D["security"]
+    credentials: str | None = _D["credentials"]  # the folder omnican zenoh credentials made
+    identity: str | None = _D["identity"]  # ROLE/NAME: whose certificate (base/robot1)
+    allow_insecure: bool = _D["allow_insecure"]  # listen beyond loopback without credentials
 
     def validate(self) -> ZenohSettings:
         """Self, or ConfigError naming what is wrong."""
@@ -72,7 +86,51 @@ class ZenohSettings:
         for topic, rate in self.rates_hz.items():
             if not (math.isfinite(rate) and 0 < rate <= 1000):
                 raise ConfigError(f"zenoh: rate of {topic} {rate!r} is not in (0, 1000] Hz")
+        self._validate_security()
+        # a listen endpoint given beyond loopback, refused already here (check-config
+        # too); with a Zenoh config file, once it is read (it may ask for passwords)
+        open_to = [] if self.allow_insecure or self.config_file else \
+            exposed(self.listen, mtls=self.mtls)
+        if open_to:
+            raise ConfigError(exposed_refusal(self, open_to))
         return self
+
+    @property
+    def mtls(self) -> bool:
+        """The fleet's certificates and access control are on (``security = "mtls"``)."""
+        return self.security == "mtls" or (self.security is None
+                                           and self.credentials is not None)
+
+    @property
+    def who(self) -> Identity | None:
+        """Whose certificate the session presents (None: no credentials)."""
+        return Identity.parse(self.identity) if self.mtls and self.identity else None
+
+    def _validate_security(self) -> None:
+        if self.security is not None and self.security not in ZENOH_SECURITY:
+            raise ConfigError(f"zenoh: security {self.security!r} is not one of "
+                              f"{', '.join(ZENOH_SECURITY)}")
+        if not self.mtls:
+            given = [k for k in ("credentials", "identity") if getattr(self, k) is not None]
+            if given == ["identity"] and self.security is None:
+                raise ConfigError(f"zenoh: identity {self.identity} needs the credentials' "
+                                  "folder (--zenoh-credentials DIR, [zenoh] credentials)")
+            if given:
+                raise ConfigError(f"zenoh: {given[0]} is for security \"mtls\", and security "
+                                  "is \"none\"")
+            return
+        if self.credentials is None or self.identity is None:
+            missing = "credentials" if self.credentials is None else "identity"
+            raise ConfigError(f"zenoh: security \"mtls\" needs the {missing} (the folder "
+                              "'omnican zenoh credentials' made, and ROLE/NAME in it)")
+        try:
+            Identity.parse(self.identity)
+        except ValueError as exc:
+            raise ConfigError(f"zenoh: {exc}") from None
+        plain = [e for e in (*self.connect, *self.listen) if e.split("/", 1)[0] != "tls"]
+        if plain:
+            raise ConfigError(f"zenoh: with credentials a link is TLS: {plain[0]!r} is not "
+                              "a tls/HOST:PORT endpoint")
 
     @property
     def ros_namespace(self) -> str:
@@ -108,6 +166,87 @@ def checked(settings: ZenohSettings, origin: str = "command line",
         return replace(settings, **changes).validate()
     except ConfigError as exc:
         raise ConfigError(f"{origin}: {exc}") from None
+
+
+def role_problem(s: ZenohSettings) -> str | None:
+    """What is wrong with the session's identity for its mode (None: nothing): a router
+    takes a router's credentials (its access control is the fleet's), and only it."""
+    who = s.who
+    if who is not None and (s.mode == "router") != (who.role == "router"):
+        return (f"zenoh: a {s.mode} session cannot be {who}: a router takes a router's "
+                "credentials, and only a router does")
+    return None
+
+
+def base_problem(s: ZenohSettings) -> str | None:
+    """What is wrong with a base's identity (None: nothing, or no credentials): it must be
+    a base's, and the base must run under that base's namespace (its certificate may
+    publish and announce nothing elsewhere: the router would drop the rest)."""
+    who = s.who
+    if who is None:
+        return None
+    if who.role != "base":
+        return (f"zenoh: a base presents a base's credentials (base/NAME), not {who}: its "
+                "access control says who may drive it")
+    if s.ros_namespace != who.namespace:
+        return (f"zenoh: {who} runs under the namespace {who.namespace} (its certificate "
+                f"may publish there only), not {s.ros_namespace}: give --namespace "
+                f"{who.namespace}")
+    return None
+
+
+def default_listen(s: ZenohSettings) -> tuple[str, ...]:
+    """Where a session listens when nothing says: a peer or router on loopback (a free
+    port; a router on rmw_zenoh's 7447), TLS with credentials; a client nowhere."""
+    if s.mode == "client":
+        return ()
+    port = 7447 if s.mode == "router" else 0
+    return (f"{'tls' if s.mtls else 'tcp'}/127.0.0.1:{port}",)
+
+
+def loopback(endpoint: str) -> bool:
+    """``endpoint`` accepts links from this machine only: a loopback address
+    (127.0.0.0/8, ::1, localhost) or a Unix socket. Every interface (``[::]``,
+    ``0.0.0.0``), an interface's address and a host name are beyond it."""
+    proto, _, rest = endpoint.partition("/")
+    if proto.startswith("unixsock"):
+        return True
+    address = re.split(r"[?#]", rest, maxsplit=1)[0]
+    host = address.rsplit(":", 1)[0] if ":" in address else address
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.split("%", 1)[0]).is_loopback
+    except ValueError:
+        return False
+
+
+def exposed(endpoints: Iterable[str], *, mtls: bool = False,
+            password: bool = False) -> list[str]:
+    """The endpoints of ``endpoints`` beyond loopback that no credentials guard: every
+    one without credentials; with mutual TLS, those not over TLS or QUIC; none when
+    every session must give a user and password (``password``)."""
+    if password:
+        return []
+    return [e for e in endpoints if not loopback(e)
+            and not (mtls and e.split("/", 1)[0] in ("tls", "quic"))]
+
+
+def exposed_refusal(s: ZenohSettings, endpoints: list[str]) -> str:
+    """The one line that refuses a session listening on ``endpoints`` (:func:`exposed`)
+    without credentials: who could then drive the robot, and the ways out."""
+    where = ", ".join(endpoints)
+    everyone = [e for e in endpoints if re.search(r"/(\[::\]|0\.0\.0\.0):", e)]
+    scope = " (every interface)" if everyone else ""
+    robots = ("every robot connected to this router" if s.mode == "router"
+              else "this robot")
+    return (f"zenoh: would listen on {where}{scope} without credentials: anyone who can "
+            f"reach it could drive {robots} (publish cmd_vel, call ~/recover). Give "
+            "credentials (--zenoh-credentials DIR --zenoh-identity ROLE/NAME, made by "
+            "'omnican zenoh credentials'), listen on loopback (--zenoh-listen "
+            "tcp/127.0.0.1:0), or accept it with --zenoh-allow-insecure ([zenoh] "
+            "allow_insecure = true)")
 
 
 def config_entries(s: ZenohSettings) -> list[tuple[str, str]]:
