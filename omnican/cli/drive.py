@@ -347,6 +347,11 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
         }
         if s.sim is not None:
             out["true_pose"] = pose_dict(s.sim.true_pose)
+        # The motion ran, but a drive the close could not confirm disabled (the error
+        # logged names it) is a failure at run time.
+        if base.not_disabled:
+            out["error"] = "base closed; not confirmed disabled: " + ", ".join(
+                base.not_disabled)
     if args.json:
         print(json.dumps(out))
     else:
@@ -358,4 +363,4 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
         if "true_pose" in out:
             print(pose_line(s.sim.true_pose).replace("pose", "true pose", 1) + " (simulated)")
         print(pose_line(pose))
-    return EXIT_OK
+    return EXIT_FAILURE if "error" in out else EXIT_OK

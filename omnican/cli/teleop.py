@@ -23,6 +23,8 @@ from rich.live import Live
 from omnican.chassis import Chassis
 from omnican.chassis.arbiter import CommandSource
 from omnican.cli.common import (
+    EXIT_FAILURE,
+    EXIT_OK,
     UsageError,
     add_bus_arguments,
     add_foxglove_arguments,
@@ -165,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
     console = Console()
     events = Events()
     final = None
+    failed = False
     pad = None
     if args.gamepad is not None:  # before the drives come up: no pad, nothing moves
         pad = Gamepad.open(args.gamepad or None, config_table(args.config))
@@ -210,6 +213,9 @@ def run(args: argparse.Namespace) -> int:
         # Leaving the block stopped the wheels and disabled every drive: the pose now
         # includes the stop (read inside the block, it would miss the last samples).
         final = base.pose
+        # A drive the close could not confirm disabled (it went OFFLINE, the bus went
+        # down: the error above names each) is a failure at run time.
+        failed = bool(base.not_disabled)
     if final is not None:
         print(pose_line(final))
-    return 0
+    return EXIT_FAILURE if failed else EXIT_OK

@@ -1,0 +1,130 @@
+"""The terminal commands across processes, as a user runs them: ``omnican sim`` serving
+the drives in one process, ``omnican teleop`` (in a pseudo-terminal) or ``omnican drive``
+driving them from another; the simulator killed, or one of its drives frozen, under them."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import select
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.support import terminal
+
+ROOT = Path(__file__).resolve().parents[2]
+TIMEOUT_S = 60.0
+
+
+class Served:
+    """``omnican sim --serve 127.0.0.1:0`` in a process of its own: its URL, its console."""
+
+    def __init__(self) -> None:
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "omnican", "sim", "--serve", "127.0.0.1:0"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+        self._buffer = b""
+        first = self.line()
+        found = re.search(r"on (ws://127\.0\.0\.1:\d+/)", first)
+        assert found is not None, first
+        self.url = found[1]
+
+    def line(self, timeout: float = TIMEOUT_S) -> str:
+        assert self.proc.stdout is not None
+        fd = self.proc.stdout.fileno()
+        end = time.monotonic() + timeout
+        while b"\n" not in self._buffer:
+            ready, _, _ = select.select([fd], [], [], max(0.0, end - time.monotonic()))
+            assert ready, f"no line from omnican sim within {timeout} s: {self._buffer!r}"
+            chunk = os.read(fd, 4096)
+            assert chunk, f"omnican sim closed its output: {self._buffer!r}"
+            self._buffer += chunk
+        line, self._buffer = self._buffer.split(b"\n", 1)
+        return line.decode()
+
+    def say(self, command: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(f"{command}\n".encode())
+        self.proc.stdin.flush()
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.communicate(timeout=10)
+
+
+@pytest.fixture
+def served() -> Iterator[Served]:
+    sim = Served()
+    try:
+        yield sim
+    finally:
+        sim.close()
+
+
+def test_teleop_whose_simulator_died_exits_1_and_calls_its_drives_offline(
+        served: Served) -> None:
+    """Issue 36 item 5: after ``omnican sim`` went away under teleop, the closing error
+    called the drives OPERATION ENABLED (the dashboard: OFFLINE) and teleop exited 0."""
+    term = terminal.Pty("teleop", "-i", "remote", "-c", served.url)
+    try:
+        term.wait_for_frame("RUNNING", timeout=TIMEOUT_S)
+        served.proc.kill()  # the simulator (and with it every drive) is gone
+        term.wait_for_frame("OFFLINE", timeout=TIMEOUT_S)
+        term.keys("\x1b")  # Esc quits
+        assert term.exit_code(timeout=TIMEOUT_S) == 1, term.read()[-3000:]
+        text = re.sub(r"\s*\n\s*", " ", term.read(0.3))  # the error wraps at 120 columns
+        closing = re.search(r"omnican: ERROR: base closed; not confirmed disabled: (.*?) pose",
+                            text)
+        assert closing is not None, text[-3000:]
+        for node in (1, 2, 3):
+            assert re.search(rf"node {node} \(OFFLINE: [^;)]+; last seen OPERATION ENABLED\)",
+                             closing[1]), closing[1]
+        assert "(OPERATION ENABLED)" not in closing[1], closing[1]
+        assert re.search(r"pose x=\S+ y=\S+ theta=\S+", text)
+    finally:
+        term.close()
+
+
+def test_drive_whose_drive_froze_names_it_offline_on_closing(served: Served) -> None:
+    """The same line after a drive that stopped answering under ``omnican drive``."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "omnican", "drive", "-i", "remote", "-c",
+                             served.url, "--vx", "0.1", "--duration", "600"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert served.line().startswith("connect with:")
+        assert served.line().startswith("type a command here:")
+        # The drives are up once the simulator's truth moves: then freeze node 1.
+        deadline = time.monotonic() + TIMEOUT_S
+        while True:
+            served.say("pose")
+            true = re.fullmatch(r"true pose x=(\S+) y=\S+ theta=\S+", served.line())
+            assert true is not None
+            if float(true[1]) > 0.01:
+                break
+            assert time.monotonic() < deadline and proc.poll() is None, "the base never moved"
+            time.sleep(0.2)
+        served.say("freeze 1")
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+        assert proc.returncode == 1, err
+        assert "omnican: error: base stopped: node 1 heartbeat lost" in err, err
+        closing = next((line for line in err.splitlines()
+                        if "not confirmed disabled" in line), None)
+        assert closing is not None, err
+        assert "node 1 (OFFLINE: heartbeat lost; last seen OPERATION ENABLED)" in closing, err
+        assert "node 1 (OPERATION ENABLED)" not in closing, err
+        assert "Traceback" not in err
+    finally:
+        if proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(signal.SIGKILL)
+            proc.communicate()
