@@ -17,7 +17,7 @@ import sys
 import time
 from typing import Any
 
-from rich.console import Console
+from rich.console import Console, RenderableType
 from rich.live import Live
 
 from omnican.chassis import Chassis
@@ -38,7 +38,7 @@ from omnican.cli.common import (
 from omnican.cli.dashboard import (
     dashboard,
 )
-from omnican.cli.terminal import Events, cbreak, logs_into, read_keys
+from omnican.cli.terminal import Events, cbreak, in_foreground, logs_into, read_keys
 from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
@@ -105,11 +105,37 @@ def share_command(source: CommandSource, command: Twist) -> str | None:
     return None
 
 
+class Screen:
+    """The dashboard's terminal: drawn while teleop is in the terminal's foreground
+    (a job the shell put in the background draws nothing over the shell), and drawn
+    whole again once the terminal comes back (:meth:`resumed`, cbreak's ``on_resume``):
+    what the shell wrote meanwhile is cleared."""
+
+    def __init__(self, fd: int, live: Live | None = None) -> None:
+        self.live = live  # set once the screen is taken
+        self.fd = fd
+        self._resumed = False
+
+    def resumed(self) -> None:
+        self._resumed = True  # from a signal handler too: the clearing is draw()'s
+
+    def draw(self, frame: RenderableType) -> None:
+        if self.live is None or not in_foreground(self.fd):
+            return
+        if self._resumed:
+            self._resumed = False
+            self.live.console.clear()
+            self.live.console.show_cursor(False)
+        self.live.update(frame, refresh=True)
+
+
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: Events, pad: Gamepad | None = None, shared: bool = False) -> None:
+               events: Events, pad: Gamepad | None = None, shared: bool = False,
+               screen: Screen | None = None) -> None:
     """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. When
     ``shared`` (Foxglove may drive too) the keys command only while they move the base
     and no one else drives; a stop key stops the base whoever drives."""
+    screen = screen or Screen(fd, live)
     note = ""
     note_stop: str | None = None  # the stop a failed recover's note speaks of
     source = base.command_source("the gamepad" if pad is not None else "the terminal's keys")
@@ -128,8 +154,8 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
         if keys.take_recover():
             driver = source.may_act() if shared else None
             note = f"{driver} is driving: not recovering" if driver else "recovering..."
-            live.update(dashboard(base, keys, Twist(), title, events, note,
-                                  live.console.width, live.console.height), refresh=True)
+            screen.draw(dashboard(base, keys, Twist(), title, events, note,
+                                  live.console.width, live.console.height))
             try:
                 if not driver:
                     base.recover()
@@ -153,8 +179,8 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
                 shown = f"{refused} is driving: space stops the base"
             elif driver and driver != source.name and not shown:
                 shown = f"{driver} is driving"
-        live.update(dashboard(base, keys, command, title, events, shown, live.console.width,
-                              live.console.height), refresh=True)
+        screen.draw(dashboard(base, keys, command, title, events, shown, live.console.width,
+                              live.console.height))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -192,6 +218,8 @@ def run(args: argparse.Namespace) -> int:
         if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
 
+        screen = Screen(fd)
+
         def announce(text: str) -> None:
             console.print(text, style="dim")
             events.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
@@ -199,14 +227,16 @@ def run(args: argparse.Namespace) -> int:
         with Chassis.open(s.cfg, record=recording(args.record)) as base, \
                 watch(base, s.sim, fox, announce=announce) as view, \
                 zenoh_front_end(zenoh, base, s.sim, announce) as bridge, \
-                cbreak(fd, lambda: events.say(SUSPEND_REFUSED)), logs_into(events), \
+                cbreak(fd, lambda: events.say(SUSPEND_REFUSED), screen.resumed), \
+                logs_into(events), \
                 Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
+            screen.live = live
             if view is not None:
                 title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
             if bridge is not None:
                 title += f" - Zenoh {bridge.settings.node_fq_name}"
             try:
-                drive_loop(base, keys, fd, live, title, events, pad, shared)
+                drive_loop(base, keys, fd, live, title, events, pad, shared, screen)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
                 pass
             base.stop()

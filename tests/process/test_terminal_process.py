@@ -128,3 +128,60 @@ def test_drive_whose_drive_froze_names_it_offline_on_closing(served: Served) -> 
             with contextlib.suppress(ProcessLookupError):
                 proc.send_signal(signal.SIGKILL)
             proc.communicate()
+
+
+def _child_of(pid: int, timeout: float = TIMEOUT_S) -> int:
+    """The one child process of ``pid`` (a shell's job)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        if len(children) == 1:
+            return int(children[0])
+        time.sleep(0.05)
+    raise AssertionError(f"process {pid} has no single child")
+
+
+def _moving(frame: list[str], vx: str) -> bool:
+    """The twist panel's vx row: the keys' and the applied command are ``vx``."""
+    return any(re.search(rf"vx m/s +{re.escape(vx)} +{re.escape(vx)} ", line) for line in frame)
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs /proc")
+def test_teleop_stopped_and_continued_takes_a_single_space_as_stop() -> None:
+    """Issue 36 item 8 (safety): ``kill -STOP``, ``kill -CONT``, then ``fg`` left teleop's
+    terminal in line mode (the shell resets it when a job stops, and ``fg`` of a job a
+    SIGCONT already resumed sends no signal): keys echoed and acted only after Enter, the
+    stop key included. In an interactive shell with job control, as a user has it."""
+    term = terminal.Pty(argv=["bash", "--norc", "--noprofile", "-i"])
+    try:
+        term.keys(f"PS1='$ '; {sys.executable} -m omnican teleop --sim --key-timeout 0\n")
+        term.wait_for_frame("RUNNING", timeout=TIMEOUT_S)
+        teleop = _child_of(term.proc.pid)
+        os.kill(teleop, signal.SIGSTOP)  # from elsewhere, as kill -STOP
+        term.wait_for("Stopped", timeout=TIMEOUT_S)
+        time.sleep(1.0)  # stopped for longer than the heartbeats' 0.35 s: a held stop
+        os.kill(teleop, signal.SIGCONT)  # resumed in the background
+        term.keys("fg\n")  # the shell's: the job back in the foreground, no SIGCONT
+        # The drives missed the host while it was stopped: the base is held stopped.
+        term.wait_for_frame("press r to recover", timeout=TIMEOUT_S)
+        term.screen = ""
+        term.keys("r")  # one key, no Enter
+        term.wait_for_frame("RUNNING", timeout=TIMEOUT_S)
+        term.keys("i")  # forward, held (no key timeout)
+        end = time.monotonic() + TIMEOUT_S
+        while not _moving(term.frame(), "+0.300"):
+            assert time.monotonic() < end, "\n".join(term.frame())
+            term.read(0.1)
+        term.screen = ""
+        term.keys(" ")  # a single space, no Enter: stop
+        frame = term.wait_for_frame("last key ' '", timeout=TIMEOUT_S)
+        while not _moving(frame, "+0.000"):
+            assert time.monotonic() < end, "\n".join(frame)
+            term.read(0.1)
+            frame = term.frame()
+        term.keys("\x1b")  # Esc quits, the pose printed
+        term.wait_for("pose x=", timeout=TIMEOUT_S)
+    finally:
+        with contextlib.suppress(OSError):
+            term.keys("exit\n")
+        term.close()
