@@ -105,6 +105,16 @@ def share_command(source: CommandSource, command: Twist) -> str | None:
     return None
 
 
+def refusal_note(source: CommandSource, refused: str) -> str:
+    """What the dashboard says when ``source``'s command was refused by ``refused``:
+    who drives, or who stopped this source (a stop from elsewhere: a Foxglove client's
+    ``/omnican/stop``, a Zenoh ``~/stop``, the fleet stop); the stopper does not drive."""
+    if source.stopped_by() == refused:
+        return (f"{refused} stopped {source.name}: let go for {source.timeout_s:g} s to "
+                "drive again")
+    return f"{refused} is driving: space stops the base"
+
+
 class Screen:
     """The dashboard's terminal: drawn while teleop is in the terminal's foreground
     (a job the shell put in the background draws nothing over the shell), and drawn
@@ -176,7 +186,7 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             refused = share_command(source, command)
             driver = source.holder()
             if refused:
-                shown = f"{refused} is driving: space stops the base"
+                shown = refusal_note(source, refused)
             elif driver and driver != source.name and not shown:
                 shown = f"{driver} is driving"
         screen.draw(dashboard(base, keys, command, title, events, shown, live.console.width,

@@ -185,3 +185,58 @@ def test_teleop_stopped_and_continued_takes_a_single_space_as_stop() -> None:
         with contextlib.suppress(OSError):
             term.keys("exit\n")
         term.close()
+
+
+@pytest.fixture
+def router() -> Iterator[str]:
+    """A Zenoh router on tcp/127.0.0.1:<free port> in this process, multicast off."""
+    zenoh = pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed")
+    from tests.zenoh.conftest import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", f'["{endpoint}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    try:
+        yield endpoint
+    finally:
+        session.close()
+
+
+def test_teleop_tells_a_network_stop_from_a_driver(router: str) -> None:
+    """Issue 36 item 12: a fleet stop (the base's Zenoh ``~/stop``, called here from this
+    process) while the keys drove: teleop said ``Zenoh service client ... is driving``.
+    It shows who stopped the base (the stop line) apart from who drives (no one)."""
+    from omnican.zenoh import rmw
+    from omnican.zenoh.services import SOURCE, service_key
+    from tests.zenoh.conftest import client
+
+    term = terminal.Pty("teleop", "--sim", "--key-timeout", "0", "--zenoh", "--zenoh-mode",
+                        "client", "--zenoh-connect", router)
+    session = client(router)
+    try:
+        term.wait_for_frame("Zenoh /omnican", timeout=TIMEOUT_S)
+        term.wait_for_frame("RUNNING", timeout=TIMEOUT_S)
+        term.keys("i")  # forward, held (no key timeout)
+        end = time.monotonic() + TIMEOUT_S
+        while not _moving(term.frame(), "+0.300"):
+            assert time.monotonic() < end, "\n".join(term.frame())
+            term.read(0.1)
+        gid = bytes(range(16))
+        replies = session.get(service_key(rmw.Node(0, "0", 0, "omnican", namespace="/"),
+                                          "stop"),
+                              payload=b"\x00\x01\x00\x00\x00",
+                              attachment=rmw.Attachment(1, 0, gid).encode(), timeout=TIMEOUT_S)
+        assert len([r for r in replies if r.ok is not None]) == 1
+        stopper = f"{SOURCE} {gid.hex()}"
+        frame = term.wait_for_frame(f"{stopper} stopped the terminal's keys", timeout=TIMEOUT_S)
+        text = "\n".join(frame)
+        assert f"STOPPED: stopped by {stopper}" in text, text
+        assert "is driving" not in text, text
+        term.keys("\x1b")
+        assert term.exit_code(timeout=TIMEOUT_S) == 0, term.read()[-3000:]
+    finally:
+        session.close()
+        term.close()
