@@ -15,10 +15,14 @@ import select
 import signal
 import struct
 import termios
+import textwrap
 import time
 import tty
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
+
+from rich.panel import Panel
+from rich.text import Text
 
 from omnican.command.teleop import ESC
 
@@ -170,6 +174,40 @@ class Events(logging.Handler):
 
     def say(self, text: str) -> None:
         self.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
+
+
+#: Columns an event's continuation lines are indented by: under its text, past the time.
+EVENT_INDENT = len("00:00:00 ")
+
+
+def event_lines(lines: Sequence[str], width: int, room: int) -> list[str]:
+    """The newest of ``lines`` (oldest first) that fit ``room`` lines of ``width``
+    columns, each wrapped whole (continuations indented past the time) rather than cut:
+    an e-stop's object or a refused recover's reason is read to its end. The newest
+    comes first in what is kept; when even it does not fit, its start, ending in …."""
+    width = max(width, EVENT_INDENT + 10)
+    kept: list[list[str]] = []
+    used = 0
+    for line in reversed(lines):
+        wrapped = textwrap.wrap(line, width, subsequent_indent=" " * EVENT_INDENT,
+                                break_on_hyphens=False) or [""]
+        if used + len(wrapped) > room:
+            if not kept and room > 0:  # the newest alone is too long: its start
+                head = wrapped[:room]
+                head[-1] = head[-1][: width - 1] + "…"
+                kept.append(head)
+            break
+        kept.append(wrapped)
+        used += len(wrapped)
+    return [text for event in reversed(kept) for text in event]
+
+
+def events_panel(lines: Sequence[str], width: int, room: int) -> Panel:
+    """The events panel of ``width`` columns (its frame included) and at most ``room``
+    lines of events (at least one), newest last (:func:`event_lines`)."""
+    text = "\n".join(event_lines(lines, width - 4, max(1, room)))
+    return Panel(Text(text, no_wrap=True, overflow="ellipsis"), title="events",
+                 title_align="left")
 
 
 @contextlib.contextmanager
