@@ -33,11 +33,13 @@ TELEOP_ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}
 
 def in_foreground(fd: int) -> bool:
     """The terminal ``fd`` is this process's to read (its process group is the
-    terminal's foreground one); False for a job the shell has put in the background."""
+    terminal's foreground one); False for a job the shell has put in the background.
+    True for a terminal that is not this process's controlling one (no job control:
+    nothing puts this process in its background)."""
     try:
         return os.tcgetpgrp(fd) == os.getpgrp()
     except OSError:
-        return False
+        return True
 
 
 @dataclasses.dataclass
