@@ -89,6 +89,7 @@ class Chassis:
         self._configured = cfg.chassis  # what a live limit may only make safer
         self._closed = False
         self._close_lock = threading.Lock()
+        self._not_disabled: tuple[str, ...] = ()
         self._guards_signals = False
         self._froze_heap = False
         self._arbiter = CommandArbiter(cfg.chassis.cmd_timeout_s)  # one source at a time
@@ -385,6 +386,7 @@ class Chassis:
         _open_chassis.discard(self)
         sup = self._supervisor
         sup.closed = True  # nothing is started again from here on
+        bus_works = True  # what the close found, for its last line
         with guard.closing():
             try:
                 if self._runner.running:
@@ -392,8 +394,8 @@ class Chassis:
                     self._runner.stop()
                 self._bus.stop_polling()  # a Notifier again, for the SDOs of the stop
                 sup.join_workers(self.cfg.chassis.boot_timeout_s + 1.0)
-                sup.stop_nodes(bus_works=not self._loop.watch.down and
-                               self._bus.failing is None)
+                bus_works = not self._loop.watch.down and self._bus.failing is None
+                sup.stop_nodes(bus_works=bus_works)
             finally:
                 sup.detach()
                 # The telemetry's last sample (and the frames of the stop), then a recording.
@@ -405,11 +407,20 @@ class Chassis:
                 if self._froze_heap:
                     self._froze_heap = False
                     realtime.thaw()
-        powered = sup.still_powered()
+        powered = sup.still_powered(bus_works)
+        self._not_disabled = tuple(powered)
         if powered:
             logger.error("base closed; not confirmed disabled: %s", ", ".join(powered))
         else:
             logger.info("base closed; drives disabled")
+
+    @property
+    def not_disabled(self) -> tuple[str, ...]:
+        """After :meth:`close`: the drives it could not confirm disabled, each as the
+        closing error says it (``node 1 (OFFLINE: heartbeat lost; last seen OPERATION
+        ENABLED)``); empty when every drive was, and while the base is open. A front end
+        ends with a run-time failure (exit 1) when it is not empty."""
+        return self._not_disabled
 
     def _controlled_shutdown(self, decelerate: bool = True) -> None:
         loop, clock = self._loop, self.clock

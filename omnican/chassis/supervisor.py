@@ -314,10 +314,24 @@ class NodeSupervisor:
             if node.node_id not in self.offline and bus_works:
                 node.stop()
 
-    def still_powered(self) -> list[str]:
-        """Drives not confirmed disabled, for the closing line."""
-        return [f"node {st.node_id} ({st.state})" for st in self.stages
-                if st.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)]
+    def still_powered(self, bus_works: bool = True) -> list[str]:
+        """Drives not confirmed disabled, for the closing line: each with what is known
+        of it. A drive that is gone (its heartbeat lost: OFFLINE, as the dashboard and
+        ``drive --json`` call it; or beyond a bus that is down) is not said to be in the
+        state last seen: it is said to be gone, and that state is said as the last seen."""
+        out = []
+        for st in self.stages:
+            if st.state not in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+                continue
+            if st.node_id in self.offline:
+                why = "heartbeat lost" if bus_works else "the CAN bus is down"
+                out.append(f"node {st.node_id} (OFFLINE: {why}; last seen {st.state})")
+            elif not bus_works:
+                out.append(f"node {st.node_id} (unreachable: the CAN bus is down; last seen "
+                           f"{st.state})")
+            else:
+                out.append(f"node {st.node_id} ({st.state})")
+        return out
 
     def detach(self) -> None:
         self._bus.network.unsubscribe(NMT_COB_ID, self._on_nmt)

@@ -128,7 +128,10 @@ def _legs(args: argparse.Namespace) -> list[Leg] | None:
         omega = args.omega if args.omega is not None else SQUARE_OMEGA
         if speed <= 0 or omega <= 0:
             raise UsageError("--square needs a positive --speed and --omega")
-        return motion.square(args.square, speed, omega)
+        try:
+            return motion.square(args.square, speed, omega)
+        except ValueError as exc:  # a side no motion may be (motion.MAX_TRAVEL, ...)
+            raise UsageError(f"motion refused: --square {args.square:g}: {exc}") from None
     if cartesian and polar:
         raise UsageError("give either --vx/--vy/--wz or --speed/--heading-deg/--omega")
     if getattr(args, "foxglove_control", None) and (cartesian or polar):
@@ -291,6 +294,9 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
         if zenoh and s.clock.lockstep:
             raise UsageError("--zenoh runs in real time: drop --fast and --sim-speed")
         plan: list[Leg] = given or []
+        too_much = motion.extent_problem(plan, s.cfg) if plan else None
+        if too_much is not None:  # before anything moves, as a value beyond sense is
+            raise UsageError(f"motion refused: {too_much}")
         plan, clamps = motion.fit_to_limits(plan, s.cfg) if plan else (plan, [])
         for c in clamps:
             r, a = c.requested, c.applied
@@ -347,6 +353,11 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
         }
         if s.sim is not None:
             out["true_pose"] = pose_dict(s.sim.true_pose)
+        # The motion ran, but a drive the close could not confirm disabled (the error
+        # logged names it) is a failure at run time.
+        if base.not_disabled:
+            out["error"] = "base closed; not confirmed disabled: " + ", ".join(
+                base.not_disabled)
     if args.json:
         print(json.dumps(out))
     else:
@@ -358,4 +369,4 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
         if "true_pose" in out:
             print(pose_line(s.sim.true_pose).replace("pose", "true pose", 1) + " (simulated)")
         print(pose_line(pose))
-    return EXIT_OK
+    return EXIT_FAILURE if "error" in out else EXIT_OK

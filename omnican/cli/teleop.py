@@ -17,12 +17,14 @@ import sys
 import time
 from typing import Any
 
-from rich.console import Console
+from rich.console import Console, RenderableType
 from rich.live import Live
 
 from omnican.chassis import Chassis
 from omnican.chassis.arbiter import CommandSource
 from omnican.cli.common import (
+    EXIT_FAILURE,
+    EXIT_OK,
     UsageError,
     add_bus_arguments,
     add_foxglove_arguments,
@@ -36,7 +38,7 @@ from omnican.cli.common import (
 from omnican.cli.dashboard import (
     dashboard,
 )
-from omnican.cli.terminal import Events, cbreak, logs_into, read_keys
+from omnican.cli.terminal import Events, cbreak, in_foreground, logs_into, read_keys
 from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
@@ -103,11 +105,47 @@ def share_command(source: CommandSource, command: Twist) -> str | None:
     return None
 
 
+def refusal_note(source: CommandSource, refused: str) -> str:
+    """What the dashboard says when ``source``'s command was refused by ``refused``:
+    who drives, or who stopped this source (a stop from elsewhere: a Foxglove client's
+    ``/omnican/stop``, a Zenoh ``~/stop``, the fleet stop); the stopper does not drive."""
+    if source.stopped_by() == refused:
+        return (f"{refused} stopped {source.name}: let go for {source.timeout_s:g} s to "
+                "drive again")
+    return f"{refused} is driving: space stops the base"
+
+
+class Screen:
+    """The dashboard's terminal: drawn while teleop is in the terminal's foreground
+    (a job the shell put in the background draws nothing over the shell), and drawn
+    whole again once the terminal comes back (:meth:`resumed`, cbreak's ``on_resume``):
+    what the shell wrote meanwhile is cleared."""
+
+    def __init__(self, fd: int, live: Live | None = None) -> None:
+        self.live = live  # set once the screen is taken
+        self.fd = fd
+        self._resumed = False
+
+    def resumed(self) -> None:
+        self._resumed = True  # from a signal handler too: the clearing is draw()'s
+
+    def draw(self, frame: RenderableType) -> None:
+        if self.live is None or not in_foreground(self.fd):
+            return
+        if self._resumed:
+            self._resumed = False
+            self.live.console.clear()
+            self.live.console.show_cursor(False)
+        self.live.update(frame, refresh=True)
+
+
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: Events, pad: Gamepad | None = None, shared: bool = False) -> None:
+               events: Events, pad: Gamepad | None = None, shared: bool = False,
+               screen: Screen | None = None) -> None:
     """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. When
     ``shared`` (Foxglove may drive too) the keys command only while they move the base
     and no one else drives; a stop key stops the base whoever drives."""
+    screen = screen or Screen(fd, live)
     note = ""
     note_stop: str | None = None  # the stop a failed recover's note speaks of
     source = base.command_source("the gamepad" if pad is not None else "the terminal's keys")
@@ -126,8 +164,8 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
         if keys.take_recover():
             driver = source.may_act() if shared else None
             note = f"{driver} is driving: not recovering" if driver else "recovering..."
-            live.update(dashboard(base, keys, Twist(), title, events, note,
-                                  live.console.width, live.console.height), refresh=True)
+            screen.draw(dashboard(base, keys, Twist(), title, events, note,
+                                  live.console.width, live.console.height))
             try:
                 if not driver:
                     base.recover()
@@ -148,11 +186,11 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             refused = share_command(source, command)
             driver = source.holder()
             if refused:
-                shown = f"{refused} is driving: space stops the base"
+                shown = refusal_note(source, refused)
             elif driver and driver != source.name and not shown:
                 shown = f"{driver} is driving"
-        live.update(dashboard(base, keys, command, title, events, shown, live.console.width,
-                              live.console.height), refresh=True)
+        screen.draw(dashboard(base, keys, command, title, events, shown, live.console.width,
+                              live.console.height))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -165,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
     console = Console()
     events = Events()
     final = None
+    failed = False
     pad = None
     if args.gamepad is not None:  # before the drives come up: no pad, nothing moves
         pad = Gamepad.open(args.gamepad or None, config_table(args.config))
@@ -189,6 +228,8 @@ def run(args: argparse.Namespace) -> int:
         if fox is not None:
             prepare(s.cfg)  # its slow set-up before the control loop runs
 
+        screen = Screen(fd)
+
         def announce(text: str) -> None:
             console.print(text, style="dim")
             events.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
@@ -196,20 +237,25 @@ def run(args: argparse.Namespace) -> int:
         with Chassis.open(s.cfg, record=recording(args.record)) as base, \
                 watch(base, s.sim, fox, announce=announce) as view, \
                 zenoh_front_end(zenoh, base, s.sim, announce) as bridge, \
-                cbreak(fd, lambda: events.say(SUSPEND_REFUSED)), logs_into(events), \
+                cbreak(fd, lambda: events.say(SUSPEND_REFUSED), screen.resumed), \
+                logs_into(events), \
                 Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
+            screen.live = live
             if view is not None:
                 title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
             if bridge is not None:
                 title += f" - Zenoh {bridge.settings.node_fq_name}"
             try:
-                drive_loop(base, keys, fd, live, title, events, pad, shared)
+                drive_loop(base, keys, fd, live, title, events, pad, shared, screen)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc
                 pass
             base.stop()
         # Leaving the block stopped the wheels and disabled every drive: the pose now
         # includes the stop (read inside the block, it would miss the last samples).
         final = base.pose
+        # A drive the close could not confirm disabled (it went OFFLINE, the bus went
+        # down: the error above names each) is a failure at run time.
+        failed = bool(base.not_disabled)
     if final is not None:
         print(pose_line(final))
-    return 0
+    return EXIT_FAILURE if failed else EXIT_OK

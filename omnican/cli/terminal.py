@@ -6,16 +6,23 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
+import fcntl
 import logging
 import os
 import re
 import select
 import signal
+import struct
 import termios
+import textwrap
 import time
 import tty
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
+
+from rich.panel import Panel
+from rich.text import Text
 
 from omnican.command.teleop import ESC
 
@@ -24,13 +31,83 @@ from omnican.command.teleop import ESC
 TELEOP_ARROWS = {"A": "i", "B": ",", "C": "l", "D": "j"}
 
 
+def in_foreground(fd: int) -> bool:
+    """The terminal ``fd`` is this process's to read (its process group is the
+    terminal's foreground one); False for a job the shell has put in the background.
+    True for a terminal that is not this process's controlling one (no job control:
+    nothing puts this process in its background)."""
+    try:
+        return os.tcgetpgrp(fd) == os.getpgrp()
+    except OSError:
+        return True
+
+
+@dataclasses.dataclass
+class _Held:
+    """A terminal :func:`cbreak` holds: the attributes it set (as the terminal reads
+    them back) and who to tell when it had to set them again."""
+
+    mode: list[Any]
+    on_resume: Callable[[], None] | None
+
+
+#: fd -> what cbreak set on it, while the block runs
+_held: dict[int, _Held] = {}
+#: the local-mode bits whose loss makes keys wait for Enter and echo over the screen
+_KEY_BITS = termios.ICANON | termios.ECHO
+
+
+def regain(fd: int) -> bool:
+    """Set cbreak's attributes on ``fd`` again where the terminal lost them, and tell
+    its ``on_resume``: True if it did. A job stopped by SIGSTOP is given a terminal the
+    shell has reset (line mode, echo); after a ``kill -CONT`` it runs in the background,
+    and a later ``fg`` sends no SIGCONT, so the mode is checked here, not only there.
+    Only in the foreground (setting a terminal from the background stops the job)."""
+    held = _held.get(fd)
+    if held is None or not in_foreground(fd):
+        return False
+    try:
+        now = termios.tcgetattr(fd)
+        if not ((now[3] ^ held.mode[3]) & _KEY_BITS
+                or now[6][termios.VMIN] != held.mode[6][termios.VMIN]
+                or now[6][termios.VTIME] != held.mode[6][termios.VTIME]):
+            return False
+        termios.tcsetattr(fd, termios.TCSANOW, held.mode)
+    except (termios.error, OSError):
+        return False
+    if held.on_resume is not None:
+        held.on_resume()
+    return True
+
+
+def _read_ready(fd: int) -> bytes:
+    """What can be read from ``fd`` now without waiting (at most 64 bytes). A select
+    begun in the foreground may end in the background (a SIGSTOP, then SIGCONT, in
+    between) with the shell's keys ready: reading them would stop this job (SIGTTIN),
+    and, once the shell had taken them, wait for the next key with the screen frozen."""
+    if fd in _held and not in_foreground(fd):
+        return b""
+    try:
+        waiting = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+    except OSError:
+        waiting = 1  # not a terminal nor a pipe: select said so, read one
+    return os.read(fd, min(waiting, 64)) if waiting > 0 else b""
+
+
 def read_keys(fd: int, timeout: float, arrows: dict[str, str] = TELEOP_ARROWS) -> list[str]:
     """Keys typed within ``timeout`` s; an arrow key becomes what ``arrows`` says (by
-    default teleop's i , l j; not in it: dropped); a lone Esc is Esc."""
+    default teleop's i , l j; not in it: dropped); a lone Esc is Esc. Under
+    :func:`cbreak`, its mode is set again first if the terminal lost it (:func:`regain`);
+    in the background nothing is read (the keys are the shell's; a read would stop
+    this job), the wait is the same."""
+    if fd in _held and not in_foreground(fd):
+        time.sleep(timeout)
+        return []
+    regain(fd)
     ready, _, _ = select.select([fd], [], [], timeout)
     if not ready:
         return []
-    data = os.read(fd, 64).decode("utf-8", "replace")
+    data = _read_ready(fd).decode("utf-8", "replace")
     keys: list[str] = []
     i = 0
     while i < len(data):
@@ -43,7 +120,7 @@ def read_keys(fd: int, timeout: float, arrows: dict[str, str] = TELEOP_ARROWS) -
         if ch == ESC and i + 1 == len(data):
             more, _, _ = select.select([fd], [], [], 0.03)  # an escape sequence on its way?
             if more:
-                data += os.read(fd, 64).decode("utf-8", "replace")
+                data += _read_ready(fd).decode("utf-8", "replace")
                 continue
         keys.append(ch)
         i += 1
@@ -51,11 +128,14 @@ def read_keys(fd: int, timeout: float, arrows: dict[str, str] = TELEOP_ARROWS) -
 
 
 @contextlib.contextmanager
-def cbreak(fd: int, on_suspend: Callable[[], None] | None = None) -> Iterator[None]:
+def cbreak(fd: int, on_suspend: Callable[[], None] | None = None,
+           on_resume: Callable[[], None] | None = None) -> Iterator[None]:
     """Keys without Enter and without echo; Ctrl-C still interrupts. Ctrl-Z does not
     suspend (``on_suspend`` is told): stopped, teleop would leave the drives without the
     host's heartbeat and come back to a terminal the shell had reset, deaf to its keys.
-    A SIGCONT (after a SIGSTOP from elsewhere) puts the keys back without Enter."""
+    After a SIGSTOP from elsewhere the shell resets the terminal all the same: a SIGCONT,
+    and every :func:`read_keys` (a ``fg`` after ``kill -CONT`` sends no signal), puts
+    the keys back without Enter and tells ``on_resume`` (to redraw the screen)."""
     old = termios.tcgetattr(fd)
 
     def suspend(signum: int, frame: Any) -> None:
@@ -63,16 +143,16 @@ def cbreak(fd: int, on_suspend: Callable[[], None] | None = None) -> Iterator[No
             on_suspend()
 
     def resumed(signum: int, frame: Any) -> None:
-        with contextlib.suppress(termios.error, OSError):
-            if os.tcgetpgrp(fd) == os.getpgrp():  # in the foreground: it owns the terminal
-                tty.setcbreak(fd)
+        regain(fd)
 
     saved = {signal.SIGTSTP: signal.signal(signal.SIGTSTP, suspend),
              signal.SIGCONT: signal.signal(signal.SIGCONT, resumed)}
     try:
         tty.setcbreak(fd)
+        _held[fd] = _Held(termios.tcgetattr(fd), on_resume)
         yield
     finally:
+        _held.pop(fd, None)
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
         for sig, handler in saved.items():
             signal.signal(sig, handler)
@@ -96,6 +176,40 @@ class Events(logging.Handler):
 
     def say(self, text: str) -> None:
         self.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
+
+
+#: Columns an event's continuation lines are indented by: under its text, past the time.
+EVENT_INDENT = len("00:00:00 ")
+
+
+def event_lines(lines: Sequence[str], width: int, room: int) -> list[str]:
+    """The newest of ``lines`` (oldest first) that fit ``room`` lines of ``width``
+    columns, each wrapped whole (continuations indented past the time) rather than cut:
+    an e-stop's object or a refused recover's reason is read to its end. The newest
+    comes first in what is kept; when even it does not fit, its start, ending in …."""
+    width = max(width, EVENT_INDENT + 10)
+    kept: list[list[str]] = []
+    used = 0
+    for line in reversed(lines):
+        wrapped = textwrap.wrap(line, width, subsequent_indent=" " * EVENT_INDENT,
+                                break_on_hyphens=False) or [""]
+        if used + len(wrapped) > room:
+            if not kept and room > 0:  # the newest alone is too long: its start
+                head = wrapped[:room]
+                head[-1] = head[-1][: width - 1] + "…"
+                kept.append(head)
+            break
+        kept.append(wrapped)
+        used += len(wrapped)
+    return [text for event in reversed(kept) for text in event]
+
+
+def events_panel(lines: Sequence[str], width: int, room: int) -> Panel:
+    """The events panel of ``width`` columns (its frame included) and at most ``room``
+    lines of events (at least one), newest last (:func:`event_lines`)."""
+    text = "\n".join(event_lines(lines, width - 4, max(1, room)))
+    return Panel(Text(text, no_wrap=True, overflow="ellipsis"), title="events",
+                 title_align="left")
 
 
 @contextlib.contextmanager

@@ -23,7 +23,13 @@ from typing import Any, Protocol
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig
 from omnican.core.kinematics import Twist
-from omnican.core.limits import VelocityLimiter, clamp_twist, command_problem, desaturate_twist
+from omnican.core.limits import (
+    MAX_POSE_SENSE,
+    VelocityLimiter,
+    clamp_twist,
+    command_problem,
+    desaturate_twist,
+)
 from omnican.core.odometry import Pose2D
 from omnican.errors import BaseStoppedError
 
@@ -47,6 +53,18 @@ MAX_CORRECTIONS = 3  # per goal leg: creep back onto the goal after stopping off
 # its own lag; the encoders' answer reaches the odometry a cycle later.
 LAG_CYCLES = 2.0
 DRIVE_LAG_S = 0.01
+
+# What one motion may be: refused beyond these (what no base drives in one run), as a
+# command beyond any base's speed is. The travel and turning bound is the odometry's, the
+# one reset_pose() holds a pose to (limits.MAX_POSE_SENSE, 1000 km or 160,000 turns): the
+# odometry accumulates every metre and radian driven, and a motion longer than that
+# could not be measured. The time bound is the one a user meets first: a day at the
+# speeds the base will drive (its limits), longer than a battery base runs, and under
+# --fast hours of a full core for a number mistyped (1e6 for 1.6).
+#: m of travel, rad of turning (each summed over the motion's legs)
+MAX_TRAVEL = MAX_POSE_SENSE
+#: s, the motion's nominal duration at the speeds the base drives it
+MAX_MOTION_S = 24 * 3600.0
 
 #: ``progress(done_s, total_s, label)``: seconds driven so far, the plan's nominal
 #: duration (goal legs may take longer), and the label of the current leg.
@@ -106,17 +124,62 @@ def hold(twist: Twist, seconds: float, label: str = "drive") -> Leg:
 
 
 def straight(distance: float, speed: float, label: str = "straight") -> Leg:
-    """Drive ``distance`` m straight ahead at ``speed`` m/s."""
+    """Drive ``distance`` m straight ahead at ``speed`` m/s.
+
+    Raises ValueError, in words for a user, for a distance beyond :data:`MAX_TRAVEL` or
+    one that takes longer than :data:`MAX_MOTION_S` at ``speed``."""
     if not (distance > 0 and speed > 0):
         raise ValueError(f"distance and speed must be positive, got {distance}, {speed}")
+    _check_goal(distance, speed, "m", "m/s")
     return Leg(Twist(speed, 0.0, 0.0), distance / speed, label, distance=distance)
 
 
 def spin(angle: float, omega: float, label: str = "spin") -> Leg:
-    """Turn ``angle`` rad in place at ``omega`` rad/s (negative: clockwise)."""
+    """Turn ``angle`` rad in place at ``omega`` rad/s (negative: clockwise).
+
+    Raises ValueError as :func:`straight` does, for the angle and ``omega``."""
     if not (angle > 0 and omega != 0 and math.isfinite(omega)):
         raise ValueError(f"angle must be positive and omega non-zero, got {angle}, {omega}")
+    _check_goal(angle, abs(omega), "rad", "rad/s")
     return Leg(Twist(0.0, 0.0, omega), angle / abs(omega), label, angle=angle)
+
+
+def _check_goal(goal: float, speed: float, unit: str, speed_unit: str) -> None:
+    problem = _travel_problem(goal, unit) or _time_problem(
+        goal / speed, f"{goal:.6g} {unit} at {speed:.6g} {speed_unit}", "")
+    if problem is not None:
+        raise ValueError(problem)
+
+
+def _travel_problem(amount: float, unit: str) -> str | None:
+    if amount > MAX_TRAVEL:
+        what = "of travel" if unit == "m" else "of turning"
+        return (f"{amount:.6g} {unit} {what} is beyond what one motion may take (at most "
+                f"{MAX_TRAVEL:g} {unit}, the range the odometry holds a pose in)")
+    return None
+
+
+def _time_problem(seconds: float, what: str, how: str) -> str | None:
+    if not seconds <= MAX_MOTION_S:  # inf and NaN too
+        return (f"{what} would take {span(seconds)}{how}; one motion may take at most "
+                f"{span(MAX_MOTION_S)}")
+    return None
+
+
+def span(seconds: float) -> str:
+    """A duration as a person reads it: ``42 s``, ``12 min``, ``3.5 h``, ``15 days``."""
+    if not math.isfinite(seconds):
+        return "forever"
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 2 * 3600:
+        return f"{seconds / 60:.0f} min"
+    if seconds <= 86400:
+        return f"{seconds / 3600:.3g} h"
+    value, unit = ((seconds / 86400, "day") if seconds < 2 * 365 * 86400 else
+                   (seconds / (365.25 * 86400), "year"))
+    number = f"{value:.3g}"
+    return f"{number} {unit}" + ("" if number == "1" else "s")
 
 
 def square(side: float, speed: float = 0.3, omega: float = 1.0, sides: int = 4) -> list[Leg]:
@@ -194,6 +257,22 @@ def plan_problem(plan: Sequence[Leg]) -> str | None:
         if problem is not None:
             return problem
     return None
+
+
+def extent_problem(plan: Sequence[Leg], cfg: ChassisConfig) -> str | None:
+    """Why ``plan`` is more than one motion may be, or None: its travel or turning,
+    summed over the legs, beyond :data:`MAX_TRAVEL`, or its duration at the speeds
+    ``cfg``'s base will drive it (:func:`fit_to_limits`, the ramps included) beyond
+    :data:`MAX_MOTION_S`. Check it before driving (and :func:`plan_problem` first)."""
+    fitted, _ = fit_to_limits(plan, cfg)
+    travel = sum(leg.distance if leg.distance is not None
+                 else leg.twist.linear_speed * leg.seconds for leg in fitted)
+    turning = sum(leg.angle if leg.angle is not None
+                  else abs(leg.twist.wz) * leg.seconds for leg in fitted)
+    c = cfg.chassis
+    return (_travel_problem(travel, "m") or _travel_problem(turning, "rad")
+            or _time_problem(nominal_duration(fitted, c.max_accel, c.max_angular_accel),
+                             "the motion", " at the speeds this base drives it"))
 
 
 def feasible(twist: Twist, cfg: ChassisConfig) -> Twist:

@@ -287,6 +287,13 @@ def test_no_terminal_and_no_measurements_is_a_usage_error(
         (["--sim", "--measured-distance", "0"], "argument --measured-distance: must be positive"),
         (["--sim", "--write", "/nonexistent-dir/x.toml"],
          "--write /nonexistent-dir/x.toml: no such directory /nonexistent-dir"),
+        # Issue 36 item 9: a traceback (inf seconds), and a run of days at a full core.
+        (["--sim", "--distance", "1e308"], "calibration run refused: 1e+308 m of travel is "
+                                           "beyond what one motion may take (at most 1e+06 m"),
+        (["--sim", "--turns", "1e9"], "calibration run refused: 6.28319e+09 rad of turning"),
+        (["--sim", "--turns", "1e5"], "628319 rad at 1 rad/s would take 7.27 days; one "
+                                      "motion may take at most 24 h"),
+        (["--sim", "--speed", "1e-300"], "1 m at 1e-300 m/s would take"),
     ],
 )
 def test_bad_usage_is_one_line_and_exit_2(argv: list[str], message: str,

@@ -132,6 +132,22 @@ def test_drive_records_the_bus(tmp_path: Path, capsys: pytest.CaptureFixture[str
         (["drive", "--sim", "--vx", "0.1", "--record", "out.weird"], "cannot record to out.weird"),
         (["drive", "--sim", "--vx", "0.1", "-i", "virtual"], "--sim runs on its own virtual bus"),
         (["nosuchcommand"], "invalid choice: 'nosuchcommand'"),
+        # Issue 36 item 9: a traceback (a leg of inf seconds), and runs of days or more.
+        (["drive", "--sim", "--fast", "--square", "1e308"],
+         "motion refused: --square 1e+308: 1e+308 m of travel is beyond what one motion may "
+         "take (at most 1e+06 m"),
+        (["drive", "--sim", "--fast", "--square", "1e200"], "1e+200 m of travel is beyond"),
+        (["drive", "--sim", "--fast", "--square", "1e6"],
+         "--square 1e+06: 1e+06 m at 0.3 m/s would take 38.6 days; one motion may take at "
+         "most 24 h"),
+        (["drive", "--sim", "--fast", "--square", "1e5", "--speed", "5"],
+         "the motion would take 4.01 days at the speeds this base drives it"),
+        (["drive", "--sim", "--fast", "--vx", "0.1", "--duration", "1e308"],
+         "1e+307 m of travel is beyond"),
+        (["drive", "--sim", "--fast", "--wz", "0.5", "--duration", "1e7"],
+         "5e+06 rad of turning is beyond"),
+        (["drive", "--sim", "--fast", "--vx", "0", "--duration", "1e9"],
+         "the motion would take 31.7 years"),
     ],
 )
 def test_bad_usage_is_one_line_and_exit_2(argv: list[str], message: str,
@@ -441,7 +457,7 @@ def test_teleop_ctrl_z_then_fg_still_takes_keys_without_enter() -> None:
 def test_drive_fast_stopped_by_ctrl_c_reports_no_false_heartbeat_errors() -> None:
     """Issue 31 item 9: SIGTERM (or Ctrl-C) under --fast printed three false "EMCY 0x8130
     heartbeat error" warnings: the control cycle it interrupted had left the clock."""
-    term = terminal.Pty("drive", "--sim", "--fast", "--vx", "0.1", "--duration", "100000")
+    term = terminal.Pty("drive", "--sim", "--fast", "--vx", "0.1", "--duration", "80000")
     try:
         term.wait_for("%", timeout=60)  # the progress bar: the base is driving
         term.read(2.0)

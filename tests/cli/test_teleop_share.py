@@ -10,7 +10,7 @@ from typing import Any
 
 from omnican import Twist
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
-from omnican.cli.teleop import share_command
+from omnican.cli.teleop import refusal_note, share_command
 from omnican.clock import SimClock
 
 
@@ -76,3 +76,29 @@ def test_keys_stopped_by_a_client_do_not_stop_the_next_driver() -> None:
     assert share_command(keys, Twist()) is None
     assert base.calls[calls:] == []
     assert second.holder() == "Foxglove client 2"
+
+
+def test_the_dashboard_tells_who_stopped_the_keys_from_who_drives() -> None:
+    """Issue 36 item 12: after a stop from the network (the fleet stop: a Zenoh ``~/stop``)
+    the keys still held were refused, and the dashboard said the stopper "is driving".
+    It drives nothing: it stopped the keys, which drive again once they let go."""
+    base = StandInBase()
+    keys = base.command_source("the terminal's keys")
+    stopper = base.command_source("Zenoh service client 4844")
+    publisher = base.command_source("Zenoh cmd_vel publisher 77")
+    move = Twist(0.2, 0.0, 0.0)
+    assert share_command(keys, move) is None  # the keys drive
+    assert stopper.stop() == "the terminal's keys"  # a stop from the network
+    refused = share_command(keys, move)  # the key still held
+    assert refused == "Zenoh service client 4844"
+    note = refusal_note(keys, refused)
+    assert note == ("Zenoh service client 4844 stopped the terminal's keys: let go for "
+                    "0.5 s to drive again")
+    assert "is driving" not in note and keys.holder() is None
+    base.clock.sleep(0.6)  # let go
+    assert share_command(keys, Twist()) is None
+    assert publisher.send(Twist(0.0, 0.0, 0.5)) is None  # now someone does drive
+    refused = share_command(keys, move)
+    assert refused == "Zenoh cmd_vel publisher 77"
+    assert refusal_note(keys, refused) == ("Zenoh cmd_vel publisher 77 is driving: space "
+                                           "stops the base")

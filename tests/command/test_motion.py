@@ -4,6 +4,7 @@ simulated base."""
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 from hypothesis import assume, given
@@ -245,3 +246,58 @@ def test_a_goal_leg_beyond_the_limits_keeps_its_goal_and_takes_longer() -> None:
     [leg], [c] = motion.fit_to_limits([motion.straight(1.0, 5.0)], cfg)
     assert leg.distance == 1.0 and leg.twist == c.applied
     assert leg.seconds == pytest.approx(1.0 / c.applied.linear_speed)
+
+
+# ---------------------------------------------------------------- what one motion may be
+
+
+@given(st.floats(0.001, 1e308), st.floats(1e-6, 2.0))
+def test_a_straight_leg_is_built_or_refused_in_words_never_with_inf_seconds(
+        distance: float, speed: float) -> None:
+    """Issue 36 item 9: ``--square 1e308`` ended in ``ValueError: leg 'side 1/4': seconds
+    must be 0 or more, got inf``: a goal beyond what one motion may be is refused by
+    what it is, before a leg is made of it."""
+    try:
+        leg = motion.straight(distance, speed)
+    except ValueError as exc:
+        said = str(exc)
+        assert "seconds must be" not in said
+        assert (distance > motion.MAX_TRAVEL and "m of travel is beyond" in said) or \
+            (distance / speed > motion.MAX_MOTION_S and "would take" in said), said
+    else:
+        assert distance <= motion.MAX_TRAVEL
+        assert leg.seconds <= motion.MAX_MOTION_S
+
+
+@given(st.floats(0.0, 1.0), st.floats(0.0, 1e12))
+def test_a_held_twist_is_refused_past_the_travel_or_the_day(vx: float, seconds: float) -> None:
+    """A twist the base drives as it is (within the demo base's limits), held for
+    ``seconds``: refused exactly when it travels past MAX_TRAVEL or takes more than
+    MAX_MOTION_S."""
+    cfg = default_config()
+    assume(motion.clamp(Twist(vx, 0.0, 0.0), cfg) is None)
+    problem = motion.extent_problem([motion.hold(Twist(vx, 0.0, 0.0), seconds)], cfg)
+    too_far, too_long = vx * seconds > motion.MAX_TRAVEL, seconds > motion.MAX_MOTION_S
+    assert (problem is not None) == (too_far or too_long), problem
+    if too_far:
+        assert problem is not None and "m of travel is beyond" in problem
+    elif too_long:
+        assert problem is not None and problem.startswith("the motion would take ")
+
+
+@given(st.floats(0.01, 1e5))
+def test_a_square_within_a_day_at_the_base_speed_is_driven(side: float) -> None:
+    """The bound counts the speeds the base will drive (its limits), not the ones asked:
+    a square asked at 100 m/s takes as long as one at the base's top speed."""
+    cfg = default_config()
+    fast, limited = motion.square(side, 100.0, 1.0), motion.fit_to_limits(
+        motion.square(side, 100.0, 1.0), cfg)[0]
+    c = cfg.chassis
+    took = motion.nominal_duration(limited, c.max_accel, c.max_angular_accel)
+    assert (motion.extent_problem(fast, cfg) is None) == (took <= motion.MAX_MOTION_S)
+
+
+@given(st.floats(0.0, math.inf))
+def test_a_span_reads_as_a_person_says_it(seconds: float) -> None:
+    said = motion.span(seconds)
+    assert re.fullmatch(r"forever|\d+ (s|min)|[\d.e+]+ (h|days?|years?)", said), said

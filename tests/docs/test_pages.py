@@ -160,6 +160,46 @@ def test_the_stop_table_names_every_stop_the_code_latches() -> None:
     assert not missing, missing
 
 
+def _halts() -> list[tuple[str, str]]:
+    """(where, text) of every literal part of the reason each ``halt(...)`` call in the
+    package gives: the held stops the front ends make (a Zenoh ``~/stop``, the fleet's)."""
+    out: list[tuple[str, str]] = []
+    for path in sorted((ROOT / "omnican").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and \
+                    node.func.attr == "halt" and node.args:
+                arg = node.args[0]
+                parts = [arg] if isinstance(arg, ast.Constant) else \
+                    [v for v in arg.values if isinstance(v, ast.Constant)] \
+                    if isinstance(arg, ast.JoinedStr) else []
+                out.extend((f"{path.relative_to(ROOT)}:{node.lineno}", str(p.value).strip())
+                           for p in parts if isinstance(p.value, str))
+    return out
+
+
+def test_the_stop_table_names_every_held_stop_a_front_end_makes() -> None:
+    """Issue 36 item 12: a stop from Zenoh, ROS 2 (over rmw_zenoh) or the fleet holds
+    until recover (Chassis.halt); the table had no row for it, and its stop() row said
+    the next command moves again. Each halt's reason is in the table, with the reason
+    the Zenoh ~/stop gives whole, and which stops hold and which do not."""
+    from omnican.zenoh.services import SOURCE
+
+    page = (DOCS / "safety.md").read_text()
+    halts = _halts()
+    assert halts, "no halt() call found: the test reads the wrong tree"
+    missing = [(w, f) for w, f in halts if f and f not in page]
+    assert not missing, missing
+    rows = [line for line in page.splitlines() if line.startswith("| ")]
+    held = next((r for r in rows if "`halt(reason)`" in r), None)
+    assert held is not None, "no row for Chassis.halt"
+    assert f"`stopped by {SOURCE} <gid>`" in held
+    for front_end in ("`~/stop`", "ros2 service call", "fleet"):
+        assert front_end in held, front_end
+    assert "`recover()`" in held.rsplit("|", 2)[1]
+    plain = next(r for r in rows if "`stop()`" in r and r is not held)
+    assert "`/omnican/stop`" in plain and "let go" in plain
+
+
 def test_the_sim_console_commands_are_on_the_getting_started_page() -> None:
     from omnican.sim.console import COMMANDS
 

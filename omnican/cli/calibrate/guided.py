@@ -106,8 +106,14 @@ def guided_run(args: argparse.Namespace) -> tuple[ChassisConfig, Measurements]:
         measured_turns = args.measured_angle_deg / 360.0
     interactive = not args.sim and (args.measured_distance is None or measured_turns is None)
     angle = 2 * math.pi * args.turns
-    straight = motion.straight(args.distance, args.speed)
-    spin = motion.spin(angle, args.omega)
+    try:  # a distance or turns no motion may be (motion.MAX_TRAVEL, MAX_MOTION_S)
+        straight = motion.straight(args.distance, args.speed)
+        spin = motion.spin(angle, args.omega)
+    except ValueError as exc:
+        raise UsageError(f"calibration run refused: {exc}") from None
+    too_much = motion.extent_problem([straight, spin], cfg)
+    if too_much is not None:
+        raise UsageError(f"calibration run refused: {too_much}")
     if interactive:
         print(f"The base will drive {args.distance:g} m straight ahead, stop for you to "
               f"measure, then spin {args.turns:g} turns counter-clockwise in place. Mark its "
