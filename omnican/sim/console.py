@@ -17,7 +17,8 @@ from omnican.sim.drive import SimulatedDrive
 COMMANDS = (
     ("fault NODE [CODE]", "EMCY + FAULT (default 0x2310 continuous over-current)"),
     ("reboot NODE", "boot-up, defaults restored, position counter reset"),
-    ("heartbeat NODE off|on", "stop or restart the node's heartbeat"),
+    ("heartbeat NODE off|on|periodic", "stop or restart the node's heartbeat (periodic: only "
+     "on its period, the first one period after 1017h is written, as lely's drives)"),
     ("freeze NODE", "answer nothing, send nothing (a hung node)"),
     ("thaw NODE", "back to normal after freeze"),
     ("jam NODE[.AXIS]", "the wheel cannot turn (its drive pushes at its current limit)"),
@@ -189,7 +190,7 @@ def command(sim: SimulatedBase, line: str,
         if verb not in _NODE_VERBS:
             raise ValueError(f"unknown command {words[0]!r} (try 'help')")
         if verb == "heartbeat" and len(rest) != 2:
-            raise ValueError("heartbeat takes a node id and on or off")
+            raise ValueError("heartbeat takes a node id and on, off or periodic")
         if not rest:
             raise ValueError(f"{verb} needs a node id (nodes: {_nodes(sim)})")
         drive = drive_for(sim, rest[0])
@@ -201,9 +202,12 @@ def command(sim: SimulatedBase, line: str,
             return f"node {drive.node_id}: fault 0x{code:04X}"
         if verb == "heartbeat":
             state = rest[1].lower()
-            if state not in ("on", "off"):
-                raise ValueError(f"heartbeat takes on or off, not {rest[1]!r}")
-            (drive.start_heartbeat if state == "on" else drive.stop_heartbeat)()
+            if state not in ("on", "off", "periodic"):
+                raise ValueError(f"heartbeat takes on, off or periodic, not {rest[1]!r}")
+            if state == "off":
+                drive.stop_heartbeat()
+            else:
+                drive.start_heartbeat(state == "periodic")
             return f"node {drive.node_id}: heartbeat {state}"
         if len(rest) > 1:
             raise ValueError(f"{verb} takes only a node id")

@@ -89,9 +89,13 @@ class DriveFaults:
         with self.lock:
             self.comm.heartbeat.enabled = False
 
-    def start_heartbeat(self) -> None:
+    def start_heartbeat(self, periodic: bool = False) -> None:
+        """Produce heartbeats (again). ``periodic``: on the producer's period only, as
+        lely's producer does (the first one period after 1017h is written, none at an NMT
+        state change); else also at once on both (the default)."""
         with self.lock:
             self.comm.heartbeat.enabled = True
+            self.comm.heartbeat_periodic = periodic
 
     def reboot(self) -> None:
         """Power-cycle: boot-up frame, OD defaults, position counters at their power-up value."""

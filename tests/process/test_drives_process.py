@@ -1,0 +1,61 @@
+"""Drives omnican did not write (issue 36, items 2-4), across processes: ``omnican sim``
+in one process, its drives made to behave as such drives do from its console, and
+``omnican drive`` in another."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.process.test_faults_process import SimProcess, free_port
+
+ROOT = Path(__file__).resolve().parents[2]
+
+WHEELS = "".join(f"[[wheel]]\nnode_id = {n}\ngear_ratio = 16\nencoder_cpr = 4096\n"
+                 "wheel_radius = 0.05\n\n" for n in (1, 2, 3))
+
+
+def robot_toml(tmp_path: Path, chassis: str = "") -> Path:
+    toml = tmp_path / "robot.toml"
+    toml.write_text(f'[chassis]\nlayout = "b21"\nbase_radius = 0.19\n{chassis}\n{WHEELS}')
+    return toml
+
+
+@pytest.fixture
+def port() -> Iterator[int]:
+    yield free_port()
+    while SimProcess.started:  # no simulator outlives its test
+        SimProcess.started.pop().kill()
+
+
+def drive(port: int, toml: Path, *motion: str) -> subprocess.CompletedProcess[str]:
+    """``omnican drive ... --json`` against the simulator on ``port``."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(
+        [sys.executable, "-m", "omnican", "drive", "--config", str(toml), "-i", "remote",
+         "-c", f"ws://127.0.0.1:{port}/", *motion, "--json"],
+        check=False, capture_output=True, text=True, env=env, timeout=90)
+
+
+# ---------------------------------------------------------------- 2: a slower heartbeat
+
+
+def test_a_slow_configuring_drive_with_a_periodic_heartbeat_starts(port: int,
+                                                                   tmp_path: Path) -> None:
+    """heartbeat_ms = 200 (lost after 0.7 s), node 1 answering each SDO 20 ms late (about
+    1 s from its boot-up to 1017h) and starting its producer's timer when 1017h is
+    written (lely's): the base starts and drives, its heartbeat watched from 1017h."""
+    toml = robot_toml(tmp_path, "heartbeat_ms = 200")
+    sim = SimProcess(port, "--config", str(toml))
+    assert sim.command("heartbeat 1 periodic").strip() == "node 1: heartbeat periodic"
+    assert sim.command("slowsdo 1 0.02").strip() == "node 1: SDO answers 0.02 s after the request"
+    done = drive(port, toml, "--vx", "0.1", "--duration", "1")
+    assert done.returncode == 0, done.stderr
+    assert "heartbeat lost" not in done.stderr and "Traceback" not in done.stderr
+    assert json.loads(done.stdout)["pose"]["x"] > 0.05
