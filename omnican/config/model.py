@@ -179,6 +179,7 @@ class ChassisSettings:
     pdo_mapping: str = _CHASSIS["pdo_mapping"]  # see pdoplan.MAPPING_POLICIES
     health_rate_hz: float = _CHASSIS["health_rate_hz"]
     tracking_error: float = _CHASSIS["tracking_error"]
+    tracking_ratio: float = _CHASSIS["tracking_ratio"]
     tracking_time_s: float = _CHASSIS["tracking_time_s"]
     tracking_lag_s: float = _CHASSIS["tracking_lag_s"]
     lifted_wheel: str = _CHASSIS["lifted_wheel"]  # see LIFTED_WHEEL

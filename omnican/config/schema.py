@@ -239,6 +239,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "tracking_error": Key(NUMBER, 0.1, "m/s: a wheel whose measured speed stays this far "
                               "outside what its target was over the last tracking_lag_s "
                               "latches a stop (inf: never)", range=_SPEED, inf_ok=True),
+        "tracking_ratio": Key(NUMBER, 0.5, "a wheel whose measured speed stays under this "
+                              "share of its target (the least it was over tracking_lag_s, "
+                              "all one way, 5 mm/s or more) latches a stop too, however slow "
+                              "(0: never)", range=(0.0, 1.0), open_high=True),
         "tracking_time_s": Key(NUMBER, 0.5, "for this long", range=_WAIT),
         "tracking_lag_s": Key(NUMBER, 0.3, "how far a wheel's measured speed may lag its target "
                               "(speed window, drive ramp and velocity loop)", range=_WAIT),

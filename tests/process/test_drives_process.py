@@ -59,3 +59,27 @@ def test_a_slow_configuring_drive_with_a_periodic_heartbeat_starts(port: int,
     assert done.returncode == 0, done.stderr
     assert "heartbeat lost" not in done.stderr and "Traceback" not in done.stderr
     assert json.loads(done.stdout)["pose"]["x"] > 0.05
+
+
+# ---------------------------------------------------------------- 3: a wheel that never turns
+
+
+def test_a_base_whose_wheels_never_turn_fails_naming_a_wheel(port: int,
+                                                              tmp_path: Path) -> None:
+    """Every drive takes its targets and no wheel turns: under ``--vx 0.1`` each wheel's
+    0.087 m/s error is within tracking_error, but none is at half its target: the run
+    fails (exit 1) naming the wheel, its target and its speed."""
+    toml = robot_toml(tmp_path)
+    sim = SimProcess(port, "--config", str(toml))
+    for node in (1, 2, 3):
+        assert sim.command(f"jam {node}").strip() == f"node {node}: jammed"
+    done = drive(port, toml, "--vx", "0.1", "--duration", "3")
+    assert done.returncode == 1, (done.stdout, done.stderr)
+    assert "Traceback" not in done.stderr
+    result = json.loads(done.stdout)
+    assert result["error"] == (
+        "base stopped: wheel 1 (node 2) not following its target for 0.5 s: stalled, "
+        "slipping or off the ground (target +0.09 m/s, measured +0.00 m/s, under 50% of its "
+        "target)")
+    assert result["pose"]["x"] == 0.0
+    assert sim.true_x() == 0.0
