@@ -228,6 +228,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
                               range=(0.1, 60.0)),
         "enable_timeout_s": Key(NUMBER, 1.0, "bring a drive to OPERATION ENABLED within this",
                                 range=_WAIT),
+        "cyclic_controlword": Key((bool,), True, "write each controlword every cycle, beside "
+                                  "the targets on the cyclic RPDO (as ros2_canopen's master "
+                                  "does; some drives act on a controlword only as one "
+                                  "arrives); false: on an RPDO of its own, only when it "
+                                  "changes (for a drive that dislikes the repeat)"),
         "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
                            "them anyway (warning; a drive that refuses runs on its own mapping, "
                            "and what that lacks goes by SDO every cycle), \"eds\" sends them by "

@@ -363,9 +363,11 @@ class CyclicIO:
 
     def controlword_frame(self, stage: StageDriver) -> tuple[can.Message, int] | None:
         """The frame that carries ``stage``'s controlword now, as (frame, worst-case
-        bits); None if it rides on the cyclic RPDO."""
+        bits); None if it goes every cycle anyway (on the cyclic RPDO, or by SDO)."""
         by_sdo = self._sdo_cw.get(id(stage))
         if by_sdo is not None:
+            if by_sdo.transfer.cyclic:
+                return None
             cob, data = self._sdo_request(by_sdo, (), -1)
             return prepared_message(cob, data), frame_bits(len(data))
         io = self._cw_io[id(stage)]

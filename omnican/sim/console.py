@@ -27,6 +27,8 @@ COMMANDS = (
     ("lift NODE[.AXIS]", "the wheel is off the ground (it moves nothing, draws less current)"),
     ("land NODE[.AXIS]", "the wheel is back on the ground"),
     ("ferror NODE[.AXIS] COUNTS|off", "the drive reports a following error (60F4h, bit 13)"),
+    ("cwarrival NODE on|off", "act on a controlword only as one arrives (ros2_canopen's fake "
+     "slave): enabled, it moves only once a controlword reaches it in OPERATION ENABLED"),
     ("slowboot NODE SECONDS", "answer an NMT reset with the boot-up that much later (0: at once)"),
     ("slowsdo NODE SECONDS", "answer each SDO request that much later (0: at once)"),
     ("battery VOLTS", "the battery feeding every drive (nominal 24 V)"),
@@ -37,7 +39,7 @@ COMMANDS = (
 )
 #: the fastest push: far beyond any wheel of a base, short of a meaningless pose
 PUSH_LIMIT_M_S = 20.0
-_NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw")
+_NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw", "cwarrival")
 _WHEEL_VERBS = ("jam", "push", "free", "lift", "land", "ferror")
 
 
@@ -191,6 +193,8 @@ def command(sim: SimulatedBase, line: str,
             raise ValueError(f"unknown command {words[0]!r} (try 'help')")
         if verb == "heartbeat" and len(rest) != 2:
             raise ValueError("heartbeat takes a node id and on, off or periodic")
+        if verb == "cwarrival" and (len(rest) != 2 or rest[1].lower() not in ("on", "off")):
+            raise ValueError("cwarrival takes a node id and on or off")
         if not rest:
             raise ValueError(f"{verb} needs a node id (nodes: {_nodes(sim)})")
         drive = drive_for(sim, rest[0])
@@ -209,6 +213,11 @@ def command(sim: SimulatedBase, line: str,
             else:
                 drive.start_heartbeat(state == "periodic")
             return f"node {drive.node_id}: heartbeat {state}"
+        if verb == "cwarrival":
+            on = rest[1].lower() == "on"
+            drive.act_on_arrival(on)
+            return (f"node {drive.node_id}: " + ("acts on a controlword only as one arrives"
+                                                 if on else "acts on the controlword it holds"))
         if len(rest) > 1:
             raise ValueError(f"{verb} takes only a node id")
         if verb == "reboot":

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from omnican.protocol import cia402
 from omnican.protocol.cia301 import EMCY_HEARTBEAT
-from omnican.protocol.cia402 import State
+from omnican.protocol.cia402 import Command, State
 
 #: 605Ah when the drive has none: slow down on the quick stop ramp, then disable.
 DEFAULT_QUICK_STOP_OPTION = 2
@@ -65,6 +65,11 @@ class PowerStage:
     fault_persists: bool = False  # its cause is still there: a fault reset does not clear it
     enable_held: bool = False  # no power for the motor (DC link off)
     torque_off: bool = False  # safe torque off (an e-stop): no torque, no enabling
+    #: acts on a controlword only as one arrives (ros2_canopen's fake CiA 402 slave): in
+    #: OPERATION ENABLED its motors start at a controlword that arrives there, not at the
+    #: one that enabled it (a master that writes it only on change never moves them)
+    on_arrival: bool = False
+    running: bool = True  # in OPERATION ENABLED, the motors follow the targets
 
     @property
     def halted(self) -> bool:
@@ -107,6 +112,10 @@ class PowerStage:
             return Reaction.NONE
         transition = cia402.DEVICE_TRANSITIONS.get((self.state, command))
         if transition is None:
+            if (not self.running and command is Command.ENABLE_OPERATION
+                    and self.state is State.OPERATION_ENABLED):
+                self.running = True  # the enable command again, in OPERATION ENABLED
+                return Reaction.STATE
             return Reaction.NONE
         if transition.number == 16 and self.quick_stop_option() not in STAY_IN_QUICK_STOP:
             return Reaction.NONE  # QUICK STOP ACTIVE is not a state this drive stays in
@@ -114,6 +123,7 @@ class PowerStage:
             if self.enable_held or self.torque_off:
                 return Reaction.NONE
             self.state = State.OPERATION_ENABLED
+            self.running = not self.on_arrival
             return Reaction.ENABLED
         self.state = transition.target
         return Reaction.STATE

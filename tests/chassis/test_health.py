@@ -98,7 +98,7 @@ def test_a_base_that_does_not_move_at_a_slow_command_is_stopped(rig: Rig) -> Non
     """(Issue 36, item 3) Every wheel jammed under a 0.1 m/s command: the wheels' targets
     (0.087 m/s) are under tracking_error (0.1 m/s), but a wheel at under half its target
     is not following: the stop names the wheel, its target and its speed."""
-    clock, sim, base = rig
+    _, sim, base = rig
     for drive in sim.drives:
         drive.jam()
     reason = stopped_for(base, "not following its target", 3.0, vx=0.1)

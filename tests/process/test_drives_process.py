@@ -83,3 +83,35 @@ def test_a_base_whose_wheels_never_turn_fails_naming_a_wheel(port: int,
         "target)")
     assert result["pose"]["x"] == 0.0
     assert sim.true_x() == 0.0
+
+
+# ---------------------------------------------------------------- 4: the controlword every cycle
+
+
+def test_drives_acting_on_a_controlword_as_it_arrives_move(port: int, tmp_path: Path) -> None:
+    """Each drive acts on a controlword only as one arrives (ros2_canopen's fake CiA 402
+    slave): written every cycle, the controlword that reaches it in OPERATION ENABLED
+    starts its motors, and the base drives."""
+    toml = robot_toml(tmp_path)
+    sim = SimProcess(port, "--config", str(toml))
+    for node in (1, 2, 3):
+        assert (sim.command(f"cwarrival {node} on").strip() ==
+                f"node {node}: acts on a controlword only as one arrives")
+    done = drive(port, toml, "--vx", "0.2", "--duration", "1.5")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["pose"]["x"] > 0.15
+    assert sim.true_x() > 0.15
+
+
+def test_with_the_controlword_on_change_such_drives_never_move_and_it_is_said(
+        port: int, tmp_path: Path) -> None:
+    """cyclic_controlword = false, for the rare drive that dislikes the repeat: a drive
+    acting on arrival is enabled and never moves, and the run fails naming a wheel."""
+    toml = robot_toml(tmp_path, "cyclic_controlword = false")
+    sim = SimProcess(port, "--config", str(toml))
+    assert sim.command("cwarrival 2 on").strip() == (
+        "node 2: acts on a controlword only as one arrives")
+    done = drive(port, toml, "--vx", "0.2", "--duration", "1.5")
+    assert done.returncode == 1, (done.stdout, done.stderr)
+    assert json.loads(done.stdout)["error"].startswith(
+        "base stopped: wheel 1 (node 2) not following its target for 0.5 s")

@@ -301,3 +301,41 @@ def test_the_host_walk_reaches_its_goal_from_wherever_the_stage_is(
         else:
             stage.write_controlword(apply_command(stage.controlword, command))
     assert stage.state is goal
+
+
+# ---------------------------------------------------------------- acting on arrival
+
+
+@given(words=st.lists(st.sampled_from([SHUTDOWN, SWITCH_ON, ENABLE, DISABLE_VOLTAGE,
+                                       QUICK_STOP, ENABLE | cia402.CW_HALT]), max_size=30))
+def test_a_stage_acting_on_arrival_runs_only_after_a_repeat_in_operation_enabled(
+        words: list[int]) -> None:
+    """ros2_canopen's fake slave: the states as any drive's, but in OPERATION ENABLED its
+    motors start only at a controlword that arrives there asking for it (enable
+    operation, halted or not); a drive that does not act on arrival runs at once."""
+    lazy = stage_in(State.SWITCH_ON_DISABLED)
+    lazy.on_arrival = True
+    eager = stage_in(State.SWITCH_ON_DISABLED)
+    arrived_enabled = False
+    for word in words:
+        was = lazy.state
+        lazy.write_controlword(word)
+        eager.write_controlword(word)
+        assert lazy.state is eager.state  # the states do not change
+        if lazy.state is not State.OPERATION_ENABLED:
+            arrived_enabled = False
+        elif was is State.OPERATION_ENABLED and word & 0x8F == ENABLE:
+            arrived_enabled = True
+        if lazy.state is State.OPERATION_ENABLED:
+            assert lazy.running == arrived_enabled
+            assert eager.running
+
+
+def test_the_enable_command_again_starts_the_motors() -> None:
+    stage = stage_in(State.SWITCHED_ON)
+    stage.on_arrival = True
+    assert stage.write_controlword(ENABLE) is Reaction.ENABLED
+    assert stage.state is State.OPERATION_ENABLED and not stage.running
+    assert stage.write_controlword(ENABLE) is Reaction.STATE  # the motors follow it now
+    assert stage.running
+    assert stage.write_controlword(ENABLE) is Reaction.NONE
