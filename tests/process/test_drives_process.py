@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -77,10 +78,11 @@ def test_a_base_whose_wheels_never_turn_fails_naming_a_wheel(port: int,
     assert done.returncode == 1, (done.stdout, done.stderr)
     assert "Traceback" not in done.stderr
     result = json.loads(done.stdout)
-    assert result["error"] == (
-        "base stopped: wheel 1 (node 2) not following its target for 0.5 s: stalled, "
-        "slipping or off the ground (target +0.09 m/s, measured +0.00 m/s, under 50% of its "
-        "target)")
+    # For tracking_time_s (0.5 s) and up to a check more (10 Hz, in real time).
+    assert re.fullmatch(
+        r"base stopped: wheel 1 \(node 2\) not following its target for 0\.[56] s: stalled, "
+        r"slipping or off the ground \(target \+0\.09 m/s, measured \+0\.00 m/s, under 50% "
+        r"of its target\)", result["error"]), result["error"]
     assert result["pose"]["x"] == 0.0
     assert sim.true_x() == 0.0
 
@@ -113,5 +115,5 @@ def test_with_the_controlword_on_change_such_drives_never_move_and_it_is_said(
         "node 2: acts on a controlword only as one arrives")
     done = drive(port, toml, "--vx", "0.2", "--duration", "1.5")
     assert done.returncode == 1, (done.stdout, done.stderr)
-    assert json.loads(done.stdout)["error"].startswith(
-        "base stopped: wheel 1 (node 2) not following its target for 0.5 s")
+    assert re.match(r"base stopped: wheel 1 \(node 2\) not following its target for 0\.[56] s",
+                    json.loads(done.stdout)["error"])
