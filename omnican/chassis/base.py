@@ -178,8 +178,7 @@ class Chassis:
             if refused is not None:
                 raise DriveError(f"{what} refused: {refused}")
             clock.sleep(self._period if self._lockstep else 0.002)
-        raise DriveError(f"{what}: drives not enabled within {timeout:.2g} s "
-                         f"({self._supervisor.not_enabled_why()})")
+        raise DriveError(f"{what}: {self._supervisor.not_enabled_why(timeout)}")
 
     # ------------------------------------------------------------ public API
 

@@ -117,7 +117,7 @@ class HealthMonitor:
         self._stages = [(a.wheel_index, n, a.wheel.axis, a.stage) for a, n in axes]
         self._all_fresh = [True] * len(axes)
         self.tracking = TrackingDetector(len(axes), c.tracking_error, c.tracking_time_s,
-                                         c.tracking_lag_s)
+                                         c.tracking_lag_s, c.tracking_ratio)
         # A stopped base: a drive's own ramp (set from the stop decelerations) ends within
         # the longest stop ramp, its measurement within the lag; from then on, as running.
         self.standstill = StandstillWatch(

@@ -107,13 +107,24 @@ class NodeSupervisor:
         for stage in self.stages:
             stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=False)
 
-    def not_enabled_why(self) -> str:
-        """Why the drives are not (all) enabled, for an error message."""
+    def not_enabled_why(self, timeout_s: float) -> str:
+        """What kept the base from running within ``timeout_s``, for an error message: the
+        stop that holds it (whose cause may be gone since, the drives enabled), else what
+        each drive not enabled is doing."""
+        enabled = all(s.state is _ENABLED for s in self.stages)
+        latched = self.latched
+        if latched is not None:
+            notes = [f"node {nid} heard again since" for nid in sorted(self._node_ids)
+                     if f"node {nid} heartbeat lost" in latched and nid not in self.offline]
+            if enabled:
+                notes.append("every drive reached OPERATION ENABLED")
+            return f"base stopped: {latched}" + (f" ({'; '.join(notes)})" if notes else "")
         problems = [f"node {nid} heartbeat lost" for nid in sorted(self.offline)]
         problems += [s.error for s in self.stages if s.error]
         states = ", ".join(f"node {s.node_id}: {s.state}" for s in self.stages
                            if s.state is not State.OPERATION_ENABLED)
-        return self.latched or "; ".join(problems) or states or "not enabled"
+        why = "; ".join(problems) or states or "not every drive seen enabled"
+        return f"drives not enabled within {timeout_s:.2g} s ({why})"
 
     # ------------------------------------------------------------ health (loop thread)
 
@@ -175,8 +186,9 @@ class NodeSupervisor:
                 if aborts:
                     self.latch(f"node {nid} refuses its per-cycle SDO transfers "
                                f"({node.sdo_counts.last_abort})")
-            heard = node.last_heartbeat  # node.heartbeat_lost(now), written out
-            if heard is not None and now - heard > node.heartbeat_timeout_s:
+            watch = node.heartbeat  # watch.lost(now), written out
+            since = watch.since
+            if since is not None and now - since > watch.timeout_s:
                 offline.add(nid)
                 if not self.recovering:  # recover() waits for it, and says if it never came
                     self.latch(f"node {nid} heartbeat lost")

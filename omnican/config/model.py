@@ -182,8 +182,10 @@ class ChassisSettings:
     boot_timeout_s: float = _CHASSIS["boot_timeout_s"]
     enable_timeout_s: float = _CHASSIS["enable_timeout_s"]
     pdo_mapping: str = _CHASSIS["pdo_mapping"]  # see pdoplan.MAPPING_POLICIES
+    cyclic_controlword: bool = _CHASSIS["cyclic_controlword"]
     health_rate_hz: float = _CHASSIS["health_rate_hz"]
     tracking_error: float = _CHASSIS["tracking_error"]
+    tracking_ratio: float = _CHASSIS["tracking_ratio"]
     tracking_time_s: float = _CHASSIS["tracking_time_s"]
     tracking_lag_s: float = _CHASSIS["tracking_lag_s"]
     lifted_wheel: str = _CHASSIS["lifted_wheel"]  # see LIFTED_WHEEL

@@ -230,6 +230,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
                               range=(0.1, 60.0)),
         "enable_timeout_s": Key(NUMBER, 1.0, "bring a drive to OPERATION ENABLED within this",
                                 range=_WAIT),
+        "cyclic_controlword": Key((bool,), True, "write each controlword every cycle, beside "
+                                  "the targets on the cyclic RPDO (as ros2_canopen's master "
+                                  "does; some drives act on a controlword only as one "
+                                  "arrives); false: on an RPDO of its own, only when it "
+                                  "changes (for a drive that dislikes the repeat)"),
         "pdo_mapping": Key((str,), "try", "objects an EDS marks not PDO-mappable: \"try\" maps "
                            "them anyway (warning; a drive that refuses runs on its own mapping, "
                            "and what that lacks goes by SDO every cycle), \"eds\" sends them by "
@@ -241,6 +246,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "tracking_error": Key(NUMBER, 0.1, "m/s: a wheel whose measured speed stays this far "
                               "outside what its target was over the last tracking_lag_s "
                               "latches a stop (inf: never)", range=_SPEED, inf_ok=True),
+        "tracking_ratio": Key(NUMBER, 0.5, "a wheel whose measured speed stays under this "
+                              "share of its target (the least it was over tracking_lag_s, "
+                              "all one way, 5 mm/s or more) latches a stop too, however slow "
+                              "(0: never)", range=(0.0, 1.0), open_high=True),
         "tracking_time_s": Key(NUMBER, 0.5, "for this long", range=_WAIT),
         "tracking_lag_s": Key(NUMBER, 0.3, "how far a wheel's measured speed may lag its target "
                               "(speed window, drive ramp and velocity loop)", range=_WAIT),

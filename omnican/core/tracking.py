@@ -9,6 +9,14 @@ velocity loop, a cycle or two on the bus), so on the acceleration ramp the measu
 stays inside that range and nothing trips, however steep the ramp, as long as the lag
 is within ``lag_s``. Steady, the band is the target plus or minus ``error``.
 
+A slow wheel is judged against its own target too: ``error`` in m/s alone lets a wheel
+that stands still pass while its target is under ``error``. A wheel whose every target
+over the lag window went one way, at ``MIN_RELATIVE_M_S`` or more, follows only at
+``ratio`` of the least of them or more, that way (0: no such check). On a ramp up the
+least is the oldest, which a measurement lagging within ``lag_s`` has passed; on a ramp
+down the measurement lags above it; a window that holds a reversal (targets both ways)
+or a target near zero asks nothing more than the band.
+
 Only wheels with a fresh measurement count, and only while the base runs (every drive
 enabled, nothing latched): :meth:`TrackingDetector.update` is told which. A wheel that
 drops out starts over. Pure: no I/O, no clock; the caller gives the time.
@@ -22,6 +30,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 ZERO_M_S = 1e-6  # a target below this is zero
+#: Targets below this are not judged against their size: a wheel this slow is one the base
+#: calls standing still (``speeds_settled``), and its measured speed is mostly the
+#: encoder's resolution over the speed window.
+MIN_RELATIVE_M_S = 0.005
 
 
 @dataclass(frozen=True)
@@ -34,28 +46,37 @@ class NotFollowing:
     measured: float
     for_s: float
     zero_target: bool  # the target was zero all along: it turns when it should not
+    #: within the band but under this share of its target (None: outside the band)
+    under_ratio: float | None = None
 
     def describe(self, node_id: int, axis: int = 0) -> str:
-        """The stop's reason (always says "not following its target")."""
+        """The stop's reason (always says "not following its target", names the wheel, its
+        target and its speed)."""
         node = f"node {node_id}" + (f" axis {axis}" if axis else "")
         head = f"wheel {self.wheel} ({node}) not following its target for {self.for_s:.1f} s"
         if self.zero_target:
             return (f"{head}: turns at {self.measured:+.2f} m/s with a zero target (pushed, or "
                     "a runaway drive)")
+        share = "" if self.under_ratio is None else (
+            f", under {self.under_ratio:.0%} of its target")
         return (f"{head}: stalled, slipping or off the ground (target {self.target:+.2f} m/s, "
-                f"measured {self.measured:+.2f} m/s)")
+                f"measured {self.measured:+.2f} m/s{share})")
 
 
 class TrackingDetector:
     """Each wheel's measured speed against its recent targets (see the module docstring)."""
 
-    def __init__(self, wheels: int, error: float, time_s: float, lag_s: float) -> None:
+    def __init__(self, wheels: int, error: float, time_s: float, lag_s: float,
+                 ratio: float = 0.0) -> None:
         if not (error > 0 and time_s > 0 and lag_s >= 0):
             raise ValueError("error and time_s must be positive, lag_s not negative")
+        if not 0 <= ratio < 1:
+            raise ValueError(f"ratio is a share of the target, 0 or more and below 1, got {ratio}")
         self.wheels = wheels
         self.error = error
         self.time_s = time_s
         self.lag_s = lag_s
+        self.ratio = ratio
         self._targets: collections.deque[tuple[float, tuple[float, ...]]] = collections.deque()
         self._since: list[float | None] = [None] * wheels
 
@@ -67,7 +88,7 @@ class TrackingDetector:
     def band(self, wheel: int) -> tuple[float, float]:
         """(lowest, highest) speed that counts as following, now (m/s)."""
         values = [targets[wheel] for _, targets in self._targets]
-        return min(values) - self.error, max(values) + self.error
+        return _band(min(values), max(values), self.error, self.ratio)
 
     def update(self, now: float, targets: Sequence[float], measured: Sequence[float],
                fresh: Sequence[bool], running: bool) -> list[NotFollowing]:
@@ -84,7 +105,7 @@ class TrackingDetector:
             history.popleft()
         out = []
         since = self._since
-        error = self.error
+        error, ratio = self.error, self.ratio
         # Each wheel's targets over the window, in one pass (a few entries, at the check rate).
         columns = zip(*[t for _, t in history], strict=True)
         for i, column in enumerate(columns):
@@ -92,7 +113,8 @@ class TrackingDetector:
                 since[i] = None
                 continue
             speed = measured[i]
-            if min(column) - error <= speed <= max(column) + error:
+            lo, hi = _band(min(column), max(column), error, ratio)
+            if lo <= speed <= hi:
                 since[i] = None
                 continue
             start = since[i]
@@ -101,8 +123,22 @@ class TrackingDetector:
                 continue
             if now - start >= self.time_s:
                 zero = max(map(abs, column)) < ZERO_M_S
-                out.append(NotFollowing(i, targets[i], speed, now - start, zero))
+                inside = min(column) - error <= speed <= max(column) + error
+                out.append(NotFollowing(i, targets[i], speed, now - start, zero,
+                                        ratio if inside else None))
         return out
+
+
+def _band(lo: float, hi: float, error: float, ratio: float) -> tuple[float, float]:
+    """The speeds that follow targets spanning ``lo``-``hi`` (m/s): within ``error`` of
+    that span, and where every target went one way at ``MIN_RELATIVE_M_S`` or more, at
+    ``ratio`` of the least of them or more, that way."""
+    low, high = lo - error, hi + error
+    if lo >= MIN_RELATIVE_M_S:
+        low = max(low, ratio * lo)
+    elif hi <= -MIN_RELATIVE_M_S:
+        high = min(high, ratio * hi)
+    return low, high
 
 
 #: A drive holding a stopped wheel at this share of its rated torque (or current), %,

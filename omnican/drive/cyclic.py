@@ -10,6 +10,7 @@ once a cycle; :meth:`CyclicIO.build` makes everything for a PDO plan (at configu
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -86,7 +87,15 @@ class _RpdoIO:
                          tuple[int, int]], ...] = ()
     _pack: Callable[..., bytes] = bytes
     _cw_stages: tuple[StageDriver, ...] = ()  # the stages whose controlwords it carries
-    _filled: tuple[object, tuple[int, ...]] | None = None  # (speeds, controlwords) in msg
+    #: their controlwords now, in one call: () for none, the one stage's ``cw`` (a C call,
+    #: no Python frame: the usual RPDO carries one), a tuple for several
+    _cws: Callable[[], object] = tuple
+    #: the plan's own layout, targets then controlwords, as (wheel index, scale, lowest,
+    #: highest) per target (None: another layout, field by field); and whether ``_cws``
+    #: gives one controlword (an int) rather than a tuple of them
+    _targets: tuple[tuple[int, float, int, int], ...] | None = None
+    _one_cw: bool = False
+    _filled: tuple[object, object] | None = None  # (speeds, controlwords) in msg
 
     def values(self, speeds: Sequence[float]) -> list[int]:
         """Field values for ``speeds`` (m/s by wheel index; empty: targets 0)."""
@@ -105,12 +114,23 @@ class _RpdoIO:
             self._filled = None
             return
         # The loop passes the same list while its targets hold (lists it never changes).
-        cws = tuple([stage.cw for stage in self._cw_stages]) if self._cw_stages else ()
+        cws = self._cws()
         filled = self._filled
         if filled is not None and filled[0] is speeds and filled[1] == cws:
             return  # the frame holds these targets and controlwords already
         self._filled = (speeds, cws)
         out = []
+        targets = self._targets
+        if targets is not None:  # targets, then the controlwords: each cycle's usual frame
+            for i, scale, lo, hi in targets:
+                v = round(speeds[i] * scale)
+                out.append(lo if v < lo else hi if v > hi else v)
+            if self._one_cw:
+                out.append(cws)  # type: ignore[arg-type]
+            else:
+                out += cws  # type: ignore[arg-type]
+            self.msg.data = self._pack(*out)  # type: ignore[assignment]
+            return
         for (ax, scale, stage), (lo, hi) in self._fields:
             v = (round(speeds[ax.wheel_index] * scale) if ax is not None else
                  stage.cw if stage is not None else 0)
@@ -121,7 +141,25 @@ class _RpdoIO:
         """Compile :meth:`fill` once ``sources`` is complete."""
         self._fields = tuple(zip(self.sources, self.codec.ranges, strict=True))
         self._pack = self.codec.packer()
-        self._cw_stages = tuple(stage for _, _, stage in self.sources if stage is not None)
+        stages = self._cw_stages = tuple(stage for _, _, stage in self.sources
+                                         if stage is not None)
+        self._one_cw = len(stages) == 1
+        if self._one_cw:
+            self._cws = functools.partial(getattr, stages[0], "cw")
+        elif stages:
+            self._cws = lambda: tuple([stage.cw for stage in stages])
+        else:
+            self._cws = tuple
+        # Targets first, then controlwords each in a field that holds any (16 bits or
+        # more, unsigned): filled without a look at each field's kind or a clamp of the
+        # controlwords.
+        n = sum(1 for ax, _, _ in self.sources if ax is not None)
+        head, tail = self._fields[:n], self._fields[n:]
+        plain = (all(ax is not None for (ax, _, _), _ in head) and
+                 all(ax is None and stage is not None and lo <= 0 and hi >= 0xFFFF
+                     for (ax, _, stage), (lo, hi) in tail))
+        self._targets = tuple((ax.wheel_index, scale, lo, hi)  # type: ignore[union-attr]
+                              for (ax, scale, _), (lo, hi) in head) if plain else None
         self._filled = None
 
 
@@ -363,9 +401,11 @@ class CyclicIO:
 
     def controlword_frame(self, stage: StageDriver) -> tuple[can.Message, int] | None:
         """The frame that carries ``stage``'s controlword now, as (frame, worst-case
-        bits); None if it rides on the cyclic RPDO."""
+        bits); None if it goes every cycle anyway (on the cyclic RPDO, or by SDO)."""
         by_sdo = self._sdo_cw.get(id(stage))
         if by_sdo is not None:
+            if by_sdo.transfer.cyclic:
+                return None
             cob, data = self._sdo_request(by_sdo, (), -1)
             return prepared_message(cob, data), frame_bits(len(data))
         io = self._cw_io[id(stage)]

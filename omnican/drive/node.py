@@ -82,8 +82,10 @@ class DriveNode:
         self.controlword_frame = self.io.controlword_frame
         self.sdo_counts: SdoCounts = self.io.build(self.plan)
         self._setup = NodeSetup(self)
-        # Liveness and events (Notifier thread writes; loop reads).
-        self.last_heartbeat: float | None = None
+        # Liveness and events (Notifier thread writes; loop reads). The heartbeat is
+        # watched from when the configuration switches the drive's producer on.
+        self.heartbeat = heartbeat.HeartbeatWatch(heartbeat.timeout_s(
+            settings.heartbeat_ms / 1000.0, settings.heartbeat_timeout_factor))
         self.nmt_state: int | None = None
         # Heard OPERATIONAL since its configuration: a node that then reports another
         # state left OPERATIONAL (another master, its own doing); one that never did may
@@ -99,8 +101,6 @@ class DriveNode:
         self.emcy: EmcyError | None = None
         self._emcy_log = Throttle(logger, clock=clock.now)
         self.fault_text: str | None = None
-        self.heartbeat_timeout_s = heartbeat.timeout_s(settings.heartbeat_ms / 1000.0,
-                                               settings.heartbeat_timeout_factor)
         network.subscribe(HEARTBEAT_BASE + node_id, self._on_heartbeat)
         self.remote.emcy.add_callback(self._on_emcy)
 
@@ -131,7 +131,7 @@ class DriveNode:
         if not data:
             return
         state = data[0] & NMT_STATE_MASK
-        self.last_heartbeat = self.clock.now()
+        self.heartbeat.heard(self.clock.now())
         self.nmt_state = state
         if state == NmtState.OPERATIONAL:
             self.seen_operational = True
@@ -161,9 +161,7 @@ class DriveNode:
             self._emcy_log.warning(error.code, "node %d EMCY %s", self.node_id, self.fault_text)
 
     def heartbeat_lost(self, now: float) -> bool:
-        if self.last_heartbeat is None:
-            return False
-        return now - self.last_heartbeat > self.heartbeat_timeout_s
+        return self.heartbeat.lost(now)
 
 
     def detach(self) -> None:

@@ -144,7 +144,10 @@ class PdoSetup:
             return chosen, missing
 
         targets = [a.target for a in node.axes]
-        rx_wanted = targets + [s.controlword for s in node.stages]
+        controlwords = [s.controlword for s in node.stages]
+        rx_wanted = targets + controlwords
+        # The controlwords every cycle too (chassis.cyclic_controlword): their PDOs on SYNC.
+        every_cycle = targets + controlwords if node.settings.cyclic_controlword else targets
         tx_wanted = [a.position for a in node.axes] + [s.statusword for s in node.stages]
         rpdos: list[PlannedPdo] = []
         tpdos: list[PlannedPdo] = []
@@ -153,8 +156,8 @@ class PdoSetup:
                                       (node.remote.tpdo, tx_wanted, tpdos, True)):
             chosen, missing = pick(maps, wanted)
             # Last resort: targets and controlwords written, positions and statuswords
-            # read, by SDO (every cycle; controlwords when they change).
-            sdo += [SdoTransfer(e, write=not tx, cyclic=tx or e in targets) for e in missing]
+            # read, by SDO (every cycle; controlwords as they go by PDO).
+            sdo += [SdoTransfer(e, write=not tx, cyclic=tx or e in every_cycle) for e in missing]
             for number, _present in chosen:
                 m = maps[number]
                 entries = []
@@ -162,8 +165,7 @@ class PdoSetup:
                     entry = self._entry_for(v.index, v.subindex)
                     entries.append(entry)
                 cyclic = tx and any(e in [a.position for a in node.axes] for e in entries)
-                cyclic = cyclic or (not tx and any(e in [a.target for a in node.axes]
-                                                   for e in entries))
+                cyclic = cyclic or (not tx and any(e in every_cycle for e in entries))
                 trans = TRANS_SYNC if cyclic else TRANS_EVENT
                 cob = (m.cob_id or m.predefined_cob_id or 0) & COB_ID_MASK
                 self._save_comm_only(m, cob, trans)

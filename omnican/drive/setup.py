@@ -46,6 +46,7 @@ from omnican.protocol.cia301 import (
     NmtState,
 )
 from omnican.protocol.cia402 import Command, Mode, State
+from omnican.protocol.heartbeat import HeartbeatWatch
 from omnican.protocol.object_map import Obj, obj_name
 
 
@@ -72,6 +73,7 @@ class Node(Protocol):
     _boot_seen: threading.Condition
 
     health: NodeHealth
+    heartbeat: HeartbeatWatch
 
     def use_plan(self, plan: NodePlan) -> None: ...
 
@@ -133,6 +135,9 @@ class NodeSetup:
                             f"{write.entry.name} from {write.origin}")
         self._sdo.write(PRODUCER_HEARTBEAT_TIME, 0, s.heartbeat_ms.to_bytes(2, "little"),
                         "heartbeat producer")
+        # Its heartbeats are due from now on, not from its boot-up: the configuration
+        # up to here may have taken many periods.
+        node.heartbeat.producer_on(node.clock.now())
         if node.has_consumer:
             ms = heartbeat.consumer_time_ms(s.heartbeat_ms, s.heartbeat_timeout_factor)
             value = (s.host_node_id << 16) | ms
@@ -155,6 +160,7 @@ class NodeSetup:
 
         def cleared() -> None:
             self._watching = False  # a reset communication clears 1016h
+            self.node.heartbeat.producer_off()  # and puts 1017h back to its power-on value
 
         reset_communication(self.node, cleared)
 

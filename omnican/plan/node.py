@@ -266,6 +266,7 @@ class NodeLayout:
             inhibit_ms=2.0,
             event_timer_ms=max(50, self.settings.heartbeat_ms),
             mapping=mapping or self.settings.pdo_mapping,
+            event_rx_every_cycle=self.settings.cyclic_controlword,
         )
 
     @property

@@ -1,12 +1,15 @@
 """PDO plan for one node: which objects go into which PDO, within what its EDS offers.
 
-The plan: wheel targets on SYNC-applied RPDOs, controlwords on
-an RPDO sent on change, positions on SYNC-triggered TPDOs, statuswords on an
+The plan: wheel targets on SYNC-applied RPDOs, controlwords beside them, written every
+cycle (``cyclic_controlword``, the default: ros2_canopen's master rewrites the
+controlword each cycle, and some drives act on one only as it arrives) or on an RPDO of
+their own sent on change; positions on SYNC-triggered TPDOs, statuswords on an
 event-driven TPDO. It respects each drive's limits: the number of PDOs, the
-number of mapping entries each accepts (some accept one), the sub-indices its
-communication parameters have (no inhibit time or event timer on some), and the
-object sizes it declares (a 32-bit statusword). When a drive has too few PDOs, the
-controlword rides on the cyclic RPDO and the statusword on the cyclic TPDO.
+number of mapping entries each accepts (some accept one: the controlword then gets a
+cyclic RPDO of its own), the sub-indices its communication parameters have (no inhibit
+time or event timer on some), and the object sizes it declares (a 32-bit statusword).
+When a drive has too few PDOs, the controlword rides on the cyclic RPDO and the
+statusword on the cyclic TPDO.
 
 Vendor EDS files often mark objects a drive does map (60FFh, 6064h) as not
 PDO-mappable. The ``mapping`` policy says what to do with them: ``"try"`` maps
@@ -217,13 +220,18 @@ def plan_node(
     inhibit_ms: float = 5.0,
     event_timer_ms: int = 100,
     mapping: str = "try",
+    event_rx_every_cycle: bool = False,
 ) -> NodePlan:
     """Plan the PDOs of one node.
 
     ``optional_tx`` objects (mode display, error code) are added to the event TPDO
     only where they fit without using another PDO. ``mapping`` (one of
     :data:`MAPPING_POLICIES`) decides what becomes of objects the EDS marks not
-    PDO-mappable, and whether targets and positions go by SDO."""
+    PDO-mappable, and whether targets and positions go by SDO.
+    ``event_rx_every_cycle``: the ``event_rx`` objects (controlwords) are written every
+    cycle too: on the cyclic RPDOs, where they fit beside ``cyclic_rx`` (first fit, the
+    targets placed first), else on cyclic RPDOs of their own; by SDO every cycle where the
+    EDS moves them there (never because of the ``"sdo"`` policy, which is the targets')."""
     if mapping not in MAPPING_POLICIES:
         raise ValueError(f"mapping must be one of {', '.join(MAPPING_POLICIES)}, got {mapping!r}")
     rx_slots = pdo_slots(dictionary, node_id, tx=False)
@@ -234,11 +242,12 @@ def plan_node(
     sdo: list[SdoTransfer] = []
     tried: list[Entry] = []
 
-    def keep_mapped(entries: list[Entry], write: bool, cyclic: bool) -> list[Entry]:
+    def keep_mapped(entries: list[Entry], write: bool, cyclic: bool,
+                    every_cycle: bool = False) -> list[Entry]:
         kept = []
         for entry in entries:
             if (cyclic and mapping == "sdo") or (not entry.pdo_mappable and mapping != "try"):
-                sdo.append(SdoTransfer(entry, write, cyclic or not write))
+                sdo.append(SdoTransfer(entry, write, cyclic or every_cycle or not write))
                 continue
             if not entry.pdo_mappable:
                 tried.append(entry)
@@ -248,7 +257,9 @@ def plan_node(
         return kept
 
     cyclic_rx = keep_mapped(cyclic_rx, write=True, cyclic=True)
-    event_rx = keep_mapped(event_rx, write=True, cyclic=False)
+    event_rx = keep_mapped(event_rx, write=True, cyclic=False, every_cycle=event_rx_every_cycle)
+    if event_rx_every_cycle:  # beside the targets, every SYNC
+        cyclic_rx, event_rx = cyclic_rx + event_rx, []
     cyclic_tx = keep_mapped(cyclic_tx, write=False, cyclic=True)
     event_tx = keep_mapped(event_tx, write=False, cyclic=False)
 

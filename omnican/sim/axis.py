@@ -408,9 +408,9 @@ class Motion:
         if state is not _ENABLED:
             ax.target_units = 0.0
             return 0.0, math.inf, math.inf, COAST_TAU_S
-        if mode not in _VELOCITY_MODES:
+        if mode not in _VELOCITY_MODES or not stage.running:
             ax.target_units = 0.0
-            return 0.0, quick, quick, self.tau_s  # no velocity mode: hold still
+            return 0.0, quick, quick, self.tau_s  # no velocity mode (or not started): still
         target = self._raw(target_entry)
         ax.internal_limit = bool(limit) and abs(target) > limit
         if ax.internal_limit:

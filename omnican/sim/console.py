@@ -17,7 +17,8 @@ from omnican.sim.drive import SimulatedDrive
 COMMANDS = (
     ("fault NODE [CODE]", "EMCY + FAULT (default 0x2310 continuous over-current)"),
     ("reboot NODE", "boot-up, defaults restored, position counter reset"),
-    ("heartbeat NODE off|on", "stop or restart the node's heartbeat"),
+    ("heartbeat NODE off|on|periodic", "stop or restart the node's heartbeat (periodic: only "
+     "on its period, the first one period after 1017h is written, as lely's drives)"),
     ("freeze NODE", "answer nothing, send nothing (a hung node)"),
     ("thaw NODE", "back to normal after freeze"),
     ("jam NODE[.AXIS]", "the wheel cannot turn (its drive pushes at its current limit)"),
@@ -26,6 +27,8 @@ COMMANDS = (
     ("lift NODE[.AXIS]", "the wheel is off the ground (it moves nothing, draws less current)"),
     ("land NODE[.AXIS]", "the wheel is back on the ground"),
     ("ferror NODE[.AXIS] COUNTS|off", "the drive reports a following error (60F4h, bit 13)"),
+    ("cwarrival NODE on|off", "act on a controlword only as one arrives (ros2_canopen's fake "
+     "slave): enabled, it moves only once a controlword reaches it in OPERATION ENABLED"),
     ("slowboot NODE SECONDS", "answer an NMT reset with the boot-up that much later (0: at once)"),
     ("slowsdo NODE SECONDS", "answer each SDO request that much later (0: at once)"),
     ("battery VOLTS", "the battery feeding every drive (nominal 24 V)"),
@@ -36,7 +39,7 @@ COMMANDS = (
 )
 #: the fastest push: far beyond any wheel of a base, short of a meaningless pose
 PUSH_LIMIT_M_S = 20.0
-_NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw")
+_NODE_VERBS = ("fault", "reboot", "heartbeat", "freeze", "thaw", "cwarrival")
 _WHEEL_VERBS = ("jam", "push", "free", "lift", "land", "ferror")
 
 
@@ -189,7 +192,9 @@ def command(sim: SimulatedBase, line: str,
         if verb not in _NODE_VERBS:
             raise ValueError(f"unknown command {words[0]!r} (try 'help')")
         if verb == "heartbeat" and len(rest) != 2:
-            raise ValueError("heartbeat takes a node id and on or off")
+            raise ValueError("heartbeat takes a node id and on, off or periodic")
+        if verb == "cwarrival" and (len(rest) != 2 or rest[1].lower() not in ("on", "off")):
+            raise ValueError("cwarrival takes a node id and on or off")
         if not rest:
             raise ValueError(f"{verb} needs a node id (nodes: {_nodes(sim)})")
         drive = drive_for(sim, rest[0])
@@ -201,10 +206,18 @@ def command(sim: SimulatedBase, line: str,
             return f"node {drive.node_id}: fault 0x{code:04X}"
         if verb == "heartbeat":
             state = rest[1].lower()
-            if state not in ("on", "off"):
-                raise ValueError(f"heartbeat takes on or off, not {rest[1]!r}")
-            (drive.start_heartbeat if state == "on" else drive.stop_heartbeat)()
+            if state not in ("on", "off", "periodic"):
+                raise ValueError(f"heartbeat takes on, off or periodic, not {rest[1]!r}")
+            if state == "off":
+                drive.stop_heartbeat()
+            else:
+                drive.start_heartbeat(state == "periodic")
             return f"node {drive.node_id}: heartbeat {state}"
+        if verb == "cwarrival":
+            on = rest[1].lower() == "on"
+            drive.act_on_arrival(on)
+            return (f"node {drive.node_id}: " + ("acts on a controlword only as one arrives"
+                                                 if on else "acts on the controlword it holds"))
         if len(rest) > 1:
             raise ValueError(f"{verb} takes only a node id")
         if verb == "reboot":

@@ -206,8 +206,11 @@ class Device:
             self.comm.emcy(EMCY_NO_ERROR, 0)  # error reset
 
     def _on_controlword(self, group: AxisGroup, value: int) -> None:
+        stage = group.stage
+        if stage.idle(value):
+            return  # the same word again, nothing changed since: a master writing it each cycle
         self.advance(self.clock.now())
-        reaction = group.stage.write_controlword(value)
+        reaction = stage.write_controlword(value)
         if reaction is not _NO_REACTION:
             self.follow(group, reaction)
 

@@ -55,6 +55,21 @@ class DriveFaults:
         with self.lock:
             self.axes[axis].group.stage.enable_held = held
 
+    def act_on_arrival(self, on: bool = True) -> None:
+        """Act on a controlword only as one arrives, as ros2_canopen's fake CiA 402 slave
+        does: in OPERATION ENABLED the motors start at a controlword that arrives there
+        (the enable command again), not at the one that enabled the drive. A master that
+        writes the controlword only when it changes gets a drive that is enabled, takes
+        every target and never moves; one that writes it every cycle, a drive that runs.
+        Every power stage of the drive, from its next enabling on."""
+        with self.lock:
+            for group in self.device.groups:
+                group.stage.on_arrival = on
+                if not on:  # it acts on the controlword it holds: an enabled drive runs
+                    group.stage.running = True
+            self.device.motion.invalidate()
+
+
     def inject_following_error(self, counts: int = 5000, axis: int = 0) -> None:
         """The drive reports a following error: 60F4h reads ``counts`` and statusword
         bit 13 is set, until :meth:`clear_following_error`."""
@@ -89,9 +104,13 @@ class DriveFaults:
         with self.lock:
             self.comm.heartbeat.enabled = False
 
-    def start_heartbeat(self) -> None:
+    def start_heartbeat(self, periodic: bool = False) -> None:
+        """Produce heartbeats (again). ``periodic``: on the producer's period only, as
+        lely's producer does (the first one period after 1017h is written, none at an NMT
+        state change); else also at once on both (the default)."""
         with self.lock:
             self.comm.heartbeat.enabled = True
+            self.comm.heartbeat_periodic = periodic
 
     def reboot(self) -> None:
         """Power-cycle: boot-up frame, OD defaults, position counters at their power-up value."""

@@ -131,6 +131,10 @@ class SimNode:
         self.sdo_delay_s = 0.0
         self._sdo_answers: list[tuple[float, bytes]] = []  # (due, frame) held back
         self.heartbeat = Heartbeat()
+        #: heartbeats on the producer's period only, as lely's producer sends them: the
+        #: first one period after 1017h is written, none at an NMT state change (False:
+        #: also at once on both, as the simulator always did)
+        self.heartbeat_periodic = False
         self._subscribed_hb: set[int] = set()
         self._send_failures = 0
         # One frame per COB-ID, refilled for each send (under the send lock): every
@@ -185,10 +189,13 @@ class SimNode:
         self.heartbeat.last_sent = self.clock.now()
 
     def _load_heartbeat_config(self) -> None:
+        period = self.heartbeat.period_s
         for producer in self.heartbeat.load(self.dictionary, self.local.get_data):
             if producer not in self._subscribed_hb:
                 self.network.subscribe(HEARTBEAT_BASE + producer, self._on_heartbeat)
                 self._subscribed_hb.add(producer)
+        if self.heartbeat_periodic and self.heartbeat.period_s != period:
+            self.heartbeat.last_sent = self.clock.now()  # the producer's timer starts now
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if len(data) < 2 or data[1] not in (0, self.node_id):
@@ -213,7 +220,8 @@ class SimNode:
             elif cmd == NmtCommand.RESET_COMMUNICATION:
                 self.app.abort_connection()
                 self._reset(reset_node=False, now=now)
-            self._send_heartbeat(now)  # heartbeats show a new state at once
+            if not self.heartbeat_periodic:
+                self._send_heartbeat(now)  # heartbeats show a new state at once
 
     def _reset(self, reset_node: bool, now: float) -> None:
         """An NMT reset: the boot at once, or (``boot_delay_s``) after a while, quiet

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from omnican.protocol import cia402
 from omnican.protocol.cia301 import EMCY_HEARTBEAT
-from omnican.protocol.cia402 import State
+from omnican.protocol.cia402 import Command, State
 
 #: 605Ah when the drive has none: slow down on the quick stop ramp, then disable.
 DEFAULT_QUICK_STOP_OPTION = 2
@@ -65,6 +65,14 @@ class PowerStage:
     fault_persists: bool = False  # its cause is still there: a fault reset does not clear it
     enable_held: bool = False  # no power for the motor (DC link off)
     torque_off: bool = False  # safe torque off (an e-stop): no torque, no enabling
+    #: acts on a controlword only as one arrives (ros2_canopen's fake CiA 402 slave): in
+    #: OPERATION ENABLED its motors start at a controlword that arrives there, not at the
+    #: one that enabled it (a master that writes it only on change never moves them)
+    on_arrival: bool = False
+    running: bool = True  # in OPERATION ENABLED, the motors follow the targets
+    #: (state, enable held, torque off, running) when the controlword now held was written
+    #: and changed nothing: written again in them, it changes nothing either (:meth:`idle`)
+    _idle: tuple[State, bool, bool, bool] | None = None
 
     @property
     def halted(self) -> bool:
@@ -89,9 +97,26 @@ class PowerStage:
             sw |= cia402.SW_WARNING
         return sw
 
+    def idle(self, value: int) -> bool:
+        """Writing ``value`` would change nothing: it is the controlword held, which changed
+        nothing when it was written, and nothing that decides a transition changed since
+        (a master that writes the controlword every cycle, in a steady state)."""
+        idle = self._idle
+        return (idle is not None and value == self.controlword and
+                idle == (self.state, self.enable_held, self.torque_off, self.running))
+
     def write_controlword(self, value: int) -> Reaction:
         """A controlword (6040h) written. FAULT is left only by a rising edge of bit 7
         when the cause is gone; FAULT REACTION ACTIVE ignores every command."""
+        reaction = self._write_controlword(value)
+        state = self.state
+        # QUICK STOP ACTIVE's way out reads 605Ah, which may change: never taken as idle.
+        self._idle = ((state, self.enable_held, self.torque_off, self.running)
+                      if reaction is Reaction.NONE and state is not State.QUICK_STOP_ACTIVE
+                      else None)
+        return reaction
+
+    def _write_controlword(self, value: int) -> Reaction:
         previous, self.controlword = self.controlword, value & 0xFFFF
         if self.state is State.FAULT:
             rising = value & cia402.CW_FAULT_RESET and not previous & cia402.CW_FAULT_RESET
@@ -107,6 +132,10 @@ class PowerStage:
             return Reaction.NONE
         transition = cia402.DEVICE_TRANSITIONS.get((self.state, command))
         if transition is None:
+            if (not self.running and command is Command.ENABLE_OPERATION
+                    and self.state is State.OPERATION_ENABLED):
+                self.running = True  # the enable command again, in OPERATION ENABLED
+                return Reaction.STATE
             return Reaction.NONE
         if transition.number == 16 and self.quick_stop_option() not in STAY_IN_QUICK_STOP:
             return Reaction.NONE  # QUICK STOP ACTIVE is not a state this drive stays in
@@ -114,6 +143,7 @@ class PowerStage:
             if self.enable_held or self.torque_off:
                 return Reaction.NONE
             self.state = State.OPERATION_ENABLED
+            self.running = not self.on_arrival
             return Reaction.ENABLED
         self.state = transition.target
         return Reaction.STATE
@@ -177,4 +207,5 @@ class PowerStage:
     def power_up(self) -> None:
         """Back to the power-on state (a reboot); what holds the power stage off stays."""
         self.state, self.controlword, self.warning = State.SWITCH_ON_DISABLED, 0, False
+        self._idle = None
         self.fault_code, self.fault_persists = 0, False

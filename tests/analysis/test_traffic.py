@@ -26,10 +26,9 @@ def test_decode_names_choices_and_words() -> None:
         "TPDO1_node2",
         "Statusword=0x0637 OPERATION ENABLED  ModeDisplay=profile velocity  "
         "ErrorCode=no error")
-    assert decode(db, 0x201, False, bytes([0x0F, 0x00])) == (
-        "RPDO1_node1", "Controlword=0x000F enable operation")
-    assert decode(db, 0x303, False, (-1234).to_bytes(4, "little", signed=True)) == (
-        "RPDO2_node3", "TargetVelocity=-1234 inc/s")
+    assert decode(db, 0x203, False, (-1234).to_bytes(4, "little", signed=True) +
+                  bytes([0x0F, 0x00])) == (
+        "RPDO1_node3", "TargetVelocity=-1234 inc/s  Controlword=0x000F enable operation")
     assert decode(db, 0x080, False, b"") == ("SYNC", "")
     assert decode(db, 0x601, False, b"\x40\x41\x60\x00") == ("", "40 41 60 00")
     assert decode(db, 0x080, True, b"") == ("", "(no data)")  # extended: not the SYNC
@@ -38,7 +37,7 @@ def test_decode_names_choices_and_words() -> None:
 def test_the_bundled_dbc_loads() -> None:
     db = load_dbc(DEFAULT_DBC)
     assert isinstance(db, cantools.database.can.Database)
-    assert db.get_message_by_name("RPDO2_node2").frame_id == 0x302
+    assert db.get_message_by_name("RPDO1_node2").frame_id == 0x202
 
 
 frames = st.lists(st.tuples(st.integers(0, 0x7FF), st.binary(max_size=8)), max_size=60)

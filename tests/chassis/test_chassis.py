@@ -302,7 +302,7 @@ def test_recording(channel: str, tmp_path: Path, realtime: bool) -> None:
         drive_for(base, 0.2, vx=0.2)
     frames = list(can.LogReader(str(log)))
     ids = {m.arbitration_id for m in frames}
-    assert {0x80, 0x301, 0x281, 0x181, 0x77F, 0x701} <= ids  # SYNC, RPDO, TPDOs, heartbeats
+    assert {0x80, 0x201, 0x281, 0x181, 0x77F, 0x701} <= ids  # SYNC, RPDO, TPDOs, heartbeats
     assert any(not m.is_rx for m in frames) and any(m.is_rx for m in frames)
 
 
@@ -315,7 +315,7 @@ def test_blf_recording_of_a_channel_named_with_big_digits(channel: str, tmp_path
         drive_for(base, 0.3, vx=0.2)
         assert base.status.enabled and sim.true_twist.vx > 0.1
     frames = list(can.LogReader(str(log)))
-    assert {0x80, 0x301, 0x281} <= {m.arbitration_id for m in frames}
+    assert {0x80, 0x201, 0x281} <= {m.arbitration_id for m in frames}
 
 
 @pytest.mark.parametrize("layout", ["zlac", "roboteq", "epos4"])

@@ -94,6 +94,20 @@ def test_a_jammed_wheel_stops_the_base_and_names_itself(rig: Rig) -> None:
     assert base.status.stopped_reason is None and base.twist.vx > 0.2
 
 
+def test_a_base_that_does_not_move_at_a_slow_command_is_stopped(rig: Rig) -> None:
+    """(Issue 36, item 3) Every wheel jammed under a 0.1 m/s command: the wheels' targets
+    (0.087 m/s) are under tracking_error (0.1 m/s), but a wheel at under half its target
+    is not following: the stop names the wheel, its target and its speed."""
+    _, sim, base = rig
+    for drive in sim.drives:
+        drive.jam()
+    reason = stopped_for(base, "not following its target", 3.0, vx=0.1)
+    assert reason == ("wheel 1 (node 2) not following its target for 0.5 s: stalled, "
+                      "slipping or off the ground (target +0.09 m/s, measured +0.00 m/s, "
+                      "under 50% of its target)")
+    assert base.pose.x == 0.0
+
+
 def test_a_wheel_turning_with_a_zero_target_is_stopped_and_its_drive_disabled(rig: Rig
                                                                                ) -> None:
     clock, sim, base = rig
@@ -311,6 +325,31 @@ def test_full_speed_starts_and_stops_never_latch_a_tracking_stop(
             if reason is not None:
                 assert "heartbeat lost" in reason and loss, base.status
                 base.recover()
+
+
+@pytest.mark.parametrize(("loss", "seed", "tau_s", "noise"), [
+    (0.0, 0, 0.15, 0.0), (0.05, 4, 0.15, 20.0), (0.05, 2, 0.01, 50.0)])
+def test_slow_motions_never_latch_a_tracking_stop(channel: str, loss: float, seed: int,
+                                                  tau_s: float, noise: float) -> None:
+    """A few cm/s and less, starts, stops, reversals and creeping turns, on a drive with a
+    slow velocity loop, frames lost and a noisy encoder: every wheel follows its target
+    (judged against its size too, from 5 mm/s), so nothing stops the base but a lost
+    heartbeat now and then (at 5 % loss, as it should; then it is recovered)."""
+    cfg = sim_config(channel)
+    with shared_bus(channel, loss=loss, seed=seed) as (clock, _, _, drives), \
+            SimulatedBase.from_config(cfg, bus=bus_args(drives), clock=clock, tau_s=tau_s,
+                                      encoder_noise=noise) as sim, \
+            Chassis.open(cfg, clock=clock) as base:
+        for vx, vy, wz in ((0.02, 0.0, 0.0), (-0.02, 0.0, 0.0), (0.01, 0.01, 0.0),
+                           (0.0, -0.006, 0.0), (0.0, 0.0, 0.05), (0.03, 0.0, -0.2),
+                           (-0.03, 0.0, 0.2)):
+            drive_for(base, 1.5, vx=vx, vy=vy, wz=wz)
+            reason = base.status.stopped_reason
+            if reason is not None:
+                assert "heartbeat lost" in reason and loss, base.status
+                base.recover()
+        base.stop()
+        assert wait_for(lambda: still(sim), 3.0, clock=clock)
 
 
 # ---------------------------------------------------------------- vendor drives

@@ -117,7 +117,7 @@ def test_drive_records_the_bus(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert main(["drive", "--sim", "--fast", "--vy", "0.2", "--duration", "0.3",
                  "--record", str(log)]) == 0
     ids = {m.arbitration_id for m in can.LogReader(str(log))}
-    assert {0x80, 0x301, 0x302, 0x303, 0x281, 0x77F} <= ids
+    assert {0x80, 0x201, 0x202, 0x203, 0x281, 0x77F} <= ids
 
 
 @pytest.mark.parametrize(
@@ -202,14 +202,15 @@ def test_check_config_prints_plan_and_load(capsys: pytest.CaptureFixture[str]) -
     assert main(["check-config", str(EXAMPLE)]) == 0
     out = capsys.readouterr().out
     assert f"{EXAMPLE}: OK" in out
-    assert "RPDO2 0x301 every SYNC, 4 bytes: Target velocity (0x60FF:00)" in out
+    assert ("RPDO1 0x201 every SYNC, 6 bytes: Target velocity (0x60FF:00), Controlword "
+            "(0x6040:00)") in out
     assert "TPDO2 0x283 every SYNC, 4 bytes: Position actual value (0x6064:00)" in out
-    assert "625 worst-case bits per cycle" in out
+    assert "685 worst-case bits per cycle" in out
     # The health values every 20th SYNC: two 8- and 5-byte TPDOs per node at 5 Hz.
     assert ("health TPDO3 0x381 every 20 SYNCs, 8 bytes: Current actual value (0x6078:00), "
             "Torque actual value (0x6077:00), DC link circuit voltage (0x6079:00)") in out
     assert "health reads (5 Hz): 3.60 kbit/s of that, 0.72% of 500 kbit/s" in out
-    assert "bus load at 500 kbit/s: 14%" in out
+    assert "bus load at 500 kbit/s: 15%" in out
 
 
 def test_check_config_vendor_drives(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -223,8 +224,9 @@ def test_check_config_vendor_drives(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert main(["check-config", str(cfg)]) == 0
     out = capsys.readouterr().out
     assert "warning: no heartbeat consumer (1016h)" in out
-    assert ("RPDO2 0x301 every SYNC, 8 bytes: Left Motor Target_velocity (0x60FF:01), "
+    assert ("RPDO1 0x201 every SYNC, 8 bytes: Left Motor Target_velocity (0x60FF:01), "
             "Right Motor Target_velocity (0x60FF:02)") in out
+    assert "RPDO2 0x301 every SYNC, 2 bytes: Controlword (0x6040:00)" in out
     assert "Statusword (0x6041:00)" in out and "bus load at 1000 kbit/s" in out
 
 

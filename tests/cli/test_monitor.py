@@ -58,9 +58,9 @@ def test_sim_shows_decoded_pdos_rates_and_bus_load(capsys: pytest.CaptureFixture
     assert 50 <= rate <= 150  # the 100 Hz control loop's SYNC
     assert count > 50
     for node in (1, 2, 3):
-        name, count, rate, signals = rows[f"0x{0x300 + node:03X}"]
-        assert name == f"RPDO2_node{node}"
-        assert re.fullmatch(r"TargetVelocity=-?\d+ inc/s", signals)
+        name, count, rate, signals = rows[f"0x{0x200 + node:03X}"]
+        assert name == f"RPDO1_node{node}"
+        assert re.fullmatch(r"TargetVelocity=-?\d+ inc/s  Controlword=0x[0-9A-F]{4} .+", signals)
         assert 50 <= rate <= 150
         name, count, rate, signals = rows[f"0x{0x280 + node:03X}"]
         assert name == f"TPDO2_node{node}"
@@ -104,7 +104,7 @@ def test_sim_bus_load_in_percent_with_the_bitrate_of_a_config(
                      r"\((\d+\.\d)% of 250 kbit/s\)", bus[0])
     assert m, bus[0]
     assert float(m.group(2)) == pytest.approx(float(m.group(1)) / 250 * 100, abs=0.1)
-    assert rows["0x302"][0] == "RPDO2_node2"
+    assert rows["0x202"][0] == "RPDO1_node2"
 
 
 def test_ctrl_c_ends_cleanly(monkeypatch: pytest.MonkeyPatch,
@@ -126,7 +126,7 @@ def test_ctrl_c_ends_cleanly(monkeypatch: pytest.MonkeyPatch,
     assert rows["0x080"][0] == "SYNC"
     assert bus[0].startswith("bus load:")
     # the base was closed: the drives were disabled on the way out
-    assert rows["0x201"][3].startswith("Controlword=0x")
+    assert re.match(r"TargetVelocity=0 inc/s  Controlword=0x", rows["0x201"][3])
 
 
 def test_terminal_output_is_a_live_table(monkeypatch: pytest.MonkeyPatch,
@@ -138,7 +138,7 @@ def test_terminal_output_is_a_live_table(monkeypatch: pytest.MonkeyPatch,
     assert "omnican monitor (live" in out
     assert "omnican monitor (summary" in out
     assert "┏━" in out and "┃" in out  # a rich table
-    for text in ("SYNC", "RPDO2_node3", "TargetVelocity=", "PositionActual=", "bus load:"):
+    for text in ("SYNC", "RPDO1_node3", "TargetVelocity=", "PositionActual=", "bus load:"):
         assert text in out
 
 
@@ -156,7 +156,7 @@ def traffic(channel: str) -> Iterator[can.BusABC]:
                           0.1)
         bus.send_periodic(can.Message(arbitration_id=0x12345, data=b"\x01\x02\x03",
                                       is_extended_id=True), 0.05)
-        bus.send_periodic(can.Message(arbitration_id=0x302, data=b"\x01\x02",  # too short
+        bus.send_periodic(can.Message(arbitration_id=0x202, data=b"\x01\x02",  # too short
                                       is_extended_id=False), 0.05)
         bus.send_periodic(can.Message(arbitration_id=0x703, is_remote_frame=True, dlc=1,
                                       is_extended_id=False), 0.1)  # node guarding
@@ -178,7 +178,7 @@ def test_listens_on_a_given_bus(traffic: can.BusABC, channel: str,
     assert rows["0x702"][3] == "NmtState=operational"
     assert rows["0x00012345"][0] == "?"
     assert rows["0x00012345"][3] == "01 02 03"
-    assert rows["0x302"][3] == "01 02  (length 2, DBC says 4)"
+    assert rows["0x202"][3] == "01 02  (length 2, DBC says 6)"
     assert rows["0x703"][3] == "(remote request)"
     assert re.fullmatch(r"bus load: \d+\.\d kbit/s worst case over the last 1\.0 s "
                         r"\(\d+\.\d% of 500 kbit/s\)", bus[0])

@@ -190,8 +190,8 @@ class _Sim:
 
 
 @pytest.mark.parametrize(("line", "reply"), [
-    ("heartbeat 1 maybe", "error: heartbeat takes on or off, not 'maybe'"),
-    ("heartbeat 1", "error: heartbeat takes a node id and on or off"),
+    ("heartbeat 1 maybe", "error: heartbeat takes on, off or periodic, not 'maybe'"),
+    ("heartbeat 1", "error: heartbeat takes a node id and on, off or periodic"),
     ("blah", "error: unknown command 'blah' (try 'help')"),
     ("blah 1", "error: unknown command 'blah' (try 'help')"),
     ("fault", "error: fault needs a node id (nodes: 1, 2)"),

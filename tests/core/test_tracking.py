@@ -9,16 +9,22 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from omnican.core.tracking import HOLD_LOAD_PCT, StandstillWatch, TrackingDetector
+from omnican.core.tracking import (
+    HOLD_LOAD_PCT,
+    MIN_RELATIVE_M_S,
+    NotFollowing,
+    StandstillWatch,
+    TrackingDetector,
+)
 
 DT = 0.02  # the health checks' period (50 Hz)
-ERROR, TIME_S, LAG_S = 0.1, 0.5, 0.3
+ERROR, TIME_S, LAG_S, RATIO = 0.1, 0.5, 0.3, 0.5
 
 
 def run(targets: list[float], measured: list[float], fresh: bool = True, running: bool = True,
         detector: TrackingDetector | None = None) -> list[tuple[float, object]]:
     """One wheel through the detector; (time, finding) of each finding."""
-    d = detector or TrackingDetector(1, ERROR, TIME_S, LAG_S)
+    d = detector or TrackingDetector(1, ERROR, TIME_S, LAG_S, RATIO)
     out: list[tuple[float, object]] = []
     for k, (t, m) in enumerate(zip(targets, measured, strict=True)):
         for finding in d.update(k * DT, [t], [m], [fresh], running):
@@ -52,19 +58,65 @@ def lags(draw: st.DrawFn) -> tuple[int, int]:
     return delay, draw(st.integers(1, LAG_STEPS - delay))
 
 
-@given(targets=ramps(), lag=lags(),
-       noise=st.lists(st.floats(-0.9 * ERROR, 0.9 * ERROR), min_size=1))
+@given(targets=ramps(), lag=lags(), noise=st.lists(st.floats(-0.9, 0.9), min_size=1))
 def test_a_wheel_that_follows_within_the_lag_never_trips(
         targets: list[float], lag: tuple[int, int], noise: list[float]) -> None:
-    """However steep the ramp: a measurement that is the target delayed and averaged
-    over a window, all within the lag, give or take less than the error, follows."""
+    """However steep the ramp, through reversals and near zero: a measurement that is the
+    target delayed and averaged over a window, all within the lag, give or take less than
+    the error and less than (1 - ratio) of itself, follows."""
     delay, window = lag
     measured = []
     for k in range(len(targets)):
         lo = max(0, k - delay - window + 1)
         seen = targets[lo:max(lo + 1, k - delay + 1)]
-        measured.append(sum(seen) / len(seen) + noise[k % len(noise)])
+        mean = sum(seen) / len(seen)
+        measured.append(mean + noise[k % len(noise)] * min(ERROR, (1 - RATIO) * abs(mean)))
     assert run(targets, measured) == []
+
+
+@given(target=st.floats(MIN_RELATIVE_M_S, 1.0), sign=st.sampled_from([-1.0, 1.0]),
+       share=st.floats(-1.0, RATIO, exclude_max=True), steps=st.integers(1, 100))
+def test_a_wheel_under_its_share_of_any_target_trips_after_the_time(
+        target: float, sign: float, share: float, steps: int) -> None:
+    """A wheel at under ``ratio`` of its target, that way (standing, turning the wrong way)
+    is not following, however slow the target (5 mm/s and up): stopped after
+    ``tracking_time_s``, its wheel, target and speed named."""
+    lag = round(LAG_S / DT)
+    targets = [sign * target] * (lag + steps + round(TIME_S / DT))
+    measured = [sign * target] * lag + [share * sign * target] * (steps + round(TIME_S / DT))
+    found = run(targets, measured)
+    assert found, "a wheel at under half its target must trip"
+    first_t, first = found[0]
+    assert first_t - lag * DT == pytest.approx(TIME_S, abs=DT + 1e-9)
+    assert isinstance(first, NotFollowing)
+    assert first.target == sign * target and first.measured == share * sign * target
+    text = first.describe(2)
+    assert "wheel 0 (node 2) not following its target for 0.5 s" in text
+    assert f"target {sign * target:+.2f} m/s, measured {share * sign * target:+.2f} m/s" in text
+    if abs(target - share * target) <= ERROR:  # inside the m/s band: the share says it
+        assert "under 50% of its target" in text
+
+
+@given(target=st.floats(-MIN_RELATIVE_M_S, MIN_RELATIVE_M_S, exclude_min=True,
+                        exclude_max=True), speed=st.floats(-0.9 * ERROR, 0.9 * ERROR))
+def test_a_target_near_zero_is_judged_in_m_s_only(target: float, speed: float) -> None:
+    """Below 5 mm/s a wheel is as good as standing: a target there is judged in m/s alone
+    (a wheel within the error of it follows, whatever the share)."""
+    n = round((LAG_S + TIME_S) / DT) * 3
+    assert run([target] * n, [target + speed] * n) == []
+
+
+def test_a_ratio_of_zero_judges_in_m_s_only() -> None:
+    n = round((LAG_S + TIME_S) / DT) * 3
+    d = TrackingDetector(1, ERROR, TIME_S, LAG_S, 0.0)
+    assert run([0.087] * n, [0.0] * n, detector=d) == []
+    assert run([0.087] * n, [0.0] * n)  # at the default share: a stalled wheel
+
+
+def test_a_ratio_must_be_a_share_below_one() -> None:
+    for ratio in (-0.1, 1.0, math.nan):
+        with pytest.raises(ValueError, match="share of the target"):
+            TrackingDetector(1, ERROR, TIME_S, LAG_S, ratio)
 
 
 @given(target=st.floats(-1.0, 1.0).filter(lambda t: abs(t) > 2 * ERROR),

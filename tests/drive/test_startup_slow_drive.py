@@ -214,3 +214,84 @@ def test_the_sim_console_slows_a_drive(channel: str) -> None:
         assert command(sim, "slowboot 2") == ("error: slowboot takes a node id and seconds, "
                                               "e.g. slowboot 2 0.5")
         assert sim.drives[1].comm.boot_delay_s == 1.5
+
+
+# ---------------------------------------------------------------- heartbeats after a slow start
+# (issue 36, item 2) A drive whose producer starts on its period (lely's: the first heartbeat
+# one period after 1017h is written, none at an NMT change), configured for longer than
+# the heartbeat timeout after its boot-up: its heartbeat is watched from the 1017h write.
+
+
+@pytest.mark.parametrize("sdo_delay_s", [0.01, 0.02])
+def test_a_drive_configuring_for_many_heartbeat_periods_opens(channel: str,
+                                                              sdo_delay_s: float) -> None:
+    cfg = sim_config(channel, heartbeat_ms=200)  # lost after 0.7 s of silence
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[0].start_heartbeat(periodic=True)
+        sim.drives[0].slow_sdo(sdo_delay_s)  # ~50 SDOs: 0.5-1 s from boot-up to 1017h
+        with Chassis.open(cfg, clock=clock) as base:
+            assert base.status.enabled
+            assert clock.now() > 0.7  # it configured for longer than the heartbeat timeout
+            clock.sleep(1.0)
+            assert base.status.enabled and base.status.stopped_reason is None
+
+
+def _heartbeats_dropped(drive: Any, back: Callable[[], bool] = lambda: False) -> None:
+    """The drive's heartbeats (not its boot-up) are lost on the bus until ``back()``."""
+    comm = drive.comm
+    send = comm._send
+
+    def lossy(cob_id: int, data: bytes, droppable: bool = True) -> None:
+        if cob_id == 0x700 + comm.node_id and data != b"\x00" and not back():
+            return
+        send(cob_id, data, droppable)
+
+    comm._send = lossy
+
+
+def test_a_drive_whose_heartbeat_never_starts_fails_startup_naming_the_stop(
+        channel: str) -> None:
+    cfg = sim_config(channel)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[1].slow_sdo(0.02)  # the loop starts once node 2 is configured, at ~1.7 s
+        _heartbeats_dropped(sim.drives[0])
+        with pytest.raises(DriveError) as err:
+            Chassis.open(cfg, clock=clock)
+    assert str(err.value) == "startup: base stopped: node 1 heartbeat lost"
+
+
+def test_a_heartbeat_lost_then_back_at_startup_says_so(channel: str) -> None:
+    """What the issue's user saw as "drives not enabled": the stop that held the base,
+    its cause gone since, every drive enabled."""
+    cfg = sim_config(channel)
+    clock = SimClock()
+    with SimulatedBase.from_config(cfg, clock=clock) as sim:
+        sim.drives[1].slow_sdo(0.02)  # the loop starts once node 2 is configured, at ~1.7 s
+        started: list[float] = []  # when the last node was started (NMT OPERATIONAL)
+
+        def back() -> bool:
+            if not started and sim.drives[2].nmt_state == "OPERATIONAL":
+                started.append(clock.now())
+            return bool(started) and clock.now() > started[0] + 0.5
+
+        _heartbeats_dropped(sim.drives[0], back)  # lost as the loop starts, back 0.5 s later
+        with pytest.raises(DriveError) as err:
+            Chassis.open(cfg, clock=clock)
+    assert str(err.value) == ("startup: base stopped: node 1 heartbeat lost (node 1 heard "
+                              "again since; every drive reached OPERATION ENABLED)")
+
+
+def test_the_sim_console_makes_a_heartbeat_periodic(channel: str) -> None:
+    from omnican.sim.console import command
+
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg, clock=SimClock()) as sim:
+        comm = sim.drives[0].comm
+        assert command(sim, "heartbeat 1 periodic") == "node 1: heartbeat periodic"
+        assert comm.heartbeat_periodic and comm.heartbeat.enabled
+        assert command(sim, "heartbeat 1 off") == "node 1: heartbeat off"
+        assert not comm.heartbeat.enabled
+        assert command(sim, "heartbeat 1 on") == "node 1: heartbeat on"
+        assert not comm.heartbeat_periodic and comm.heartbeat.enabled

@@ -112,7 +112,7 @@ def test_no_mapping_at_all_goes_by_sdo_every_cycle(channel: str, tmp_path: Path,
                                                      by_sdo: set[int]) -> None:
     """(c) Refused, and the drive's own mapping lacks the object: expedited SDO each
     cycle (the target written; the position, where it is unmappable too, read; a
-    controlword written when it changes, a statusword read every cycle)."""
+    controlword written every cycle, as on a PDO; a statusword read every cycle)."""
     eds = understated_eds(tmp_path / "understated.eds", by_sdo, drop=by_sdo)
     cfg = with_eds(sim_config(channel), eds)
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base:
@@ -129,10 +129,12 @@ def test_no_mapping_at_all_goes_by_sdo_every_cycle(channel: str, tmp_path: Path,
             assert counts.requests - n0 >= 0.5 * len(by_sdo - {CONTROLWORD}) * 100
             assert counts.answers >= counts.requests - 3 * len(by_sdo)
             assert counts.aborts == 0
-        # The bus budget counts the SDO frames (270 bits per object per cycle; the
-        # controlword's only when it changes) instead of the cyclic PDOs they replace.
+        # The bus budget counts the SDO frames (270 bits per object per cycle) instead of
+        # the cyclic PDOs they replace: the TPDO (95), the drive's own RPDO1 with the
+        # controlword, every cycle (75).
         assert base.cycle_bits() == 55 + 3 * (95 * (POSITION not in by_sdo) +
-                                              270 * len(by_sdo - {CONTROLWORD}))
+                                              75 * (CONTROLWORD not in by_sdo) +
+                                              270 * len(by_sdo))
 
 
 def test_sdo_path_survives_a_reboot(channel: str, tmp_path: Path) -> None:
@@ -184,18 +186,21 @@ def test_check_config_shows_the_sdo_load_and_highest_rate(
     assert 'Target velocity (0x60FF:00) is not PDO-mappable in its EDS: mapped anyway' in out
     assert ("if the drive refuses: SDO every cycle: Target velocity (0x60FF:00) written by "
             "expedited SDO (request + answer, 270 bits)") in out
-    # 3 x (RPDO 95 + TPDO 95) + SYNC 55 = 625 bits mapped; 3 x 270 more if refused.
-    assert re.search(r"if the drives refuse .*: 1150 worst-case bits per cycle; bus load 24% at "
+    # 3 x (RPDO 115, target and controlword, + TPDO 95) + SYNC 55 = 685 bits mapped; if
+    # refused, the target by SDO (270) and the controlword on an RPDO of its own (75):
+    # 3 x (270 + 75 + 95) + 55 = 1375.
+    assert "685 worst-case bits per cycle" in out
+    assert re.search(r"if the drives refuse .*: 1375 worst-case bits per cycle; bus load 28% at "
                      r"500 kbit/s, highest rate within 80 %: (\d+) Hz", out)
     toml.write_text(toml.read_text().replace("[chassis]", '[chassis]\npdo_mapping = "eds"'))
     assert main(["check-config", str(toml)]) == 0
     out = capsys.readouterr().out
-    assert "1150 worst-case bits per cycle" in out
-    m = re.search(r"SDO every cycle: 810 of those bits per cycle; bus load 24% at 500 kbit/s, "
+    assert "1375 worst-case bits per cycle" in out
+    m = re.search(r"SDO every cycle: 810 of those bits per cycle; bus load 28% at 500 kbit/s, "
                   r"highest rate within 80 %: (\d+) Hz", out)
     assert m is not None
-    # 80 % of 500 kbit/s less the heartbeats (host + 3 nodes every 100 ms), over 1150 bits.
-    assert int(m.group(1)) == math.floor((0.8 * 500_000 - 4 * frame_bits(1) / 0.1) / 1150)
+    # 80 % of 500 kbit/s less the heartbeats (host + 3 nodes every 100 ms), over 1375 bits.
+    assert int(m.group(1)) == math.floor((0.8 * 500_000 - 4 * frame_bits(1) / 0.1) / 1375)
 
 
 def test_vendor_eds_understating_its_target(channel: str, tmp_path: Path) -> None:

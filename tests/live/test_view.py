@@ -121,7 +121,7 @@ def test_drive_under_foxglove_publishes_odometry_matching_the_truth() -> None:
     assert any(w["state"] == "OPERATION ENABLED" and abs(w["actual_speed"]) > 0.05
                for _, m in seen["/wheels"] for w in m["wheels"])
     assert any(m["state"] == "RUNNING" and m["loop_hz"] > 50 for _, m in seen["/status"])
-    assert {f.id for _, f in seen["/to_can_bus"]} >= {0x80, 0x301, 0x302, 0x303}
+    assert {f.id for _, f in seen["/to_can_bus"]} >= {0x80, 0x201, 0x202, 0x203}
     assert {f.id for _, f in seen["/from_can_bus"]} >= {0x281, 0x282, 0x283}
     assert all("PositionActual" in m for _, m in seen["/can/TPDO2_node1"])
     assert len({m["PositionActual"] for _, m in seen["/can/TPDO2_node1"]}) > 10

@@ -3,7 +3,7 @@ unpacking reads it back, and the loop's one-call forms agree with the plain ones
 
 from __future__ import annotations
 
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from omnican.plan.codec import PdoCodec
@@ -84,4 +84,40 @@ def test_an_rpdos_one_call_fill_is_pack_of_its_values(
         if stage is not None:
             stage.cw ^= 0x0F
     io.fill(speeds)
+    assert bytes(io.msg.data) == codec.pack(io.values(speeds))
+
+
+@given(targets=st.integers(1, 2), controlwords=st.integers(0, 2),
+       target_bits=st.sampled_from([16, 32]), data=st.data())
+def test_the_plans_own_layout_fills_as_packing_its_values(
+        targets: int, controlwords: int, target_bits: int, data: st.DataObject) -> None:
+    """The plan's cyclic RPDO (targets, then the controlwords sent every cycle) is filled
+    on its own short path: the same bytes as packing the field values, the targets
+    saturated, each controlword as its stage holds it, a changed one sent."""
+    from types import SimpleNamespace
+
+    from omnican.drive.cyclic import _RpdoIO
+    from omnican.io.bus import prepared_message
+    from omnican.plan.pdo import frame_bits
+
+    fields = [(target_bits, True)] * targets + [(16, False)] * controlwords
+    assume(sum(bits for bits, _ in fields) <= 64)
+    codec = codec_of(fields)
+    io = _RpdoIO(codec.pdo, codec, prepared_message(0x201, bytes(codec.length)),
+                 frame_bits(codec.length))
+    stages = []
+    for k in range(targets):
+        axis = SimpleNamespace(wheel_index=k)
+        io.sources.append((axis, data.draw(st.floats(-1e6, 1e6)), None))  # type: ignore[arg-type]
+    for _ in range(controlwords):
+        stages.append(SimpleNamespace(cw=data.draw(st.integers(0, 0xFFFF))))
+        io.sources.append((None, 0.0, stages[-1]))  # type: ignore[arg-type]
+    io.seal()
+    assert io._targets is not None  # the short path
+    speeds = data.draw(st.lists(st.floats(-1e4, 1e4), min_size=2, max_size=2))
+    io.fill(speeds)
+    assert bytes(io.msg.data) == codec.pack(io.values(speeds))
+    for stage in stages:
+        stage.cw = data.draw(st.integers(0, 0xFFFF))
+    io.fill(speeds)  # the same targets, new controlwords
     assert bytes(io.msg.data) == codec.pack(io.values(speeds))

@@ -92,8 +92,9 @@ def test_the_dbc_has_no_pdo_the_plan_lacks(db: Any) -> None:
 def test_pdo_signals_have_clear_names_and_units(db: Any) -> None:
     """The plan of the bundled EDS as the issue describes it, signal by signal."""
     expected = {
-        0x200: ("RPDO1", [("Controlword", 0, 16, False, None)]),
-        0x300: ("RPDO2", [("TargetVelocity", 0, 32, True, "inc/s")]),
+        # the controlword every cycle, beside the target (chassis.cyclic_controlword)
+        0x200: ("RPDO1", [("TargetVelocity", 0, 32, True, "inc/s"),
+                          ("Controlword", 32, 16, False, None)]),
         0x180: ("TPDO1", [("Statusword", 0, 16, False, None), ("ModeDisplay", 16, 8, True, None),
                           ("ErrorCode", 24, 16, False, None)]),
         0x280: ("TPDO2", [("PositionActual", 0, 32, True, "inc")]),
@@ -184,7 +185,7 @@ def test_a_vendor_config_gets_its_own_frames(tmp_path: Path) -> None:
         f'[[wheel]]\nnode_id = {n}\naxis = {a}\neds = "{zlac}"\nvelocity_scale = 100.0\n'
         "position_scale = 1000.0\n" for n, a in ((1, 0), (1, 1), (2, 0))))
     vendor = build_database(load_config(cfg))
-    msg = vendor.get_message_by_frame_id(0x301)
+    msg = vendor.get_message_by_frame_id(0x201)
     assert [s.name for s in msg.signals] == ["TargetVelocity", "TargetVelocity_60FFsub2"]
     assert msg.length == 8
     assert msg.decode(bytes.fromhex("e8030000" "18fcffff")) == {
@@ -200,7 +201,7 @@ def test_cantools_decode_reads_a_drive_recording(tmp_path: Path, capsys: pytest.
     capsys.readouterr()
     text = log.read_text()
     # python-can's candump-format writer: "(time) channel ID#DATA R|T"
-    assert re.search(r"^\(\d+\.\d+\) \S+ 302#[0-9A-F]{8} [RT]$", text, re.M), text[:500]
+    assert re.search(r"^\(\d+\.\d+\) \S+ 202#[0-9A-F]{12} [RT]$", text, re.M), text[:500]
     result = subprocess.run(
         [sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC)],
         input=text, capture_output=True, text=True, timeout=60, check=False)
@@ -209,11 +210,13 @@ def test_cantools_decode_reads_a_drive_recording(tmp_path: Path, capsys: pytest.
     assert len(decoded) == len(text.splitlines())
     assert any(line.endswith(":: SYNC()") for line in decoded)
     targets = [int(m.group(1)) for line in decoded
-               if (m := re.search(r":: RPDO2_node2\(TargetVelocity: (-?\d+) inc/s\)", line))]
+               if (m := re.search(r":: RPDO1_node2\(TargetVelocity: (-?\d+) inc/s, "
+                                  r"Controlword: \d+\)", line))]
     assert targets and any(t != 0 for t in targets)
     # b21: the back wheel (node 1) does not turn when driving straight ahead
     node1 = [int(m.group(1)) for line in decoded
-             if (m := re.search(r":: RPDO2_node1\(TargetVelocity: (-?\d+) inc/s\)", line))]
+             if (m := re.search(r":: RPDO1_node1\(TargetVelocity: (-?\d+) inc/s, "
+                                r"Controlword: \d+\)", line))]
     assert node1 and all(t == 0 for t in node1)
     assert any(re.search(r":: TPDO1_node1\(Statusword: \d+, ModeDisplay: profile velocity, "
                          r"ErrorCode: ", line) for line in decoded)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -30,9 +31,11 @@ def _dictionary(eds: Path) -> object:
 
 
 def plan(eds: object = WHEEL_EDS, unmappable: frozenset[Obj] = frozenset(), mapping: str = "try",
-         axes: tuple[int, ...] = (0,)) -> tuple[NodePlan, dict[Obj, list[Entry]]]:
-    """Plan one node as layout.py does, with ``unmappable`` objects marked PDOMapping=0."""
-    d = _dictionary(eds)  # type: ignore[arg-type]
+         axes: tuple[int, ...] = (0,), every_cycle: bool = False,
+         ) -> tuple[NodePlan, dict[Obj, list[Entry]]]:
+    """Plan one node as layout.py does, with ``unmappable`` objects marked PDOMapping=0;
+    ``every_cycle``: the controlwords written every cycle (chassis.cyclic_controlword)."""
+    d = _dictionary(eds) if isinstance(eds, Path) else eds
     objs: dict[Obj, list[Entry]] = {o: [] for o in NEEDED}
     for axis in axes:
         a = AxisObjects(d, axis)
@@ -43,7 +46,7 @@ def plan(eds: object = WHEEL_EDS, unmappable: frozenset[Obj] = frozenset(), mapp
                 objs[o].append(e)
     p = plan_node(1, d, cyclic_rx=objs[Obj.TARGET_VELOCITY], event_rx=objs[Obj.CONTROLWORD],
                   cyclic_tx=objs[Obj.POSITION_ACTUAL], event_tx=objs[Obj.STATUSWORD],
-                  mapping=mapping)
+                  mapping=mapping, event_rx_every_cycle=every_cycle)
     return p, objs
 
 
@@ -86,7 +89,7 @@ def test_sdo_policy_moves_targets_and_positions() -> None:
 def test_every_needed_object_travels_exactly_once(unmappable: frozenset[Obj], mapping: str,
                                                    eds: object) -> None:
     axes = (0,) if eds in (WHEEL_EDS, VENDOR_EDS / "maxon_epos4.eds") else (0, 1)
-    p, objs = plan(eds, unmappable, mapping, axes)
+    p, objs = plan(eds, unmappable, mapping, axes)  # controlwords on change
     on_pdo = mapped(p)
     by_sdo = [(t.entry.index, t.entry.subindex) for t in p.sdo]
     cyclic = {Obj.TARGET_VELOCITY, Obj.POSITION_ACTUAL}
@@ -109,3 +112,89 @@ def test_every_needed_object_travels_exactly_once(unmappable: frozenset[Obj], ma
 def test_unknown_policy_is_refused() -> None:
     with pytest.raises(ValueError, match="mapping must be one of try, eds, sdo"):
         plan(mapping="maybe")
+
+
+# ---------------------------------------------------------------- the controlword every cycle
+
+EDS_FILES = [WHEEL_EDS, VENDOR_EDS / "zlac8015d.eds", VENDOR_EDS / "roboteq_v80_21.eds",
+             VENDOR_EDS / "maxon_epos4.eds"]
+
+
+def single_entry_eds(dest: Path, source: Path = WHEEL_EDS) -> Path:
+    """A copy of ``source`` whose PDOs each take one mapping entry (16xxh, 1Axxh)."""
+    out: list[str] = []
+    keep, mapping = True, False
+    for line in source.read_text().splitlines():
+        text = line.strip()
+        if text.startswith("["):
+            m = re.fullmatch(r"\[(1[6A][0-9A-Fa-f]{2})(?:sub([0-9A-Fa-f]+))?\]", text)
+            mapping = m is not None
+            keep = not (m is not None and m.group(2) is not None and int(m.group(2), 16) >= 2)
+        if keep:
+            out.append("SubNumber=2" if mapping and text.startswith("SubNumber=") else line)
+    dest.write_text("\n".join(out) + "\n")
+    return dest
+
+
+@given(unmappable=st.frozensets(st.sampled_from(NEEDED)), mapping=st.sampled_from(MAPPING_POLICIES),
+       eds=st.sampled_from(EDS_FILES))
+def test_every_controlword_goes_every_cycle_and_once(unmappable: frozenset[Obj], mapping: str,
+                                                     eds: Path) -> None:
+    """With the controlwords every cycle: each needed object still travels exactly once;
+    every RPDO goes every SYNC (none on change), and so does every SDO transfer; a
+    controlword goes by SDO only where the EDS moves it there, never for the "sdo"
+    policy (the targets' and positions')."""
+    axes = (0,) if eds in (WHEEL_EDS, VENDOR_EDS / "maxon_epos4.eds") else (0, 1)
+    p, objs = plan(eds, unmappable, mapping, axes, every_cycle=True)
+    on_pdo = mapped(p)
+    by_sdo = [(t.entry.index, t.entry.subindex) for t in p.sdo]
+    cyclic = {Obj.TARGET_VELOCITY, Obj.POSITION_ACTUAL}
+    for o, entries in objs.items():
+        for e in entries:
+            key = (e.index, e.subindex)
+            assert on_pdo.count(key) + by_sdo.count(key) == 1, (o, key)
+            expect_sdo = (mapping == "sdo" and o in cyclic) or (
+                mapping != "try" and o in unmappable)
+            assert (key in by_sdo) == expect_sdo, (o, mapping)
+    assert all(r.cyclic for r in p.rpdos)
+    assert all(t.cyclic for t in p.sdo)
+    pdo_bits = sum(frame_bits(x.data_bytes) for x in p.rpdos + p.tpdos if x.cyclic)
+    assert p.cyclic_bits() == pdo_bits + SDO_TRANSFER_BITS * len(p.sdo)
+
+
+def _rpdo_layout(p: NodePlan) -> list[list[tuple[int, int]]]:
+    return [[(e.index, e.subindex) for e in r.entries] for r in p.rpdos]
+
+
+@pytest.mark.parametrize(("eds", "axes", "layout", "bits"), [
+    # one axis: the controlword beside the target, one 6-byte frame (+20 bits a cycle)
+    (WHEEL_EDS, (0,), [[(0x60FF, 0), (0x6040, 0)]], frame_bits(6)),
+    (VENDOR_EDS / "maxon_epos4.eds", (0,), [[(0x60FF, 0), (0x6040, 0)]], frame_bits(6)),
+    # ZLAC8015D: two sub-indexed targets fill a frame; the one controlword gets its own
+    (VENDOR_EDS / "zlac8015d.eds", (0, 1), [[(0x60FF, 1), (0x60FF, 2)], [(0x6040, 0)]],
+     frame_bits(8) + frame_bits(2)),
+    # Roboteq: axes at +0x800, a controlword each, both on the second frame
+    (VENDOR_EDS / "roboteq_v80_21.eds", (0, 1), [[(0x60FF, 0), (0x68FF, 0)],
+                                                 [(0x6040, 0), (0x6840, 0)]],
+     frame_bits(8) + frame_bits(4)),
+])
+def test_the_controlword_rides_beside_the_targets(eds: Path, axes: tuple[int, ...],
+                                                  layout: list[list[tuple[int, int]]],
+                                                  bits: int) -> None:
+    p, _ = plan(eds, axes=axes, every_cycle=True)
+    assert _rpdo_layout(p) == layout
+    assert all(r.cyclic and r.trans_type == 1 for r in p.rpdos)
+    rx_bits = sum(frame_bits(r.data_bytes) for r in p.rpdos)
+    assert rx_bits == bits
+    # On change instead: the controlwords' RPDO costs nothing a cycle.
+    q, _ = plan(eds, axes=axes)
+    assert sum(frame_bits(r.data_bytes) for r in q.rpdos if r.cyclic) < rx_bits
+    assert any(not r.cyclic for r in q.rpdos)
+
+
+def test_a_single_entry_drive_gets_a_second_cyclic_rpdo(tmp_path: Path) -> None:
+    eds = single_entry_eds(tmp_path / "single.eds")
+    p, _ = plan(load_dictionary(eds, 1), every_cycle=True)
+    assert _rpdo_layout(p) == [[(0x60FF, 0)], [(0x6040, 0)]]
+    assert all(r.cyclic for r in p.rpdos)
+    assert sum(frame_bits(r.data_bytes) for r in p.rpdos) == frame_bits(4) + frame_bits(2)

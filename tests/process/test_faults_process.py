@@ -81,14 +81,15 @@ def free_port() -> int:
 
 
 class SimProcess:
-    """``omnican sim`` serving a loopback hub on ``port``, in a process of its own."""
+    """``omnican sim`` serving a loopback hub on ``port``, in a process of its own
+    (``args``: more of its arguments, e.g. a config)."""
 
     started: ClassVar[list[SimProcess]] = []  # killed after each test whatever happened
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, *args: str) -> None:
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "omnican", "sim", "--serve", f"127.0.0.1:{port}"],
+            [sys.executable, "-m", "omnican", "sim", "--serve", f"127.0.0.1:{port}", *args],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             env=env)
         SimProcess.started.append(self)

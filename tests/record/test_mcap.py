@@ -86,7 +86,7 @@ def test_drive_records_frames_and_ros2_state(tmp_path: Path,
     db = cantools.database.load_string(attachments["omnican.dbc"].data.decode(), "dbc")
     tx = {f.id for _, f in topics["/to_can_bus#"]}
     rx = [f for _, f in topics["/from_can_bus#"]]
-    assert {0x80, 0x301, 0x302, 0x303, 0x77F} <= tx
+    assert {0x80, 0x201, 0x202, 0x203, 0x77F} <= tx
     tpdo2 = next(f for f in rx if f.id == 0x281)
     assert "PositionActual" in db.decode_message(0x281, bytes(tpdo2.data)[:tpdo2.dlc])
     assert metadata["omnican"]["dropped_frames"] == "0"
@@ -112,7 +112,7 @@ def test_a_ros2_bag_reader_reads_the_recording(tmp_path: Path) -> None:
         frames = [reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages(
             connections=[c for c in reader.connections if c.topic == "/to_can_bus"])]
     assert odometry[-1].pose.pose.position.x > 0.05
-    assert {f.id for f in frames} >= {0x80, 0x301}
+    assert {f.id for f in frames} >= {0x80, 0x201}
 
 
 def test_mcap_replays_like_a_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

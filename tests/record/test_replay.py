@@ -107,8 +107,9 @@ def test_targets_states_emcy_and_reboot() -> None:
         statusword(0.004, 1, 0x0023),
         statusword(0.005, 1, 0x0027),  # OPERATION ENABLED
         statusword(0.006, 1, 0x0427),  # same state, another bit: no new entry
-        F(0.010, 0x301, (int(0.25 * VS)).to_bytes(4, "little", signed=True)),
-        F(0.010, 0x302, (int(-0.5 * VS)).to_bytes(4, "little", signed=True)),
+        # RPDO1: the target, then the controlword (enable operation), every cycle
+        F(0.010, 0x201, (int(0.25 * VS)).to_bytes(4, "little", signed=True) + b"\x0f\x00"),
+        F(0.010, 0x202, (int(-0.5 * VS)).to_bytes(4, "little", signed=True) + b"\x0f\x00"),
         *cycle(0.011, [100, 200, 300]),
         *cycle(0.021, [150, 150, 350]),
         F(0.025, 0x81, bytes([0x10, 0x23, 0x03, 0, 0, 0, 0, 0])),  # EMCY 0x2310
@@ -118,7 +119,7 @@ def test_targets_states_emcy_and_reboot() -> None:
         *cycle(0.031, [170, 5000, 400]),
         *cycle(0.041, [170, 5010, 400]),
         F(0.045, 0x81, bytes(8)),  # error reset
-        F(0.046, 0x301, b"\x01"),  # too short for the PDO: ignored, as the chassis does
+        F(0.046, 0x201, b"\x01"),  # too short for the PDO: ignored, as the chassis does
     ]
     rep = decode(frames, CFG, LAYOUTS)
     assert rep.target_t[0].tolist() == [0.010]

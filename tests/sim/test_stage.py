@@ -301,3 +301,81 @@ def test_the_host_walk_reaches_its_goal_from_wherever_the_stage_is(
         else:
             stage.write_controlword(apply_command(stage.controlword, command))
     assert stage.state is goal
+
+
+# ---------------------------------------------------------------- acting on arrival
+
+
+@given(words=st.lists(st.sampled_from([SHUTDOWN, SWITCH_ON, ENABLE, DISABLE_VOLTAGE,
+                                       QUICK_STOP, ENABLE | cia402.CW_HALT]), max_size=30))
+def test_a_stage_acting_on_arrival_runs_only_after_a_repeat_in_operation_enabled(
+        words: list[int]) -> None:
+    """ros2_canopen's fake slave: the states as any drive's, but in OPERATION ENABLED its
+    motors start only at a controlword that arrives there asking for it (enable
+    operation, halted or not); a drive that does not act on arrival runs at once."""
+    lazy = stage_in(State.SWITCH_ON_DISABLED)
+    lazy.on_arrival = True
+    eager = stage_in(State.SWITCH_ON_DISABLED)
+    arrived_enabled = False
+    for word in words:
+        was = lazy.state
+        lazy.write_controlword(word)
+        eager.write_controlword(word)
+        assert lazy.state is eager.state  # the states do not change
+        if lazy.state is not State.OPERATION_ENABLED:
+            arrived_enabled = False
+        elif was is State.OPERATION_ENABLED and word & 0x8F == ENABLE:
+            arrived_enabled = True
+        if lazy.state is State.OPERATION_ENABLED:
+            assert lazy.running == arrived_enabled
+            assert eager.running
+
+
+def test_the_enable_command_again_starts_the_motors() -> None:
+    stage = stage_in(State.SWITCHED_ON)
+    stage.on_arrival = True
+    assert stage.write_controlword(ENABLE) is Reaction.ENABLED
+    assert stage.state is State.OPERATION_ENABLED and not stage.running
+    assert stage.write_controlword(ENABLE) is Reaction.STATE  # the motors follow it now
+    assert stage.running
+    assert stage.write_controlword(ENABLE) is Reaction.NONE
+
+
+_EVENTS = st.one_of(
+    st.tuples(st.just("write"), st.sampled_from([SHUTDOWN, SWITCH_ON, ENABLE, DISABLE_VOLTAGE,
+                                                  QUICK_STOP, FAULT_RESET, 0x00,
+                                                  ENABLE | cia402.CW_HALT])),
+    st.tuples(st.sampled_from(["trip", "held", "released", "sto", "sto off", "settle",
+                               "abort", "arrival", "power up"]), st.just(0)))
+
+
+@given(events=st.lists(_EVENTS, max_size=60), option=st.sampled_from([2, 6]))
+def test_a_repeated_word_taken_as_idle_changes_nothing(events: list[tuple[str, int]],
+                                                        option: int) -> None:
+    """The simulated drive skips a controlword written again when :meth:`idle` says it
+    would change nothing: whatever happened in between (faults, a held power stage, safe
+    torque off, a quick stop settling, acting on arrival), a stage that skips those and
+    one that acts on every write stay alike."""
+    every, skipping = (PowerStage(quick_stop_option=lambda: option) for _ in range(2))
+    for kind, word in events:
+        for stage in (every, skipping):
+            if kind == "write":
+                if stage is skipping and stage.idle(word):
+                    continue
+                stage.write_controlword(word)
+            elif kind == "trip":
+                stage.trip(0x2310)
+            elif kind in ("held", "released"):
+                stage.enable_held = kind == "held"
+            elif kind in ("sto", "sto off"):
+                stage.safe_torque_off(kind == "sto")
+            elif kind == "settle":
+                stage.settle()
+            elif kind == "abort":
+                stage.abort_connection(cia402.ABORT_QUICK_STOP)
+            elif kind == "arrival":
+                stage.on_arrival = not stage.on_arrival
+            else:
+                stage.power_up()
+        assert (skipping.state, skipping.running, skipping.controlword, skipping.statusword()) \
+            == (every.state, every.running, every.controlword, every.statusword())
