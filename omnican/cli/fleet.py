@@ -60,6 +60,9 @@ STATE_STYLE = {"RUNNING": "green", "STARTING": "yellow", "STOPPED": "bold red",
 UP, DOWN = frozenset({"k"}), frozenset({"j"})
 ARROWS = {"A": "k", "B": "j"}  # up and down select; left and right do nothing
 QUIT = frozenset({"q", "Q", "\x1b", "\x03"})
+#: Why a recover of a name two sessions claim is not asked: it would reach both (a
+#: service's key is the name's, whoever serves it), and a recover moves a base.
+CONFLICT = "more than one session claims the name, and a recover would reach each"
 PEER_HINT = ("a peer sees only the bases it can open a link of its own to: "
              "--zenoh-mode client goes through the router")
 
@@ -359,18 +362,25 @@ def stop_as_found(fleet: Fleet, names: Sequence[str], timeout: float,
         tokens = fleet.find_all(name, heard=False)
         if not tokens:
             unknown.append(name)
-        asked.ask(fleet, "stop", tokens, timeout, unheard=True)
+        elif not any(v.heard for v in tokens):  # a base heard was asked: its query went
+            asked.ask(fleet, "stop", tokens, timeout, unheard=True)  # to them all
     return asked, unknown
 
 
-def recover_targets(fleet: Fleet, names: Sequence[str]) -> list[BaseView]:
-    """--recover: the bases ``names`` say ('all': every base not lost); UsageError for a
-    name no base has, or one two sessions claim (a recover moves a base: it must be the
-    right one)."""
+def recover_targets(fleet: Fleet, names: Sequence[str]) -> tuple[list[BaseView], list[str]]:
+    """--recover: the bases ``names`` say ('all': every base not lost), and the lines of
+    those not asked: a name two sessions claim (a recover moves a base, and would reach
+    each). UsageError for a name no base has, or a name in conflict asked by name."""
     out: list[BaseView] = []
+    skipped: list[str] = []
     for name in dict.fromkeys(names):
         if name == "all":
-            out += [v for v in fleet.bases() if not v.lost and not v.conflict]
+            for v in fleet.bases():
+                if v.conflict and not v.lost:
+                    skipped.append(f"recover {v.name}: not asked: {CONFLICT} "
+                                   f"({', '.join((v.zid, *v.conflict))})")
+                elif not v.lost:
+                    out.append(v)
             continue
         found = fleet.find_all(name)
         if not found:
@@ -378,10 +388,10 @@ def recover_targets(fleet: Fleet, names: Sequence[str]) -> list[BaseView]:
             raise UsageError(f"fleet: no base named {printable(name, 80)!r} (found: {known})")
         if len(found) > 1 or found[0].conflict:
             sessions = ", ".join(sorted({v.zid for v in found} | set(found[0].conflict)))
-            raise UsageError(f"fleet: {found[0].name} is claimed by more than one session "
-                             f"({sessions}): not recovered")
+            raise UsageError(f"fleet: {found[0].name}: {CONFLICT} ({sessions}): "
+                             "not recovered")
         out += found
-    return list({v.key: v for v in out}.values())
+    return list({v.key: v for v in out}.values()), list(dict.fromkeys(skipped))
 
 
 def act(link: Link, args: argparse.Namespace) -> int:
@@ -405,17 +415,22 @@ def act(link: Link, args: argparse.Namespace) -> int:
     asked = Asked()
     if args.stop:
         asked, unknown = stop_as_found(fleet, args.stop, args.timeout, deadline)
-    recovering: Call | None = None
-    if args.recover:
-        if not args.stop:
-            fleet.discover(max(0.0, deadline - time.monotonic()))
-        recovering = fleet.request("recover", recover_targets(fleet, args.recover),
-                                   max(args.timeout, RECOVER_TIMEOUT_S))
     stopped = [a for call in asked.calls for a in call.wait()]  # by name: as found, they
     for answer in sorted(stopped, key=lambda a: (a.name, a.zid)):  # came in any order
         failed |= not answer.success
         print_answer(args.json, "stop", answer)
     failed |= report_unheard(args.json, asked.unheard)
+    recovering: Call | None = None
+    skipped: list[str] = []
+    if args.recover:  # after the stops are answered (a name no base has is then said)
+        if not args.stop:
+            fleet.discover(max(0.0, deadline - time.monotonic()))
+        targets, skipped = recover_targets(fleet, args.recover)
+        recovering = fleet.request("recover", targets, max(args.timeout, RECOVER_TIMEOUT_S))
+    for line in skipped:
+        failed = True
+        say(args.json, {"service": "recover", "base": line.split()[1], "answered": False,
+                        "success": False, "message": CONFLICT}, line)
     if recovering is not None:
         for answer in recovering.wait():
             failed |= not answer.success
@@ -563,18 +578,20 @@ def detail_lines(view: BaseView | None) -> int:
     return extra + (2 if s is None else 3 + bool(s.stopped_reason) + len(s.faults))
 
 
-def heading(views: Sequence[BaseView], title: str, ignored: dict[str, int],
+def heading(views: Sequence[BaseView], where: str, ignored: dict[str, int],
             listing: bool = False) -> str:
-    """The dashboard's title line: the bases, lost and in conflict, the tokens ignored,
-    and while the view asks for the tokens already there, that it does."""
+    """The dashboard's title line, the counts first (an 80-column line cuts the end):
+    the bases, lost and in conflict, the tokens ignored, while the view asks for the
+    tokens already there that it does, then where the view looks."""
     lost = sum(v.lost for v in views)
     conflicts = len({v.name for v in views if v.conflict})
-    text = f"{title} - {len(views)} base{'s' * (len(views) != 1)}"
-    text += f", {lost} lost" if lost else ""
-    text += f", {conflicts} name{'s' * (conflicts != 1)} in conflict" if conflicts else ""
     n = sum(ignored.values())
-    text += f" - {n} token{'s' * (n != 1)} ignored" if n else ""
-    return text + (" - listing the tokens already there" if listing else "")
+    parts = [f"{len(views)} base{'s' * (len(views) != 1)}"]
+    parts += [f"{lost} lost"] if lost else []
+    parts += [f"{conflicts} in conflict"] if conflicts else []
+    parts += [f"{n} token{'s' * (n != 1)} ignored"] if n else []
+    parts += ["listing the tokens already there"] if listing else []
+    return f"omnican fleet - {', '.join(parts)} - {where}"
 
 
 def screen(views: Sequence[BaseView], selected: tuple[str, str] | None, title: str,
@@ -630,7 +647,7 @@ def dashboard(settings: ZenohSettings, args: argparse.Namespace) -> int:
     events = Events()
     where = ("the router on " + (", ".join(args.zenoh_listen) or ROUTER_LISTEN)
              if getattr(args, "router", False) else ", ".join(args.zenoh_connect) or "peers")
-    title = f"omnican fleet - domain {args.domain_id} via {where}"
+    title = f"domain {args.domain_id} via {where}"
     picked: tuple[str, str] | None = None  # the base the keys chose (None: the first)
     calls: list[Call] = []
     with cbreak(fd, lambda: events.say("Ctrl-Z: the fleet view does not suspend; q quits")), \
@@ -656,6 +673,10 @@ def dashboard(settings: ZenohSettings, args: argparse.Namespace) -> int:
                     timeout = args.timeout if key == "s" else max(args.timeout,
                                                                   RECOVER_TIMEOUT_S)
                     view = next(v for v in views if _id(v) == selected)
+                    if service == "recover" and view.conflict:
+                        events.say(f"recover {view.name}: not asked: "
+                                   f"{CONFLICT} ({', '.join((view.zid, *view.conflict))})")
+                        continue
                     calls.append(fleet.request(service, [view], timeout))
                     events.say(f"{service} {view.name}: asked"
                                + (f" (but {problem})" if problem else ""))

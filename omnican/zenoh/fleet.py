@@ -533,11 +533,15 @@ class Fleet:
         return sorted(views, key=lambda v: (v.name, v.zid))
 
     def unheard(self) -> list[BaseView]:
-        """The tokens that announce a base but whose summary was not heard (not lost)."""
+        """The tokens that announce a base but whose summary was not heard (not lost),
+        but for those whose name a base heard from also has: a request to that base
+        reaches every session serving that name already."""
         now = self.clock()
         with self._lock:
+            heard = {e.name for e in self._entries.values()
+                     if e.heard_from and e.lost_at is None}
             views = [self._view(e, now) for e in self._entries.values()
-                     if not e.heard_from and e.lost_at is None]
+                     if not e.heard_from and e.lost_at is None and e.name not in heard]
         return sorted(views, key=lambda v: (v.name, v.zid))
 
     def ignored(self) -> dict[str, int]:
@@ -618,7 +622,8 @@ class Fleet:
                     call._add(key, printable(target, 80), "")
                     call._settle(key, False, False, "no such base")
             chosen += found
-        for view in chosen:
+        groups: dict[str, list[_Entry]] = {}  # one query per service key: every
+        for view in chosen:  # session claiming that name's queryable answers it
             with self._lock:
                 entry = self._entries.get(view.key)
             if view.key in call._labels:
@@ -627,20 +632,24 @@ class Fleet:
             if entry is None:
                 call._settle(view.key, False, False, "its token went: forgotten")
                 continue
+            groups.setdefault(service_key(entry.token.node, service), []).append(entry)
+        for key, entries in groups.items():
             with self._lock:
                 self._seq += 1
                 seq = self._seq
-            lost = (f"lost {self.clock() - entry.lost_at:.0f} s ago; "
-                    if entry.lost_at is not None else "")
-            self._ask(call, entry, service_key(entry.token.node, service), seq, lost)
+            self._ask(call, key, entries, seq)
         return call
 
-    def _ask(self, call: Call, entry: _Entry, key: str, seq: int, lost: str) -> None:
+    def _ask(self, call: Call, key: str, entries: list[_Entry], seq: int) -> None:
+        """One query on ``key``; each reply is its sender's answer if that session owns
+        one of ``entries`` (their tokens' session ids), else an intruder's."""
         zenoh = self._zenoh
-        owner = entry.token.node.session_id
-        target = entry.key
         sent = time.monotonic()
         timed_out = threading.Event()
+
+        def owner(replier: str) -> _Entry | None:
+            return next((e for e in entries if same_session(e.token.node.session_id,
+                                                            replier)), None)
 
         def on_reply(reply: Any) -> None:
             rid = reply.replier_id
@@ -648,18 +657,21 @@ class Fleet:
             if replier is None:  # Zenoh's own (a timeout): no session answered this
                 timed_out.set()
                 return
-            if not same_session(replier, owner):
+            entry = owner(replier)
+            if entry is None:
                 with self._lock:
                     self.intruders += 1
-                call._intrude(target, replier)
+                for e in entries:
+                    call._intrude(e.key, replier)
                 self._throttle.log(logging.WARNING, "intruder",
                                    "%s %s: a reply from session %s ignored (the service is "
-                                   "session %s's): an intruder", call.service, entry.name,
-                                   printable(replier, 40), entry.zid)
+                                   "session %s's): an intruder", call.service,
+                                   entries[0].name, printable(replier, 40),
+                                   ", ".join(e.zid for e in entries))
                 return
             if reply.ok is None:
                 text = reply.err.payload.to_bytes().decode("utf-8", "replace")
-                call._settle(target, True, False,
+                call._settle(entry.key, True, False,
                              f"error: {printable(text, MESSAGE_CHARS)}")
                 return
             try:
@@ -669,10 +681,10 @@ class Fleet:
                     raise ValueError("it answers another request")
                 ok, message = read_trigger_response(reply.ok.payload.to_bytes())
             except ValueError as exc:
-                call._settle(target, True, False,
+                call._settle(entry.key, True, False,
                              f"unreadable answer: {printable(str(exc), MESSAGE_CHARS)}")
                 return
-            call._settle(target, True, ok, printable(message, MESSAGE_CHARS))
+            call._settle(entry.key, True, ok, printable(message, MESSAGE_CHARS))
 
         def finished() -> None:  # every reply in, or the query's timeout
             took = time.monotonic() - sent
@@ -681,7 +693,10 @@ class Fleet:
             else:
                 why = (f"nothing serves its {call.service} service: the query ended after "
                        f"{took:.2f} s")
-            call._settle(target, False, False, lost + why)
+            for e in entries:
+                lost = (f"lost {self.clock() - e.lost_at:.0f} s ago; "
+                        if e.lost_at is not None else "")
+                call._settle(e.key, False, False, lost + why)
 
         attachment = rmw.Attachment(seq, time.time_ns(), self.gid).encode()
         self.session.get(key, zenoh.handlers.Callback(on_reply, finished),

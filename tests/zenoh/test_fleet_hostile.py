@@ -57,6 +57,15 @@ def test_a_second_session_claiming_a_name_is_a_conflict_not_a_lost_base(
         views = fleet.bases()
         assert [(v.name, v.zid, v.state) for v in views] == [(ROBOT1, real.zid, "RUNNING")]
         assert fleet.find("robot1") is not None and fleet.find("robot1").zid == real.zid
+        # a recover would reach both sessions' services (one key): not asked
+        from omnican.cli.common import UsageError
+        from omnican.cli.fleet import recover_targets
+
+        with pytest.raises(UsageError, match="more than one session claims the name"):
+            recover_targets(fleet, ["robot1"])
+        assert recover_targets(fleet, ["all"]) == ([], [
+            f"recover {ROBOT1}: not asked: more than one session claims the name, and a "
+            f"recover would reach each ({real.zid}, {stranger_zid})"])
         fake.close()  # the stranger's token goes: nothing of the real base changes
         assert run_until((rig,), lambda: fleet.bases()[0].conflict == ())
         for _ in range(20):

@@ -137,6 +137,17 @@ def test_what_keeps_a_view_from_its_bases() -> None:
     assert reach_problem(ZenohSettings(multicast=True), 0) == "reaches no Zenoh router or peer"
 
 
+def test_the_title_says_the_counts_first() -> None:
+    from omnican.cli.fleet import heading
+
+    views = [view(conflict=("cd34",)), view(name="/r2/omnican", lost=True)]
+    assert heading(views, "domain 0 via tcp/h:7447", {"no summary": 5000}, True) == (
+        "omnican fleet - 2 bases, 1 lost, 1 in conflict, 5000 tokens ignored, listing "
+        "the tokens already there - domain 0 via tcp/h:7447")
+    assert heading([view()], "domain 0 via peers", {"no summary": 0}) == \
+        "omnican fleet - 1 base - domain 0 via peers"
+
+
 def test_the_ignored_tokens_are_counted_by_why() -> None:
     from omnican.cli.fleet import ignored_text
 
@@ -181,7 +192,7 @@ def test_the_dashboard_shows_a_peers_text_and_no_escape(raw: str) -> None:
 def test_the_dashboard_says_what_keeps_it_from_the_bases() -> None:
     from omnican.cli.fleet import rendered, screen
 
-    lines = rendered(screen([], None, "omnican fleet - domain 0 via tcp/127.0.0.1:1", [], 80,
+    lines = rendered(screen([], None, "domain 0 via tcp/127.0.0.1:1", [], 80,
                             24, "cannot reach tcp/127.0.0.1:1", {}), 80)
-    assert lines[0] == "omnican fleet - domain 0 via tcp/127.0.0.1:1 - 0 bases"
+    assert lines[0] == "omnican fleet - 0 bases - domain 0 via tcp/127.0.0.1:1"
     assert lines[1] == "cannot reach tcp/127.0.0.1:1: no base can be seen or stopped from here"
