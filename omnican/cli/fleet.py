@@ -63,6 +63,8 @@ QUIT = frozenset({"q", "Q", "\x1b", "\x03"})
 #: Why a recover of a name two sessions claim is not asked: it would reach both (a
 #: service's key is the name's, whoever serves it), and a recover moves a base.
 CONFLICT = "more than one session claims the name, and a recover would reach each"
+IGNORED = ("tokens that announce a base but whose summary never came (a stranger's, or a "
+           "base this view cannot hear) or that do not read as a base's")
 PEER_HINT = ("a peer sees only the bases it can open a link of its own to: "
              "--zenoh-mode client goes through the router")
 
@@ -290,8 +292,7 @@ def once(link: Link, args: argparse.Namespace) -> int:
         lines = rendered(base_table(views, None, None), ONCE_WIDTH) if views else \
             ["no omnican base found" + (f": {problem}" if problem else "")]
         if fleet is not None and (text := ignored_text(fleet.ignored())):
-            lines.append(f"{text}: tokens that announce a base but send no summary of "
-                         "their own, or do not read as one")
+            lines.append(f"{text}: {IGNORED}")
         print("\n".join(lines), flush=True)
     if problem is not None:
         raise OmnicanError(f"fleet: {problem}")
@@ -357,6 +358,10 @@ def stop_as_found(fleet: Fleet, names: Sequence[str], timeout: float,
         time.sleep(0.02)
     if everything:
         asked.ask(fleet, "stop", fleet.unheard(), timeout, unheard=True)
+        if asked.keys and not fleet.settled():
+            logging.getLogger(__name__).warning(
+                "stop all: discovery did not end within --wait: a token that announces a "
+                "base and was not listed by then was not asked (a longer --wait asks it)")
     unknown = []
     for name in named:
         tokens = fleet.find_all(name, heard=False)
