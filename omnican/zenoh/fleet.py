@@ -31,9 +31,13 @@ has asks the network for the tokens of its one topic (a liveliness query of a fe
 tokens, answered in milliseconds; at most one per topic in flight, and
 :data:`MAX_LOOKUPS` in all), and is read again when its token comes. The liveliness
 subscriber has no history: tokens declared later come as they are declared, and the
-tokens already there are asked for once, :data:`INVENTORY_AFTER_S` after the fleet
-starts (Zenoh answers a session's liveliness queries one after the other, and with
-thousands of tokens that takes seconds: the summaries' own queries go first). Zenoh 1.x
+tokens already there are asked for once, when the bases that publish have been found:
+:data:`INVENTORY_AFTER_S` after the fleet starts, once no summary of a topic not seen
+before came for :data:`INVENTORY_QUIET_S` and no topic's query is on its way, and at
+the latest :data:`INVENTORY_LATEST_S` after the start. Zenoh answers a session's
+queries one after the other, and thousands of tokens take seconds (during which the
+summaries come late, and a stop would go late): the summaries' own queries, and the
+stops of the bases they found, go first. Zenoh 1.x
 answers a liveliness query late or never on a session with a history subscriber, and
 may ignore its timeout: nothing here waits on a query. :meth:`Fleet.settled` says when
 discovery is over; a caller waits in short slices, so Ctrl-C and SIGTERM are heard.
@@ -81,9 +85,12 @@ UNHEARD_S = SILENT_PERIODS * DEFAULT_PERIOD_S
 QUIET_S = 0.3
 #: Tokens kept (bases, and tokens ignored for what they are); more are only counted.
 MAX_TOKENS = 20_000
-#: When the fleet asks for the tokens already on the network: once a base at the default
-#: rate has sent a summary, and that summary's own query found its token.
+#: When the fleet asks for the tokens already on the network (see the module docstring):
+#: not before a base at the default rate has sent a summary, once no new topic's summary
+#: came for more than a default period, and at the latest after a few periods.
 INVENTORY_AFTER_S = 1.2 * DEFAULT_PERIOD_S
+INVENTORY_QUIET_S = 1.2 * DEFAULT_PERIOD_S
+INVENTORY_LATEST_S = 6 * DEFAULT_PERIOD_S
 MAX_LOOKUPS = 64  # a topic's token queries in flight at once
 LOOKUP_AGAIN_S = 1.0  # a topic whose summaries are still unclaimed is asked again after
 QUERY_TIMEOUT_S = 10.0  # Zenoh's bound on a liveliness query (not waited for)
@@ -290,6 +297,7 @@ class Fleet:
         self._gone: dict[str, float] = {}  # token key -> when it went (a late answer's)
         self._unclaimed: dict[str, tuple[bytes, bytes]] = {}  # topic -> newest (GID, CDR)
         self._lookups: dict[str, float] = {}  # topic -> when its tokens were asked for
+        self._new_topic_at: float | None = None  # a topic's first unclaimed summary (real s)
         self.inventory: float | None = None  # when the tokens already there were all in
         self.over_limit = 0  # tokens beyond MAX_TOKENS: counted, not kept
         self.rejected = 0  # summaries of a base that could not be read
@@ -313,9 +321,10 @@ class Fleet:
         # Last: their callbacks start at once.
         self._tokens = session.liveliness().declare_subscriber(self.token_key, self._on_token)
         self._summary_sub = session.declare_subscriber(self.summary_key, self._on_summary)
-        self._timer = threading.Timer(INVENTORY_AFTER_S, self._take_inventory)
-        self._timer.daemon = True
-        self._timer.start()
+        self._stopping = threading.Event()
+        self._inventory_thread = threading.Thread(target=self._inventory_when_ready,
+                                                  name="omnican-fleet-inventory", daemon=True)
+        self._inventory_thread.start()
 
     # ------------------------------------------------------------ what is heard
 
@@ -342,6 +351,20 @@ class Fleet:
         self.session.liveliness().get(key_expr, self._zenoh.handlers.Callback(on_reply, done),
                                       timeout=QUERY_TIMEOUT_S,
                                       cancellation_token=self._cancel)
+
+    def _inventory_when_ready(self) -> None:
+        """:meth:`_take_inventory`, when the bases that publish were found (see the
+        module docstring); in real time, whatever the fleet's clock."""
+        start = time.monotonic()
+        while not self._stopping.wait(0.05):
+            now = time.monotonic()
+            with self._lock:
+                new = self._new_topic_at
+                quiet = (now - start >= INVENTORY_AFTER_S and not self._lookups
+                         and (new is None or now - new >= INVENTORY_QUIET_S))
+            if quiet or now - start >= INVENTORY_LATEST_S:
+                self._take_inventory()
+                return
 
     def _take_inventory(self) -> None:
         """The tokens already on the network, asked for once."""
@@ -451,6 +474,8 @@ class Fleet:
             return  # no base's namespace
         now = self.clock()
         with self._lock:
+            if topic not in self._unclaimed:
+                self._new_topic_at = time.monotonic()
             if topic in self._unclaimed or len(self._unclaimed) < MAX_TOKENS:
                 self._unclaimed[topic] = (gid, cdr)
             for old in [t for t, at in self._lookups.items() if now - at > QUERY_TIMEOUT_S]:
@@ -734,8 +759,8 @@ class Fleet:
         if self._closed:
             return
         self._closed = True
-        self._timer.cancel()
-        self._timer.join()
+        self._stopping.set()
+        self._inventory_thread.join()
         self._summary_sub.undeclare()
         self._tokens.undeclare()
         self._cancel.cancel()
