@@ -317,7 +317,7 @@ class Fleet:
                           f"/*/*/*/$*%{SUMMARY_TOPIC}/{dds}/{hash_}/*")
         self._closed = False
         self._zenoh = zenoh
-        self._cancel = zenoh.CancellationToken()  # every liveliness query, at close
+        self._cancel = zenoh.CancellationToken()  # every query of the fleet's, at close
         # Last: their callbacks start at once.
         self._tokens = session.liveliness().declare_subscriber(self.token_key, self._on_token)
         self._summary_sub = session.declare_subscriber(self.summary_key, self._on_summary)
@@ -724,10 +724,12 @@ class Fleet:
                 call._settle(e.key, False, False, lost + why)
 
         attachment = rmw.Attachment(seq, time.time_ns(), self.gid).encode()
+        # cancelled at close: no callback of ours may run once Python is shutting down
         self.session.get(key, zenoh.handlers.Callback(on_reply, finished),
                          payload=TRIGGER_REQUEST, attachment=attachment,
                          target=zenoh.QueryTarget.ALL_COMPLETE,
-                         consolidation=zenoh.ConsolidationMode.NONE, timeout=call.timeout_s)
+                         consolidation=zenoh.ConsolidationMode.NONE, timeout=call.timeout_s,
+                         cancellation_token=self._cancel)
 
     def stop(self, name: str, timeout_s: float = TIMEOUT_S) -> Answer:
         return self.request("stop", [name], timeout_s).wait()[0]
