@@ -49,6 +49,7 @@ if TYPE_CHECKING:
 
 REFRESH_S = 0.25
 RETRY_S = 1.0  # how often a view tries again to reach its router
+CLOSE_WAIT_S = 5.0  # the longest a view waits, when it quits, for a session being opened
 ROUTER_LISTEN = "tcp/127.0.0.1:7447"  # rmw_zenoh's port, loopback unless told
 MIN_EVENTS = 3  # event lines kept on screen however many bases there are
 RECOVER_TIMEOUT_S = 15.0  # a recover waits for the drives to enable
@@ -200,7 +201,10 @@ class Link:
         return reach_problem(self.settings, fleet.links())
 
     def close(self) -> None:
+        """Close the fleet and the session, and wait (a bounded time) for a session
+        being opened: Python must not exit under a thread inside Zenoh."""
         self._closed.set()
+        self._thread.join(CLOSE_WAIT_S)
         with self._lock:
             fleet, session = self._fleet, self._session
             self._fleet = self._session = None
@@ -242,11 +246,11 @@ def run(args: argparse.Namespace) -> int:
 
 def ignored_text(ignored: dict[str, int]) -> str:
     """``5000 tokens ignored (no summary)``; empty when none was."""
-    total = sum(ignored.values())
+    reasons = [(why, n) for why, n in ignored.items() if n]
+    total = sum(n for _, n in reasons)
     if not total:
         return ""
-    why = ", ".join(f"{n} {k}" if len(ignored) > 1 and sum(
-        bool(v) for v in ignored.values()) > 1 else k for k, n in ignored.items() if n)
+    why = reasons[0][0] if len(reasons) == 1 else ", ".join(f"{n} {w}" for w, n in reasons)
     return f"{total} token{'s' * (total != 1)} ignored ({why})"
 
 
