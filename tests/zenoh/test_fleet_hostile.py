@@ -228,3 +228,15 @@ def test_fake_tokens_neither_hide_the_bases_nor_are_listed(
         session.close()
         for token in tokens:
             token.undeclare()
+
+
+def test_a_peer_view_that_sees_no_base_says_why(router: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    from omnican.cli import main
+
+    assert main(["fleet", "--once", "--wait", "0.5", "--zenoh-mode", "peer",
+                 "--zenoh-connect", router]) == 0
+    out, err = capsys.readouterr()
+    assert out == "no omnican base found\n"
+    assert err == ("omnican: a peer sees only the bases it can open a link of its own to: "
+                   "--zenoh-mode client goes through the router\n")
