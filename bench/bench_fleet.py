@@ -18,8 +18,21 @@ base's ``sim/true_pose``: at rest once it no longer moves); one base killed with
 the time until the fleet view shows it lost; messages and bytes per second per base; the
 CPU of each base's process.
 
-Run: ``python bench/bench_fleet.py`` (both parts; ``--part loop|fleet``, ``--seconds``,
-``--rounds``, ``--bases``).
+``--part view``: one fleet view against 100 and ``--view-bases`` (1,000) stand-in bases
+in another process (their summaries at 2 Hz, their stop services answering at once).
+
+``--part hostile``: ``--hostile-bases`` (3) ``omnican zenoh --sim`` processes and a
+stranger's process that declares 0, 1,000 and 5,000 (``--spoofed``) liveliness tokens
+announcing bases that do not exist (no summary, no service). For each count: discovery
+in this process (a :class:`~omnican.zenoh.fleet.Fleet` from its creation to every real
+base listed, and to :meth:`~omnican.zenoh.fleet.Fleet.settled`, with what it ignored)
+and as a user runs it (``omnican fleet --once --json`` from its spawn to its exit, and
+whether it listed the real bases and only them); then, every base driven at 0.2 m/s by a
+cmd_vel publisher that keeps sending, ``omnican fleet --stop all`` as a process: from its
+spawn to the last base's wheels at rest on the simulators' truth, and to its exit.
+
+Run: ``python bench/bench_fleet.py`` (every part; ``--part loop|fleet|view|hostile``,
+``--seconds``, ``--rounds``, ``--bases``).
 """
 
 from __future__ import annotations
@@ -347,9 +360,9 @@ def fleet_part(count: int, seconds: float) -> None:
                         b.seen = now
                 time.sleep(0.01)
             with fleet._lock:  # when each base's token came, and its first summary
-                for b in bases:
-                    known = fleet._bases.get(b.name)
-                    b.token_at = known.found_at if known is not None else None
+                found = {e.name: e.found_at for e in fleet._entries.values()}
+            for b in bases:
+                b.token_at = found.get(b.name)
             from_spawn = [b.seen - b.spawned for b in bases if b.seen is not None]
             from_ready = [b.seen - b.ready for b in bases
                           if b.seen is not None and b.ready is not None]
@@ -490,11 +503,13 @@ def stand_ins(endpoint: str, count: int, seconds: float) -> None:
             asked.sequence, time.time_ns(), asked.gid).encode())
 
     zid = str(session.info.zid())
+    gids = []
     for i in range(count):
         node = rmw.Node(0, zid, i, "omnican", namespace=f"/robot{i}")
         fq = f"/robot{i}/base_summary"
-        tokens.append(session.liveliness().declare_token(node.endpoint_token(
-            1, rmw.Kind.PUBLISHER, fq, STRING, hash_, rmw.Qos())))
+        token = node.endpoint_token(1, rmw.Kind.PUBLISHER, fq, STRING, hash_, rmw.Qos())
+        gids.append(rmw.gid_of(token))  # what a base's summaries carry: its token's GID
+        tokens.append(session.liveliness().declare_token(token))
         pubs.append(session.declare_publisher(rmw.data_key(0, fq, STRING, hash_)))
         # ~/stop answered at once, as a base's poll would (the time of the network alone)
         queryables.append(session.declare_queryable(service_key(node, "stop"), answer,
@@ -513,7 +528,7 @@ def stand_ins(endpoint: str, count: int, seconds: float) -> None:
                 "driver": "Zenoh cmd_vel publisher 000102030405060708090a0b0c0d0e0f",
                 "stamp": time.time(), "period_s": period}).encode()
             pub.put(string_cdr(text), attachment=rmw.Attachment(
-                n + 1, time.time_ns(), bytes(16)).encode())
+                n + 1, time.time_ns(), gids[i]).encode())
         n += 1
         time.sleep(max(0.0, start + n * period - time.monotonic()))
     print(json.dumps({"rounds": n, "bytes_per_summary": len(string_cdr(text))}), flush=True)
@@ -575,12 +590,150 @@ def view_part(count: int, seconds: float) -> None:
             view_session.close()
 
 
+# ------------------------------------------------------------ a stranger's tokens
+
+
+def spoofer(endpoint: str, count: int) -> None:
+    """The other process of ``--part hostile``: ``count`` liveliness tokens that announce
+    a base (``/spoof<i>/omnican``'s base_summary publisher), nothing behind them; until
+    stdin closes."""
+    from omnican.zenoh.bridge import STRING
+
+    session = client(endpoint)
+    zid, hash_ = str(session.info.zid()), rmw.type_hash(STRING)
+    tokens = [session.liveliness().declare_token(
+        rmw.Node(0, zid, i, "omnican", namespace=f"/spoof{i}").endpoint_token(
+            1, rmw.Kind.PUBLISHER, f"/spoof{i}/base_summary", STRING, hash_, rmw.Qos()))
+        for i in range(count)]
+    print("ready", flush=True)
+    sys.stdin.read()
+    for token in tokens:
+        token.undeclare()
+    session.close()
+
+
+def omnican_fleet(endpoint: str, *argv: str) -> tuple[float, subprocess.CompletedProcess[str]]:
+    """``omnican fleet ARGV`` as a client of ``endpoint``: (seconds from spawn to exit, it)."""
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "omnican", "fleet", "--zenoh-connect",
+                           endpoint, *argv], capture_output=True, text=True, timeout=300,
+                          check=False)
+    return time.monotonic() - t0, done
+
+
+def hostile_part(counts: list[int], nbases: int) -> None:
+    from omnican.zenoh.fleet import Fleet
+
+    with router() as endpoint:
+        watcher = client(endpoint)
+        bases = [BaseProcess(f"/robot{i}", endpoint) for i in range(1, nbases + 1)]
+        names = [b.name for b in bases]
+        truth = Truth(watcher, names)
+        cmds = [CmdVel(watcher, f"{b.ns}/cmd_vel", bytes([i + 1] * 16))
+                for i, b in enumerate(bases)]
+        sending = threading.Event()
+
+        def drive() -> None:
+            while True:
+                if sending.is_set():
+                    for c in cmds:
+                        c.send(0.2)
+                if stopping.wait(1.0 / CMD_HZ):
+                    return
+
+        stopping = threading.Event()
+        driver = threading.Thread(target=drive, daemon=True)
+        driver.start()
+        try:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and any(b.ready is None for b in bases):
+                time.sleep(0.1)
+            for count in counts:
+                spoof = subprocess.Popen([sys.executable, __file__, "--spoof", endpoint,
+                                          str(count)], stdin=subprocess.PIPE,
+                                         stdout=subprocess.PIPE, text=True)
+                try:
+                    assert spoof.stdout is not None
+                    assert spoof.stdout.readline().strip() == "ready"
+                    time.sleep(1.0)  # the router has them all
+                    hostile_round(endpoint, count, names, truth, sending, Fleet)
+                finally:
+                    if spoof.stdin is not None:
+                        spoof.stdin.close()
+                    spoof.wait(timeout=60)
+        finally:
+            stopping.set()
+            driver.join()
+            for c in cmds:
+                c.close()
+            truth.close()
+            for b in bases:
+                b.quit()
+            watcher.close()
+
+
+def hostile_round(endpoint: str, count: int, names: list[str], truth: Truth,
+                  sending: threading.Event, fleet_type: Any) -> None:
+    """One count of spoofed tokens: discovery in process and as a process, the stop."""
+    session = client(endpoint)
+    t0 = time.monotonic()
+    listed = settled = None
+    with fleet_type(session, 0) as fleet:
+        while time.monotonic() < t0 + 60 and settled is None:
+            if listed is None and sorted(v.name for v in fleet.bases()) == names:
+                listed = time.monotonic() - t0
+            if fleet.settled():
+                settled = time.monotonic() - t0
+            time.sleep(0.01)
+        ignored = fleet.ignored()
+        shown = sorted(v.name for v in fleet.bases())
+        # the bases recovered from the last round's stop (cmd_vel quiet: it may be)
+        sending.clear()
+        time.sleep(1.2)
+        for answer in fleet.request("recover", fleet.bases(), 30.0).wait():
+            if not answer.success:
+                print(f"# recover {answer}", file=sys.stderr)
+    session.close()
+    once_s, once = omnican_fleet(endpoint, "--once", "--json", "--wait", "30")
+    got = json.loads(once.stdout) if once.returncode == 0 else {}
+    once_names = sorted(b["name"] for b in got.get("bases", []))
+
+    sending.set()  # every base driven, a navigation stack that keeps sending
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not all(
+            truth.moving(n, time.monotonic() - 0.5) for n in names):
+        time.sleep(0.05)
+    moving = sum(truth.moving(n, time.monotonic() - 0.5) for n in names)
+    key = time.monotonic()
+    stop_s, stop = omnican_fleet(endpoint, "--stop", "all", "--wait", "10", "--timeout", "10")
+    time.sleep(2.0)  # the ramps end; cmd_vel still arrives
+    rest = [truth.at_rest_since(n, key) for n in names]
+    emit(bench="fleet.hostile", spoofed=count, bases=len(names),
+         discovery_listed_s=None if listed is None else round(listed, 3),
+         discovery_settled_s=None if settled is None else round(settled, 3),
+         listed_only_the_bases=shown == names, ignored=ignored,
+         once_process_s=round(once_s, 2), once_exit=once.returncode,
+         once_listed_only_the_bases=once_names == names,
+         once_ignored=got.get("ignored_tokens"),
+         moving_before_stop=moving, stop_exit=stop.returncode,
+         stop_process_s=round(stop_s, 2),
+         stop_last_wheels_at_rest_s=round(max(r for r in rest if r is not None) - key, 2)
+         if all(r is not None for r in rest) else None,
+         stop_answers=stop.stdout.splitlines(),
+         load=[round(x, 1) for x in os.getloadavg()])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--part", choices=("loop", "fleet", "view", "all"), default="all")
+    parser.add_argument("--part", choices=("loop", "fleet", "view", "hostile", "all"),
+                        default="all")
     parser.add_argument("--view-bases", type=int, default=1000,
                         help="stand-in bases for --part view (default 1000)")
     parser.add_argument("--stand-ins", nargs=3, help=argparse.SUPPRESS)
+    parser.add_argument("--spoof", nargs=2, help=argparse.SUPPRESS)
+    parser.add_argument("--hostile-bases", type=int, default=3)
+    parser.add_argument("--spoofed", type=int, nargs="+", default=[0, 1000, 5000],
+                        help="tokens the stranger declares, one round each (--part hostile)")
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--bases", type=int, default=10)
@@ -589,6 +742,9 @@ def main() -> None:
     if args.stand_ins:
         stand_ins(args.stand_ins[0], int(args.stand_ins[1]), float(args.stand_ins[2]))
         return
+    if args.spoof:
+        spoofer(args.spoof[0], int(args.spoof[1]))
+        return
     if args.part in ("loop", "all"):
         loop_part(args.seconds, args.rounds)
     if args.part in ("fleet", "all"):
@@ -596,6 +752,8 @@ def main() -> None:
     if args.part in ("view", "all"):
         for count in (100, args.view_bases):
             view_part(count, max(args.seconds, 20.0))
+    if args.part in ("hostile", "all"):
+        hostile_part(args.spoofed, args.hostile_bases)
 
 
 if __name__ == "__main__":

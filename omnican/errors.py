@@ -78,3 +78,27 @@ def _container_repr(value: object, limit: int) -> str:
             break
         items.append(f"{r.repr(key)}: {r.repr(item)}")
     return "{" + ", ".join(items) + "}"
+
+
+def printable(text: str, limit: int | None = None) -> str:
+    """``text`` from the network as it may be shown on a terminal or written to a log:
+    each character that is not printable (C0 and C1 controls, DEL, format characters
+    such as bidirectional overrides, line and paragraph separators, surrogates, code
+    points not assigned) written as Python writes it in a string literal (``\\x1b``,
+    ``\\u202e``), and a backslash doubled, so a peer's name or message can neither
+    steer the terminal (clear it, set its title, hide text) nor pass an escape of its
+    own as one of ours. Printable text, non-ASCII included, stays as it is. ``limit``:
+    at most that many characters of ``text`` are shown, then how long it was."""
+    cut = text if limit is None or len(text) <= limit else text[:limit]
+    out = cut if cut.isprintable() and "\\" not in cut else "".join(map(_shown, cut))
+    return out if cut is text else f"{out}... ({len(text)} characters)"
+
+
+def _shown(ch: str) -> str:
+    if ch == "\\":
+        return "\\\\"
+    if ch.isprintable():
+        return ch
+    code = ord(ch)
+    return f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}" if code < 0x10000 \
+        else f"\\U{code:08x}"

@@ -8,7 +8,9 @@ summary when one is due: once a period of the sample's clock, and at once when t
 state, the stop reason, the e-stop or the set of drive faults changes (a fleet view hears
 a stop within a sample, not within a period). :func:`parse` reads one back, checking
 every field: a summary comes from the network, and a malformed one must not take a fleet
-view down.
+view down. Each number must be finite (JSON has no NaN; a view's own ``--json`` must stay
+JSON), and each text is cut and shown printable (:func:`omnican.errors.printable`: a
+peer's text cannot steer the terminal it is shown on).
 
 The fields (docs/fleet.md): ``node``, ``state`` (RUNNING, STOPPED, STARTING),
 ``stopped_reason``, ``enabled``, ``estop``, ``pose`` {x, y, theta}, ``speed`` {vx, vy, wz}
@@ -21,9 +23,12 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
+
+from omnican.errors import printable
 
 #: What a summary is made from: the JSON topics of one sample.
 SOURCES = ("/status", "/wheels", "/pose2d", "/twist")
@@ -31,6 +36,9 @@ SOURCES = ("/status", "/wheels", "/pose2d", "/twist")
 SILENT_PERIODS = 3
 MAX_TEXT = 200  # characters kept of a text field read from the network
 MAX_FAULTS = 16
+#: The largest summary read (its CDR bytes); a base's is under 1 KiB, with sixteen long
+#: faults under 4 KiB.
+MAX_BYTES = 16 * 1024
 
 Vector = tuple[float, float, float]
 
@@ -145,42 +153,77 @@ class Summary:
 
 def _number(value: Any, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{what} is not a number: {value!r:.40}")
-    return float(value)
+        raise ValueError(f"{what} is not a number: {printable(repr(value), 40)}")
+    number = float(value)  # an int too large for a float raises OverflowError: caught
+    if not math.isfinite(number):
+        raise ValueError(f"{what} is not a finite number: {number!r}")
+    return number
 
 
 def _text(value: Any, what: str) -> str:
     if not isinstance(value, str):
-        raise ValueError(f"{what} is not text: {value!r:.40}")
-    return value[:MAX_TEXT]
+        raise ValueError(f"{what} is not text: {printable(repr(value), 40)}")
+    return printable(value, MAX_TEXT)
 
 
 def _flag(value: Any, what: str) -> bool:
     if not isinstance(value, bool):
-        raise ValueError(f"{what} is not true or false: {value!r:.40}")
+        raise ValueError(f"{what} is not true or false: {printable(repr(value), 40)}")
     return value
 
 
 def _vector(value: Any, names: tuple[str, str, str], what: str) -> Vector:
     if not isinstance(value, dict):
-        raise ValueError(f"{what} is not an object: {value!r:.40}")
+        raise ValueError(f"{what} is not an object: {printable(repr(value), 40)}")
     a, b, c = (_number(value.get(n), f"{what}.{n}") for n in names)
     return a, b, c
 
 
-def parse(data: bytes | str) -> Summary:
-    """A summary's JSON text read and checked; ValueError saying what is wrong."""
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def text_of(cdr: bytes) -> str:
+    """The text of a std_msgs/msg/String's CDR (little or big endian, with its header:
+    what :func:`omnican.zenoh.bridge.string_cdr` makes); ValueError for bytes that are
+    not one, or are longer than :data:`MAX_BYTES`."""
+    if len(cdr) > MAX_BYTES:
+        raise ValueError(f"{len(cdr)} bytes, more than a summary's {MAX_BYTES}")
+    if len(cdr) < 9 or cdr[0] != 0 or cdr[1] not in (0, 1):
+        raise ValueError(f"not a CDR String ({len(cdr)} bytes)")
+    (size,) = struct.unpack_from("<I" if cdr[1] == 1 else ">I", cdr, 4)
+    text = cdr[8:8 + size]
+    if size == 0 or len(text) != size or text[-1] != 0:
+        raise ValueError(f"not a CDR String (a {size}-byte string in {len(cdr) - 8} bytes)")
     try:
-        d = json.loads(data)
+        return text[:-1].decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError("not UTF-8 text") from None
+
+
+def parse(data: bytes | str) -> Summary:
+    """A summary's JSON text read and checked; ValueError saying what is wrong (NaN,
+    Infinity and numbers too large for a float included: they are not JSON's)."""
+    try:
+        d = json.loads(data, parse_constant=_no_constant)
     except (ValueError, UnicodeDecodeError) as exc:
-        raise ValueError(f"not JSON: {exc}") from None
+        raise ValueError(f"not JSON: {printable(str(exc), MAX_TEXT)}") from None
+    except RecursionError:
+        raise ValueError("not JSON a base writes: nested too deeply") from None
     if not isinstance(d, dict):
         raise ValueError("not a JSON object")
+    try:
+        return _read(d)
+    except OverflowError:
+        raise ValueError("a number too large for a float") from None
+
+
+def _read(d: dict[str, Any]) -> Summary:
     raw_faults = d.get("faults")
     if not isinstance(raw_faults, list):
-        raise ValueError(f"faults is not a list: {raw_faults!r:.40}")
+        raise ValueError(f"faults is not a list: {printable(repr(raw_faults), 40)}")
     period = _number(d.get("period_s"), "period_s")
-    if not (math.isfinite(period) and period > 0):
+    if not period > 0:
         raise ValueError(f"period_s is not a positive number: {period!r}")
     battery, driver, true = d.get("battery_v"), d.get("driver"), d.get("true_speed")
     return Summary(

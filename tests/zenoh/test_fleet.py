@@ -222,26 +222,6 @@ def test_a_base_heard_no_more_is_silent(channel: str, router: str) -> None:
         session.close()
 
 
-def test_malformed_summaries_are_counted_not_shown(router: str, fleet: Any) -> None:
-    from omnican.zenoh import rmw
-    from omnican.zenoh.bridge import string_cdr
-
-    session = client(router)
-    try:
-        key = rmw.data_key(0, "/robot9/base_summary", "std_msgs/msg/String",
-                           rmw.type_hash("std_msgs/msg/String"))
-        pub = session.declare_publisher(key)
-        assert wait_real(lambda: pub.matching_status.matching)
-        for payload in (b"\x00\x01", string_cdr(b"{not json"), string_cdr(b'{"node": 1}'),
-                        string_cdr(json.dumps({"period_s": float("nan")}).encode())):
-            pub.put(payload)
-        assert wait_real(lambda: fleet.rejected == 4)
-        assert fleet.bases() == []
-        pub.undeclare()
-    finally:
-        session.close()
-
-
 def test_status_and_wheels_go_out_as_strings_of_the_models_json(
         two: tuple[Rig, Rig], router: str) -> None:
     from omnican.telemetry import cdr

@@ -170,6 +170,9 @@ def test_the_dashboard_shows_both_and_space_stops_all(router: str) -> None:
                              and all("RUNNING" in row for row in rows))
             assert rows[0].startswith("> /robot1") and rows[1].startswith("  /robot2"), rows
             assert all(len(line) <= 80 for line in term.frame()), term.frame()
+            # each base found once, in the events, however the run went
+            found = [line for line in term.frame() if " found (session " in line]
+            assert sorted(line.split()[2] for line in found) == NAMES, term.frame()
             term.keys(" ")
             for name in NAMES:
                 term.wait_for(f"stop {name}: ok: stopped: held until recover", TIMEOUT_S)

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from omnican.errors import printable
 from omnican.zenoh import rmw, summary
 from omnican.zenoh.services import read_trigger_response, trigger_response
 
@@ -47,12 +48,91 @@ def test_a_summary_reads_back_as_composed(data: dict[str, Any], stamp_ns: int,
     made = summary.compose(data, stamp_ns, node="/robot1/omnican", driver=driver,
                            period_s=0.5)
     read = summary.parse(json.dumps(made).encode())
-    assert read.as_json() == made
+    assert read.as_json() == shown(made)
     assert read.state == data["/status"]["state"]
     assert (read.battery_v is None) == ("battery_v" not in data["/status"])
     assert (read.true_speed is None) == ("true" not in data["/twist"])
     troubled = [w for w in data["/wheels"]["wheels"] if w["fault"] or w["error"]]
     assert [f.split(":")[0] for f in read.faults] == [f"wheel {w['index']}" for w in troubled]
+
+
+def shown(made: dict[str, Any]) -> dict[str, Any]:
+    """A summary's fields as a fleet view reads them: each text printable."""
+    out = dict(made)
+    for key in ("node", "state", "stopped_reason", "driver"):
+        if key in out:
+            out[key] = printable(out[key], summary.MAX_TEXT)
+    out["faults"] = [printable(f, summary.MAX_TEXT) for f in out["faults"]]
+    return out
+
+
+NUMBERS = ("pose.x", "pose.y", "pose.theta", "speed.vx", "speed.vy", "speed.wz", "stamp",
+           "period_s", "battery_v", "true_speed.vx", "true_speed.wz")
+
+
+@given(samples(), st.sampled_from(NUMBERS),
+       st.sampled_from(["NaN", "Infinity", "-Infinity", "1e999", "-1e400", "9" * 400]))
+def test_a_number_json_or_a_float_cannot_hold_is_refused(
+        data: dict[str, Any], where: str, number: str) -> None:
+    """NaN and Infinity are not JSON (Python's json writes them; jq and JSON.parse refuse
+    them), and a number too large for a float is infinite once read: a summary that
+    holds one is refused, saying why, so a view's --json never carries one."""
+    made = summary.compose(data, 0, node="/r/omnican", driver=None, period_s=0.5)
+    made.setdefault("true_speed", {"vx": 0.0, "vy": 0.0, "wz": 0.0})
+    made.setdefault("battery_v", 24.0)
+    outer, _, inner = where.partition(".")
+    if inner:
+        made[outer][inner] = "HERE"
+    else:
+        made[outer] = "HERE"
+    with pytest.raises(ValueError, match=r"JSON number|not a finite number|too large|"
+                                          r"positive") as err:
+        summary.parse(json.dumps(made).replace('"HERE"', number))
+    assert str(err.value).isprintable()
+
+
+@given(st.text(max_size=300))
+def test_text_from_the_network_is_read_printable(text: str) -> None:
+    made = summary.compose({"/status": {"state": text, "stopped_reason": text,
+                                        "enabled": False, "estop": False},
+                            "/wheels": {"wheels": [{"index": 1, "fault": text, "error": ""}]},
+                            "/pose2d": {"x": 0, "y": 0, "theta": 0},
+                            "/twist": {"measured": _twist(0, 0, 0)}},
+                           0, node=text, driver=text or None, period_s=0.5)
+    read = summary.parse(json.dumps(made))
+    texts = [read.node, read.state, read.stopped_reason, read.driver or "", *read.faults]
+    assert all(t.isprintable() for t in texts)
+    assert read.stopped_reason == printable(text, summary.MAX_TEXT)
+
+
+@given(st.text())
+def test_a_string_cdr_reads_back(text: str) -> None:
+    from omnican.zenoh.bridge import string_cdr
+
+    data = string_cdr(text.encode())
+    if len(data) <= summary.MAX_BYTES:
+        assert summary.text_of(data) == text
+    else:
+        with pytest.raises(ValueError, match="more than a summary's"):
+            summary.text_of(data)
+    big_endian = b"\x00\x00" + data[2:4] + (len(text.encode()) + 1).to_bytes(4, "big") + \
+        data[8:]
+    if len(data) <= summary.MAX_BYTES:
+        assert summary.text_of(big_endian) == text
+
+
+@pytest.mark.parametrize("data", [b"", b"\x00\x01\x00\x00", b"\x00\x01\x00\x00\x05\x00\x00\x00ab",
+                                  b"\x00\x01\x00\x00\x03\x00\x00\x00abc",
+                                  b"\x00\x01\x00\x00\x02\x00\x00\x00\xff\x00",
+                                  b"\x01\x01\x00\x00\x02\x00\x00\x00a\x00"])
+def test_what_is_not_a_string_cdr_is_refused(data: bytes) -> None:
+    with pytest.raises(ValueError):
+        summary.text_of(data)
+
+
+def test_a_summary_nested_too_deeply_is_refused_not_raised() -> None:
+    with pytest.raises(ValueError, match="nested too deeply"):
+        summary.parse("[" * 100_000 + "]" * 100_000)
 
 
 def test_faults_name_the_wheel_and_its_trouble() -> None:
@@ -86,7 +166,8 @@ def test_no_summary_without_the_bases_state() -> None:
 @pytest.mark.parametrize(("text", "why"), [
     (b"\xff", "not JSON"), (b"[1]", "not a JSON object"), (b"{}", "faults is not a list"),
     (b'{"faults": [], "period_s": -1}', "period_s is not a positive number"),
-    (b'{"faults": [], "period_s": NaN}', "period_s is not a positive number"),
+    (b'{"faults": [], "period_s": NaN}', "not JSON: NaN is not a JSON number"),
+    (b'{"faults": [], "period_s": 1e999}', "period_s is not a finite number: inf"),
     (b'{"faults": [], "period_s": 1, "node": 3}', "node is not text"),
 ])
 def test_a_malformed_summary_says_what_is_wrong(text: bytes, why: str) -> None:
@@ -103,7 +184,7 @@ def test_long_text_from_the_network_is_cut() -> None:
                             "/twist": {"measured": _twist(0, 0, 0)}},
                            0, node="/n", driver=None, period_s=0.5)
     read = summary.parse(json.dumps(made))
-    assert len(read.stopped_reason) == summary.MAX_TEXT
+    assert read.stopped_reason == "x" * summary.MAX_TEXT + "... (5000 characters)"
     assert len(read.faults) == summary.MAX_FAULTS
 
 
