@@ -651,7 +651,7 @@ def _quiet_errors() -> Iterator[None]:
 def dashboard(settings: ZenohSettings, args: argparse.Namespace) -> int:
     from rich.live import Live
 
-    from omnican.cli.terminal import Events, cbreak, logs_into, read_keys
+    from omnican.cli.terminal import Events, Screen, cbreak, logs_into, read_keys
 
     fd = sys.stdin.fileno()
     console = Console()
@@ -661,9 +661,12 @@ def dashboard(settings: ZenohSettings, args: argparse.Namespace) -> int:
     title = f"domain {args.domain_id} via {where}"
     picked: tuple[str, str] | None = None  # the base the keys chose (None: the first)
     calls: list[Call] = []
-    with cbreak(fd, lambda: events.say("Ctrl-Z: the fleet view does not suspend; q quits")), \
+    term = Screen(fd)  # draws nothing while a shell holds the terminal (kill -STOP, bg)
+    with cbreak(fd, lambda: events.say("Ctrl-Z: the fleet view does not suspend; q quits"),
+                term.resumed), \
             logs_into(events), Link(settings) as link, _quiet_errors(), \
             Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
+        term.live = live
         while True:
             fleet = link.fleet()
             problem = link.problem()
@@ -695,10 +698,10 @@ def dashboard(settings: ZenohSettings, args: argparse.Namespace) -> int:
             views = fleet.bases() if fleet is not None else []  # as they are now
             ids = [_id(v) for v in views]
             selected = picked if picked in ids else ids[0] if ids else None
-            live.update(screen(views, selected, title, events.lines, live.console.width,
-                               live.console.height, problem,
-                               fleet.ignored() if fleet is not None else None,
-                               fleet is not None and fleet.inventory is None), refresh=True)
+            term.draw(screen(views, selected, title, events.lines, live.console.width,
+                              live.console.height, problem,
+                              fleet.ignored() if fleet is not None else None,
+                              fleet is not None and fleet.inventory is None))
     return EXIT_OK
 
 

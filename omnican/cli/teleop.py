@@ -17,7 +17,7 @@ import sys
 import time
 from typing import Any
 
-from rich.console import Console, RenderableType
+from rich.console import Console
 from rich.live import Live
 
 from omnican.chassis import Chassis
@@ -38,7 +38,7 @@ from omnican.cli.common import (
 from omnican.cli.dashboard import (
     dashboard,
 )
-from omnican.cli.terminal import Events, cbreak, in_foreground, logs_into, read_keys
+from omnican.cli.terminal import Events, Screen, cbreak, logs_into, read_keys
 from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
@@ -113,30 +113,6 @@ def refusal_note(source: CommandSource, refused: str) -> str:
         return (f"{refused} stopped {source.name}: let go for {source.timeout_s:g} s to "
                 "drive again")
     return f"{refused} is driving: space stops the base"
-
-
-class Screen:
-    """The dashboard's terminal: drawn while teleop is in the terminal's foreground
-    (a job the shell put in the background draws nothing over the shell), and drawn
-    whole again once the terminal comes back (:meth:`resumed`, cbreak's ``on_resume``):
-    what the shell wrote meanwhile is cleared."""
-
-    def __init__(self, fd: int, live: Live | None = None) -> None:
-        self.live = live  # set once the screen is taken
-        self.fd = fd
-        self._resumed = False
-
-    def resumed(self) -> None:
-        self._resumed = True  # from a signal handler too: the clearing is draw()'s
-
-    def draw(self, frame: RenderableType) -> None:
-        if self.live is None or not in_foreground(self.fd):
-            return
-        if self._resumed:
-            self._resumed = False
-            self.live.console.clear()
-            self.live.console.show_cursor(False)
-        self.live.update(frame, refresh=True)
 
 
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,

@@ -19,12 +19,16 @@ import textwrap
 import time
 import tty
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.panel import Panel
 from rich.text import Text
 
 from omnican.command.teleop import ESC
+
+if TYPE_CHECKING:
+    from rich.console import RenderableType
+    from rich.live import Live
 
 #: The last byte of an arrow key's escape sequence -> teleop's key for it (up, down,
 #: right, left: teleop_twist_keyboard's i , l j).
@@ -156,6 +160,30 @@ def cbreak(fd: int, on_suspend: Callable[[], None] | None = None,
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
         for sig, handler in saved.items():
             signal.signal(sig, handler)
+
+
+class Screen:
+    """A full-screen dashboard's terminal (teleop's, the fleet view's): drawn while the
+    command is in the terminal's foreground (a job the shell put in the background draws
+    nothing over the shell), and drawn whole again once the terminal comes back
+    (:meth:`resumed`, cbreak's ``on_resume``): what the shell wrote meanwhile is cleared."""
+
+    def __init__(self, fd: int, live: Live | None = None) -> None:
+        self.live = live  # set once the screen is taken
+        self.fd = fd
+        self._resumed = False
+
+    def resumed(self) -> None:
+        self._resumed = True  # from a signal handler too: the clearing is draw()'s
+
+    def draw(self, frame: RenderableType) -> None:
+        if self.live is None or not in_foreground(self.fd):
+            return
+        if self._resumed:
+            self._resumed = False
+            self.live.console.clear()
+            self.live.console.show_cursor(False)
+        self.live.update(frame, refresh=True)
 
 
 # The library names its call ("e-stop released: recover() starts the base again"); here
