@@ -132,3 +132,20 @@ def test_stepped_drives_run_on_the_loop_and_get_their_threads_back(channel: str)
         with Chassis.open(cfg):
             assert wait_for(lambda: sim.stepping, timeout=5.0)
     assert not sim.stepping
+
+
+def test_a_simulator_for_another_process_runs_its_threads_at_the_loops_class(
+        channel: str) -> None:
+    """``omnican sim``'s drives (``rt_priority``): their housekeeping and receiving
+    threads SCHED_FIFO where the process may, again after a loop ran them."""
+    from omnican.chassis.realtime import policy_of
+
+    cfg = sim_config(channel)
+    with SimulatedBase.from_config(cfg, rt_priority=cfg.chassis.rt_priority) as sim:
+        if sim.realtime_refused is not None:
+            pytest.skip(f"real-time priority {sim.realtime_refused}")
+        readers = [t for t in threading.enumerate() if t.name.startswith("Notifier for bus")
+                   and channel in t.name]
+        ids = [sim.scheduler.native_id] + [t.native_id for t in readers]
+        assert len(ids) == 2 and all(ids)
+        assert all(policy_of(i) == os.SCHED_FIFO for i in ids if i is not None)
