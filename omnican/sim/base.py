@@ -111,6 +111,8 @@ class SimulatedBase:
         self.stepping = False
         self._receive: Any = None
         self._last_tick = -math.inf
+        self._stepper = 0  # the loop's thread (threading.get_ident) while stepping
+        self._truth: tuple[Pose2D, Twist] | None = None  # as of its last cycle
 
     @classmethod
     def from_config(
@@ -245,24 +247,44 @@ class SimulatedBase:
     def _tick(self, now: float) -> None:
         """The truth follows the wheels as their drives last moved them (on the SYNC, or
         in their own housekeeping when no SYNC comes): moving them here as well would
-        move every motor twice a cycle."""
+        move every motor twice a cycle. While a loop runs the drives, the truth is also
+        kept for other threads to read (:attr:`true_pose`)."""
         with self._lock:
             if not self._closed:
                 self._odo.step(self._true_travel(now, moved=False))
+                if self.stepping:  # this is the loop's thread: the drives just moved
+                    self._truth = (self._odo.pose, self._twist(advance=False))
 
     @property
     def true_pose(self) -> Pose2D:
-        """Ground-truth pose of the base (m, m, rad; theta continuous)."""
+        """Ground-truth pose of the base (m, m, rad; theta continuous). While a base's
+        loop runs the drives (``stepped``), another thread reads it as of the loop's last
+        cycle: taking the drives' locks there could hold the loop up."""
+        truth = self._truth_elsewhere()
+        if truth is not None:
+            return truth[0]
         with self._lock:
             return self._odo.update(self._true_travel())
 
     @property
     def true_twist(self) -> Twist:
-        """Ground-truth body velocity now (m/s, m/s, rad/s)."""
-        speeds = np.array([d.velocity_counts(axis) * (1.0 - d.slip)
-                           if d.axes[axis].grounded else 0.0
+        """Ground-truth body velocity now (m/s, m/s, rad/s); see :attr:`true_pose`."""
+        truth = self._truth_elsewhere()
+        return truth[1] if truth is not None else self._twist(advance=True)
+
+    def _twist(self, advance: bool) -> Twist:
+        speeds = np.array([(d.velocity_counts(axis) if advance else d.axes[axis].state.velocity)
+                           * (1.0 - d.slip) if d.axes[axis].grounded else 0.0
                            for d, axis in self.wheel_axes]) / self._counts_per_metre
         return self.true_kinematics.to_twist(speeds)
+
+    def _truth_elsewhere(self) -> tuple[Pose2D, Twist] | None:
+        """The truth of the loop's last cycle, for a thread other than the loop's while
+        the loop runs the drives; None otherwise."""
+        truth = self._truth
+        if truth is None or not self.stepping or threading.get_ident() == self._stepper:
+            return None
+        return truth
 
     def reset_truth(self, pose: Pose2D | None = None) -> None:
         with self._lock:
@@ -316,6 +338,8 @@ class SimulatedBase:
         self._receive = (network.lockstep_receiver() if isinstance(network, Network)
                          else listeners_receiver(network.listeners))
         self._last_tick = -math.inf
+        self._stepper = threading.get_ident()
+        self._truth = None
         self.stepping = True
         logger.debug("simulated drives run on the control loop")
 
