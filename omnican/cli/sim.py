@@ -20,6 +20,7 @@ import uuid
 from collections.abc import Mapping
 from typing import Any
 
+from omnican.chassis.realtime import realtime_refusal
 from omnican.cli.common import (
     UsageError,
     add_config_argument,
@@ -110,7 +111,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         host, port = parse_serve(args.serve)
         channel = f"omnican-hub-{uuid.uuid4().hex[:8]}"
-        hub = LoopbackHub(channel, host, port)
+        priority = cfg.chassis.rt_priority  # its relays carry the drives' frames: theirs
+        hub = LoopbackHub(channel, host, port, on_thread=(
+            (lambda: realtime_refusal(priority)) if priority else None))
         cfg = cfg.with_bus(interface="virtual", channel=channel)
         where = hub.url
         connect = f"omnican teleop -i remote -c {hub.url}"

@@ -149,3 +149,20 @@ def test_a_simulator_for_another_process_runs_its_threads_at_the_loops_class(
         ids = [sim.scheduler.native_id] + [t.native_id for t in readers]
         assert len(ids) == 2 and all(ids)
         assert all(policy_of(i) == os.SCHED_FIFO for i in ids if i is not None)
+
+
+def test_the_hubs_relays_run_what_omnican_sim_gives_them(channel: str) -> None:
+    """Every frame between ``omnican sim``'s drives and the host passes the hub's relay
+    threads: each calls ``on_thread`` first (``omnican sim`` gives them its drives'
+    real-time priority there)."""
+    from omnican.io.hub import LoopbackHub
+
+    relays: set[int] = set()
+    with LoopbackHub(channel, port=0, on_thread=lambda: relays.add(threading.get_ident())) \
+            as hub:
+        client = can.Bus(interface="remote", channel=hub.url)
+        try:
+            client.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+            assert wait_for(lambda: len(relays) == 2, timeout=10.0)  # both directions
+        finally:
+            client.shutdown()
