@@ -49,6 +49,7 @@ from omnican.core.limits import MAX_STOP_S, command_problem, pose_problem
 from omnican.core.odometry import Pose2D
 from omnican.drive import DriveNode
 from omnican.errors import DriveError
+from omnican.io import stepped
 from omnican.io.bus import CanBus
 
 logger = logging.getLogger("omnican.chassis")
@@ -154,6 +155,8 @@ class Chassis:
             self._guards_signals = guard.acquire()
         if not self._lockstep:
             self._bus.start_polling()  # the loop reads the bus itself: one wake-up a cycle
+            # Simulated drives of this process that asked to, run on the loop's thread.
+            self._runner.companion = stepped.claim(self._bus.bus_kwargs)
         self._runner.start()
         self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
         self._supervisor.started()
@@ -391,6 +394,8 @@ class Chassis:
                 if self._runner.running:
                     self._controlled_shutdown(decelerate=controlled)
                     self._runner.stop()
+                if self._runner.companion is not None:  # their own threads again by now
+                    stepped.release(self._runner.companion)
                 self._bus.stop_polling()  # a Notifier again, for the SDOs of the stop
                 sup.join_workers(self.cfg.chassis.boot_timeout_s + 1.0)
                 bus_works = not self._loop.watch.down and self._bus.failing is None

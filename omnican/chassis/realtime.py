@@ -48,25 +48,34 @@ def make_realtime(priority: int, native_id: int = 0) -> bool:
     (1-99), its children at normal priority. Returns whether it does; when the process
     may not (or the platform has no SCHED_FIFO), says why once per process and leaves the
     thread as it was. ``priority`` 0 asks for nothing."""
-    fifo = _policy()
     if priority <= 0:
         return False
-    if fifo is None or not hasattr(os, "sched_setscheduler"):
-        _note("this platform has no SCHED_FIFO")
-        return False
-    policy = fifo | getattr(os, "SCHED_RESET_ON_FORK", 0)
-    try:
-        os.sched_setscheduler(native_id, policy, os.sched_param(priority))
-    except PermissionError:
-        _note("not permitted (run as root, give the program CAP_SYS_NICE, or raise "
-              f"RLIMIT_RTPRIO to {priority})")
-        return False
-    except OSError as exc:  # EINVAL: a kernel or container without real-time scheduling
-        _note(f"refused: {exc.strerror or exc}")
+    why = realtime_refusal(priority, native_id)
+    if why is not None:
+        _note(why)
         return False
     logger.debug("control loop thread %d runs SCHED_FIFO %d", native_id or
                  threading.get_native_id(), priority)
     return True
+
+
+def realtime_refusal(priority: int, native_id: int = 0) -> str | None:
+    """:func:`make_realtime` without the note: None when thread ``native_id`` (0: the
+    calling thread) now runs SCHED_FIFO at ``priority``, else why it does not (a phrase:
+    "not permitted (run as root, ...)"). Other threads of a process that runs its control
+    loop, or its simulated drives, at real-time priority take the same class with it."""
+    fifo = _policy()
+    if fifo is None or not hasattr(os, "sched_setscheduler"):
+        return "this platform has no SCHED_FIFO"
+    policy = fifo | getattr(os, "SCHED_RESET_ON_FORK", 0)
+    try:
+        os.sched_setscheduler(native_id, policy, os.sched_param(priority))
+    except PermissionError:
+        return ("not permitted (run as root, give the program CAP_SYS_NICE, or raise "
+                f"RLIMIT_RTPRIO to {priority})")
+    except OSError as exc:  # EINVAL: a kernel or container without real-time scheduling
+        return f"refused: {exc.strerror or exc}"
+    return None
 
 
 def _note(why: str) -> None:

@@ -17,6 +17,7 @@ from collections.abc import Callable
 
 from omnican.chassis.realtime import make_realtime
 from omnican.clock import Clock
+from omnican.io.stepped import Stepped
 
 logger = logging.getLogger("omnican.chassis")
 
@@ -27,7 +28,11 @@ Cycle = Callable[[float], None]
 
 class ThreadRunner:
     """The control cycle on a thread of its own, every ``period_s`` (real time); the
-    thread runs SCHED_FIFO at ``rt_priority`` where the process may (0: never)."""
+    thread runs SCHED_FIFO at ``rt_priority`` where the process may (0: never).
+
+    ``companion``: simulated drives in this process that the thread runs with the cycle
+    (:mod:`omnican.io.stepped`): their timers before each cycle, the frames that reached
+    them after it; set before :meth:`start`."""
 
     def __init__(self, period_s: float, cycle: Cycle, on_error: Callable[[], None],
                  rt_priority: int = 0) -> None:
@@ -37,6 +42,7 @@ class ThreadRunner:
         self.cycle = cycle  # what it calls each period (a benchmark may wrap it)
         self._on_error = on_error
         self.late = 0  # cycles that started more than a fifth of a period late
+        self.companion: Stepped | None = None
         self._stop = threading.Event()
         self._cpu_at_end = 0.0
         self.thread = threading.Thread(target=self._run, name="omnican-loop", daemon=True)
@@ -56,6 +62,7 @@ class ThreadRunner:
     def _run(self) -> None:
         if self.rt_priority:  # the thread's own: the threads it starts run normally
             self.realtime = make_realtime(self.rt_priority)
+        companion = self._begin_companion()
         period = self.period_s
         on_error = self._on_error
         next_t = time.monotonic()
@@ -63,11 +70,15 @@ class ThreadRunner:
             now = time.monotonic()
             if now - next_t > period * LATE_FRACTION_OF_PERIOD:
                 self.late += 1
+            if companion is not None:
+                companion = self._companion_step(companion, now)
             try:
                 self.cycle(now)
             except Exception:  # keep stopping the base whatever went wrong
                 logger.exception("control cycle failed")
                 on_error()
+            if companion is not None:
+                companion = self._companion_step(companion, None)
             next_t += period
             delay = next_t - time.monotonic()
             if delay < -period:
@@ -75,7 +86,42 @@ class ThreadRunner:
                 delay = 0.0
             if delay > 0:
                 time.sleep(delay)  # finer than Event.wait's timed lock: fewer late cycles
+        if companion is not None:
+            self._end_companion(companion)
         self._cpu_at_end = time.thread_time()
+
+    def _begin_companion(self) -> Stepped | None:
+        companion = self.companion
+        if companion is None:
+            return None
+        try:
+            companion.begin()
+        except Exception:  # they keep their own threads: the base runs as before
+            logger.exception("simulated drives: running them on the control loop failed")
+            return None
+        return companion
+
+    def _companion_step(self, companion: Stepped, now: float | None) -> Stepped | None:
+        """Their timers at ``now`` (before the cycle), or (None) their frames (after it).
+        A failure is theirs, not the base's: said, and they go back to their threads."""
+        try:
+            if now is not None:
+                companion.tick(now)
+            else:
+                companion.drain()
+        except Exception:
+            logger.exception("simulated drives failed on the control loop: back on their "
+                             "own threads")
+            self._end_companion(companion)
+            return None
+        return companion
+
+    @staticmethod
+    def _end_companion(companion: Stepped) -> None:
+        try:
+            companion.end()
+        except Exception:
+            logger.exception("simulated drives: giving them their threads back failed")
 
     @property
     def cpu_s(self) -> float:
@@ -98,6 +144,7 @@ class LockstepRunner:
     late = 0  # simulated time is never late
     cpu_s = 0.0  # no thread of its own
     realtime = False  # nor a priority
+    companion: Stepped | None = None  # simulated drives run on the clock, not here
 
     def __init__(self, clock: Clock, period_s: float, cycle: Cycle,
                  on_error: Callable[[], None]) -> None:

@@ -355,7 +355,10 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
 
     clock = SimClock(speed=speed) if fast or speed is not None else REAL_TIME
     cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}")
-    with SimulatedBase.from_config(cfg, clock=clock, **sim_options) as sim:
+    # In real time the base's control loop runs the drives (omnican.io.stepped): they are
+    # as steady as the loop beside a busy desktop, not threads that may fall behind it.
+    with SimulatedBase.from_config(cfg, clock=clock, stepped=not clock.lockstep,
+                                   **sim_options) as sim:
         yield Session(cfg, sim, clock)
 
 

@@ -20,6 +20,7 @@ import uuid
 from collections.abc import Mapping
 from typing import Any
 
+from omnican.chassis.realtime import realtime_refusal
 from omnican.cli.common import (
     UsageError,
     add_config_argument,
@@ -110,16 +111,23 @@ def run(args: argparse.Namespace) -> int:
     else:
         host, port = parse_serve(args.serve)
         channel = f"omnican-hub-{uuid.uuid4().hex[:8]}"
-        hub = LoopbackHub(channel, host, port)
+        priority = cfg.chassis.rt_priority  # its relays carry the drives' frames: theirs
+        hub = LoopbackHub(channel, host, port, on_thread=(
+            (lambda: realtime_refusal(priority)) if priority else None))
         cfg = cfg.with_bus(interface="virtual", channel=channel)
         where = hub.url
         connect = f"omnican teleop -i remote -c {hub.url}"
     try:
         if args.foxglove is not None:
             prepare(cfg)  # its slow set-up before the simulated drives run
-        with SimulatedBase.from_config(cfg, **options) as sim:
+        # Its drives keep up with a control loop in another process: at that loop's
+        # real-time priority where this process may, else a note on how to get it.
+        with SimulatedBase.from_config(cfg, rt_priority=cfg.chassis.rt_priority,
+                                       **options) as sim:
             nodes = ", ".join(f"{d.node_id} ({d.eds.name})" for d in sim.drives)
             print(f"serving simulated nodes {nodes} on {where}", flush=True)
+            if sim.realtime_refused is not None:
+                print(steadiness_hint(sim.realtime_refused), flush=True)
             print(f"connect with: {connect}", flush=True)
             if args.config:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)
@@ -135,6 +143,13 @@ def run(args: argparse.Namespace) -> int:
             hub.close()
     print("simulator stopped", flush=True)
     return 0
+
+
+def steadiness_hint(why: str) -> str:
+    """What ``omnican sim`` says when its drives cannot run at real-time priority."""
+    return (f"note: simulated drives at normal priority, real-time priority {why}: "
+            "beside a busy desktop their heartbeats can come late and stop the base "
+            "(--sim in the driving process instead runs them on its control loop)")
 
 
 def _say(text: str) -> None:

@@ -14,6 +14,7 @@ import logging
 import socket
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from omnican.errors import BusError, ConfigError
@@ -33,7 +34,7 @@ def _check_loopback(host: str) -> None:
             raise ConfigError(f"the hub serves loopback only; {host!r} is {addr}")
 
 
-def _handler_class() -> type:
+def _handler_class(on_thread: Callable[[], object] | None = None) -> type:
     """python-can-remote's request handler, with a client that vanishes (killed, or its
     socket gone) ending its session quietly and releasing its bus instead of dying
     with a BrokenPipeError traceback in the server thread."""
@@ -42,6 +43,8 @@ def _handler_class() -> type:
 
     class Protocol(RemoteServerProtocol):  # type: ignore[misc]
         def _send_to_client(self) -> None:
+            if on_thread is not None:  # this session's thread that relays the bus
+                on_thread()
             try:
                 super()._send_to_client()
             except OSError as exc:
@@ -62,6 +65,8 @@ def _handler_class() -> type:
 
     class Handler(ClientRequestHandler):  # type: ignore[misc]
         def start_websocket(self) -> None:
+            if on_thread is not None:  # this session's thread that relays the client
+                on_thread()
             self.send_response(101)
             self.send_header("Upgrade", "WebSocket")
             self.send_header("Connection", "Upgrade")
@@ -87,9 +92,12 @@ def _handler_class() -> type:
 class LoopbackHub:
     """Serves virtual channel ``channel`` on ``ws://host:port/`` (host must be loopback).
 
-    A context manager; ``port=0`` picks a free port (see :attr:`url`)."""
+    A context manager; ``port=0`` picks a free port (see :attr:`url`). ``on_thread()`` is
+    called first on each thread that relays a client's frames (``omnican sim`` gives them
+    its drives' real-time priority: every frame between drives and host passes them)."""
 
-    def __init__(self, channel: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> None:
+    def __init__(self, channel: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
+                 on_thread: Callable[[], object] | None = None) -> None:
         _check_loopback(host)
         try:
             from can_remote.server import RemoteServer
@@ -103,7 +111,7 @@ class LoopbackHub:
             self._server = RemoteServer(host, port, **config)
         except OSError as exc:  # the port is taken: a run-time failure, not bad usage
             raise BusError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
-        self._server.RequestHandlerClass = _handler_class()
+        self._server.RequestHandlerClass = _handler_class(on_thread)
         self.host = host
         self.port = int(self._server.server_address[1])
         self._thread = threading.Thread(target=self._server.serve_forever, name="omnican-hub",

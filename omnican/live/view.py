@@ -42,16 +42,23 @@ LAYOUT = Path(__file__).resolve().parents[1] / "foxglove" / "omnican-layout.json
 
 
 def prepare(cfg: Any) -> None:
-    """Do the live view's slow set-up (the SDK, the ROS 2 type store, the base's DBC:
-    about a second of CPU) now, before the base's control loop runs and has to share the
-    CPU with it. Optional: what is not done here is done when first needed."""
+    """Do the live view's slow set-up (the SDK, the ROS 2 type store and its serializers,
+    the base's DBC: about a second of CPU) now, before the base's control loop runs and
+    has to share the CPU with it. Optional: what is not done here is done when first
+    needed."""
     try:
         import foxglove  # noqa: F401
     except ImportError:
         return  # LiveView says what to install
     from omnican.plan.dbc import database_for
 
-    cdr.typestore()
+    store = cdr.typestore()
+    # Each ROS 2 type's serializer is generated and compiled on its first message (about
+    # 170 ms for the view's types, most of it holding the interpreter's lock): when the
+    # first client subscribed to everything, that stalled the control loop by ~100 ms.
+    for schema in sorted({schema for schema, kind in telemetry.TOPICS.values()
+                          if kind == telemetry.ROS2} | {telemetry.CAN_FRAME}):
+        store.get_msgdef(schema)
     database_for(cfg)
 
 

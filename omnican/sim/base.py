@@ -3,6 +3,18 @@
 The true pose is integrated from the drives' *physical* wheel motion (not from the
 encoder values they report, which may be noisy, wrapped or reset by a reboot)
 through the base's true kinematics.
+
+Where the drives run: on a housekeeping thread and python-can's Notifier (real time), on
+the simulated clock (lock-step), or, ``stepped``, on the control loop of a base opened in
+this process on the same channel (:mod:`omnican.io.stepped`): their timers before each
+cycle, the cycle's frames after it, and their own threads only before the loop starts
+and after it ends. Stepped drives are as steady as the loop, whatever else the process
+and the machine do: beside a browser, threads at normal priority in a process whose loop
+runs at real-time priority fell behind by more than a heartbeat-consumer time. Their
+consumer still watches the host honestly: a loop that stalls finds its drives' timers run
+first, with the host's heartbeat as late as it was (EMCY 8130h), as real drives would.
+A simulator serving another process (``omnican sim``) has no loop to follow: its threads
+take the loop's real-time class instead (``rt_priority``).
 """
 
 from __future__ import annotations
@@ -19,12 +31,14 @@ import canopen
 import numpy as np
 import numpy.typing as npt
 
+from omnican.chassis.realtime import realtime_refusal
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, WheelConfig
 from omnican.core.kinematics import OmniKinematics, Twist
 from omnican.core.odometry import Odometry, Pose2D
 from omnican.errors import BusError, ConfigError
-from omnican.io.lockstep import LockstepBus
+from omnican.io import stepped as stepped_io
+from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
 from omnican.protocol.object_map import Obj
 from omnican.sim.drive import SimulatedDrive
@@ -34,6 +48,7 @@ from omnican.sim.scheduler import SimScheduler
 logger = logging.getLogger(__name__)
 
 TICK_S = 0.002  # the drives' housekeeping period in real time
+DRAIN_LIMIT = 1024  # frames handled per control cycle when stepped (the rest: the next)
 
 
 class _ReceiveErrors(can.Listener):
@@ -87,6 +102,17 @@ class SimulatedBase:
         self._closed = False
         self._odo.update(self._true_travel())
         scheduler.add(self._tick)
+        self._channel: str | None = None  # offered to a base's loop on this channel
+        self._rt_priority = 0
+        #: why the drives' threads run at normal priority though ``rt_priority`` asked
+        #: for real-time priority (None: they do run at it, or it was not asked)
+        self.realtime_refused: str | None = None
+        #: the drives run on a base's control loop now (``stepped``)
+        self.stepping = False
+        self._receive: Any = None
+        self._last_tick = -math.inf
+        self._stepper = 0  # the loop's thread (threading.get_ident) while stepping
+        self._truth: tuple[Pose2D, Twist] | None = None  # as of its last cycle
 
     @classmethod
     def from_config(
@@ -99,6 +125,8 @@ class SimulatedBase:
         tick_s: float | None = None,
         drive_options: Mapping[int, Mapping[str, Any]] | None = None,
         clock: Clock | None = None,
+        stepped: bool = False,
+        rt_priority: int = 0,
         **options: Any,
     ) -> SimulatedBase:
         """Start simulated drives for ``cfg``.
@@ -119,6 +147,13 @@ class SimulatedBase:
                 :class:`~omnican.clock.SimClock`: lock-step, single-threaded, on an
                 in-process channel named after the configured one (a
                 :class:`~omnican.Chassis` opened with the same clock reaches it).
+            stepped: in real time on a ``virtual`` channel, let the control loop of the
+                first :class:`~omnican.Chassis` opened in this process on that channel run
+                the drives (see the module docstring): what ``--sim`` does.
+            rt_priority: the drives' threads run SCHED_FIFO at this priority (1-99)
+                where the process may (:attr:`realtime_refused` says why not); 0: normal
+                priority. What ``omnican sim`` does, with the config's
+                ``chassis.rt_priority``, to keep up with a loop in another process.
             **options: :class:`SimulatedDrive` arguments for every drive
                 (``encoder_noise``, ``slip``, ``frame_loss``, ``tau_s``, ...).
         """
@@ -172,6 +207,13 @@ class SimulatedBase:
             network.disconnect()
             raise
         scheduler.start()
+        if rt_priority and not clock.lockstep:
+            base._rt_priority = rt_priority
+            base._take_priority()
+        if stepped and not clock.lockstep and bus_kwargs.get("interface") == "virtual" \
+                and bus_kwargs.get("channel"):
+            base._channel = str(bus_kwargs["channel"])
+            stepped_io.offer(base._channel, base)
         logger.info("simulated base: nodes %s on %s", sorted(by_node), bus_kwargs)
         return base
 
@@ -205,24 +247,44 @@ class SimulatedBase:
     def _tick(self, now: float) -> None:
         """The truth follows the wheels as their drives last moved them (on the SYNC, or
         in their own housekeeping when no SYNC comes): moving them here as well would
-        move every motor twice a cycle."""
+        move every motor twice a cycle. While a loop runs the drives, the truth is also
+        kept for other threads to read (:attr:`true_pose`)."""
         with self._lock:
             if not self._closed:
                 self._odo.step(self._true_travel(now, moved=False))
+                if self.stepping:  # this is the loop's thread: the drives just moved
+                    self._truth = (self._odo.pose, self._twist(advance=False))
 
     @property
     def true_pose(self) -> Pose2D:
-        """Ground-truth pose of the base (m, m, rad; theta continuous)."""
+        """Ground-truth pose of the base (m, m, rad; theta continuous). While a base's
+        loop runs the drives (``stepped``), another thread reads it as of the loop's last
+        cycle: taking the drives' locks there could hold the loop up."""
+        truth = self._truth_elsewhere()
+        if truth is not None:
+            return truth[0]
         with self._lock:
             return self._odo.update(self._true_travel())
 
     @property
     def true_twist(self) -> Twist:
-        """Ground-truth body velocity now (m/s, m/s, rad/s)."""
-        speeds = np.array([d.velocity_counts(axis) * (1.0 - d.slip)
-                           if d.axes[axis].grounded else 0.0
+        """Ground-truth body velocity now (m/s, m/s, rad/s); see :attr:`true_pose`."""
+        truth = self._truth_elsewhere()
+        return truth[1] if truth is not None else self._twist(advance=True)
+
+    def _twist(self, advance: bool) -> Twist:
+        speeds = np.array([(d.velocity_counts(axis) if advance else d.axes[axis].state.velocity)
+                           * (1.0 - d.slip) if d.axes[axis].grounded else 0.0
                            for d, axis in self.wheel_axes]) / self._counts_per_metre
         return self.true_kinematics.to_twist(speeds)
+
+    def _truth_elsewhere(self) -> tuple[Pose2D, Twist] | None:
+        """The truth of the loop's last cycle, for a thread other than the loop's while
+        the loop runs the drives; None otherwise."""
+        truth = self._truth
+        if truth is None or not self.stepping or threading.get_ident() == self._stepper:
+            return None
+        return truth
 
     def reset_truth(self, pose: Pose2D | None = None) -> None:
         with self._lock:
@@ -258,11 +320,85 @@ class SimulatedBase:
         """Let simulated time pass (in lock-step this runs the simulation)."""
         self.clock.sleep(seconds)
 
+    # ------------------------------------------------ run by a base's loop (stepped)
+
+    def begin(self) -> None:
+        """A base's control loop runs the drives from now on (its thread calls this):
+        the housekeeping thread and the Notifier stop; what reached the bus meanwhile
+        waits for :meth:`drain`."""
+        if self._closed:
+            return
+        network = self.network
+        self.scheduler.pause()
+        with network.send_lock:
+            notifier, network.notifier = network.notifier, None
+        if notifier is not None:
+            notifier.stop(0.5)
+        # Every listener, as the Notifier would (canopen's in one call on ours).
+        self._receive = (network.lockstep_receiver() if isinstance(network, Network)
+                         else listeners_receiver(network.listeners))
+        self._last_tick = -math.inf
+        self._stepper = threading.get_ident()
+        self._truth = None
+        self.stepping = True
+        logger.debug("simulated drives run on the control loop")
+
+    def tick(self, now: float) -> None:
+        """The drives' timers at ``now`` (at most once a housekeeping period): their
+        heartbeats, their consumers of the host's, event TPDOs, boots; the truth."""
+        if self.stepping and not self._closed and now - self._last_tick >= self.scheduler.period_s:
+            self._last_tick = now
+            self.scheduler.step(now)
+
+    def drain(self) -> None:
+        """Hand every frame that reached the drives' bus to them, at most
+        :data:`DRAIN_LIMIT` (the rest wait for the next cycle)."""
+        bus, receive = self.network.bus, self._receive
+        if not self.stepping or self._closed or bus is None or receive is None:
+            return
+        for _ in range(DRAIN_LIMIT):
+            msg = bus.recv(0)
+            if msg is None:
+                return
+            receive(msg)
+
+    def end(self) -> None:
+        """The loop no longer runs the drives: their own threads again (with their
+        priority), before the base's shutdown talks to them."""
+        self.stepping = False
+        if self._closed:
+            return
+        network = self.network
+        bus = network.bus
+        if bus is not None:
+            listeners: list[can.Listener] = network.listeners  # type: ignore[assignment]
+            try:
+                network.notifier = can.Notifier(bus, listeners, network.NOTIFIER_CYCLE)
+            except Exception as exc:  # the bus is gone: nothing to receive
+                logger.warning("simulated drives: receiving again failed: %s", exc)
+        self.scheduler.resume()
+        if self._rt_priority:
+            self._take_priority()
+        logger.debug("simulated drives run on their own threads")
+
+    def _take_priority(self) -> None:
+        """The housekeeping and receiving threads at ``rt_priority`` (SCHED_FIFO)."""
+        ids = [self.scheduler.native_id]
+        notifier = self.network.notifier
+        ids += [getattr(t, "native_id", None) for t in getattr(notifier, "_readers", ())]
+        refused = None
+        for native_id in ids:
+            if native_id:
+                refused = realtime_refusal(self._rt_priority, native_id) or refused
+        self.realtime_refused = refused
+
     def close(self) -> None:
         with self._lock:
             if self._closed:
                 return
             self._closed = True
+        if self._channel is not None:
+            stepped_io.withdraw(self._channel, self)
         self.scheduler.close()
         for d in self.drives:
             d.close()
