@@ -233,6 +233,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("the fleet dashboard reads keys from a terminal, and stdin is not "
                          "one (for scripts: --once, --json, --stop, --recover)")
     settings = settings_of(args)
+    if args.recover and not may_recover(settings):
+        raise UsageError(f"fleet --recover: {VIEWER_RECOVERS}")
     if not (acting or args.once or args.json):
         return dashboard(settings, args)  # its link opens inside it: its events from the start
     with Link(settings) as link:
@@ -241,6 +243,18 @@ def run(args: argparse.Namespace) -> int:
         if args.once:
             return once(link, args)
         return stream(link, args)
+
+
+#: Why a viewer's recover is not sent: the fleet's access control lets none through, and
+#: unanswered it would read as a base that is gone.
+VIEWER_RECOVERS = ("a viewer may only stop: its certificate lets no recover through "
+                   "(an operator's identity may recover)")
+
+
+def may_recover(settings: ZenohSettings) -> bool:
+    """The session's certificate lets a recover through (a viewer's does not)."""
+    who = settings.who
+    return who is None or who.role != "viewer"
 
 
 # ------------------------------------------------------------------ for scripts
@@ -687,6 +701,9 @@ def dashboard(settings: ZenohSettings, args: argparse.Namespace) -> int:
                     timeout = args.timeout if key == "s" else max(args.timeout,
                                                                   RECOVER_TIMEOUT_S)
                     view = next(v for v in views if _id(v) == selected)
+                    if service == "recover" and not may_recover(settings):
+                        events.say(f"recover {view.name}: not asked: {VIEWER_RECOVERS}")
+                        continue
                     if service == "recover" and view.conflict:
                         events.say(f"recover {view.name}: not asked: "
                                    f"{CONFLICT} ({', '.join((view.zid, *view.conflict))})")

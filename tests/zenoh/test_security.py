@@ -494,3 +494,21 @@ def test_the_credentials_command_says_what_it_made(tmp_path: Path,
         err = capsys.readouterr().err
         assert err.count("\n") == 1
         assert (words or "name the members: --base NAME") in err
+
+
+def test_a_viewers_recover_is_refused_before_anything_is_asked(
+        fleet_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Unanswered (its certificate lets no recover through), a viewer's recover read as
+    'nothing serves its recover service': a base that seemed gone. It is refused in one
+    line, before a session opens; an operator's is not."""
+    from omnican.cli import main
+    from omnican.cli.fleet import may_recover
+
+    common = ["--zenoh-credentials", str(fleet_dir), "--zenoh-connect", "tls/127.0.0.1:1"]
+    assert main(["fleet", *common, "--zenoh-identity", "viewer/bob", "--recover", "robot1",
+                 "--domain-id", "7"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a viewer may only stop" in err
+    assert not may_recover(ZenohSettings(credentials=str(fleet_dir), identity="viewer/bob"))
+    assert may_recover(ZenohSettings(credentials=str(fleet_dir), identity="operator/alice"))
+    assert may_recover(ZenohSettings())  # no credentials: the base decides
