@@ -168,9 +168,23 @@ def add_bus_arguments(parser: argparse.ArgumentParser, sim_help: str | None = No
     parser.add_argument("--sim", action="store_true",
                         help=sim_help or "run against simulated drives in this process "
                         "(a virtual bus; no hardware)")
+    add_python_can_arguments(parser, "bus arguments (override [bus] of the config)")
+
+
+def add_python_can_arguments(parser: argparse.ArgumentParser, title: str) -> None:
+    """python-can's bus arguments (``can.cli.add_bus_arguments``), with the interface
+    named once: python-can's own ``-i`` lists every interface it knows twice in its
+    usage and help line (about 400 characters a line)."""
     import can.cli
 
-    can.cli.add_bus_arguments(parser, group_title="bus arguments (override [bus] of the config)")
+    can.cli.add_bus_arguments(parser, group_title=title)
+    for action in parser._actions:
+        if action.dest == "interface" and action.choices:
+            action.metavar = "INTERFACE"
+            action.help = ("python-can's interface: socketcan (Linux), virtual (within one "
+                           "process), remote (omnican sim's hub) or another of "
+                           f"{', '.join(sorted(action.choices))} (default: [bus] of the "
+                           "config, else python-can's configuration)")
 
 
 def add_sim_time_arguments(parser: argparse.ArgumentParser) -> None:
