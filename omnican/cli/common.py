@@ -368,9 +368,25 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
     from omnican.sim import SimulatedBase
 
     clock = SimClock(speed=speed) if fast or speed is not None else REAL_TIME
-    cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}")
+    # The simulated bus stands for the configured one: its nominal bitrate, so that the
+    # bus load (the dashboard's, /status.bus_load, diagnostics) is a share of it.
+    cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}",
+                       bitrate=sim_bitrate(cfg))
     with SimulatedBase.from_config(cfg, clock=clock, **sim_options) as sim:
         yield Session(cfg, sim, clock)
+
+
+#: The simulated bus's nominal bitrate when the config's [bus] gives none (the demo base):
+#: the examples' 500 kbit/s.
+SIM_BITRATE = 500_000
+
+
+def sim_bitrate(cfg: ChassisConfig) -> int:
+    """The nominal bitrate of ``--sim``'s bus: the config's ``[bus] bitrate``, else
+    :data:`SIM_BITRATE`."""
+    rate = (cfg.bus or {}).get("bitrate")
+    return int(rate) if isinstance(rate, int) and not isinstance(rate, bool) and rate > 0 \
+        else SIM_BITRATE
 
 
 def fixed(value: float, places: int, sign: bool = False) -> str:
