@@ -108,10 +108,10 @@ def test_help_fits_an_80_column_terminal(monkeypatch: pytest.MonkeyPatch) -> Non
     listed its 24 interfaces twice on one line of 397 characters. (The descriptions
     are written by hand, laid out as they are.)"""
     monkeypatch.setenv("COLUMNS", "80")
-    for name, parser in _subparsers().items():
-        parser = argparse.ArgumentParser(prog=parser.prog, add_help=False,
-                                         parents=[parser], conflict_handler="resolve")
-        text = parser.format_help()
+    for name, full in _subparsers().items():
+        laid_out = argparse.ArgumentParser(prog=full.prog, add_help=False, parents=[full],
+                                           conflict_handler="resolve")  # no description
+        text = laid_out.format_help()
         long = [line for line in text.splitlines() if len(line) > 80]
         assert not long, f"omnican {name} --help: {long}"
 
