@@ -20,8 +20,8 @@ from tests.support.helpers import wait_for
 
 @dataclass
 class Truth:
-    true_pose: Pose2D = Pose2D(0.0, 0.0, 0.0)
-    true_twist: Twist = Twist(0.0, 0.0, 0.0)
+    true_pose: Pose2D
+    true_twist: Twist
 
 
 class SlowSink:
@@ -50,7 +50,7 @@ def feed() -> Feed:
     cfg = default_config()
     made = Feed(TelemetrySettings.from_config(cfg), cfg.kinematics(), REAL_TIME,
                 has_base=False)
-    made.truth = Truth()
+    made.truth = Truth(Pose2D(0.0, 0.0, 0.0), Twist(0.0, 0.0, 0.0))
     return made
 
 
