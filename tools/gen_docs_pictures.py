@@ -4,8 +4,8 @@
 - ``geometry-b21.svg``, ``geometry-a12.svg``: each preset's wheels, where each wheel
   sits and the way it drives for a positive rim speed, in the body frame (REP-103: x
   forward, y left), drawn from :class:`omnican.core.kinematics.OmniKinematics`;
-- ``teleop.svg``: the teleop dashboard of the simulated base after a scripted drive
-  (rich exports the very screen ``omnican teleop`` draws);
+- ``teleop.svg``: the teleop dashboard of the simulated base after a scripted drive, on
+  an 80x24 terminal (rich exports the very screen ``omnican teleop`` draws);
 - ``plot.png``: ``omnican plot --sim --fast`` (a square on the simulated base);
 - ``layers.svg``: the layers (:mod:`omnican.layers`) and the imports between them, read
   from the code as ``tests/test_layers.py`` reads them.
@@ -72,10 +72,15 @@ def geometry(layout: str, out: Path) -> None:
     plt.close(fig)
 
 
+#: The terminal the teleop picture is of: the 80x24 screen teleop is made for.
+TELEOP_SCREEN = (80, 24)
+
+
 def teleop(out: Path) -> None:
     from rich.console import Console
 
     from omnican import Chassis, Twist
+    from omnican.cli.common import SIM_BITRATE
     from omnican.cli.dashboard import dashboard
     from omnican.cli.terminal import Events
     from omnican.clock import SimClock
@@ -83,7 +88,9 @@ def teleop(out: Path) -> None:
     from omnican.config import default_config
     from omnican.sim import SimulatedBase
 
-    cfg = default_config(bus={"interface": "virtual", "channel": f"docs-{uuid.uuid4().hex}"})
+    # as under omnican teleop --sim: the simulated bus has the demo base's nominal bitrate
+    cfg = default_config(bus={"interface": "virtual", "channel": f"docs-{uuid.uuid4().hex}",
+                              "bitrate": SIM_BITRATE})
     clock = SimClock()
     keys = TeleopModel.for_config(cfg, 0.3, 1.0, 0.6)
     command = Twist(0.3, 0.0, 0.5)
@@ -95,9 +102,11 @@ def teleop(out: Path) -> None:
             clock.sleep(0.05)
         events = Events()
         events.lines.append("12:00:00 base running: the keys drive it")
+        width, height = TELEOP_SCREEN
         screen = dashboard(base, keys, command, "omnican teleop - simulated base, nodes 1, 2, 3",
-                           events, "", width=100)
-        console = Console(record=True, width=100, force_terminal=True, color_system="truecolor",
+                           events, "", width=width, height=height)
+        console = Console(record=True, width=width, height=height, force_terminal=True,
+                          color_system="truecolor",
                           file=open(os.devnull, "w"))  # noqa: SIM115 (closed below)
         console.print(screen)
         console.file.close()

@@ -7,8 +7,8 @@ second venv with only the docs extra would prove it too, at the price of a secon
 of Sphinx, matplotlib and numpy in every CI run. Instead the program runs with an import
 guard: every installed distribution outside the dependency closure of ``omnican[EXTRA]``
 (read from the installed metadata, so it follows pyproject.toml) has its top-level modules
-refused, in the program and in every Python program it starts (a ``sitecustomize`` on
-PYTHONPATH).
+hidden from the import system, as if not installed, in the program and in every Python
+program it starts (a ``sitecustomize`` on PYTHONPATH).
 """
 
 from __future__ import annotations
@@ -25,27 +25,33 @@ from packaging.requirements import Requirement
 #: What a fresh ``python3 -m venv`` has before anything is installed into it.
 FRESH_VENV = {"pip"} | ({"setuptools"} if sys.version_info < (3, 12) else set())
 
-ENV = "OMNICAN_TEST_REFUSE_IMPORTS"
+ENV = "OMNICAN_TEST_HIDDEN_MODULES"
 
 SITECUSTOMIZE = f'''\
-"""Refuse the modules named by {ENV} (tests/docs/extra_only.py)."""
-import importlib.abc
+"""Hide the modules named by {ENV} (tests/docs/extra_only.py): every finder of the
+import system is wrapped so that it finds none of them, as if they were not installed
+(an import fails with ModuleNotFoundError, importlib.util.find_spec gives None)."""
 import os
 import sys
 
-_REFUSED = frozenset(filter(None, os.environ.get("{ENV}", "").split(",")))
+_HIDDEN = frozenset(filter(None, os.environ.get("{ENV}", "").split(",")))
 
 
-class _Refuse(importlib.abc.MetaPathFinder):
+class _Hiding:
+    def __init__(self, inner):
+        self._inner = inner
+
     def find_spec(self, name, path=None, target=None):
-        if name.split(".", 1)[0] in _REFUSED:
-            raise ModuleNotFoundError(
-                f"No module named {{name!r}} (refused: the extra under test does not "
-                f"install it)", name=name)
-        return None
+        if name.split(".", 1)[0] in _HIDDEN:
+            return None
+        find = getattr(self._inner, "find_spec", None)
+        return None if find is None else find(name, path, target)
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
 
 
-sys.meta_path.insert(0, _Refuse())
+sys.meta_path[:] = [_Hiding(finder) for finder in sys.meta_path]
 '''
 
 
@@ -78,15 +84,15 @@ def closure(root: str, extras: Iterable[str]) -> set[str]:
     return seen
 
 
-def refused_modules(root: str, extras: Iterable[str]) -> set[str]:
+def hidden_modules(root: str, extras: Iterable[str]) -> set[str]:
     """The top-level modules installed here that ``pip install root[extras]`` would not
     bring (a module that an allowed distribution also provides is allowed)."""
     allowed = closure(root, extras) | FRESH_VENV
-    refused: set[str] = set()
+    hidden: set[str] = set()
     for module, dists in md.packages_distributions().items():
         if not any(_canonical(d) in allowed for d in dists):
-            refused.add(module)
-    return refused
+            hidden.add(module)
+    return hidden
 
 
 def guarded_env(tmp: Path, root: str, extras: Iterable[str],
@@ -95,6 +101,6 @@ def guarded_env(tmp: Path, root: str, extras: Iterable[str],
     installs (and the standard library); ``tmp`` receives the sitecustomize."""
     (tmp / "sitecustomize.py").write_text(SITECUSTOMIZE)
     env = dict(os.environ if base is None else base)
-    env[ENV] = ",".join(sorted(refused_modules(root, extras)))
+    env[ENV] = ",".join(sorted(hidden_modules(root, extras)))
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(tmp), env.get("PYTHONPATH")]))
     return env
