@@ -29,6 +29,9 @@ extensions = [
     "omnican_docs",
 ]
 source_suffix = {".md": "markdown"}
+# No typographic dashes and quotes: the pages are full of options and values to type
+# (--sim, 'vector'), and an en-dash or a curly quote cannot be pasted into a terminal.
+smartquotes = False
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 exclude_patterns = ["_build", "_generated/**"]

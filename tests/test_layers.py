@@ -1,9 +1,7 @@
 """The layers of the package, read from its imports: data flows one way.
 
-A module may import from the layers below its own and from its own folder, never from a
-layer above, and never from a sibling of its own layer (the command sources, recordings
-and analyses know nothing of each other; neither do the front ends, below the CLI that
-starts them). The order is written once, here, and drawn in docs/architecture.md.
+The order is the package's own (:mod:`omnican.layers`); these tests hold every module
+to it, and the architecture page's table to the same order.
 """
 
 from __future__ import annotations
@@ -13,64 +11,21 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import omnican
+from omnican.layers import (
+    FACE,
+    LAYERS,
+    SHARED,
+    UnlayeredModuleError,
+    crossing,
+    imports_in,
+    layer_of,
+)
 
 PACKAGE = Path(omnican.__file__).resolve().parent
-
-#: Lowest first. A set is one layer of siblings.
-LAYERS: list[frozenset[str]] = [frozenset(s) for s in (
-    {"errors", "clock", "extras", "log_throttle"},  # what every layer may use
-    {"core"},            # pure robot maths
-    {"protocol"},        # pure CANopen/CAN
-    {"config"},          # schema, model, parsing
-    {"plan"},            # this robot on the wire, worked out offline
-    {"io"},              # the only owners of sockets and the Notifier
-    {"drive"},           # one CiA 402 node
-    {"chassis"},         # the base and its control cycle
-    {"telemetry"},       # what front ends publish, built once
-    {"command", "record", "analysis"},
-    {"sim"},             # simulated drives and base
-    {"ros2", "live", "gamepad", "zenoh"},  # front ends
-    {"cli"},             # the command line, which starts the others
-)]
-#: The package's public face: it may name any layer (lazily), and old names kept for a
-#: release point at their new homes.
-FACE = {"__init__", "__main__", "motion", "teleop_model"}
-
-
-def layer_of(module: str) -> tuple[int, str] | None:
-    """(rank, top folder or module) of ``omnican.<module...>``; None for the face."""
-    top = module.split(".", maxsplit=1)[0]
-    if top in FACE:
-        return None
-    for rank, layer in enumerate(LAYERS):
-        if top in layer:
-            return rank, top
-    raise AssertionError(f"omnican.{top} is in no layer: add it to LAYERS (and to "
-                         "docs/architecture.md)")
-
-
-def imported(path: Path) -> set[str]:
-    """The omnican modules ``path`` imports (below ``omnican.``), wherever the import is
-    (under TYPE_CHECKING too: a type is a dependency a reader follows)."""
-    found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            found |= {a.name.removeprefix("omnican.") for a in node.names
-                      if a.name.startswith("omnican.")}
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            if node.module == "omnican":
-                for alias in node.names:
-                    home = omnican._HOMES.get(alias.name)
-                    if home is not None:
-                        found.add(home)
-                    elif (PACKAGE / alias.name).is_dir() or (
-                            PACKAGE / f"{alias.name}.py").is_file():
-                        found.add(alias.name)
-            elif node.module.startswith("omnican."):
-                found.add(node.module.removeprefix("omnican."))
-    return found
 
 
 def modules() -> list[tuple[str, Path]]:
@@ -84,16 +39,11 @@ def modules() -> list[tuple[str, Path]]:
 def upward_imports() -> list[str]:
     problems = []
     for name, path in modules():
-        own = layer_of(name)
-        if own is None:
-            continue
-        for target in sorted(imported(path)):
-            theirs = layer_of(target)
-            if theirs is None or theirs[1] == own[1]:
-                continue
-            if theirs[0] > own[0]:
+        for target in sorted(imports_in(path.read_text(), omnican._HOMES, str(path))):
+            kind = crossing(name, target)
+            if kind == "above":
                 problems.append(f"omnican.{name} imports omnican.{target}, a layer above it")
-            elif theirs[0] == own[0]:
+            elif kind == "sibling":
                 problems.append(f"omnican.{name} imports omnican.{target}, a sibling")
     return problems
 
@@ -138,7 +88,91 @@ def test_the_architecture_page_draws_the_same_layers() -> None:
     """docs/architecture.md's table of layers names the folders of LAYERS, in order."""
     page = (PACKAGE.parent / "docs" / "architecture.md").read_text()
     rows = page.split("| layer (lowest first) |", 1)[1].split("\n\n", 1)[0].splitlines()[2:]
-    drawn = [frozenset(name.strip("`").removesuffix(".py").rstrip("/")
-                       for name in row.split("|")[2].replace(",", " ").split())
-             for row in rows]
+    drawn = tuple(frozenset(name.strip("`").removesuffix(".py").rstrip("/")
+                            for name in row.split("|")[2].replace(",", " ").split())
+                  for row in rows)
     assert drawn == LAYERS
+
+
+def test_the_layer_order_imports_nothing_but_the_standard_library() -> None:
+    """tools/gen_docs_pictures.py reads the order with only the docs extra installed: the
+    module that holds it must import nothing of the package, of the tests or of an
+    extra."""
+    source = (PACKAGE / "layers.py").read_text()
+    assert imports_in(source, omnican._HOMES) == set()
+    stdlib = set(sys.stdlib_module_names)
+    tops = {a.name.split(".")[0] for node in ast.walk(ast.parse(source))
+            if isinstance(node, ast.Import) for a in node.names}
+    tops |= {node.module.split(".")[0] for node in ast.walk(ast.parse(source))
+             if isinstance(node, ast.ImportFrom) and node.module}
+    assert tops <= stdlib | {"__future__"}, tops - stdlib
+
+
+# -- the order's properties ------------------------------------------------------------
+
+NAMES = sorted(set().union(*LAYERS))
+rest = st.lists(st.from_regex(r"[a-z_][a-z0-9_]{0,8}", fullmatch=True), max_size=3)
+
+
+@given(st.sampled_from(NAMES), rest)
+def test_a_module_is_in_the_layer_of_its_top_folder(top: str, tail: list[str]) -> None:
+    rank, found = layer_of(".".join([top, *tail])) or (None, None)
+    assert found == top
+    assert rank is not None and top in LAYERS[rank]
+
+
+@given(st.sampled_from(sorted(FACE)), rest)
+def test_the_face_is_in_no_layer(top: str, tail: list[str]) -> None:
+    assert layer_of(".".join([top, *tail])) is None
+
+
+@given(st.from_regex(r"[a-z_][a-z0-9_]{0,12}", fullmatch=True))
+def test_an_unknown_top_is_refused_by_name(top: str) -> None:
+    if top in NAMES or top in FACE:
+        return
+    with pytest.raises(UnlayeredModuleError, match=f"omnican.{top} is in no layer"):
+        layer_of(top)
+
+
+@given(st.sampled_from(NAMES), st.sampled_from(NAMES))
+def test_a_crossing_follows_the_ranks(a: str, b: str) -> None:
+    ra, rb = layer_of(a), layer_of(b)
+    assert ra is not None and rb is not None
+    kind = crossing(f"{a}.x", f"{b}.y")
+    if a == b:
+        assert kind is None
+    elif ra[0] < rb[0]:
+        assert kind == "above"
+    elif ra[0] == rb[0]:
+        assert kind == "sibling"
+    else:
+        assert kind == "below"
+    # one-way: an import that is fine one way is a problem the other way
+    if kind == "below":
+        assert crossing(f"{b}.y", f"{a}.x") == "above"
+
+
+def test_every_layer_may_use_the_shared_modules() -> None:
+    for layer in LAYERS[1:]:
+        for name in layer:
+            for shared in SHARED:
+                assert crossing(name, shared) == "below"
+
+
+module_path = st.lists(st.from_regex(r"[a-z][a-z0-9_]{0,8}", fullmatch=True),
+                       min_size=1, max_size=3).map(".".join)
+
+
+@given(st.lists(module_path, max_size=4), st.lists(module_path, max_size=4),
+       st.sampled_from(sorted(omnican._HOMES)))
+def test_every_form_of_import_is_read(plain: list[str], froms: list[str], public: str
+                                      ) -> None:
+    source = "\n".join(
+        [f"import omnican.{m}" for m in plain]
+        + [f"from omnican.{m} import thing" for m in froms]
+        + ["import os", "from collections import abc",
+           f"from omnican import {public}, core",
+           "if TYPE_CHECKING:\n    from omnican.chassis import Chassis",
+           "def f():\n    import omnican.sim.base as b"])
+    assert imports_in(source, omnican._HOMES) == {
+        *plain, *froms, omnican._HOMES[public], "core", "chassis", "sim.base"}

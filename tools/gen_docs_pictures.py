@@ -4,14 +4,15 @@
 - ``geometry-b21.svg``, ``geometry-a12.svg``: each preset's wheels, where each wheel
   sits and the way it drives for a positive rim speed, in the body frame (REP-103: x
   forward, y left), drawn from :class:`omnican.core.kinematics.OmniKinematics`;
-- ``teleop.svg``: the teleop dashboard of the simulated base after a scripted drive
-  (rich exports the very screen ``omnican teleop`` draws);
+- ``teleop.svg``: the teleop dashboard of the simulated base after a scripted drive, on
+  an 80x24 terminal (rich exports the very screen ``omnican teleop`` draws);
 - ``plot.png``: ``omnican plot --sim --fast`` (a square on the simulated base);
-- ``layers.svg``: the layers and the imports between them, read from the code as
-  ``tests/test_layers.py`` reads them.
+- ``layers.svg``: the layers (:mod:`omnican.layers`) and the imports between them, read
+  from the code as ``tests/test_layers.py`` reads them.
 
-Run: ``python tools/gen_docs_pictures.py OUT_DIR`` (needs matplotlib and rich: the plot
-extra and the base install). A picture whose inputs did not change is rewritten the same.
+Run: ``python tools/gen_docs_pictures.py OUT_DIR`` (needs matplotlib and rich: the docs
+extra and the base install; nothing of the tests). A picture whose inputs did not change
+is rewritten the same.
 """
 
 from __future__ import annotations
@@ -71,10 +72,15 @@ def geometry(layout: str, out: Path) -> None:
     plt.close(fig)
 
 
+#: The terminal the teleop picture is of: the 80x24 screen teleop is made for.
+TELEOP_SCREEN = (80, 24)
+
+
 def teleop(out: Path) -> None:
     from rich.console import Console
 
     from omnican import Chassis, Twist
+    from omnican.cli.common import SIM_BITRATE
     from omnican.cli.dashboard import dashboard
     from omnican.cli.terminal import Events
     from omnican.clock import SimClock
@@ -82,7 +88,9 @@ def teleop(out: Path) -> None:
     from omnican.config import default_config
     from omnican.sim import SimulatedBase
 
-    cfg = default_config(bus={"interface": "virtual", "channel": f"docs-{uuid.uuid4().hex}"})
+    # as under omnican teleop --sim: the simulated bus has the demo base's nominal bitrate
+    cfg = default_config(bus={"interface": "virtual", "channel": f"docs-{uuid.uuid4().hex}",
+                              "bitrate": SIM_BITRATE})
     clock = SimClock()
     keys = TeleopModel.for_config(cfg, 0.3, 1.0, 0.6)
     command = Twist(0.3, 0.0, 0.5)
@@ -94,9 +102,11 @@ def teleop(out: Path) -> None:
             clock.sleep(0.05)
         events = Events()
         events.lines.append("12:00:00 base running: the keys drive it")
+        width, height = TELEOP_SCREEN
         screen = dashboard(base, keys, command, "omnican teleop - simulated base, nodes 1, 2, 3",
-                           events, "", width=100)
-        console = Console(record=True, width=100, force_terminal=True, color_system="truecolor",
+                           events, "", width=width, height=height)
+        console = Console(record=True, width=width, height=height, force_terminal=True,
+                          color_system="truecolor",
                           file=open(os.devnull, "w"))  # noqa: SIM115 (closed below)
         console.print(screen)
         console.file.close()
@@ -105,32 +115,31 @@ def teleop(out: Path) -> None:
 
 
 def plot(out: Path) -> None:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    env = {**os.environ, "PYTHONPATH": path}
     subprocess.run([sys.executable, "-m", "omnican", "plot", "--sim", "--fast", "-o", str(out)],
                    check=True, env=env, cwd=ROOT, stdout=subprocess.DEVNULL)
 
 
 def layers(out: Path) -> None:
-    from tests.test_layers import LAYERS, imported, layer_of, modules
+    import omnican
+    from omnican.layers import LAYERS, SHARED, crossing, imports_in
 
     rows = [sorted(layer) for layer in LAYERS]
     pos: dict[str, tuple[float, float]] = {}
     for r, row in enumerate(rows):
         for c, name in enumerate(row):
             pos[name] = ((c - (len(row) - 1) / 2) * 2.3, r * 1.0)
+    package = ROOT / "omnican"
     edges: set[tuple[str, str]] = set()
-    for name, path in modules():
-        own = layer_of(name)
-        if own is None:
-            continue
-        for target in imported(path):
-            theirs = layer_of(target)
-            if theirs is not None and theirs[1] != own[1]:
-                edges.add((own[1], theirs[1]))
-    shared = {"errors", "clock", "extras", "log_throttle"}
+    for path in sorted(package.rglob("*.py")):
+        name = ".".join(path.relative_to(package).with_suffix("").parts)
+        for target in imports_in(path.read_text(), omnican._HOMES, str(path)):
+            if crossing(name, target) is not None:
+                edges.add((name.split(".")[0], target.split(".")[0]))
     fig, ax = plt.subplots(figsize=(9, 8))
     for a, b in sorted(edges):
-        if b in shared:  # every layer may use them: drawn once, as the bottom row
+        if b in SHARED:  # every layer may use them: drawn once, as the bottom row
             continue
         (x0, y0), (x1, y1) = pos[a], pos[b]
         up = y1 > y0
@@ -141,11 +150,12 @@ def layers(out: Path) -> None:
                                 "lw": 1.2 if up else 0.7, "shrinkA": 3, "shrinkB": 3,
                                 "connectionstyle": f"arc3,rad={0.0 if span <= 1 else 0.25}"})
     for name, (x, y) in pos.items():
-        label = name if name in shared else f"{name}/"
+        label = name if name in SHARED else f"{name}/"
         ax.text(x, y, label, ha="center", va="center", fontsize=10,
-                bbox={"boxstyle": "round,pad=0.35", "fc": "#eef3fb" if name not in shared
+                bbox={"boxstyle": "round,pad=0.35", "fc": "#eef3fb" if name not in SHARED
                       else "#f3f3f3", "ec": "#4a6fa5"})
-    ax.set_xlim(-4.5, 4.5)
+    half = (max(len(row) for row in rows) - 1) / 2 * 2.3 + 1.0
+    ax.set_xlim(-half, half)
     ax.set_ylim(-0.7, len(rows) - 0.3)
     ax.axis("off")
     ax.set_title("omnican's layers, lowest first; an arrow is an import, downward\n"

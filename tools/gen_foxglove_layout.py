@@ -115,6 +115,10 @@ def panels() -> Any:
                                              config=fl.DiagnosticsSummaryConfig(
                                                  topic_to_render="/diagnostics",
                                                  sort_by_level=True))
+    # What the drives report comes in the /wheels messages made while a reading is fresh
+    # and is absent from the others (omnican.telemetry.messages: the schema says so): a
+    # series of its path is drawn through the messages that have it (the Plot panel skips
+    # a message without the path), one point a reading.
     def per_wheel(title: str, field: str, *more: fl.PlotSeries) -> object:
         return fl.PlotPanel(title=title, config=fl.PlotConfig(
             paths=[series(f"/wheels.wheels[{i}].{field}") for i in range(WHEELS)]

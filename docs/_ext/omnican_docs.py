@@ -5,6 +5,10 @@
   the values the configurations the repository ships give (``examples/*.toml``);
 - ``_generated/modules.md``: every module of the package, folder by folder, with the
   first sentence of its docstring (the architecture page's map of the tree);
+- :func:`cli_parser`: omnican's argument parser for the CLI reference
+  (sphinx-argparse), its texts made literal for reStructuredText (they are written for
+  a terminal: python-can's help has an unclosed backtick, the descriptions indented
+  tables);
 - ``_generated/*.svg|png``: the pictures of ``tools/gen_docs_pictures.py`` (the wheel
   geometry of each preset, the teleop dashboard, a plot, the layers).
 
@@ -78,11 +82,52 @@ def _examples() -> dict[str, Any]:
     return found
 
 
+#: The [bus] table's keys omnican does not read itself, passed to ``can.Bus`` as they are.
+BUS_PASSED = {
+    "interface": ("string", "python-can's interface: socketcan (Linux), virtual, remote "
+                  "(omnican sim's hub), pcan, kvaser, slcan ...; -i on the command line"),
+    "channel": ("string", "the interface's channel: can0, vcan0, ws://127.0.0.1:54701/ "
+                "...; -c on the command line"),
+}
+
+
+def bus_reference(examples: dict[str, Any]) -> list[str]:
+    """The [bus] table: free-form (every key goes to ``can.Bus``), the keys omnican reads
+    itself checked as :data:`omnican.config.schema.BUS_KEYS` says."""
+    from omnican.config.schema import BUS_KEYS
+
+    out = ["## `[bus]`", "",
+           "The bus, as python-can opens it: every key is passed to `can.Bus` as it is "
+           "(`bitrate`, `fd`, `receive_own_messages` and whatever the interface takes), so "
+           "the table is free-form; omit it to use python-can's own configuration "
+           "(`~/.canrc`, `CAN_INTERFACE`). The command line's bus arguments (`-i`, `-c`, "
+           "`-b`, `--bus-kwargs`) override it. omnican reads the bitrates itself (the bus "
+           "load) and checks them; under `--sim` the simulated bus has the nominal "
+           "`bitrate` given here (500 kbit/s without one).", "",
+           "| key | default | meaning |", "|---|---|---|"]
+    shown: list[str] = []
+    for name, (kind, doc) in BUS_PASSED.items():
+        out.append(f"| `{name}` | - | {_cell(doc)} *({kind})* |")
+    for name, key in BUS_KEYS.items():
+        what = _type_text(key.types)
+        if key.range is not None:
+            what += ", " + key.range_text()
+        out.append(f"| `{name}` | - | {_cell(key.doc)} *({_cell(what)})* |")
+    for name in (*BUS_PASSED, *BUS_KEYS):
+        example = examples.get(f"bus.{name}")
+        if example is not None:
+            shown.append(f"{name} = {_toml(example)}")
+    if shown:
+        out += ["", "From the shipped examples:", "", "```toml", "[bus]", *shown, "```"]
+    return [*out, ""]
+
+
 def config_reference() -> str:
     from omnican.config import SCHEMA
 
     examples = _examples()
     out = ["<!-- made from omnican.config.SCHEMA at every docs build: do not edit -->", ""]
+    out += bus_reference(examples)
     for table, keys in SCHEMA.items():
         heading = {"wheel": "[[wheel]]", "wheel.sdo": "[[wheel.sdo]]"}.get(table, f"[{table}]")
         out += [f"## `{heading}`", "", "| key | default | meaning |", "|---|---|---|"]
@@ -132,6 +177,64 @@ def module_map() -> str:
         out += [f"### `{rel}/`", "", "| module | lines | what it holds |", "|---|---|---|",
                 *rows, ""]
     return "\n".join(out)
+
+
+def _literal(text: str) -> str:
+    """``text`` as reStructuredText reads it literally: every mark escaped, one line."""
+    return re.sub(r"([^A-Za-z0-9\s])", r"\\\1", " ".join(text.split()))
+
+
+def _literal_blocks(text: str) -> str:
+    """A terminal description as reStructuredText: its paragraphs of prose escaped, those
+    laid out by hand (indented lines: key maps, command lists, formulas) as literal
+    blocks, as the terminal shows them."""
+    import textwrap
+
+    out = []
+    for para in re.split(r"\n\s*\n", textwrap.dedent(text).strip("\n")):
+        lines = para.splitlines()
+        if any(line[:1].isspace() for line in lines[1:]) or \
+                (len(lines) > 1 and lines[0].rstrip().endswith(":")):
+            block = textwrap.indent(textwrap.dedent(para), "    ")
+            out.append(f".. code-block:: text\n\n{block}")
+        else:
+            out.append(_literal(para))
+    return "\n\n".join(out)
+
+
+def cli_parser() -> Any:
+    """omnican's argument parser with its texts as reStructuredText reads them literally
+    (for sphinx-argparse, which parses every help text and description as
+    reStructuredText): a help text escaped, a description's laid-out paragraphs as
+    literal blocks. The terminal's ``--help`` is not touched (a parser of its own)."""
+    import argparse
+
+    from omnican.cli import build_parser
+
+    def fix(parser: argparse.ArgumentParser) -> None:
+        if parser.description:
+            parser.description = _literal_blocks(parser.description)
+        if parser.epilog:
+            parser.epilog = _literal_blocks(parser.epilog)
+        for group in parser._action_groups:
+            if group.description:
+                group.description = _literal(group.description)
+        for action in parser._actions:
+            if action.help and action.help != argparse.SUPPRESS:
+                # sphinx-argparse fills %(default)s and the like first: keep a % a %
+                action.help = _literal(action.help % {**vars(action), "prog": parser.prog}
+                                       if "%(" in action.help else action.help)
+                action.help = action.help.replace("%", "%%")
+            if isinstance(action, argparse._SubParsersAction):
+                for choice in action._choices_actions:
+                    if choice.help:
+                        choice.help = _literal(choice.help).replace("%", "%%")
+                for sub in action.choices.values():
+                    fix(sub)
+
+    parser = build_parser()
+    fix(parser)
+    return parser
 
 
 def generate(app: Sphinx) -> None:

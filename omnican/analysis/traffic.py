@@ -25,6 +25,7 @@ import can
 
 import omnican
 from omnican.errors import BusError, ConfigError
+from omnican.io.bus_health import describe_open_error
 from omnican.plan.pdo import frame_bits
 from omnican.protocol import cia402
 from omnican.protocol.cia301 import canopen_name
@@ -234,9 +235,7 @@ def listening(bus_kwargs: Mapping[str, Any], listener: can.Listener,
     try:
         bus = can.Bus(**bus_kwargs)
     except Exception as exc:  # python-can raises many kinds for a bad interface/channel
-        where = ", ".join(f"{k}={v}" for k, v in bus_kwargs.items()) or \
-            "python-can's configuration"
-        raise BusError(f"cannot open CAN bus ({where}): {exc}") from None
+        raise BusError(describe_open_error(bus_kwargs, exc)) from None
     try:
         notifier = can.Notifier(bus, [listener, *more], timeout=0.1)
         try:

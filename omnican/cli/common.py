@@ -168,9 +168,23 @@ def add_bus_arguments(parser: argparse.ArgumentParser, sim_help: str | None = No
     parser.add_argument("--sim", action="store_true",
                         help=sim_help or "run against simulated drives in this process "
                         "(a virtual bus; no hardware)")
+    add_python_can_arguments(parser, "bus arguments (override [bus] of the config)")
+
+
+def add_python_can_arguments(parser: argparse.ArgumentParser, title: str) -> None:
+    """python-can's bus arguments (``can.cli.add_bus_arguments``), with the interface
+    named once: python-can's own ``-i`` lists every interface it knows twice in its
+    usage and help line (about 400 characters a line)."""
     import can.cli
 
-    can.cli.add_bus_arguments(parser, group_title="bus arguments (override [bus] of the config)")
+    can.cli.add_bus_arguments(parser, group_title=title)
+    for action in parser._actions:
+        if action.dest == "interface" and action.choices:
+            action.metavar = "INTERFACE"
+            action.help = ("python-can's interface: socketcan (Linux), virtual (within one "
+                           "process), remote (omnican sim's hub) or another of "
+                           f"{', '.join(sorted(action.choices))} (default: [bus] of the "
+                           "config, else python-can's configuration)")
 
 
 def add_sim_time_arguments(parser: argparse.ArgumentParser) -> None:
@@ -354,12 +368,28 @@ def session(args: argparse.Namespace, **sim_options: Any) -> Iterator[Session]:
     from omnican.sim import SimulatedBase
 
     clock = SimClock(speed=speed) if fast or speed is not None else REAL_TIME
-    cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}")
+    # The simulated bus stands for the configured one: its nominal bitrate, so that the
+    # bus load (the dashboard's, /status.bus_load, diagnostics) is a share of it.
+    cfg = cfg.with_bus(interface="virtual", channel=f"omnican-sim-{uuid.uuid4().hex[:8]}",
+                       bitrate=sim_bitrate(cfg))
     # In real time the base's control loop runs the drives (omnican.io.stepped): they are
     # as steady as the loop beside a busy desktop, not threads that may fall behind it.
     with SimulatedBase.from_config(cfg, clock=clock, stepped=not clock.lockstep,
                                    **sim_options) as sim:
         yield Session(cfg, sim, clock)
+
+
+#: The simulated bus's nominal bitrate when the config's [bus] gives none (the demo base):
+#: the examples' 500 kbit/s.
+SIM_BITRATE = 500_000
+
+
+def sim_bitrate(cfg: ChassisConfig) -> int:
+    """The nominal bitrate of ``--sim``'s bus: the config's ``[bus] bitrate``, else
+    :data:`SIM_BITRATE`."""
+    rate = (cfg.bus or {}).get("bitrate")
+    return int(rate) if isinstance(rate, int) and not isinstance(rate, bool) and rate > 0 \
+        else SIM_BITRATE
 
 
 def fixed(value: float, places: int, sign: bool = False) -> str:

@@ -246,9 +246,7 @@ def _run(args: argparse.Namespace) -> int:
     with session(args) as s:
         bus_kwargs = dict(s.cfg.bus or {})
         rate = bus_kwargs.get("bitrate") or (configured.bus or {}).get("bitrate")
-        no_bitrate = ("a virtual bus has no bitrate; a --config with [bus] bitrate gives "
-                      "the load in %" if s.sim is not None else
-                      "bitrate unknown: give -b for the load in %")
+        no_bitrate = "bitrate unknown: give -b for the load in %"  # --sim has one
         monitor = TrafficCounter(db, int(rate) if rate else None)
         display = _Display(_bus_name(bus_kwargs, s.sim is not None), args.interval,
                            sys.stdout.isatty(), no_bitrate)

@@ -24,6 +24,7 @@ from omnican.chassis.realtime import realtime_refusal
 from omnican.cli.common import (
     UsageError,
     add_config_argument,
+    add_python_can_arguments,
     bus_overrides,
     check_bus,
     finite_float,
@@ -39,8 +40,6 @@ from omnican.sim.console import COMMANDS, command, commands_help
 
 
 def add_subparser(sub: Any) -> None:
-    import can.cli
-
     p = sub.add_parser("sim", help="serve simulated drives to another process",
                        description=f"{__doc__}\ncommands:\n{commands_help()}\n",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -57,7 +56,7 @@ def add_subparser(sub: Any) -> None:
                    metavar="[HOST:]PORT", help="serve the ground truth and the bus to Foxglove on "
                    "[HOST:]PORT (default 127.0.0.1:8765; loopback unless a host is given)")
     add_zenoh_arguments(p, commands=False, what=ZENOH_HELP)
-    can.cli.add_bus_arguments(p, group_title="bus arguments (serve on this bus instead of a hub)")
+    add_python_can_arguments(p, "bus arguments (serve on this bus instead of a hub)")
     p.set_defaults(func=run)
 
 

@@ -60,8 +60,9 @@ class AxisIO:
     target: Entry
     position: Entry
     stage: StageDriver
-    # Position samples (written on the Notifier thread, read by the loop): a
-    # CounterSample, folded into travel by the chassis' WheelOdometry.
+    # Position samples (written as frames are received: by the loop's own poll while the
+    # base runs, by python-can's Notifier before; read by the loop): a CounterSample,
+    # folded into travel by the chassis' WheelOdometry.
     raw: int | None = None
     epoch: int = -1
     restarts: int = 0  # times the counter restarted (reseed)
@@ -168,7 +169,8 @@ class _SdoIO:
     """One object moved by expedited SDO.
 
     ``pending`` holds (sent at, SYNC epoch) of each unanswered request, oldest first:
-    the loop appends, the Notifier thread pops (deque operations are atomic). A server
+    the loop appends, the receiving thread pops (the loop's poll while the base runs, the
+    Notifier before; deque operations are atomic). A server
     answers in order, so an answer belongs to the oldest request not yet given up."""
 
     transfer: SdoTransfer
@@ -183,8 +185,8 @@ class SdoCounts:
     """Per-cycle SDO transfers of one node since it was configured."""
 
     requests: int = 0  # loop thread
-    answers: int = 0  # Notifier thread
-    aborts: int = 0  # Notifier thread
+    answers: int = 0  # the receiving thread
+    aborts: int = 0  # the receiving thread
     last_abort: str | None = None  # e.g. "Target velocity (0x60FF:00): 0x06090030 ..."
 
 

@@ -82,8 +82,9 @@ class DriveNode:
         self.controlword_frame = self.io.controlword_frame
         self.sdo_counts: SdoCounts = self.io.build(self.plan)
         self._setup = NodeSetup(self)
-        # Liveness and events (Notifier thread writes; loop reads). The heartbeat is
-        # watched from when the configuration switches the drive's producer on.
+        # Liveness and events: written as frames are received (by the loop's poll while
+        # the base runs, by python-can's Notifier before and after), read by the loop. The
+        # heartbeat is watched from when the configuration switches the drive's producer on.
         self.heartbeat = heartbeat.HeartbeatWatch(heartbeat.timeout_s(
             settings.heartbeat_ms / 1000.0, settings.heartbeat_timeout_factor))
         self.nmt_state: int | None = None
@@ -92,7 +93,7 @@ class DriveNode:
         # only have missed its start.
         self.seen_operational = False
         self.twins = False  # two devices answer as this node: never configured, never talked to
-        # Boot-ups seen (only the Notifier thread writes it) and the one the present
+        # Boot-ups seen (only the receiving thread writes it) and the one the present
         # configuration followed (only the configuring thread writes it): a drive that
         # booted since it was configured has lost its configuration.
         self.boot_count = 0

@@ -36,7 +36,7 @@ class StageDriver:
     goal: State = State.SWITCH_ON_DISABLED
     allow_fault_reset: bool = False
     cw: int = 0
-    statusword_value: int | None = None  # Notifier thread writes, loop reads
+    statusword_value: int | None = None  # written as frames are received, read by the loop
     mode_value: int | None = None
     error_value: int | None = None
     _sent_cw: int | None = None

@@ -30,6 +30,7 @@ from omnican.io.bus_health import (
     CAME_BACK,
     WENT_DOWN,
     BusWatch,
+    describe_receive_error,
     describe_send_error,
 )
 from omnican.io.listeners import FRAME_BITS as _FRAME_BITS
@@ -47,7 +48,7 @@ from omnican.protocol.cia301 import SYNC_COB_ID
 __all__ = [
     "BUS_DOWN_AFTER_S", "BUS_UP_AFTER_S", "CAME_BACK", "NOTIFIER_CYCLE_S", "NOTIFIER_STOP_S",
     "RECONNECT_EVERY_S", "RX_ERROR_PAUSE_S", "WENT_DOWN", "BusWatch", "CanBus", "Recorder",
-    "describe_send_error", "prepared_message", "shutdown_quietly",
+    "describe_receive_error", "describe_send_error", "prepared_message", "shutdown_quietly",
 ]
 
 logger = logging.getLogger(__name__)
@@ -168,7 +169,7 @@ class CanBus:
             try:
                 msg = internal(0)[0] if internal is not None else recv(0)
             except Exception as exc:  # an interface gone down: as the Notifier says
-                self.rx_error = f"receive failed: {exc}"
+                self.rx_error = describe_receive_error(self.bus_kwargs, exc)
                 break
             if msg is None:
                 break
@@ -289,7 +290,7 @@ class CanBus:
         if bus is not None or self.last_error is None:
             # While the bus is closed to be reopened, the error shown stays the one it
             # went down for (the interface is down, say), not "closed".
-            self.last_error = describe_send_error(msg.arbitration_id, exc)
+            self.last_error = describe_send_error(msg.arbitration_id, exc, self.bus_kwargs)
         return False
 
     def _sends_work(self) -> None:

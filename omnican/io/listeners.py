@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import can
 
+from omnican.io.bus_health import describe_receive_error
 from omnican.io.network import Network
 from omnican.plan.pdo import frame_bits
 from omnican.protocol.cia301 import SDO_RX_BASE
@@ -107,7 +108,7 @@ class Traffic(can.Listener):
         """python-can's Notifier calls this when a receive fails (an interface that went
         down, a hub that died). Handling it keeps the Notifier thread alive, without a
         traceback; the pause keeps a permanently failing receive from spinning."""
-        self._owner.rx_error = f"receive failed: {exc}"
+        self._owner.rx_error = describe_receive_error(self._owner.bus_kwargs, exc)
         time.sleep(RX_ERROR_PAUSE_S)
 
     def stop(self) -> None:

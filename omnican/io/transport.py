@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import can
 
 from omnican.errors import BusError, ConfigError
+from omnican.io.bus_health import describe_open_error, open_error_reason
 from omnican.io.lockstep import LockstepBus
 
 if TYPE_CHECKING:
@@ -83,9 +84,7 @@ class Transport:
                 raise ConfigError("no CAN interface configured: pass -i/-c (e.g. -i socketcan "
                                "-c can0), add a [bus] table to the config, or set up python-can's "
                                "config file; --sim runs without hardware") from None
-            where = ", ".join(f"{k}={v}" for k, v in owner.bus_kwargs.items()) or \
-                "python-can's configuration"
-            raise BusError(f"cannot open CAN bus ({where}): {exc}") from None
+            raise BusError(describe_open_error(owner.bus_kwargs, exc)) from None
         logger.info("bus open: %s", self.network.bus.channel_info if self.network.bus else "?")
 
     def _connect_lockstep(self) -> None:
@@ -181,7 +180,8 @@ class Transport:
         try:
             new_bus = can.Bus(**owner.bus_kwargs)
         except Exception as exc:  # the interface is still gone, the hub not back yet
-            owner.reconnect_error = f"reopening the bus failed: {exc}"
+            owner.reconnect_error = ("reopening the bus failed: "
+                                     f"{open_error_reason(owner.bus_kwargs, exc)}")
             logger.debug("%s", owner.reconnect_error)
             return False
         listeners: list[can.Listener] = network.listeners  # type: ignore[assignment]

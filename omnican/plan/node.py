@@ -158,28 +158,31 @@ class NodeLayout:
         """The CiA 402 objects the drive layer will map, write or read, each an integer
         of a type omnican can encode (the node-wide objects were checked on loading)."""
         declared = declared_types(self.eds)
-        used: dict[tuple[int, int], tuple[str, int | None]] = {}  # (index, sub): name, bits
+        # (index, sub): name, bits (a fixed width), min_bits (at least)
+        used: dict[tuple[int, int], tuple[str, int | None, int | None]] = {}
         for ax in self.axes:
             objs = ax.objs
             ramps = ((Obj.PROFILE_ACCEL, Obj.PROFILE_DECEL, Obj.QUICK_STOP_DECEL)
                      if self.mode is not Mode.VELOCITY else ())
             optional = (Obj.MODE, Obj.MODE_DISPLAY, Obj.ERROR_CODE, Obj.ABORT_OPTION, *ramps)
-            for entry in (ax.target, ax.position, objs[Obj.CONTROLWORD], objs[Obj.STATUSWORD],
+            for word in (objs[Obj.CONTROLWORD], objs[Obj.STATUSWORD]):  # bits up to 15
+                used.setdefault((word.index, word.subindex), (word.name, None, 16))
+            for entry in (ax.target, ax.position,
                           *(e for e in map(objs.get, optional) if e is not None)):
-                used.setdefault((entry.index, entry.subindex), (entry.name, None))
+                used.setdefault((entry.index, entry.subindex), (entry.name, None, None))
             if self.mode is Mode.VELOCITY:  # delta speed written as 32 bits, delta time as 16
                 for rec in (Obj.VL_ACCEL, Obj.VL_DECEL):
                     index = objs.record(rec)
                     if index is not None:
                         for sub, width in ((1, 32), (2, 16)):
-                            used[(index, sub)] = (f"{obj_name(rec)} sub {sub}", width)
+                            used[(index, sub)] = (f"{obj_name(rec)} sub {sub}", width, None)
         problems = []
-        for (index, sub), (name, bits) in used.items():
+        for (index, sub), (name, bits, min_bits) in used.items():
             var = variable_at(self.dictionary, index, sub)
             if var is None:
                 problems.append(f"0x{index:04X} {name} has no sub-index {sub}")
                 continue
-            problem = eds_check.variable_problem(var, name, declared, bits)
+            problem = eds_check.variable_problem(var, name, declared, bits, min_bits)
             if problem:
                 problems.append(problem)
         return problems

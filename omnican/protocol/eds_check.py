@@ -237,10 +237,17 @@ def dictionary_problems(dictionary: od.ObjectDictionary,
 
 
 def variable_problem(var: od.ODVariable, name: str, declared: DeclaredType = _declared_type,
-                     bits: int | None = None) -> str | None:
+                     bits: int | None = None, min_bits: int | None = None) -> str | None:
     """An object omnican sends or reads as a number: an integer type (of ``bits`` bits,
-    where omnican writes it with a fixed width). None if it is one."""
+    where omnican writes it with a fixed width; of at least ``min_bits``, where the
+    values it carries need them: the controlword's and the statusword's bits go up to
+    15). None if it is one."""
     where = f"0x{var.index:04X}:{var.subindex:02X} {name}"
+    if min_bits is not None:
+        wide = frozenset(t for t in INTEGER_TYPES
+                         if od.ODVariable.STRUCT_TYPES[t].size * 8 >= min_bits)
+        return _type_problem(var, where, wide, f"an integer type of at least {min_bits} bits",
+                             declared)
     if bits is None:
         return _type_problem(var, where, INTEGER_TYPES, "an integer type", declared)
     types = frozenset(t for t in INTEGER_TYPES

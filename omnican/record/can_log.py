@@ -243,18 +243,26 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def size_text(n: int) -> str:
-    """A byte count as people read it: 812 bytes, 12 KB, 3.4 MB."""
-    return f"{n} bytes" if n < 1024 else f"{n / 1024:.0f} KB" if n < 1024 * 1024 else \
-        f"{n / 1024 / 1024:.1f} MB"
+    """A byte count as people read it: 1 byte, 812 bytes, 12 KB, 3.4 MB."""
+    if n < 1024:
+        return f"{n} byte{'s' if n != 1 else ''}"
+    return f"{n / 1024:.0f} KB" if n < 1024 * 1024 else f"{n / 1024 / 1024:.1f} MB"
 
 
-def cut_note(frames: Sequence[Any], unreadable: int | None, lines: int | None = None) -> str:
+def cut_note(frames: Sequence[Any], unreadable: int | None, lines: int | None = None,
+             timeless: int = 0) -> str:
     """What to say of a recording that could not be read whole (after its name):
     ``read 5.1 s of frames; the rest (12 KB) is damaged or cut off`` (``unreadable``
     bytes; None: unknown). ``lines``: the damaged lines a text log left out
-    (``unreadable`` bytes of them)."""
+    (``unreadable`` bytes of them). ``timeless``: frames left out because their time is
+    no number (NaN, inf)."""
     stamps = [f.timestamp for f in frames]
     read = f"read {max(stamps) - min(stamps) if stamps else 0.0:.1f} s of frames"
+    if timeless:
+        read += (f"; {timeless} frame{'s' if timeless != 1 else ''} with no valid time "
+                 "left out")
+        if lines is None:
+            return read
     if lines is not None:
         return (f"{read}; {lines} damaged or cut-off line{'s' if lines != 1 else ''} "
                 f"({size_text(unreadable or 0)}) left out")

@@ -1,13 +1,20 @@
 """Reading a recording of the bus: every python-can log format by extension, and
 ``.mcap``. A recording cut short (the recording process killed) or damaged is read up to
-the damage (a candump ``.log`` line by line: only the damaged lines are lost), with one
-warning saying how much could not be read (:func:`~omnican.record.can_log.cut_note`).
+the damage (a text log line by line: only the damaged lines are lost), with one warning
+saying how much could not be read (:func:`~omnican.record.can_log.cut_note`). How each
+format shows it was cut: a text log's last line has no end (and an ``.asc`` no ``end
+triggerblock``), a ``.blf``'s header gives its size when it was closed (and none when it
+never was), an MCAP file has its footer. A frame whose time is no number (NaN, inf) is
+damaged too: it is left out and counted.
 The only I/O of replaying; :mod:`omnican.record.replay` decodes what this reads.
 """
 
 from __future__ import annotations
 
+import io
 import logging
+import math
+import struct
 from pathlib import Path
 from typing import IO, Any, TextIO, cast
 
@@ -50,17 +57,23 @@ def read_recording(path: str | Path) -> tuple[list[Any], str | None]:
     if p.suffix.lower() == ".mcap":
         return _read_mcap(p)
     note = None
+    suffix = p.suffix.lower()
     try:
-        if p.suffix.lower() == ".blf":  # python-can's BLFReader leaks its file on a bad header
+        if suffix == ".blf":  # python-can's BLFReader leaks its file on a bad header
             with p.open("rb") as f:
                 if f.read(4) != b"LOGG":
                     raise RecordingError(f"{p}: not a readable .blf recording: no BLF header")
-        if p.suffix.lower() == ".log":
-            frames, lines, bad = _read_candump(p)
+        if suffix == ".log":
+            frames, lines, bad, timeless = _read_candump(p)
             if lines and frames:
                 note = cut_note(frames, bad, lines)
+            elif timeless:
+                raise RecordingError(f"{p}: no CAN frame with a valid time ({timeless} "
+                                     "lines whose time is no number, such as '(nan)')")
             elif lines:
                 raise ValueError("no line is a frame")
+        elif suffix in _TEXT_READERS:
+            frames, note = _read_text_log(p, suffix)
         else:
             frames = []
             reader = can.LogReader(str(p))
@@ -72,6 +85,11 @@ def read_recording(path: str | Path) -> tuple[list[Any], str | None]:
                     if not frames:
                         raise
                     note = cut_note(frames, None)
+            timeless = _drop_timeless(frames)
+            if suffix == ".blf" and frames and note is None:
+                note = _blf_cut(p, frames)
+            if timeless and frames:
+                note = cut_note(frames, None, timeless=timeless)
     except OSError as exc:
         raise RecordingError(f"cannot read recording {p}: {exc.strerror or exc}") from None
     except RecordingError:
@@ -128,24 +146,129 @@ class _CandumpLines:
         """The reader closes its file when done; the file is the caller's."""
 
 
-def _read_candump(p: Path) -> tuple[list[Any], int, int]:
-    """A candump ``.log`` line by line: its frames, and the number of lines (and bytes)
-    that were no frame: damaged, or cut off at the end."""
+def _read_candump(p: Path) -> tuple[list[Any], int, int, int]:
+    """A candump ``.log`` line by line: its frames, the number of lines (and bytes) that
+    were no frame: damaged (a time that is no number included), or cut off at the end,
+    and how many of those were frames whose time is no number."""
     from can.io.canutils import CanutilsLogReader
 
     frames: list[Any] = []
+    timeless = 0
     with p.open("rb") as raw:
         lines = _CandumpLines(raw)
         while True:
             taken = lines.taken
             try:
-                frames.extend(CanutilsLogReader(cast(TextIO, lines)))
+                for frame in CanutilsLogReader(cast(TextIO, lines)):
+                    if math.isfinite(frame.timestamp):
+                        frames.append(frame)
+                    else:  # "(nan)": the line it came from (the reader reads one a frame)
+                        lines.count_bad(lines.last)
+                        timeless += 1
                 break
             except Exception:  # that line is no frame: go on with the next one
                 if lines.taken == taken:  # not a line's fault
                     raise
                 lines.count_bad(lines.last)
-    return frames, lines.bad_lines, lines.bad_bytes
+    return frames, lines.bad_lines, lines.bad_bytes, timeless
+
+
+def _text_readers() -> dict[str, Any]:
+    import can
+
+    return {".asc": can.ASCReader, ".csv": can.CSVReader, ".trc": can.TRCReader}
+
+
+_TEXT_READERS = (".asc", ".csv", ".trc")
+
+
+class _FailedLines(logging.Filter):
+    """Counts (and keeps out of the log) the lines python-can's TRC reader could not
+    parse: it logs each one and goes on, in words that are its own."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines = 0
+        self.bytes = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if str(record.msg).startswith("TRCReader: Failed to parse message"):
+            self.lines += 1
+            args = record.args if isinstance(record.args, tuple) else ()
+            self.bytes += len(str(args[0])) + 1 if args else 0
+            return False
+        return True
+
+
+def _read_text_log(p: Path, suffix: str) -> tuple[list[Any], str | None]:
+    """An ``.asc``, ``.csv`` or ``.trc`` log: its frames, and what to say of what could not
+    be read: a last line with no end (cut off mid-line, left out), lines the reader could
+    not parse, no ``end triggerblock`` at the end of an ``.asc`` (never closed)."""
+    raw = p.read_bytes()
+    cut_lines = cut_bytes = 0
+    if raw and not raw.endswith(b"\n"):
+        keep = raw.rfind(b"\n") + 1
+        cut_lines, cut_bytes, raw = 1, len(raw) - keep, raw[:keep]
+    text = raw.decode("utf-8", errors="replace")
+    failed = _FailedLines()
+    trc_log = logging.getLogger("can.io.trc")
+    trc_log.addFilter(failed)
+    frames: list[Any] = []
+    stopped = False
+    try:
+        with _text_readers()[suffix](io.StringIO(text)) as reader:
+            try:
+                for frame in reader:
+                    frames.append(frame)
+            except Exception:
+                if not frames:
+                    raise
+                stopped = True  # the rest is unreadable from here on
+    finally:
+        trc_log.removeFilter(failed)
+    bad_lines = cut_lines + failed.lines
+    timeless = _drop_timeless(frames)
+    if not frames:
+        return frames, None
+    if stopped:
+        return frames, cut_note(frames, None)
+    if bad_lines or timeless:
+        return frames, cut_note(frames, cut_bytes + failed.bytes, bad_lines or None,
+                                timeless=timeless)
+    if suffix == ".asc" and "end triggerblock" not in text[-200:].lower():
+        return frames, cut_note(frames, 0)
+    return frames, None
+
+
+def _drop_timeless(frames: list[Any]) -> int:
+    """Leave out, in place, the frames whose time is no number; how many there were."""
+    kept = [f for f in frames if math.isfinite(f.timestamp)]
+    dropped = len(frames) - len(kept)
+    if dropped:
+        frames[:] = kept
+    return dropped
+
+
+#: A BLF file's header: its signature, then (little-endian) the file's size when the
+#: writer closed it, at byte 16 (python-can writes the header size there until then).
+_BLF_SIZE = struct.Struct("<Q")
+_BLF_SIZE_AT, _BLF_HEADER = 16, 144
+
+
+def _blf_cut(p: Path, frames: list[Any]) -> str | None:
+    """What to say of a ``.blf`` that is not as long as its header says, or was never
+    closed (its header still gives the header's size); None when it is whole."""
+    with p.open("rb") as f:
+        head = f.read(_BLF_SIZE_AT + _BLF_SIZE.size)
+    if len(head) < _BLF_SIZE_AT + _BLF_SIZE.size:
+        return None
+    (closed_size,) = _BLF_SIZE.unpack_from(head, _BLF_SIZE_AT)
+    size = p.stat().st_size
+    if closed_size <= _BLF_HEADER < size:
+        return cut_note(frames, 0)  # never closed: it ends where the writer stopped
+    if closed_size > size:
+        return cut_note(frames, closed_size - size)
+    return None
 
 
 def _read_mcap(p: Path) -> tuple[list[Any], str | None]:

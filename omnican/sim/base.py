@@ -38,6 +38,7 @@ from omnican.core.kinematics import OmniKinematics, Twist
 from omnican.core.odometry import Odometry, Pose2D
 from omnican.errors import BusError, ConfigError
 from omnican.io import stepped as stepped_io
+from omnican.io.bus_health import describe_open_error
 from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
 from omnican.protocol.object_map import Obj
@@ -180,8 +181,7 @@ class SimulatedBase:
             try:
                 network.connect(**bus_kwargs)
             except Exception as exc:
-                raise BusError(f"cannot open CAN bus {bus_kwargs or '(python-can config)'}: "
-                               f"{exc}") from None
+                raise BusError(describe_open_error(bus_kwargs, exc)) from None
         if tick_s is None:
             tick_s = max(TICK_S, 1.0 / cfg.chassis.rate_hz) if clock.lockstep else TICK_S
         scheduler = SimScheduler(tick_s, name="omnican-sim", clock=clock)

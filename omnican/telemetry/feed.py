@@ -65,6 +65,11 @@ class Feed:
         self.dropped = 0  # samples a front end was too slow for
         self._sinks: tuple[Sink, ...] = ()
         self._lock = threading.Lock()
+        # Held while samples are handed to the front ends: remove() waits on it, so that
+        # a front end that left gets nothing more (the ROS 2 bridge closes its DDS writers
+        # next: a sample handed to it then failed in a traceback). Re-entrant: a front end
+        # may leave from inside its own publish.
+        self._handing = threading.RLock()
         self._lockstep = clock.lockstep
         self._pending: collections.deque[tuple[Snapshot | None, int]] = collections.deque()
         self._wake = threading.Event()
@@ -89,9 +94,13 @@ class Feed:
             self.on_active(True)
 
     def remove(self, sink: Sink) -> None:
+        """Send ``sink`` nothing more: when this returns, no sample is being handed to it
+        (one under way is waited for)."""
         with self._lock:
             self._sinks = tuple(s for s in self._sinks if s is not sink)
             last = not self._sinks
+        with self._handing:
+            pass
         if last and self.on_active is not None:
             self.on_active(False)
 
@@ -137,8 +146,7 @@ class Feed:
 
     def _publish(self, snapshot: Snapshot | None, stamp_ns: int | None,
                  last: bool = False) -> None:
-        sinks = self._sinks
-        if not sinks:
+        if not self._sinks:
             self.frames.queue.clear()
             return
         try:
@@ -150,11 +158,12 @@ class Feed:
             return
         if not out:
             return
-        for sink in sinks:
-            try:
-                sink.publish([msg for msg in out if sink.wants(msg.topic)])
-            except Exception:  # a front end must never take the others (or the robot) down
-                logger.exception("telemetry: %s failed to publish", type(sink).__name__)
+        with self._handing:
+            for sink in self._sinks:  # read under the lock: none that left since
+                try:
+                    sink.publish([msg for msg in out if sink.wants(msg.topic)])
+                except Exception:  # a front end must never take the others (or the robot) down
+                    logger.exception("telemetry: %s failed to publish", type(sink).__name__)
 
     def _sample(self, snapshot: Snapshot | None, stamp_ns: int) -> Sample:
         truth = self.truth

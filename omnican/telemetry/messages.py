@@ -369,7 +369,15 @@ def _maybe(schema: dict[str, Any], why: str) -> dict[str, Any]:
     return {**schema, "description": f"absent when {why}"}
 
 
-_BY_DRIVE = "the drive does not give it"
+#: Each reading of what a drive reports rides on the /wheels messages made while it is
+#: fresh (a reading a few times a second, chassis.health_rate_hz; /wheels at the state
+#: rate): a message after it went stale, or before the first, has no field for it. Left
+#: out rather than repeated (a repeated value would claim a reading there was not) or
+#: null (Foxglove's schema parser takes no unions): a plot reads the messages that have
+#: the field, as Foxglove's Plot panel does (it skips a message without the path).
+_READING = ("the drive does not give it, or no fresh reading of it came (a few a second: "
+            "chassis.health_rate_hz); a plot of it reads the messages that have it and "
+            "skips the others")
 
 #: JSON schema of each JSON message kind (Foxglove wants one per channel).
 JSON_SCHEMAS: dict[str, dict[str, Any]] = {
@@ -382,11 +390,12 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
             "statusword": _maybe(_INT, "no statusword came yet"),
             "target_speed": _NUM, "actual_speed": _NUM, "travel": _NUM, "online": _BOOL,
             "stale": _BOOL, "fault": _STR, "error": _STR,
-            **{f.name: _maybe(_NUM, _BY_DRIVE) for f in _SERIES}}}}),
+            **{f.name: _maybe(_NUM, _READING) for f in _SERIES}}}}),
     "omnican.Status": _object(
         "omnican.Status", enabled=_BOOL, state=_STR, stopped_reason=_STR, loop_hz=_NUM,
         late_fraction=_NUM, cycles=_INT,
-        bus_load=_maybe(_NUM, "the bitrate is unknown (a fraction of it)"),
+        bus_load=_maybe(_NUM, "the bitrate is unknown (a fraction of it; under --sim the "
+                        "simulated bus has the config's, or 500 kbit/s)"),
         bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL, command_age_s=_NUM,
         can_state=_STR, can_tx_errors=_maybe(_INT, "the CAN controller does not say"),
         can_rx_errors=_maybe(_INT, "the CAN controller does not say"), estop=_BOOL,

@@ -95,6 +95,14 @@ BROKEN = {
                                       ("0x6041:00", "Statusword", "0x0077", "integer")),
     "position a float": (dict(set_key={"6064": ("DataType", "0x0008")}),
                          ("0x6064:00", "0x0008", "REAL32", "integer")),
+    # issue 36: the simulator failed on its first statusword (ValueError: Value does not
+    # fit in specified type), in a traceback of canopen's
+    "statusword of 8 bits": (dict(set_key={"6041": ("DataType", "0x0005")}),
+                             ("0x6041:00", "Statusword", "0x0005 UNSIGNED8",
+                              "at least 16 bits")),
+    "controlword of 8 bits": (dict(set_key={"6040": ("DataType", "0x0002")}),
+                              ("0x6040:00", "Controlword", "0x0002 INTEGER8",
+                               "at least 16 bits")),
 }
 
 
@@ -123,7 +131,8 @@ def test_check_config_refuses_an_eds_no_drive_could_have(tmp_path: Path, case: s
 
 
 @pytest.mark.parametrize("case", ["no device type", "pdo communication without sub 0",
-                                  "target velocity of a structure type"])
+                                  "target velocity of a structure type",
+                                  "statusword of 8 bits"])
 def test_a_run_command_refuses_it_too(tmp_path: Path, case: str) -> None:
     cfg, eds = broken_config(tmp_path, case)
     for argv in (["drive", "--sim", "--config", str(cfg), "--vx", "0.2", "--duration", "0.3"],

@@ -27,7 +27,7 @@ from tests.support.helpers import wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-SIZE = r"\d+(?:\.\d)? (?:bytes|KB|MB)"
+SIZE = r"\d+(?:\.\d)? (?:bytes?|KB|MB)"
 # The one line a reader says about a damaged or cut-off recording.
 CUT = re.compile(rf"(?P<path>\S+): read (?P<seconds>\d+\.\d) s of frames; (?:the rest "
                  rf"(?:\((?P<rest>{SIZE})\) )?is damaged or cut off|the file ends there, "
