@@ -356,7 +356,13 @@ def _run_demo(args: argparse.Namespace, record: Path) -> tuple[replay.Replay,
 
     cfg = load(args)
     options = truth_options(cfg, args.sim_scale_error, args.sim_radius_error)
-    plan = motion.square(args.square, args.speed, args.omega, args.sides)
+    try:
+        plan = motion.square(args.square, args.speed, args.omega, args.sides)
+    except ValueError as exc:  # a side no motion may be (motion.MAX_TRAVEL, ...)
+        raise UsageError(f"motion refused: --square {args.square:g}: {exc}") from None
+    too_much = motion.plan_problem(plan) or motion.extent_problem(plan, cfg)
+    if too_much is not None:  # before anything moves, as drive --square refuses it
+        raise UsageError(f"motion refused: {too_much}")
     with (session(args, **options) as s,
           Chassis.open(s.cfg, record=recording(record), clock=s.clock) as base,
           _sample_truth(s.sim) as truth):

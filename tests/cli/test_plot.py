@@ -258,3 +258,15 @@ def test_identical_traces_stay_visible_and_the_legend_arrows_match(
                if label.startswith("heading")}
     assert colours == {"heading at the start": to_rgba("green"),
                        "heading at the end": to_rgba("red")}
+
+
+@pytest.mark.parametrize(("side", "words"), [("1e308", "beyond what one motion may take"),
+                                             ("1e6", "one motion may take at most 24 h")])
+def test_plot_sim_refuses_a_square_no_base_drives_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], side: str, words: str) -> None:
+    """As drive --square does: one line, exit 2, nothing opened (was a ValueError
+    traceback for 1e308, and hours of simulation for 1e6)."""
+    assert main(["plot", "--sim", "--square", side, "-o", str(tmp_path / "p.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "motion refused" in err and words in err
+    assert not (tmp_path / "p.png").exists()
