@@ -10,11 +10,13 @@ thin.
 from __future__ import annotations
 
 import argparse
+import codecs
 import contextlib
 import importlib
 import importlib.util
 import logging
 import math
+import os
 import select
 import signal
 import sys
@@ -529,9 +531,15 @@ def is_config_error(exc: BaseException) -> bool:
 
 def serve_lines(handle: Callable[[str], str | None], duration: float | None) -> None:
     """Feed stdin lines to ``handle`` (its reply is printed; None quits) until the duration
-    ends or Ctrl-C; stdin closing (e.g. < /dev/null) keeps it running."""
+    ends or Ctrl-C; stdin closing (e.g. < /dev/null) keeps it running. Lines that arrive
+    together (a script piping several commands) are each handled at once: stdin is read
+    as bytes into a buffer of our own, never through Python's, which ``select`` cannot
+    see into."""
     end = time.monotonic() + duration if duration else None
     stdin_open = not sys.stdin.closed
+    fd = sys.stdin.fileno() if stdin_open else -1
+    decoder = codecs.getincrementaldecoder(sys.stdin.encoding or "utf-8")("replace")
+    pending = ""
     # A prompt for a person at a terminal (a script piping commands reads replies only).
     prompt = "> " if stdin_open and sys.stdin.isatty() else ""
     if prompt:
@@ -542,19 +550,23 @@ def serve_lines(handle: Callable[[str], str | None], duration: float | None) -> 
             if not stdin_open:
                 time.sleep(timeout)
                 continue
-            ready, _, _ = select.select([sys.stdin], [], [], timeout)
+            ready, _, _ = select.select([fd], [], [], timeout)
             if not ready:
                 continue
-            line = sys.stdin.readline()
-            if line == "":
+            chunk = os.read(fd, 4096)
+            if not chunk:  # closed: the last line may have had no end
                 stdin_open = False
-                continue
-            reply = handle(line)
-            if reply is None:
-                break
-            if reply:
-                print(reply, flush=True)
-            if prompt:
-                print(prompt, end="", flush=True)
+                pending += decoder.decode(b"", final=True)
+                lines, pending = ([pending], "") if pending else ([], "")
+            else:
+                *lines, pending = (pending + decoder.decode(chunk)).split("\n")
+            for line in lines:
+                reply = handle(line + "\n")
+                if reply is None:
+                    return
+                if reply:
+                    print(reply, flush=True)
+                if prompt:
+                    print(prompt, end="", flush=True)
     except KeyboardInterrupt:
         pass
