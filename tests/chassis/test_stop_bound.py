@@ -128,5 +128,6 @@ def test_a_base_stops_in_bounded_time_against_another_process(
             stop()
             assert wait_for(settled, 15.0, step=0.05), base.status
         drive_for(base, 1.0, vx=0.3)
-    assert settled()
+    # Closed: still, however loaded the machine (a frame or two may be on its way).
+    assert wait_for(settled, 15.0, step=0.05)
     assert all(w.state is not State.OPERATION_ENABLED for w in base.wheels)
