@@ -306,6 +306,7 @@ def run(scenario: str, args: argparse.Namespace, env: dict[str, str], work: Path
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     drive.wait(timeout=max(args.duration - 5.0, args.duration * 0.8))
                 shot = Path(args.shots) / f"{scenario}-{int(time.time())}.png"
+                shot.parent.mkdir(parents=True, exist_ok=True)
                 why = screenshot(devtools, shot) if devtools else "no DevTools address"
                 result["screenshot"] = str(shot) if why is None else f"none: {why}"
             drive.wait(timeout=args.duration + 120)
