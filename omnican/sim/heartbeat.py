@@ -51,6 +51,16 @@ class Heartbeat:
         """Time for the next heartbeat."""
         return self.period_s > 0 and now - self.last_sent >= self.period_s
 
+    def next_from(self, now: float) -> float:
+        """When the heartbeat sent at ``now`` counts as sent, for the next one's timer: the
+        time it was due, if it went out within a period of it (a timer keeps its cadence
+        however late each tick finds it: ticks a control cycle apart would otherwise
+        stretch every period by up to a cycle), else ``now``."""
+        # The same test as due()'s (now - last_sent >= period): a sum compared instead
+        # could disagree with it by a rounding and restart the period after all.
+        late = now - self.last_sent
+        return self.last_sent + self.period_s if late < 2 * self.period_s else now
+
     def heard(self, producer: int, now: float) -> bool:
         """A consumed producer's heartbeat arrived; True if it had been lost."""
         self._seen[producer] = now

@@ -314,7 +314,9 @@ class SimNode:
             self._send(self.local.sdo.tx_cobid, self._sdo_answers.pop(0)[1], droppable=False)
         heartbeat = self.heartbeat
         if heartbeat.due(now):
+            sent_at = heartbeat.next_from(now)  # the timer's cadence, kept
             self._send_heartbeat(now)
+            heartbeat.last_sent = sent_at
         for producer in heartbeat.expired(now):
             logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
                         producer)

@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import canopen
+from hypothesis import given
+from hypothesis import strategies as st
 
 from omnican import WHEEL_EDS
 from omnican.sim.heartbeat import Heartbeat
@@ -59,3 +61,36 @@ def test_the_producer_is_due_once_a_period_has_passed() -> None:
     assert not hb.due(1.04)
     assert hb.due(1.05)
 
+
+
+@given(period_ms=st.integers(10, 1000),
+       ticks=st.lists(st.floats(0.0005, 1.0), min_size=50, max_size=400))
+def test_the_producer_keeps_its_cadence_however_late_each_tick_finds_it(
+        period_ms: int, ticks: list[float]) -> None:
+    """A drive's heartbeat timer keeps its period: ticks that come late (a control cycle
+    apart, as when the base's loop runs the simulated drives) delay a heartbeat, never
+    the ones after it. Over any run, as many heartbeats as whole periods (one more at
+    most) whenever no tick gap exceeds a period; main's producer restarted its period at
+    each late tick, 5 % fewer heartbeats at 100 ms with 10 ms cycles."""
+    hb = Heartbeat()
+    hb.period_s = period_ms / 1000.0
+    hb.last_sent = 0.0
+    now, sent = 0.0, 0
+    gaps = [t * hb.period_s for t in ticks]  # every tick within a period of the last
+    for gap in gaps:
+        now += gap
+        if hb.due(now):
+            hb.last_sent = hb.next_from(now)
+            sent += 1
+            assert hb.last_sent <= now + 1e-9  # never counted as sent in the future
+    assert int(now / hb.period_s) - 1 <= sent <= int(now / hb.period_s)
+
+
+def test_a_producer_far_behind_starts_its_period_again() -> None:
+    """A tick more than a period late (a frozen host, a stopped process) does not send a
+    burst of heartbeats to catch up: the next is a period after this one."""
+    hb = Heartbeat()
+    hb.period_s, hb.last_sent = 0.1, 0.0
+    assert hb.due(0.35)
+    hb.last_sent = hb.next_from(0.35)
+    assert hb.last_sent == 0.35 and not hb.due(0.44) and hb.due(0.45)
