@@ -79,8 +79,8 @@ def reset_communication(node: Node, on_reset: Callable[[], None]) -> None:
         if booted():
             break
         now = clock.now()
-        if alive:
-            answered = True
+        answered = answered or alive
+        if answered:  # there, now or at an earlier ask (an answer may be lost too)
             if now >= last_reset + s.boot_timeout_s:
                 if retried_alive:
                     break
