@@ -119,6 +119,12 @@ def check(token: rmw.Token, domain_id: int) -> str | None:
     return None
 
 
+#: the error a Zenoh router replies with, in the name of the session it asked, when that
+#: session's answer did not come within the query's timeout (zenoh's QueryCleanup: its
+#: responder id is the asked session's): no answer from that base, not its error
+ROUTER_TIMEOUT = "Timeout"
+
+
 def same_session(a: str, b: str) -> bool:
     """Two Zenoh ids written as hex (a token's, a reply's) name one session."""
     return a.lower().lstrip("0") == b.lower().lstrip("0")
@@ -696,6 +702,11 @@ class Fleet:
                 return
             if reply.ok is None:
                 text = reply.err.payload.to_bytes().decode("utf-8", "replace")
+                if text == ROUTER_TIMEOUT:  # a router gave up on the base for it
+                    timed_out.set()
+                    call._settle(entry.key, False, False,
+                                 f"none within {call.timeout_s:g} s")
+                    return
                 call._settle(entry.key, True, False,
                              f"error: {printable(text, MESSAGE_CHARS)}")
                 return
