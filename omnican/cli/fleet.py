@@ -49,6 +49,9 @@ if TYPE_CHECKING:
 
 REFRESH_S = 0.25
 RETRY_S = 1.0  # how often a view tries again to reach its router
+#: how long a view waits for its first link before it says it cannot reach its router,
+#: however short --wait (a peer's links, a client's session, come later on a busy machine)
+REACH_S = 3.0
 CLOSE_WAIT_S = 5.0  # the longest a view waits, when it quits, for a session being opened
 ROUTER_LISTEN = "tcp/127.0.0.1:7447"  # rmw_zenoh's port, loopback unless told
 MIN_EVENTS = 3  # event lines kept on screen however many bases there are
@@ -195,6 +198,16 @@ class Link:
             time.sleep(0.02)
         return fleet
 
+    def wait_linked(self, deadline: float) -> Fleet | None:
+        """The fleet, waiting until it is open and linked to a router or peer or until
+        ``deadline`` (monotonic s)."""
+        while time.monotonic() < deadline:
+            fleet = self.fleet()
+            if fleet is not None and reach_problem(self.settings, fleet.links()) is None:
+                return fleet
+            time.sleep(0.02)
+        return self.fleet()
+
     def problem(self) -> str | None:
         """What keeps this view from the bases now (None: nothing)."""
         fleet = self.fleet()
@@ -300,8 +313,11 @@ def rendered(renderable: RenderableType, width: int) -> list[str]:
 def once(link: Link, args: argparse.Namespace) -> int:
     """--once: discovery (at most --wait), one snapshot; exit 1 if the view reaches no
     router or peer."""
-    deadline = time.monotonic() + args.wait
+    start = time.monotonic()
+    deadline = start + args.wait
     fleet = link.wait_open(deadline)
+    if link.problem() is not None:  # not linked yet: the verdict waits REACH_S at least
+        fleet = link.wait_linked(max(deadline, start + REACH_S))
     if fleet is not None:
         fleet.discover(max(0.0, deadline - time.monotonic()))
     problem = link.problem()
