@@ -12,8 +12,9 @@ action from this table, at the moment it is asked, by who then drives (holds con
   send then drives), recover, reset the odometry, change a limit, use the simulator's
   console.
 
-Every answer is an :class:`Answer`: done, refused (by whom: who drives), or failed (what
-the base said). A front end says it in its own words; it decides nothing.
+Each action's :class:`Outcome` says what became of it: done, refused (by whom: who
+drives), or failed (what the base said). A front end says it in its own words; it decides
+nothing.
 
 Pure: no I/O, no threads.
 """
@@ -72,7 +73,7 @@ def refuser(action: Action, source: str, driver: str | None) -> str | None:
 
 
 @dataclass(frozen=True)
-class Answer:
+class Outcome:
     """What became of ``source``'s ``action`` (or, from
     :meth:`~omnican.chassis.arbiter.CommandSource.may`, what would): done when
     :attr:`ok`; else refused by :attr:`refused_by` (the source that drives) or

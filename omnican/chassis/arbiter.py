@@ -16,7 +16,7 @@ limit, the simulator's console) is the driver's, or anyone's while no one drives
 A front end does not apply these rules itself: it asks the base for a
 :class:`CommandSource` (:meth:`omnican.chassis.Chassis.command_source`), one per source,
 and sends, stops, halts, recovers, resets the pose and changes limits through it; each
-action answers an :class:`~omnican.chassis.actions.Answer` (done, refused by whom, or
+action returns its :class:`~omnican.chassis.actions.Outcome` (done, refused by whom, or
 failed) that the front end only words. Every source of one base shares the base's one
 arbiter, so a new front end shares control with the others by construction. The arbiter
 lives here, in the chassis layer, so that the base may hand it out (the layers above may
@@ -33,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Protocol
 
-from omnican.chassis.actions import Action, Answer, refuser
+from omnican.chassis.actions import Action, Outcome, refuser
 from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
 from omnican.errors import OmnicanError
@@ -74,20 +74,20 @@ class CommandArbiter:
             self._holder, self._last = source, now
             return None
 
-    def ask(self, source: str, action: Action, now: float) -> Answer:
+    def ask(self, source: str, action: Action, now: float) -> Outcome:
         """Whether ``source`` may take ``action`` at ``now``, by the table
         (:data:`~omnican.chassis.actions.RULES`) and who then drives. Asks only: takes
         no control, does nothing."""
         with self._lock:
-            return Answer(action, source, refused_by=refuser(action, source,
+            return Outcome(action, source, refused_by=refuser(action, source,
                                                              self._current(now)))
 
     def decide(self, source: str, action: Action, now: float,
-               run: Callable[[], None] | None = None) -> Answer:
+               run: Callable[[], None] | None = None) -> Outcome:
         """``source`` takes ``action`` at ``now`` if the table lets it (:meth:`ask`):
         ``run`` (quick: a stop, a halt) then runs here, with no command granted in
         between, and a stop by another than the driver takes control from it, which is
-        refused until it has sent nothing for ``timeout_s`` (:attr:`Answer.took_from`).
+        refused until it has sent nothing for ``timeout_s`` (:attr:`Outcome.took_from`).
         A ``run`` that raises changes nothing here. A command is :meth:`claim`'s (it
         takes control)."""
         if action is Action.DRIVE:
@@ -96,14 +96,14 @@ class CommandArbiter:
             holder = self._current(now)
             refused = refuser(action, source, holder)
             if refused is not None:
-                return Answer(action, source, refused_by=refused)
+                return Outcome(action, source, refused_by=refused)
             if run is not None:
                 run()
             if not action.stops or holder is None or holder == source:
-                return Answer(action, source)
+                return Outcome(action, source)
             self._holder, self._last = None, -math.inf
             self._stopped[holder] = (source, now)
-            return Answer(action, source, took_from=holder)
+            return Outcome(action, source, took_from=holder)
 
     def stop_by(self, source: str, now: float, stop: Callable[[], None] | None = None
                 ) -> str | None:
@@ -213,42 +213,42 @@ class CommandSource:
         base = self._base
         return self._arbiter.stop_by(self.name, base.clock.now(), base.stop)
 
-    def halt(self, reason: str) -> Answer:
+    def halt(self, reason: str) -> Outcome:
         """Stop the base and hold it stopped until a recover, whoever drives (anyone
         may), with ``reason`` as the stop's reason (:meth:`omnican.chassis.Chassis.halt`).
         If another source drove, it loses control until it lets go
-        (:attr:`Answer.took_from`). Failed: a closed base."""
+        (:attr:`Outcome.took_from`). Failed: a closed base."""
         base = self._base
         try:
             return self._arbiter.decide(self.name, Action.HALT, base.clock.now(),
                                         lambda: base.halt(reason))
         except _REFUSALS as exc:
-            return Answer(Action.HALT, self.name, failed=str(exc))
+            return Outcome(Action.HALT, self.name, failed=str(exc))
 
-    def recover(self) -> Answer:
+    def recover(self) -> Outcome:
         """Clear a latched stop (:meth:`omnican.chassis.Chassis.recover`; bounded, it
         waits for the drives), if this source may: refused while another drives."""
         return self.act(Action.RECOVER, self._base.recover)
 
-    def reset_pose(self, pose: Pose2D | None = None) -> Answer:
+    def reset_pose(self, pose: Pose2D | None = None) -> Outcome:
         """Set the odometry pose (default: the origin), if this source may: refused while
         another drives; failed for a pose beyond sense."""
         base = self._base
         return self.act(Action.RESET_POSE, lambda: base.reset_pose(pose))
 
-    def set_limits(self, **changes: float) -> Answer:
+    def set_limits(self, **changes: float) -> Outcome:
         """Change live limits (:meth:`omnican.chassis.Chassis.set_limits`), if this
         source may: refused while another drives; failed for a value the config's checks
         refuse (nothing changes then)."""
         base = self._base
         return self.act(Action.SET_LIMITS, lambda: base.set_limits(**changes))
 
-    def act(self, action: Action, do: Callable[[], object]) -> Answer:
+    def act(self, action: Action, do: Callable[[], object]) -> Outcome:
         """Run ``do`` for ``action`` if the table lets this source take it now (the
         simulator's console, which the base does not know; the base's own actions have
         their methods). The answer is asked first and ``do`` runs after, outside the
         arbiter (a recover takes seconds). What ``do`` raises as a refusal or failure
-        (OmnicanError, ValueError) is the answer's :attr:`~Answer.failed`."""
+        (OmnicanError, ValueError) is the outcome's :attr:`~Outcome.failed`."""
         if action is Action.DRIVE or action.stops:
             raise ValueError(f"{action.value!r} has its own method (send, stop, halt)")
         answer = self.may(action)
@@ -260,7 +260,7 @@ class CommandSource:
             return replace(answer, failed=str(exc))
         return answer
 
-    def may(self, action: Action) -> Answer:
+    def may(self, action: Action) -> Outcome:
         """Whether this source may take ``action`` now, by the table; asks only (takes no
         control, does nothing). A source that another's stop keeps out may be told it may
         drive: :meth:`send` refuses it (it is out until it lets go)."""

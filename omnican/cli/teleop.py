@@ -22,7 +22,7 @@ from rich.console import Console
 from rich.live import Live
 
 from omnican.chassis import Chassis
-from omnican.chassis.actions import Action, Answer
+from omnican.chassis.actions import Action, Outcome
 from omnican.chassis.arbiter import CommandSource
 from omnican.cli.common import (
     EXIT_FAILURE,
@@ -123,7 +123,7 @@ def stop_key(source: CommandSource) -> str:
     return f"stopped {stopped}: it drives again once it lets go" if stopped else ""
 
 
-def recover_key(source: CommandSource, show: Callable[[str], None]) -> Answer:
+def recover_key(source: CommandSource, show: Callable[[str], None]) -> Outcome:
     """The recover key: recover through ``source`` if it may (``show`` draws
     ``recovering...`` meanwhile: it takes seconds); the answer, for :func:`recover_note`."""
     asked = source.may(Action.RECOVER)
@@ -133,7 +133,7 @@ def recover_key(source: CommandSource, show: Callable[[str], None]) -> Answer:
     return source.recover()
 
 
-def recover_note(answer: Answer) -> str:
+def recover_note(answer: Outcome) -> str:
     """What the dashboard says after the recover key."""
     if answer.refused_by is not None:
         return f"{answer.refused_by} is driving: not recovering"

@@ -14,7 +14,7 @@ import json
 import logging
 from typing import Any, Protocol
 
-from omnican.chassis.actions import Action, Answer
+from omnican.chassis.actions import Action, Outcome
 from omnican.chassis.arbiter import CommandSource
 from omnican.core.odometry import Pose2D
 from omnican.errors import quote
@@ -112,7 +112,7 @@ class Services:
         return handle
 
     @staticmethod
-    def _refused(answer: Answer) -> str:
+    def _refused(answer: Outcome) -> str:
         """The answer's refusal or failure, in the services' words."""
         if answer.refused_by is not None:
             return (f"{answer.refused_by} is driving; only it may do this now (anyone may "

@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from omnican.chassis.actions import Answer
+from omnican.chassis.actions import Outcome
 from omnican.chassis.arbiter import CommandSource
 from omnican.errors import quote
 from omnican.zenoh import rmw
@@ -136,7 +136,7 @@ class Services:
         return self._said(source.reset_pose(), "odometry reset to (0, 0, 0)")
 
     @staticmethod
-    def _said(answer: Answer, done: str) -> tuple[bool, str]:
+    def _said(answer: Outcome, done: str) -> tuple[bool, str]:
         """A service's reply to the base's answer: ``done``, who drives, or what failed."""
         if answer.refused_by is not None:
             return False, f"{answer.refused_by} is driving the base"
