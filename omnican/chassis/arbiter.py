@@ -1,4 +1,5 @@
-"""Who may command the base when more than one source could: one at a time.
+"""Who may command the base when more than one source could: one at a time, and who may
+do what else (:mod:`omnican.chassis.actions`: the one table, :data:`RULES`).
 
 A source (the terminal's keys, a gamepad, ROS 2 ``cmd_vel``, a Foxglove client) asks
 before each command. The first to ask holds control until it releases it (it left, or
@@ -9,14 +10,17 @@ told who holds it.
 A stop is not a command: anyone may stop the base at any time. A stop by another source
 also takes control from the one driving, which is then refused until it lets go (sends
 nothing for ``timeout_s``): a Teleop button held down does not start the base again the
-moment after someone else stopped it.
+moment after someone else stopped it. The rest (recover, reset the odometry, change a
+limit, the simulator's console) is the driver's, or anyone's while no one drives.
 
 A front end does not apply these rules itself: it asks the base for a
 :class:`CommandSource` (:meth:`omnican.chassis.Chassis.command_source`), one per source,
-and sends through it. Every source of one base shares the base's one arbiter, so a new
-front end shares control with the others by construction. The arbiter lives here, in the
-chassis layer, so that the base may hand it out (the layers above may not be imported
-from here).
+and sends, stops, halts, recovers, resets the pose and changes limits through it; each
+action returns its :class:`~omnican.chassis.actions.Outcome` (done, refused by whom, or
+failed) that the front end only words. Every source of one base shares the base's one
+arbiter, so a new front end shares control with the others by construction. The arbiter
+lives here, in the chassis layer, so that the base may hand it out (the layers above may
+not be imported from here).
 
 Pure: no I/O, no threads of its own; safe to call from any thread.
 """
@@ -26,9 +30,13 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Protocol
 
+from omnican.chassis.actions import Action, Outcome, refuser
 from omnican.core.kinematics import Twist
+from omnican.core.odometry import Pose2D
+from omnican.errors import OmnicanError
 
 
 class CommandArbiter:
@@ -58,28 +66,52 @@ class CommandArbiter:
                     self._stopped[source] = (stopped[0], now)  # still pressing: still out
                     return stopped[0]
                 del self._stopped[source]  # it let go
-            holder = self._current(now)
-            if holder is not None and holder != source:
+            holder = refuser(Action.DRIVE, source, self._current(now))
+            if holder is not None:
                 return holder
             if send is not None:
                 send()
             self._holder, self._last = source, now
             return None
 
+    def ask(self, source: str, action: Action, now: float) -> Outcome:
+        """Whether ``source`` may take ``action`` at ``now``, by the table
+        (:data:`~omnican.chassis.actions.RULES`) and who then drives. Asks only: takes
+        no control, does nothing."""
+        with self._lock:
+            return Outcome(action, source, refused_by=refuser(action, source,
+                                                             self._current(now)))
+
+    def decide(self, source: str, action: Action, now: float,
+               run: Callable[[], None] | None = None) -> Outcome:
+        """``source`` takes ``action`` at ``now`` if the table lets it (:meth:`ask`):
+        ``run`` (quick: a stop, a halt) then runs here, with no command granted in
+        between, and a stop by another than the driver takes control from it, which is
+        refused until it has sent nothing for ``timeout_s`` (:attr:`Outcome.took_from`).
+        A ``run`` that raises changes nothing here. A command is :meth:`claim`'s (it
+        takes control)."""
+        if action is Action.DRIVE:
+            raise ValueError("a command goes through claim(), which takes control")
+        with self._lock:
+            holder = self._current(now)
+            refused = refuser(action, source, holder)
+            if refused is not None:
+                return Outcome(action, source, refused_by=refused)
+            if run is not None:
+                run()
+            if not action.stops or holder is None or holder == source:
+                return Outcome(action, source)
+            self._holder, self._last = None, -math.inf
+            self._stopped[holder] = (source, now)
+            return Outcome(action, source, took_from=holder)
+
     def stop_by(self, source: str, now: float, stop: Callable[[], None] | None = None
                 ) -> str | None:
         """``source`` stops the base at ``now`` (``stop`` runs with no command granted in
         between): if another source drives, it loses control and is refused until it has
-        sent nothing for ``timeout_s``. Returns that source, if any."""
-        with self._lock:
-            if stop is not None:
-                stop()
-            holder = self._current(now)
-            if holder is None or holder == source:
-                return None
-            self._holder, self._last = None, -math.inf
-            self._stopped[holder] = (source, now)
-            return holder
+        sent nothing for ``timeout_s``. Returns that source, if any (anyone may stop:
+        :meth:`decide` never refuses it)."""
+        return self.decide(source, Action.STOP, now, stop).took_from
 
     def stopped_by(self, source: str, now: float) -> str | None:
         """Who stopped ``source``, while it is still refused for that."""
@@ -108,10 +140,8 @@ class CommandArbiter:
     def may_act(self, source: str, now: float) -> str | None:
         """Whether ``source`` may do what only the controller may while one drives
         (recover, change a limit, reset odometry): None if it may, else the holder. Does
-        not take control."""
-        with self._lock:
-            holder = self._current(now)
-            return holder if holder is not None and holder != source else None
+        not take control. (:meth:`ask` answers for each action.)"""
+        return self.ask(source, Action.RECOVER, now).refused_by
 
     def _current(self, now: float) -> str | None:
         if self._holder is not None and now - self._last > self.timeout_s:
@@ -124,8 +154,8 @@ class _Clock(Protocol):
 
 
 class Commandable(Protocol):
-    """What a :class:`CommandSource` drives: a :class:`~omnican.chassis.Chassis`, or a
-    stand-in in a test."""
+    """What a :class:`CommandSource` acts on: a :class:`~omnican.chassis.Chassis`, or a
+    stand-in in a test (which needs only what its test calls)."""
 
     @property
     def clock(self) -> _Clock: ...
@@ -134,11 +164,25 @@ class Commandable(Protocol):
 
     def stop(self) -> None: ...
 
+    def halt(self, reason: str) -> None: ...
+
+    def recover(self) -> None: ...
+
+    def reset_pose(self, pose: Pose2D | None = None) -> None: ...
+
+    def set_limits(self, **changes: float) -> object: ...
+
+
+#: What the base's actions raise when it refuses or fails one (a drive it cannot enable,
+#: a pose or a limit beyond sense, a closed base): told in the answer, not raised.
+_REFUSALS = (OmnicanError, ValueError)
+
 
 class CommandSource:
     """One source of commands for a base (the terminal's keys, a ROS 2 publisher, a
-    Foxglove client), named as the others are told of it: every command and stop goes
-    through the base's :class:`CommandArbiter`, at the base's clock. Ask the base for it
+    Foxglove client), named as the others are told of it: every command, stop and other
+    action goes through the base's :class:`CommandArbiter`, at the base's clock, which
+    answers it by the one table (:mod:`omnican.chassis.actions`). Ask the base for it
     (:meth:`omnican.chassis.Chassis.command_source`); cheap to make, one per source name
     (two of one name are one source). Safe to call from any thread."""
 
@@ -169,6 +213,59 @@ class CommandSource:
         base = self._base
         return self._arbiter.stop_by(self.name, base.clock.now(), base.stop)
 
+    def halt(self, reason: str) -> Outcome:
+        """Stop the base and hold it stopped until a recover, whoever drives (anyone
+        may), with ``reason`` as the stop's reason (:meth:`omnican.chassis.Chassis.halt`).
+        If another source drove, it loses control until it lets go
+        (:attr:`Outcome.took_from`). Failed: a closed base."""
+        base = self._base
+        try:
+            return self._arbiter.decide(self.name, Action.HALT, base.clock.now(),
+                                        lambda: base.halt(reason))
+        except _REFUSALS as exc:
+            return Outcome(Action.HALT, self.name, failed=str(exc))
+
+    def recover(self) -> Outcome:
+        """Clear a latched stop (:meth:`omnican.chassis.Chassis.recover`; bounded, it
+        waits for the drives), if this source may: refused while another drives."""
+        return self.act(Action.RECOVER, self._base.recover)
+
+    def reset_pose(self, pose: Pose2D | None = None) -> Outcome:
+        """Set the odometry pose (default: the origin), if this source may: refused while
+        another drives; failed for a pose beyond sense."""
+        base = self._base
+        return self.act(Action.RESET_POSE, lambda: base.reset_pose(pose))
+
+    def set_limits(self, **changes: float) -> Outcome:
+        """Change live limits (:meth:`omnican.chassis.Chassis.set_limits`), if this
+        source may: refused while another drives; failed for a value the config's checks
+        refuse (nothing changes then)."""
+        base = self._base
+        return self.act(Action.SET_LIMITS, lambda: base.set_limits(**changes))
+
+    def act(self, action: Action, do: Callable[[], object]) -> Outcome:
+        """Run ``do`` for ``action`` if the table lets this source take it now (the
+        simulator's console, which the base does not know; the base's own actions have
+        their methods). The answer is asked first and ``do`` runs after, outside the
+        arbiter (a recover takes seconds). What ``do`` raises as a refusal or failure
+        (OmnicanError, ValueError) is the outcome's :attr:`~Outcome.failed`."""
+        if action is Action.DRIVE or action.stops:
+            raise ValueError(f"{action.value!r} has its own method (send, stop, halt)")
+        answer = self.may(action)
+        if not answer.ok:
+            return answer
+        try:
+            do()
+        except _REFUSALS as exc:
+            return replace(answer, failed=str(exc))
+        return answer
+
+    def may(self, action: Action) -> Outcome:
+        """Whether this source may take ``action`` now, by the table; asks only (takes no
+        control, does nothing). A source that another's stop keeps out may be told it may
+        drive: :meth:`send` refuses it (it is out until it lets go)."""
+        return self._arbiter.ask(self.name, action, self._base.clock.now())
+
     def release(self, stop: bool = False) -> bool:
         """Give control up (this source left, or went idle): True if it held control.
         With ``stop``, the base stops then too (only if this source drove it)."""
@@ -182,8 +279,9 @@ class CommandSource:
 
     def may_act(self) -> str | None:
         """Whether this source may do what only the controller may while one drives
-        (recover, change a limit, reset odometry): None if it may, else who drives."""
-        return self._arbiter.may_act(self.name, self._base.clock.now())
+        (recover, change a limit, reset odometry): None if it may, else who drives.
+        (:meth:`may` answers for each action.)"""
+        return self.may(Action.RECOVER).refused_by
 
     def stopped_by(self) -> str | None:
         """Who stopped this source, while it is still refused for that (None: no one)."""

@@ -15,12 +15,14 @@ import contextlib
 import math
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
 from rich.live import Live
 
 from omnican.chassis import Chassis
+from omnican.chassis.actions import Action, Outcome
 from omnican.chassis.arbiter import CommandSource
 from omnican.cli.common import (
     EXIT_FAILURE,
@@ -42,7 +44,6 @@ from omnican.cli.terminal import Events, Screen, cbreak, logs_into, read_keys
 from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
-from omnican.errors import OmnicanError
 from omnican.gamepad.device import Gamepad, config_table, pad_command, teleop_model_for
 from omnican.live import prepare, watch
 
@@ -115,16 +116,54 @@ def refusal_note(source: CommandSource, refused: str) -> str:
     return f"{refused} is driving: space stops the base"
 
 
+def stop_key(source: CommandSource) -> str:
+    """The stop key beside other sources: the base stops whoever drives (anyone may);
+    the note after it names the driver it stopped, if another drove."""
+    stopped = source.stop()
+    return f"stopped {stopped}: it drives again once it lets go" if stopped else ""
+
+
+def recover_key(source: CommandSource, show: Callable[[str], None]) -> Outcome:
+    """The recover key: recover through ``source`` if it may (``show`` draws
+    ``recovering...`` meanwhile: it takes seconds); the answer, for :func:`recover_note`."""
+    asked = source.may(Action.RECOVER)
+    if not asked.ok:
+        return asked
+    show("recovering...")
+    return source.recover()
+
+
+def recover_note(answer: Outcome) -> str:
+    """What the dashboard says after the recover key."""
+    if answer.refused_by is not None:
+        return f"{answer.refused_by} is driving: not recovering"
+    said = answer.failed
+    if said is None:
+        return ""
+    return said if said.startswith("recover") else f"recover failed: {said}"
+
+
+def source_name(gamepad: bool) -> str:
+    """The name teleop's source of commands is told to the others by."""
+    return "the gamepad" if gamepad else "the terminal's keys"
+
+
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
                events: Events, pad: Gamepad | None = None, shared: bool = False,
                screen: Screen | None = None) -> None:
     """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. When
     ``shared`` (Foxglove may drive too) the keys command only while they move the base
-    and no one else drives; a stop key stops the base whoever drives."""
+    and no one else drives; a stop key stops the base whoever drives. What the keys may
+    do beside the others is the base's to say (its source's answers)."""
     screen = screen or Screen(fd, live)
     note = ""
     note_stop: str | None = None  # the stop a failed recover's note speaks of
-    source = base.command_source("the gamepad" if pad is not None else "the terminal's keys")
+    source = base.command_source(source_name(pad is not None))
+
+    def show(text: str) -> None:
+        screen.draw(dashboard(base, keys, Twist(), title, events, text,
+                              live.console.width, live.console.height))
+
     while not keys.quit_requested:
         now = time.monotonic()
         if note_stop is not None and base.status.stopped_reason != note_stop:
@@ -134,21 +173,11 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             if note.startswith("stopped "):
                 note = ""  # the next key after it
             if stop and shared:  # whoever drives; it drives again once it lets go
-                stopped = source.stop()
-                if stopped:
-                    note = f"stopped {stopped}: it drives again once it lets go"
+                note = stop_key(source) or note
         if keys.take_recover():
-            driver = source.may_act() if shared else None
-            note = f"{driver} is driving: not recovering" if driver else "recovering..."
-            screen.draw(dashboard(base, keys, Twist(), title, events, note,
-                                  live.console.width, live.console.height))
-            try:
-                if not driver:
-                    base.recover()
-                    note = ""
-            except OmnicanError as exc:
-                said = str(exc)
-                note = said if said.startswith("recover") else f"recover failed: {said}"
+            answer = recover_key(source, show)
+            note = recover_note(answer)
+            if answer.failed is not None:
                 note_stop = base.status.stopped_reason
         if pad is not None:  # the pad moves; the keys still quit, recover and scale
             command = pad_command(pad, keys, LOOP_S / 2)

@@ -57,6 +57,7 @@ def add_subparser(sub: Any) -> None:
     zenoh_credentials.add_subparser(more)
 
 
+CONSOLE_SOURCE = "omnican zenoh's console"  # what the other sources are told of it
 ZENOH_HELP = ("also put the base on Zenoh, in rmw_zenoh's format (as omnican zenoh does: "
               "odom, tf, joint_states, diagnostics, battery_state out, cmd_vel in through "
               "the one arbiter, ~/stop, ~/recover, ~/reset_odometry); the [zenoh] table of "
@@ -293,14 +294,11 @@ def _print_summary(bridge: Any) -> None:
 
 def _command(bridge: Any, sim: Any, line: str) -> str | None:
     """One stdin line: quit, recover; under --sim omnican sim's console besides."""
-    def recover() -> str:
-        from omnican.errors import DriveError
-
-        try:
-            bridge.base.recover()
-        except DriveError as exc:
-            return f"recover failed: {exc}"
-        return "recovered"
+    def recover() -> str:  # as any other source: refused while another drives
+        answer = bridge.base.command_source(CONSOLE_SOURCE).recover()
+        if answer.refused_by is not None:
+            return f"recover refused: {answer.refused_by} is driving the base"
+        return "recovered" if answer.failed is None else f"recover failed: {answer.failed}"
 
     if sim is not None:
         from omnican.sim import console

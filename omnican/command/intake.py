@@ -17,6 +17,7 @@ import logging
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
+from omnican.chassis.actions import Action
 from omnican.core.kinematics import Twist
 from omnican.errors import DriveError, quote
 from omnican.log_throttle import Throttle
@@ -56,9 +57,9 @@ class CmdVelIntake:
         holder = next(iter(newest)).holder() if newest else None
         parsed = 0
         for source in sorted(newest, key=lambda s: s.name != holder):
-            other = source.may_act()
-            if other is not None:
-                self.refuse(source, other)
+            asked = source.may(Action.DRIVE)  # the base says; a refused one is not parsed
+            if asked.refused_by is not None:
+                self.refuse(source, asked.refused_by)
             elif parsed < MAX_PARSED_PER_POLL:
                 parsed += 1
                 self._on_sample(source, newest[source])

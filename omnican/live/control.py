@@ -22,8 +22,9 @@ is on (``--foxglove-control``).
   nothing the base does.
 
 While one client drives, only it may recover, reset odometry, change a parameter or
-inject a fault. The SDK calls these methods on its own threads; none of them blocks the
-control loop.
+inject a fault: each client is a command source of the base's, whose answers
+(:mod:`omnican.chassis.actions`) this module only words. The SDK calls these methods on
+its own threads; none of them blocks the control loop.
 
 Only a client the relay vouched for (:mod:`omnican.live.relay`: its web page allowed, the
 token given when one is set) may do any of this; the others, and whoever reaches the SDK's
@@ -40,10 +41,11 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
+from omnican.chassis.actions import Action
 from omnican.chassis.arbiter import CommandSource
 from omnican.config import LIVE_LIMITS
 from omnican.core.limits import top_speeds
-from omnican.errors import OmnicanError, quote
+from omnican.errors import quote
 from omnican.live.relay import GRANT_CHANNEL_ID, GRANT_PREFIX
 from omnican.live.requests import decode_twist, parameter_value
 from omnican.live.services import Services
@@ -246,7 +248,7 @@ class Control:
             holder = commands.send(twist)
         except ValueError as exc:
             self.refused += 1
-            mine = commands.may_act() is None
+            mine = commands.may(Action.DRIVE).ok  # the driver's (or it could drive now)
             if mine:
                 commands.stop()  # the controller sends what cannot be obeyed: stop
             what = "the base stops" if mine else "ignored"
@@ -329,7 +331,7 @@ class Control:
         source = self.source(client.id)
         if self.watcher(client.id, "change a parameter"):
             return [self._parameter(p.name) for p in parameters if p.name in PARAMETERS]
-        holder = self.commands(source).may_act()
+        commands = self.commands(source)
         names = []
         for p in parameters:
             name = p.name
@@ -339,16 +341,8 @@ class Control:
                 continue
             names.append(name)
             old = getattr(self.base.cfg.chassis, name.split(".", 1)[1])
-            try:
-                if holder is not None:
-                    raise ValueError(f"{name}: {holder} is driving; only it may change a "
-                                     "limit now")
-                if self._closed:
-                    raise ValueError(f"{name}: the base is closing")
-                value = parameter_value(name, p.get_value())
-                self.base.set_limits(**{name.split(".", 1)[1]: value})
-            except (ValueError, OmnicanError) as exc:
-                reason = str(exc).removeprefix("live: ")
+            value, reason = _set_limit(commands, name, p.get_value(), self._closed)
+            if reason is not None:
                 logger.warning("%s: refused %s = %s: %s", source, name, quote(p.get_value()),
                                reason)
                 self._status("Warning", f"{source}: refused {reason}; {name} stays {old:g}",
@@ -358,4 +352,18 @@ class Control:
             self._status("Info", f"{source} set {name} = {value:g}", "omnican.parameters")
         return [self._parameter(n) for n in names]
 
-    # ------------------------------------------------------------ services
+
+def _set_limit(commands: CommandSource, name: str, raw: Any, closed: bool
+               ) -> tuple[float, str | None]:
+    """Set the parameter ``name`` to ``raw`` through a client's ``commands``: its value,
+    and why it was refused (None: it was set)."""
+    if closed:
+        return math.nan, f"{name}: the base is closing"
+    try:
+        value = parameter_value(name, raw)
+    except ValueError as exc:
+        return math.nan, str(exc).removeprefix("live: ")
+    answer = commands.set_limits(**{name.split(".", 1)[1]: value})
+    if answer.refused_by is not None:
+        return value, f"{name}: {answer.refused_by} is driving; only it may change a limit now"
+    return value, None if answer.failed is None else answer.failed.removeprefix("live: ")

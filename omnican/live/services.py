@@ -4,21 +4,21 @@ any time; from another client it also takes control from the driver until it let
 ``/omnican/recover``, ``/omnican/reset_odometry`` (to zero, or ``{"x", "y", "theta"}``),
 and under simulation ``/omnican/sim/console`` (the fault console's commands:
 ``{"command": "fault 2"}``). Each answers ``{"success", "message"}``. While one client
-drives, only it may call any but the stop.
+drives, only it may call any but the stop: the base's to say (each client a command
+source of the base's, :mod:`omnican.chassis.actions`); a service only words the answer.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
+from omnican.chassis.actions import Action, Outcome
+from omnican.chassis.arbiter import CommandSource
 from omnican.core.odometry import Pose2D
-from omnican.errors import OmnicanError, quote
+from omnican.errors import quote
 from omnican.live.requests import REQUEST_LIMIT, check_size, number, read_json
-
-if TYPE_CHECKING:
-    from omnican.live.control import Control
 
 logger = logging.getLogger(__name__)
 
@@ -35,11 +35,32 @@ _COMMAND = ('{"type": "object", "properties": {"command": {"type": "string"}}, '
             '"required": ["command"]}')
 
 
-class Services:
-    """The services of ``control``: who may call them is its rule, what they act on its
-    base and simulator."""
+class Clients(Protocol):
+    """What the services ask of the Foxglove clients' control they serve
+    (:class:`omnican.live.control.Control`): who a client is, whether it may drive at
+    all (the relay vouched for it), its command source, the base and the simulator."""
 
-    def __init__(self, control: Control) -> None:
+    base: Any
+    sim: Any
+
+    @property
+    def closed(self) -> bool: ...
+
+    def watcher(self, client_id: int, what: str) -> str | None: ...
+
+    def source(self, client_id: int) -> str: ...
+
+    def commands(self, source: str) -> CommandSource: ...
+
+    def driver_stopped(self, driver: str) -> None: ...
+
+
+class Services:
+    """The services of ``control``: who a caller is and whether it may drive at all is
+    its to say, what it may do now the base's (its command source's answers); they act
+    on its base and simulator."""
+
+    def __init__(self, control: Clients) -> None:
         self.control = control
         self.base = control.base
         self.sim = control.sim
@@ -90,10 +111,13 @@ class Services:
             return json.dumps({"success": ok, "message": message}).encode()
         return handle
 
-    def _refused(self, source: str) -> str | None:
-        holder = self.control.commands(source).may_act()
-        return None if holder is None else (f"{holder} is driving; only it may do this now "
-                                            "(anyone may call /omnican/stop)")
+    @staticmethod
+    def _refused(answer: Outcome) -> str:
+        """The answer's refusal or failure, in the services' words."""
+        if answer.refused_by is not None:
+            return (f"{answer.refused_by} is driving; only it may do this now (anyone may "
+                    "call /omnican/stop)")
+        return answer.failed or ""
 
     def _stop(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
         driver = self.control.commands(source).stop()
@@ -103,35 +127,29 @@ class Services:
         return True, f"stopping; {driver} drives again once it has let go"
 
     def _recover(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        refused = self._refused(source)
-        if refused:
-            return False, refused
-        try:
-            self.base.recover()
-        except OmnicanError as exc:
-            return False, f"recover failed: {exc}"
+        answer = self.control.commands(source).recover()
+        if answer.refused_by is not None:
+            return False, self._refused(answer)
+        if answer.failed is not None:
+            return False, f"recover failed: {answer.failed}"
         return True, "recovered: every drive enabled"
 
     def _reset(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
-        refused = self._refused(source)
-        if refused:
-            return False, refused
         unknown = sorted(set(body) - {"x", "y", "theta"})
         if unknown:
             return False, f"unknown field {quote(unknown[0])} (x, y, theta)"
         try:
             pose = Pose2D(*(number(body.get(k, 0.0), k) for k in ("x", "y", "theta")))
-            self.base.reset_pose(pose)  # the base refuses a pose beyond sense
         except ValueError as exc:
             return False, str(exc)
+        answer = self.control.commands(source).reset_pose(pose)  # refuses one beyond sense
+        if not answer.ok:
+            return False, self._refused(answer)
         return True, f"odometry reset to x={pose.x:g} y={pose.y:g} theta={pose.theta:g}"
 
     def _console(self, source: str, body: dict[str, Any]) -> tuple[bool, str]:
         from omnican.sim import console
 
-        refused = self._refused(source)
-        if refused:
-            return False, refused
         line = body.get("command")
         if not isinstance(line, str) or not line.strip():
             return False, 'give a console command: {"command": "fault 2"} (help lists them)'
@@ -139,6 +157,9 @@ class Services:
             return False, f"a console command of {len(line)} characters: too long"
         if line.split()[0].lower() in ("quit", "exit"):
             return False, "quit is the terminal's: not from Foxglove"
-        reply = console.command(self.sim, line) or ""
-        return not reply.startswith("error:"), reply
-
+        replies: list[str] = []
+        answer = self.control.commands(source).act(
+            Action.SIM_CONSOLE, lambda: replies.append(console.command(self.sim, line) or ""))
+        if not answer.ok:
+            return False, self._refused(answer)
+        return not replies[0].startswith("error:"), replies[0]

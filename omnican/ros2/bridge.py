@@ -8,6 +8,11 @@ lower), up to the reader's depth each time, and applies only the newest sample o
 publisher. A flood costs DDS's receive thread (C, without the GIL) and at most
 ``depth x rate`` samples a second here, whoever sends it.
 
+A recover (the ``~/recover`` topic, the console's ``recover``) is asked of the base as
+any other source's action (:mod:`omnican.chassis.actions`): refused while another source
+drives. The topic's writer is told apart by its ROS 2 process (its DDS participant): the
+process whose cmd_vel publisher drives is the driver.
+
 ``odom``, ``tf``, ``joint_states``, ``diagnostics`` and the simulator's true pose are
 the base's telemetry (:mod:`omnican.telemetry`), the same messages the live view and an
 MCAP recording carry, published at the configured rates; the bridge builds none of its
@@ -28,7 +33,6 @@ import typing
 from typing import TYPE_CHECKING, Any
 
 from omnican.clock import PollThread
-from omnican.errors import DriveError
 from omnican.log_throttle import Throttle
 from omnican.ros2.cmd_vel import CmdVel
 from omnican.ros2.settings import Ros2Settings, resolve_name
@@ -38,6 +42,7 @@ from omnican.telemetry.attach import feed_of
 
 if TYPE_CHECKING:
     from omnican.chassis import Chassis
+    from omnican.chassis.arbiter import CommandSource
     from omnican.sim import SimulatedBase
 
 logger = logging.getLogger(__name__)
@@ -46,6 +51,9 @@ logger = logging.getLogger(__name__)
 TF_DEPTH = 100
 #: At most this many polls of cmd_vel and recover a second (fewer if the loop is slower).
 MAX_POLL_HZ = 100.0
+#: What the other sources are told of a recover: from the topic's writer (by its GUID),
+#: from ``omnican ros2``'s console
+RECOVER_SOURCE, CONSOLE_SOURCE = "ROS 2 recover publisher", "omnican ros2's console"
 
 
 class _Rate:
@@ -149,7 +157,8 @@ class Bridge:
                            if sim is not None else None)
         self.transport = transport
         self.cmd_vel = CmdVel(base, settings, transport)
-        self._take_recover = transport.reader(settings.topic("recover"), msgs.Empty,
+        self._recover_topic = settings.topic("recover")
+        self._take_recover = transport.reader(self._recover_topic, msgs.Empty,
                                               TopicQos(depth=1))
         self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
         self._poller = (PollThread(self.poll, self.poll_period_s, "omnican-ros2-poll", logger,
@@ -182,32 +191,46 @@ class Bridge:
         with self._poll_lock:
             self._polls += 1
             self.cmd_vel.take(check_publications=self._polls % 10 == 1)
-            if self._take_recover():
-                self._on_recover()
+            asked = self._take_recover()
+            if asked:
+                self._on_recover(self._recover_source(asked[-1].writer))
 
-    def _on_recover(self) -> None:
+    def _recover_source(self, writer: int) -> CommandSource:
+        """Who asks for a recover on the topic: the ROS 2 process of a cmd_vel publisher
+        (one DDS participant) is that publisher (a node that drives may recover), another
+        is a source of its own."""
+        guid = self.transport.writer_guid(self._recover_topic, writer)
+        publisher = self.cmd_vel.of_participant(guid)
+        if publisher is not None:
+            return publisher
+        return self.base.command_source(f"{RECOVER_SOURCE} {guid or hex(writer)}")
+
+    def _on_recover(self, source: CommandSource) -> None:
         with self._recover_lock:
             if self._recover_thread is not None and self._recover_thread.is_alive():
                 self._throttle.log(logging.INFO, "recover", "recover: already under way")
                 return
-            self._recover_thread = threading.Thread(target=self.recover,
+            self._recover_thread = threading.Thread(target=self.recover, args=(False, source),
                                                     name="omnican-ros2-recover", daemon=True)
             self._recover_thread.start()
 
-    def recover(self, answered: bool = False) -> bool:
-        """Clear a latched stop (what the recover topic does); True when it worked. A
-        failure is logged as a warning, unless ``answered`` (the console prints it)."""
-        logger.info("recover requested")
-        ok = True
-        try:
-            self.base.recover()
+    def recover(self, answered: bool = False, source: CommandSource | None = None) -> bool:
+        """Clear a latched stop (what the recover topic does) as ``source`` (default:
+        the console's), if it may: refused while another source drives
+        (:mod:`omnican.chassis.actions`). True when it worked. A refusal or failure is
+        logged as a warning, unless ``answered`` (the console prints it)."""
+        source = source or self.base.command_source(CONSOLE_SOURCE)
+        logger.info("recover requested by %s", source.name)
+        answer = source.recover()
+        if answer.refused_by is not None:
+            note = f"refused: {answer.refused_by} is driving the base"
+        elif answer.failed is not None:
+            note = f"failed: {answer.failed}"
+        else:
             note = "ok"
-        except DriveError as exc:
-            ok, note = False, f"failed: {exc}"
-        stamp = time.strftime("%H:%M:%S")
-        self.recover_note = f"{note} ({stamp})"
-        (logger.info if ok or answered else logger.warning)("recover %s", note)
-        return ok
+        self.recover_note = f"{note} ({time.strftime('%H:%M:%S')})"
+        (logger.info if answer.ok or answered else logger.warning)("recover %s", note)
+        return answer.ok
 
     # ------------------------------------------------------------ outputs (the sink)
 

@@ -64,8 +64,9 @@ class CmdVel:
         self.cmd_type: type[Any] = msgs.TwistStamped if settings.cmd_vel_stamped else msgs.Twist
         self.topic = settings.topic("cmd_vel")
         self._take = transport.reader(self.topic, self.cmd_type, TopicQos(depth=CMD_VEL_DEPTH))
-        # publication handle -> its source of commands
+        # publication handle -> its source of commands, and its GUID
         self._writers: dict[int, CommandSource] = {}
+        self._guids: dict[int, str] = {}
         self._told_types: set[str] = set()
         #: what became of the samples (parsed, rejected, refused, the driver)
         self.intake = CmdVelIntake(logger, self._type_name(), self._read)
@@ -114,8 +115,22 @@ class CmdVel:
                                               f"{guid or hex(writer)}")
             if len(self._writers) > 1000:  # writers come and go; do not grow for ever
                 self._writers.clear()
+                self._guids.clear()
             self._writers[writer] = source
+            self._guids[writer] = guid
         return source
+
+    def of_participant(self, guid: str) -> CommandSource | None:
+        """The cmd_vel source of the DDS participant (a ROS 2 process: its writers' GUIDs
+        share their first 12 bytes) that has the writer ``guid`` (hex), the one that
+        drives if it has several; None if none of its writers has sent."""
+        if len(guid) != 32:
+            return None
+        mine = [self._writers[w] for w, g in self._guids.items() if g[:24] == guid[:24]]
+        if not mine:
+            return None
+        driver = mine[0].holder()
+        return next((s for s in mine if s.name == driver), mine[-1])
 
     def _read(self, data: bytes) -> Twist:
         msg = self.cmd_type.deserialize(data)

@@ -43,6 +43,7 @@ from omnican.telemetry import JSON, TOPICS, Message
 from omnican.telemetry.attach import feed_of
 from omnican.zenoh import rmw
 from omnican.zenoh.security import ENFORCING, tls_entries
+from omnican.zenoh.services import SOURCE as SERVICE_CLIENT
 from omnican.zenoh.services import Services
 from omnican.zenoh.settings import (
     ZenohSettings,
@@ -276,8 +277,7 @@ class ZenohBridge:
         # whose one arbiter the other front ends share: one drives at a time.
         self._sources: dict[str, CommandSource] = {}
         self._anyone = base.command_source(SOURCE)
-        self.services = Services(session, self.node, base, self.command_source,
-                                 len(topics) + 2)
+        self.services = Services(session, self.node, self.caller, len(topics) + 2)
         self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
         self._poller = (PollThread(self.poll, self.poll_period_s, "omnican-zenoh-poll", logger,
                                    "handling Zenoh cmd_vel failed") if poll_thread else None)
@@ -364,6 +364,16 @@ class ZenohBridge:
         if source is None:
             source = self._sources[name] = self.base.command_source(name)
         return source
+
+    def caller(self, gid: bytes) -> CommandSource:
+        """The base's command source for a service request by its GID: one GID is one
+        client, so the cmd_vel publisher of that GID if it has sent (a client that drives
+        and calls), else the service client ``Zenoh service client <gid>``. (rmw_zenoh
+        gives each publisher and client of a node a GID of its own.)"""
+        publisher = self._sources.get(f"{SOURCE} {gid.hex()}")
+        if publisher is not None:
+            return publisher
+        return self.command_source(f"{SERVICE_CLIENT} {gid.hex()}")
 
     def holder(self) -> str | None:
         """Who drives the base now, of every front end (None: no one)."""

@@ -12,7 +12,9 @@ recover takes as long as the drives take to enable, and a lock-step base runs on
 its clock is stepped. Anyone may stop the base (a stop is not a command), and the stop
 holds until ``~/recover`` (:meth:`~omnican.chassis.Chassis.halt`): a remote operator's
 stop must not end when the next cmd_vel arrives. Recover and reset odometry are refused
-while another source drives it.
+while another source drives it. Who may do what is the base's to say (each caller a
+command source of the base's, :mod:`omnican.chassis.actions`); a service only words the
+answer.
 """
 
 from __future__ import annotations
@@ -21,21 +23,19 @@ import logging
 import struct
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from omnican.chassis.actions import Outcome
 from omnican.chassis.arbiter import CommandSource
-from omnican.errors import DriveError, quote
+from omnican.errors import quote
 from omnican.zenoh import rmw
-
-if TYPE_CHECKING:
-    from omnican.chassis import Chassis
 
 logger = logging.getLogger(__name__)
 
 TRIGGER = "std_srvs/srv/Trigger"
 SERVICES = ("stop", "recover", "reset_odometry")
 QUEUE = 16  # requests kept between polls (a flood of requests costs the oldest)
-SOURCE = "Zenoh service client"
+SOURCE = "Zenoh service client"  # a caller the others are told of: SOURCE <its GID>
 _CDR_LE = b"\x00\x01\x00\x00"
 
 
@@ -77,12 +77,11 @@ class Services:
     """The queryables and tokens of :data:`SERVICES` on ``session`` for ``node``; call
     :meth:`poll` to answer what arrived."""
 
-    def __init__(self, session: Any, node: rmw.Node, base: Chassis,
-                 source_of: Callable[[str], CommandSource], first_entity_id: int) -> None:
+    def __init__(self, session: Any, node: rmw.Node, caller: Callable[[bytes], CommandSource],
+                 first_entity_id: int) -> None:
         import zenoh
 
-        self.base = base
-        self.source_of = source_of  # the base's command source of a client
+        self.caller = caller  # the base's command source of a request's GID
         self.answered = 0
         self._queryables: dict[str, Any] = {}
         self._tokens: list[Any] = []
@@ -95,7 +94,7 @@ class Services:
             self._tokens.append(session.liveliness().declare_token(node.endpoint_token(
                 first_entity_id + n, rmw.Kind.SERVICE, fq, TRIGGER, trigger_hash(),
                 rmw.Qos())))
-        self._actions: dict[str, Callable[[str], tuple[bool, str]]] = {
+        self._actions: dict[str, Callable[[CommandSource], tuple[bool, str]]] = {
             "stop": self._stop, "recover": self._recover, "reset_odometry": self._reset}
 
     def poll(self) -> None:
@@ -113,39 +112,37 @@ class Services:
         except ValueError:
             query.reply_err("an rmw_zenoh request carries an attachment (sequence, GID)")
             return
-        source = f"{SOURCE} {asked.gid.hex()}"
+        source = self.caller(asked.gid)
         ok, message = self._actions[name](source)
-        logger.info("%s: %s from %s: %s", name, "done" if ok else "refused", source, message)
+        logger.info("%s: %s from %s: %s", name, "done" if ok else "refused", source.name,
+                    message)
         reply = rmw.Attachment(asked.sequence, time.time_ns(), asked.gid)
         query.reply(query.key_expr, trigger_response(ok, message), attachment=reply.encode())
         self.answered += 1
 
-    def _stop(self, source: str) -> tuple[bool, str]:
+    @staticmethod
+    def _stop(source: CommandSource) -> tuple[bool, str]:
         """A stop held until ``~/recover``: whoever drove loses control, and no command
         (theirs or another's) moves the base until then."""
-        try:
-            self.source_of(source).stop()
-            self.base.halt(f"stopped by {source}")
-        except DriveError as exc:
-            return False, quote(str(exc), 200)
+        answer = source.halt(f"stopped by {source.name}")
+        if not answer.ok:
+            return False, quote(answer.why, 200)
         return True, "stopped: held until recover"
 
-    def _recover(self, source: str) -> tuple[bool, str]:
-        other = self.source_of(source).may_act()
-        if other is not None:
-            return False, f"{other} is driving the base"
-        try:
-            self.base.recover()
-        except DriveError as exc:
-            return False, quote(str(exc), 200)
-        return True, "recovered"
+    def _recover(self, source: CommandSource) -> tuple[bool, str]:
+        return self._said(source.recover(), "recovered")
 
-    def _reset(self, source: str) -> tuple[bool, str]:
-        other = self.source_of(source).may_act()
-        if other is not None:
-            return False, f"{other} is driving the base"
-        self.base.reset_pose()
-        return True, "odometry reset to (0, 0, 0)"
+    def _reset(self, source: CommandSource) -> tuple[bool, str]:
+        return self._said(source.reset_pose(), "odometry reset to (0, 0, 0)")
+
+    @staticmethod
+    def _said(answer: Outcome, done: str) -> tuple[bool, str]:
+        """A service's reply to the base's answer: ``done``, who drives, or what failed."""
+        if answer.refused_by is not None:
+            return False, f"{answer.refused_by} is driving the base"
+        if answer.failed is not None:
+            return False, quote(answer.failed, 200)
+        return True, done
 
     def close(self) -> None:
         for queryable in self._queryables.values():

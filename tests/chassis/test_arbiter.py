@@ -6,6 +6,7 @@ control with the others by construction."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -16,8 +17,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from omnican import Chassis, Twist
+from omnican.chassis.actions import RULES, Action, Rule, refuser
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.clock import SimClock
+from omnican.errors import DriveError
 from omnican.sim import SimulatedBase
 from tests.support.helpers import lockstep_rig, still
 
@@ -130,6 +133,22 @@ class FakeBase:
 
     def stop(self) -> None:
         self.calls.append(("stop", None))
+
+    refuse: str | None = None  # what recover raises, if anything
+
+    def halt(self, reason: str) -> None:
+        self.calls.append(("halt", reason))
+
+    def recover(self) -> None:
+        if self.refuse is not None:
+            raise DriveError(self.refuse)
+        self.calls.append(("recover", None))
+
+    def reset_pose(self, pose: Any = None) -> None:
+        self.calls.append(("reset_pose", pose))
+
+    def set_limits(self, **changes: float) -> None:
+        self.calls.append(("limits", changes))
 
 
 def test_two_sources_share_the_base_one_at_a_time() -> None:
@@ -253,3 +272,85 @@ def test_every_source_of_a_base_shares_its_one_arbiter(
     assert clock.run_until(lambda: base.command == Twist(0.0, 0.0, 0.5), 2.0, 0.02)
     assert zenoh.release(stop=True)
     assert clock.run_until(lambda: still(sim), 2.0, 0.02)
+
+
+# ---------------------------------------------------------------- the table
+
+
+@given(st.sampled_from(list(Action)), st.sampled_from("ab"), st.sampled_from([None, "a", "b"]))
+def test_an_action_is_refused_only_by_another_that_drives_and_only_by_its_rule(
+        action: Action, source: str, driver: str | None) -> None:
+    refused = refuser(action, source, driver)
+    if RULES[action] is Rule.ANYONE or driver in (None, source):
+        assert refused is None
+    else:
+        assert refused == driver
+
+
+def test_anyone_may_stop_and_the_rest_waits_for_the_driver() -> None:
+    """The table's safety rows: a stop (held or not) is never refused."""
+    assert RULES[Action.STOP] is RULES[Action.HALT] is Rule.ANYONE
+    assert {a for a, r in RULES.items() if r is Rule.ANYONE} == {Action.STOP, Action.HALT}
+
+
+_ASKED = st.lists(st.tuples(st.sampled_from("abc"), st.sampled_from(list(Action)),
+                            st.floats(0.0, 0.4)), max_size=40)
+
+
+@given(_ASKED)
+def test_the_arbiter_answers_every_action_by_the_table(
+        asked: list[tuple[str, Action, float]]) -> None:
+    """Whatever three sources ask, each action is done (its ``run`` runs) exactly when
+    the table lets it, the answer names the driver when it does not, and a stop by
+    another than the driver takes control from it."""
+    arb = CommandArbiter(0.5)
+    now = 0.0
+    for source, action, dt in asked:
+        now += dt
+        driver = arb.holder(now)
+        ran: list[str] = []
+        if action is Action.DRIVE:
+            refused = arb.claim(source, now, functools.partial(ran.append, "drive"))
+            assert (refused is None) == bool(ran)
+            if refused is None:
+                assert driver in (None, source) and arb.holder(now) == source
+            continue
+        assert arb.ask(source, action, now).refused_by == refuser(action, source, driver)
+        answer = arb.decide(source, action, now, functools.partial(ran.append, "run"))
+        assert answer.refused_by == refuser(action, source, driver)
+        assert answer.ok == bool(ran) and answer.failed is None
+        if action.stops and driver not in (None, source):
+            assert answer.took_from == driver and arb.holder(now) is None
+            assert arb.stopped_by(driver, now) == source
+        else:
+            assert answer.took_from is None and arb.holder(now) == driver
+
+
+def test_every_action_through_a_source_answers_who_refused_or_what_failed() -> None:
+    """The handle's actions on a stand-in base: done, refused naming the driver (the base
+    is not asked), or failed with the base's words (a refusal it raised)."""
+    base = FakeBase()
+    keys, client = base.command_source("keys"), base.command_source("client")
+    acts = {"recover": client.recover, "reset_pose": client.reset_pose,
+            "set_limits": lambda: client.set_limits(max_speed=0.2)}
+    assert keys.send(Twist(0.2, 0.0, 0.0)) is None
+    for name, act in acts.items():
+        answer = act()
+        assert (answer.ok, answer.refused_by, answer.failed) == (False, "keys", None), name
+        assert answer.why == (f"keys is driving; only it may {answer.action.value} now "
+                              "(anyone may stop)")
+    assert [c for c, _ in base.calls] == ["twist"]  # the base was asked nothing
+    halted = client.halt("stopped by client")
+    assert halted.ok and halted.took_from == "keys"
+    assert base.calls[-1] == ("halt", "stopped by client")
+    for name, act in acts.items():  # no one drives now: done
+        assert act().ok, name
+    assert [c for c, _ in base.calls[-3:]] == ["recover", "reset_pose", "limits"]
+    base.refuse = "recover refused: e-stop pressed"
+    failed = client.recover()
+    assert (failed.ok, failed.refused_by, failed.failed) == (
+        False, None, "recover refused: e-stop pressed")
+    assert failed.why == "recover refused: e-stop pressed"
+    assert keys.may(Action.RECOVER).ok and keys.may_act() is None
+    with pytest.raises(ValueError, match="own method"):
+        client.act(Action.STOP, lambda: None)
