@@ -109,7 +109,7 @@ class Chassis:
         cfg: ChassisConfig,
         *,
         bus: Mapping[str, Any] | None = None,
-        record: Recording | None = None,
+        record: Recording[Chassis] | None = None,
         handle_signals: bool = True,
         clock: Clock | None = None,
     ) -> Chassis:
