@@ -48,6 +48,59 @@ def upward_imports() -> list[str]:
     return problems
 
 
+#: Folders held free of import cycles, type-only ones (under TYPE_CHECKING) included: a
+#: module that names its owner's type for a type checker is read with it all the same.
+#: A small protocol of what the part needs of its owner breaks such a cycle.
+ACYCLIC = ("drive", "io", "chassis")
+
+
+def submodule_imports(path: Path, known: set[str]) -> set[str]:
+    """The modules of ``known`` that the module at ``path`` imports (under TYPE_CHECKING
+    too): ``from omnican.chassis import realtime`` is omnican.chassis.realtime."""
+    found = imports_in(path.read_text(), omnican._HOMES, str(path))
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.module and \
+                node.module.startswith("omnican."):
+            package = node.module.removeprefix("omnican.")
+            subs = {f"{package}.{a.name}" for a in node.names} & known
+            if subs and len(subs) == len(node.names):  # only submodules: not the package
+                found.discard(package)
+            found |= subs
+    return found & known
+
+
+def import_cycles(folders: tuple[str, ...] = ACYCLIC) -> list[str]:
+    """The cycles among the modules of ``folders`` (``omnican.a -> omnican.b ->
+    omnican.a``): each module's shortest way back to itself, but for modules a cycle
+    already named holds."""
+    paths = {name.removesuffix(".__init__"): path for name, path in modules()
+             if name.split(".")[0] in folders}
+    graph = {name: submodule_imports(path, set(paths)) for name, path in paths.items()}
+    cycles = []
+    seen: set[str] = set()
+    for start in sorted(graph):
+        if start in seen:
+            continue
+        # The shortest way from start back to itself, if there is one.
+        way: dict[str, str] = {}
+        todo = [start]
+        while todo and start not in way:
+            here = todo.pop(0)
+            for there in sorted(graph[here]):
+                if there not in way:
+                    way[there] = here
+                    todo.append(there)
+        if start not in way:
+            continue
+        path = [start]
+        while len(path) == 1 or path[-1] != start:
+            path.append(way[path[-1]])
+        path.reverse()
+        seen.update(path)
+        cycles.append(" -> ".join(f"omnican.{m}" for m in path))
+    return cycles
+
+
 def test_every_module_is_in_a_layer() -> None:
     for name, _ in modules():
         layer_of(name)
@@ -69,6 +122,27 @@ def test_the_check_sees_an_upward_import(tmp_path: Path, monkeypatch: pytest.Mon
     monkeypatch.setattr(sys.modules[__name__], "PACKAGE", fake)
     assert upward_imports() == [
         "omnican.core.bad imports omnican.chassis, a layer above it"]
+
+
+def test_no_import_cycle_in_the_drive_io_and_chassis_layers() -> None:
+    cycles = import_cycles()
+    assert not cycles, "\n".join(cycles)
+
+
+def test_the_check_sees_a_type_only_cycle(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                          ) -> None:
+    """The check itself: two modules of a folder that import each other, one of them only
+    for a type checker, are named; a one-way import is not."""
+    fake = tmp_path / "omnican"
+    (fake / "io").mkdir(parents=True)
+    (fake / "io" / "__init__.py").write_text("")
+    (fake / "io" / "bus.py").write_text("from omnican.io.part import Part\n")
+    (fake / "io" / "part.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+        "    from omnican.io.bus import Bus\n")
+    (fake / "io" / "alone.py").write_text("from omnican.io.bus import Bus\n")
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE", fake)
+    assert import_cycles() == ["omnican.io.bus -> omnican.io.part -> omnican.io.bus"]
 
 
 def test_the_public_names_are_one_table() -> None:

@@ -5,37 +5,31 @@ Who does what: :class:`~omnican.chassis.cycle.ControlCycle` is the control cycle
 :class:`~omnican.chassis.supervisor.NodeSupervisor` owns every node's lifecycle (startup,
 health, reconfiguration, recover, shutdown); a runner (a real-time thread or the
 simulated clock, :mod:`omnican.chassis.runner`) calls the cycle every period; the
-signal guard (:mod:`omnican.chassis.signals`) keeps a second Ctrl-C from cutting the
-stop short. This module wires them and is what users call.
+base's own start and stop, on every way out, are :mod:`omnican.chassis.lifecycle`'s
+(the signal guard, :mod:`omnican.chassis.signals`, keeps a second Ctrl-C from cutting
+the stop short); opening is :mod:`omnican.chassis.opening`'s. This module wires them
+and is what users call.
 
 Safety: no command for ``cmd_timeout_s`` -> controlled stop; a drive fault, a lost
 heartbeat, a drive reboot, a drive leaving OPERATIONAL or a bus that stays down -> every
 wheel stops and the base stays stopped until :meth:`Chassis.recover`; drives watch the
 host's heartbeat, so they stop by themselves if this process dies; leaving the ``with``
 block, a failed open, Ctrl-C or SIGTERM stops the wheels and disables every drive.
-
-Size: :class:`Chassis` is about 360 lines, above the 300 the package keeps to, on
-purpose: it is the public API, and most of it is the docstrings of the calls users make.
-The two sequences left in it, :meth:`Chassis.recover` and :meth:`Chassis.close`, run
-across the caller's thread and the loop's and hold this object's locks; the machinery
-behind them is the supervisor's, the configurator's and the cycle's. Opening is
-:mod:`omnican.chassis.opening`'s.
 """
 
 from __future__ import annotations
 
 import atexit
-import logging
 import threading
 import weakref
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-from omnican.chassis import realtime
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.chassis.cycle import ControlCycle
 from omnican.chassis.health import HealthMonitor
+from omnican.chassis.lifecycle import Lifecycle
 from omnican.chassis.opening import make_base
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
 from omnican.chassis.signals import guard
@@ -45,14 +39,11 @@ from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, ChassisSettings, with_live_limits
 from omnican.core.kinematics import Twist
-from omnican.core.limits import MAX_STOP_S, command_problem, pose_problem
+from omnican.core.limits import command_problem, pose_problem
 from omnican.core.odometry import Pose2D
 from omnican.drive import DriveNode
 from omnican.errors import DriveError
-from omnican.io import stepped
 from omnican.io.bus import CanBus
-
-logger = logging.getLogger("omnican.chassis")
 
 _open_chassis: weakref.WeakSet[Chassis] = weakref.WeakSet()
 
@@ -86,13 +77,10 @@ class Chassis:
         loop.runner = self._runner
         #: what layers above attached (the telemetry feed, a recording): closed with the base
         self.attachments = Attachments()
+        #: the start and the stop, on every way out
+        self._life = Lifecycle(cfg, bus, sup, loop, self._runner, self.attachments, clock)
         self._limits_lock = threading.Lock()
         self._configured = cfg.chassis  # what a live limit may only make safer
-        self._closed = False
-        self._close_lock = threading.Lock()
-        self._not_disabled: tuple[str, ...] = ()
-        self._guards_signals = False
-        self._froze_heap = False
         self._arbiter = CommandArbiter(cfg.chassis.cmd_timeout_s)  # one source at a time
 
     def _call_soon(self, fn: Any) -> None:
@@ -109,7 +97,7 @@ class Chassis:
         cfg: ChassisConfig,
         *,
         bus: Mapping[str, Any] | None = None,
-        record: Recording | None = None,
+        record: Recording[Chassis] | None = None,
         handle_signals: bool = True,
         clock: Clock | None = None,
     ) -> Chassis:
@@ -148,40 +136,7 @@ class Chassis:
         return base
 
     def _start(self, handle_signals: bool) -> None:
-        started = self.clock.now()
-        self._supervisor.configure_all()
-        _open_chassis.add(self)
-        if handle_signals:
-            self._guards_signals = guard.acquire()
-        if not self._lockstep:
-            self._bus.start_polling()  # the loop reads the bus itself: one wake-up a cycle
-            # Simulated drives of this process that asked to, run on the loop's thread.
-            self._runner.companion = stepped.claim(self._bus.bus_kwargs)
-        self._runner.start()
-        self._wait_enabled(self.cfg.chassis.enable_timeout_s + 4 * self._period, "startup")
-        self._supervisor.started()
-        if not self._lockstep:  # what start-up made is out of the collector's way
-            realtime.freeze_startup()
-            self._froze_heap = True
-        logger.info("every drive enabled, %.2f s after the bus opened", self.clock.now() - started)
-
-    def _wait_enabled(self, timeout: float, what: str,
-                      refuse: Callable[[], str | None] | None = None) -> None:
-        """Until every drive is enabled; ``refuse`` says why it may not be (an interlock
-        reached meanwhile): then at once."""
-        clock = self.clock
-        deadline = clock.now() + timeout
-        while clock.now() < deadline:
-            status = self._loop.snapshot.status
-            if status.enabled and status.cycles > 0:
-                return
-            if self._closed:
-                raise DriveError(f"{what}: the base was closed")
-            refused = refuse() if refuse is not None else None
-            if refused is not None:
-                raise DriveError(f"{what} refused: {refused}")
-            clock.sleep(self._period if self._lockstep else 0.002)
-        raise DriveError(f"{what}: {self._supervisor.not_enabled_why(timeout)}")
+        self._life.start(handle_signals, configured=lambda: _open_chassis.add(self))
 
     # ------------------------------------------------------------ public API
 
@@ -201,7 +156,7 @@ class Chassis:
         problem = command_problem(twist.vx, twist.vy, twist.wz)
         if problem is not None:
             raise ValueError(f"velocity command refused: {problem}")
-        if self._closed:
+        if self._life.closed:
             raise DriveError("the base is closed")
         self._loop.command = (twist, self.clock.now())
 
@@ -214,7 +169,7 @@ class Chassis:
         deceleration and stays there whatever is commanded, with ``reason`` as the stop's
         reason (one already held stays first). A remote operator's stop (the Zenoh
         ``~/stop`` service, the fleet stop) is one; ``stop()`` lets the next command go."""
-        if self._closed:
+        if self._life.closed:
             raise DriveError("the base is closed")
         self._loop.command = (Twist(), self.clock.now())
         self._loop.call_soon(lambda: self._supervisor.latch(reason))
@@ -230,51 +185,7 @@ class Chassis:
         (bounded) until all are enabled. The base stays still until the next command.
 
         Raises DriveError naming what could not be recovered."""
-        if self._closed:
-            raise DriveError("the base is closed")
-        sup, loop = self._supervisor, self._loop
-        if loop.watch.down:
-            raise DriveError(f"{sup.latched or 'the CAN bus is down'}: recover once it is "
-                             "back (status.bus_up)")
-        refused = sup.monitor.recover_refused()
-        if refused is not None:
-            raise DriveError(f"recover refused: {refused}")
-        timeout = timeout_s if timeout_s is not None else (
-            self.cfg.chassis.enable_timeout_s + self.cfg.chassis.boot_timeout_s)
-        # Asked again where the latch is cleared, on the loop thread: an interlock reached
-        # between the check above and then (the battery's cutoff, an e-stop) must hold.
-        outcome: list[str | None] = []
-        taken = threading.Lock()  # begin() runs whole, or (given up on) not at all
-
-        def begin() -> None:
-            with taken:
-                if outcome:
-                    return
-                now = self.clock.now()
-                loop.command = (Twist(), now)
-                why = ("the CAN bus is down: recover once it is back (status.bus_up)"
-                       if loop.watch.down else sup.monitor.recover_refused())
-                if why is None:
-                    sup.begin_recover(now)
-                outcome.append(why)
-
-        loop.call_soon(begin)
-        self.clock.sleep(2 * self._period)
-        deadline = self.clock.now() + max(1.0, 10 * self._period)
-        while not outcome and self.clock.now() < deadline and self._runner.running:
-            self.clock.sleep(self._period if self._lockstep else 0.002)
-        with taken:
-            if not outcome:
-                outcome.append("the control loop did not take the request")
-                raise DriveError("recover: the control loop did not take the request")
-        if outcome[0] is not None:
-            raise DriveError(f"recover refused: {outcome[0]}")
-        try:
-            self._wait_enabled(timeout, "recover", refuse=sup.monitor.recover_refused)
-            logger.info("recovered: every drive enabled")
-        finally:
-            loop.call_soon(sup.end_recover)
-        loop.command = (Twist(), self.clock.now())
+        self._life.recover(timeout_s)
 
     def set_limits(self, **changes: float) -> ChassisSettings:
         """Change velocity limits while the base runs: the [chassis] keys of
@@ -287,7 +198,7 @@ class Chassis:
 
         Raises ConfigError (a ValueError) naming the key and why; nothing changes then."""
         with self._limits_lock:
-            if self._closed:
+            if self._life.closed:
                 raise DriveError("the base is closed")
             settings = with_live_limits(self.cfg.chassis, changes,
                                         configured=self._configured)
@@ -381,42 +292,8 @@ class Chassis:
 
         ``controlled=False`` skips the deceleration only: every drive is disabled on
         every way out, a failed open included."""
-        with self._close_lock:
-            if self._closed:
-                return
-            self._closed = True
         _open_chassis.discard(self)
-        sup = self._supervisor
-        sup.closed = True  # nothing is started again from here on
-        bus_works = True  # what the close found, for its last line
-        with guard.closing():
-            try:
-                if self._runner.running:
-                    self._controlled_shutdown(decelerate=controlled)
-                    self._runner.stop()
-                if self._runner.companion is not None:  # their own threads again by now
-                    stepped.release(self._runner.companion)
-                self._bus.stop_polling()  # a Notifier again, for the SDOs of the stop
-                sup.join_workers(self.cfg.chassis.boot_timeout_s + 1.0)
-                bus_works = not self._loop.watch.down and self._bus.failing is None
-                sup.stop_nodes(bus_works=bus_works)
-            finally:
-                sup.detach()
-                # The telemetry's last sample (and the frames of the stop), then a recording.
-                self.attachments.close(self._loop.snapshot)
-                self._bus.close()
-                if self._guards_signals:
-                    self._guards_signals = False
-                    guard.release()
-                if self._froze_heap:
-                    self._froze_heap = False
-                    realtime.thaw()
-        powered = sup.still_powered(bus_works)
-        self._not_disabled = tuple(powered)
-        if powered:
-            logger.error("base closed; not confirmed disabled: %s", ", ".join(powered))
-        else:
-            logger.info("base closed; drives disabled")
+        self._life.close(controlled)
 
     @property
     def not_disabled(self) -> tuple[str, ...]:
@@ -424,24 +301,7 @@ class Chassis:
         closing error says it (``node 1 (OFFLINE: heartbeat lost; last seen OPERATION
         ENABLED)``); empty when every drive was, and while the base is open. A front end
         ends with a run-time failure (exit 1) when it is not empty."""
-        return self._not_disabled
-
-    def _controlled_shutdown(self, decelerate: bool = True) -> None:
-        loop, clock = self._loop, self.clock
-        loop.command = (Twist(), -float("inf"))
-        # The limiter's stop ramp is bounded (limits.MAX_STOP_S) whatever the limits say:
-        # so is this wait; the drives are disabled after it, stopped or not.
-        deadline = clock.now() + min(loop.limiter.stop_time_s(), MAX_STOP_S) + 0.5
-        while decelerate and clock.now() < deadline:
-            if loop.speeds_settled:
-                break
-            clock.sleep(self._period)
-        loop.call_soon(self._supervisor.disable_all)
-        deadline = clock.now() + 0.5
-        while clock.now() < deadline:
-            if self._supervisor.all_disabled():
-                break
-            clock.sleep(self._period)
+        return self._life.not_disabled
 
     def __enter__(self) -> Chassis:
         return self

@@ -3,7 +3,8 @@ order in lock-step; a node that reboots meanwhile is configured again), and one 
 a worker thread after a reboot, when the bus comes back, or at recover() after a failed
 attempt. The workers hand their results back to the loop thread through ``call_soon``.
 
-:class:`omnican.chassis.supervisor.NodeSupervisor` owns one :class:`Configurator`.
+:class:`omnican.chassis.supervisor.NodeSupervisor` owns one :class:`Configurator`, and
+is what it reports to (:class:`Supervised`).
 """
 
 from __future__ import annotations
@@ -12,14 +13,11 @@ import logging
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from omnican.drive import DriveNode
 from omnican.errors import DriveError, OmnicanError
 from omnican.protocol.cia402 import State
-
-if TYPE_CHECKING:
-    from omnican.chassis.supervisor import NodeSupervisor
 
 logger = logging.getLogger("omnican.chassis")  # the supervisor's: one story in the log
 
@@ -27,11 +25,23 @@ RECONFIGURE_ATTEMPTS = 2  # a node configured again (reboot, bus back) that fail
 STARTUP_ATTEMPTS = 3  # configurations of a node that reboots while being configured
 
 
+class Supervised(Protocol):
+    """What the configurator reads and tells of the supervisor that owns it
+    (:class:`omnican.chassis.supervisor.NodeSupervisor`; read on the loop thread, and
+    ``closed`` by the workers)."""
+
+    closed: bool  # the base is closing: no attempt again
+    recovering: bool  # recover() under way: a node configured again is enabled
+    configuring: set[int]  # nodes being configured again (workers)
+
+    def latch(self, reason: str) -> None: ...
+
+
 class Configurator:
     """Configures the nodes of ``sup`` (see the module docstring). ``call_soon(fn)`` runs
     ``fn`` on the loop thread at its next cycle."""
 
-    def __init__(self, sup: NodeSupervisor, nodes: list[DriveNode], lockstep: bool,
+    def __init__(self, sup: Supervised, nodes: list[DriveNode], lockstep: bool,
                  call_soon: Callable[[Callable[[], None]], None]) -> None:
         self._sup = sup
         self._nodes = nodes

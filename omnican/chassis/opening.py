@@ -19,7 +19,7 @@ B = TypeVar("B")
 
 
 def make_base(make: Callable[[CanBus, list[DriveNode]], B], cfg: ChassisConfig,
-              bus: Mapping[str, Any] | None, record: Recording | None, clock: Clock) -> B:
+              bus: Mapping[str, Any] | None, record: Recording[Any] | None, clock: Clock) -> B:
     """``make(bus, nodes)``, the base, once the config passed its checks (EDS problems
     surface before a file or the bus is made), ``record`` is open and hears the bus,
     and a node per drive is on it. Raises what the step that failed raised, with the

@@ -14,16 +14,14 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from omnican.chassis.state import Snapshot
 from omnican.config import ChassisConfig
 from omnican.io.bus import Recorder
 
-if TYPE_CHECKING:
-    from omnican.chassis.base import Chassis
-
 logger = logging.getLogger("omnican.chassis")
+
 
 class SnapshotSink(Protocol):
     """What the control cycle hands a snapshot to, on the loop thread: queue it and
@@ -39,18 +37,23 @@ class Attachment(Protocol):
     def close(self, last: Snapshot | None = None) -> None: ...
 
 
-class Recording(Attachment, Protocol):
-    """A recording of a base from its bus's first frame on, given to ``Chassis.open``.
-    The base opens it once the config passed its checks (nothing is written for a base
-    that cannot be made), attaches it before the drives are configured and closes it
-    with itself (``last`` None: the base could not be opened)."""
+#: The base a recording attaches to (:class:`omnican.chassis.base.Chassis`).
+B_contra = TypeVar("B_contra", contravariant=True)
+
+
+class Recording(Attachment, Protocol[B_contra]):
+    """A recording of a base from its bus's first frame on, given to ``Chassis.open``
+    (``Recording[Chassis]``). The base opens it once the config passed its checks
+    (nothing is written for a base that cannot be made), attaches it before the drives
+    are configured and closes it with itself (``last`` None: the base could not be
+    opened)."""
 
     def open(self, cfg: ChassisConfig) -> Recorder | None:
         """Open the file: what the bus hands every frame, received and sent (None: the
         recording takes them another way, through the telemetry)."""
         ...
 
-    def attach(self, base: Chassis) -> None:
+    def attach(self, base: B_contra) -> None:
         """The base is made and its bus open; its drives are not configured yet."""
         ...
 

@@ -170,20 +170,15 @@ def bus_load_problem(cfg: ChassisConfig, layouts: list[NodeLayout],
     return f"bus load {load:.0%} at {rate / 1000:g} kbit/s (above 80 %)"
 
 
-#: Vendor objects that stop a drive once the bus falls silent, by the EDS's product name
-#: and (index, subindex): what the drive does instead of consuming the host's heartbeat.
-COMMUNICATION_WATCHDOGS: dict[tuple[str, int, int], str] = {
-    # ZLTECH ZLAC8015D: "Offline Communication Parameter", ms without frames; 0 = off
-    ("ZLAC8015", 0x2000, 0): "ms",
-}
-
-
 def host_loss_line(layout: NodeLayout) -> str:
     """What a drive without a heartbeat consumer (1016h) does if the host dies: nothing
-    (a warning), or stop on its own CAN watchdog where the config sets one."""
-    product = (layout.dictionary.device_information.product_name or "").strip()
+    (a warning), or stop on its own CAN watchdog where the config sets one (the drive's
+    watchdogs: :mod:`omnican.protocol.vendors`, by what its EDS says it is)."""
+    from omnican.protocol.vendors import quirks_of
+
+    watchdogs = quirks_of(layout.dictionary).watchdogs
     for write in layout.settings_writes:
-        unit = COMMUNICATION_WATCHDOGS.get((product, write.entry.index, write.entry.subindex))
+        unit = watchdogs.get((write.entry.index, write.entry.subindex))
         if unit is None:
             continue
         if write.value > 0:

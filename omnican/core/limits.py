@@ -72,7 +72,7 @@ def pose_problem(x: float, y: float, theta: float) -> str | None:
 # Every stop must end in bounded time, whatever the decelerations say. Where the bound
 # comes from: when this host goes silent, each drive stops on its own with its quick-stop
 # deceleration (6085h, or 604Ah in vl mode; abort option 6007h = quick stop), which
-# omnican writes as twice the stop decelerations at the rim (drive/setup.py). So both the
+# omnican writes as twice the stop decelerations at the rim (drive/sdo_config.py). So both the
 # base's stop ramp and the drives' own quick stop scale with chassis.stop_decel and
 # stop_angular_decel: a tiny value makes *both* endless (at 1e-9 the quick stop rounds to
 # 0 drive units: the drive never stops by itself either). The fastest the base can move
@@ -87,7 +87,7 @@ def pose_problem(x: float, y: float, theta: float) -> str | None:
 # longer of the two times, and each is within the bound), and the drives' quick stop,
 # at twice that, stops a wheel from max_wheel_speed within MAX_STOP_S / 2 (a wheel's rim
 # speed is at most the body's linear speed plus its radius times the angular speed, and
-# drive/setup.py counts a radius of 0.5 m).
+# drive/sdo_config.py counts a radius of 0.5 m).
 # MAX_STOP_S is 2 s: the defaults (2 x the accelerations, 1 m/s at the rims) stop the
 # demo base from its top speed in 0.7 s linear, 0.9 s spinning; 2 s is three times that,
 # room for a heavy base with gentle ramps, and still a stop a person beside the robot

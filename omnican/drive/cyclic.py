@@ -21,7 +21,7 @@ import canopen
 
 from omnican.clock import Clock
 from omnican.config import ChassisSettings, WheelConfig
-from omnican.drive.stage import StageDriver
+from omnican.drive.power_state import StageDriver
 from omnican.io.bus import prepared_message
 from omnican.plan.codec import PdoCodec
 from omnican.plan.pdo import NodePlan, PlannedPdo, SdoTransfer, frame_bits

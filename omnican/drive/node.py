@@ -1,11 +1,13 @@
 """One CANopen node driving one or more wheels (axes), on a live network: what it is
-made of and what it tells (heartbeats, boot-ups, EMCYs).
+made of, the order it is configured in, and what it tells (heartbeats, boot-ups, EMCYs).
 
-A :class:`DriveNode` composes the CiA 402 stage drivers (:mod:`omnican.drive.stage`),
-its cyclic frames (:mod:`omnican.drive.cyclic`) and its SDO configuration
-(:mod:`omnican.drive.setup`). Frame handlers run on the receiving thread and only copy
-values; the control loop calls :attr:`DriveNode.cyclic_frames` and
-:attr:`DriveNode.controlword_frame` once a cycle.
+A :class:`DriveNode` composes its power state machines (:mod:`omnican.drive.power_state`)
+and its cyclic frames (:mod:`omnican.drive.cyclic`); :meth:`DriveNode.configure` runs NMT
+and boot (:mod:`omnican.drive.nmt`), the PDO configuration
+(:mod:`omnican.drive.pdo_config`) and the SDO configuration
+(:mod:`omnican.drive.sdo_config`) in the order CiA 301 has them. Frame handlers run on the
+receiving thread and only copy values; the control loop calls
+:attr:`DriveNode.cyclic_frames` and :attr:`DriveNode.controlword_frame` once a cycle.
 
 Units: m/s at the rim <-> drive velocity units (``velocity_scale``); encoder counts
 -> continuous metres of travel across counter wrap-around and drive reboots.
@@ -22,17 +24,19 @@ import canopen
 from canopen.emcy import EmcyError
 
 from omnican.clock import REAL_TIME, Clock
+from omnican.drive import nmt
 from omnican.drive.cyclic import AxisIO, CyclicIO, EpochSource, SdoCounts
 from omnican.drive.health import NodeHealth
-from omnican.drive.sdoclient import CheckedRemoteNode
-from omnican.drive.setup import NodeSetup
-from omnican.drive.stage import StageDriver
+from omnican.drive.pdo_config import PdoConfig
+from omnican.drive.power_state import StageDriver
+from omnican.drive.sdo_client import CheckedRemoteNode
+from omnican.drive.sdo_config import SdoConfig, SdoTransfers
 from omnican.log_throttle import Throttle
 from omnican.plan.health import HealthPlan
 from omnican.plan.node import NodeLayout
 from omnican.plan.pdo import NodePlan
 from omnican.protocol import cia402, heartbeat
-from omnican.protocol.cia301 import HEARTBEAT_BASE, NMT_STATE_MASK, NmtState
+from omnican.protocol.cia301 import NmtCommand, NmtState
 
 logger = logging.getLogger("omnican.drive")
 
@@ -58,7 +62,7 @@ class DriveNode:
         self.mode = layout.mode
         self.has_consumer = layout.has_consumer
         self.plan = layout.plan
-        # Initiate answers matched to their request, a late one told from none (sdoclient).
+        # Initiate answers matched to their request, a late one told from none (sdo_client).
         self.remote: canopen.RemoteNode = CheckedRemoteNode(node_id, self.dictionary, clock,
                                                             settings.sdo_timeout_s)
         # canopen's MAX_RETRIES counts attempts, not retries. In lock-step an answer arrives
@@ -81,7 +85,10 @@ class DriveNode:
         self.cyclic_frames = self.io.cyclic_frames
         self.controlword_frame = self.io.controlword_frame
         self.sdo_counts: SdoCounts = self.io.build(self.plan)
-        self._setup = NodeSetup(self)
+        sdo = SdoTransfers(self)
+        self._sdo_config = SdoConfig(self, sdo)
+        #: the PDOs: the plan, or the drive's own mapping (it keeps why it refused the plan)
+        self._pdo_config = PdoConfig(self, sdo, self._reset_communication)
         # Liveness and events: written as frames are received (by the loop's poll while
         # the base runs, by python-can's Notifier before and after), read by the loop. The
         # heartbeat is watched from when the configuration switches the drive's producer on.
@@ -102,13 +109,46 @@ class DriveNode:
         self.emcy: EmcyError | None = None
         self._emcy_log = Throttle(logger, clock=clock.now)
         self.fault_text: str | None = None
-        network.subscribe(HEARTBEAT_BASE + node_id, self._on_heartbeat)
+        # canopen's NMT master of the node hears its heartbeats (on the receiving thread).
+        self.remote.nmt.add_heartbeat_callback(self._on_nmt_state)
         self.remote.emcy.add_callback(self._on_emcy)
 
     def configure(self, warn: list[str] | None = None) -> None:
-        """Reset communication, configure in PRE-OPERATIONAL, start (see
-        :meth:`omnican.drive.setup.NodeSetup.configure`)."""
-        self._setup.configure(warn)
+        """NMT reset communication and the boot-up (asked again when lost), the PDO plan
+        of :mod:`omnican.plan.pdo` (or, for a drive that refuses it, its own mapping,
+        restored by another reset communication; objects that mapping lacks go by
+        expedited SDO every cycle), the rest by SDO in PRE-OPERATIONAL (mode, ramps,
+        heartbeat producer and consumer, 6007h), then NMT start. Blocking, bounded (on the
+        opening thread or a re-configuration worker).
+
+        Raises DriveError naming the node and what it was doing; also when two devices
+        answer as this node (each boot-up and SDO answer comes twice), before it starts."""
+        with nmt.counting_sdo_answers(self):
+            self.seen_operational = False
+            self._reset_communication()
+            # PDOs first: a drive that refuses the plan is reset once more to get its own
+            # mapping back, which also resets what the SDO configuration sets in
+            # 1000h-1FFFh (1016h, 1017h).
+            self._pdo_config.configure(warn)
+            self._sdo_config.configure(warn)
+            for ax in self.axes:
+                ax.reseed()
+                ax.raw, ax.epoch = None, -1
+            self._pdo_config.drop_canopen_handlers()
+        # What failed on the way, said once the answers were all one device's (a second
+        # device on this id garbles SDO replies: then its error is the only one).
+        for text in self._sdo_config.later:
+            logger.warning("%s", text)
+        nmt.send(self, NmtCommand.START)
+
+    def _reset_communication(self) -> None:
+        """NMT reset communication and the boot-up (:func:`.nmt.reset_communication`)."""
+
+        def cleared() -> None:
+            self._sdo_config.watching = False  # a reset communication clears 1016h
+            self.heartbeat.producer_off()  # and puts 1017h back to its power-on value
+
+        nmt.reset_communication(self, cleared)
 
     def use_plan(self, plan: NodePlan) -> None:
         """The PDO plan the drive took (the planned one, or its own mapping)."""
@@ -124,14 +164,16 @@ class DriveNode:
     def stop(self) -> None:
         """Disable any power stage not known to be off, stop watching the host (consumer
         off) and leave OPERATIONAL; best effort."""
-        self._setup.stop()
+        if not self.boot_count or self.twins:
+            return  # never heard, or two devices answering as one: nothing was enabled
+        self._sdo_config.stop()
+        nmt.enter_pre_operational(self)
 
     # ------------------------------------------------------------ events
 
-    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if not data:
-            return
-        state = data[0] & NMT_STATE_MASK
+    def _on_nmt_state(self, state: int) -> None:
+        """A heartbeat's NMT state (toggle bit masked; 0 a boot-up), from canopen's NMT
+        master of the node."""
         self.heartbeat.heard(self.clock.now())
         self.nmt_state = state
         if state == NmtState.OPERATIONAL:
@@ -169,7 +211,5 @@ class DriveNode:
         self._emcy_log.flush()
         self.health.detach()
         self.io.detach()
-        if self._on_heartbeat in self.network.subscribers.get(HEARTBEAT_BASE + self.node_id, []):
-            self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self._on_heartbeat)
         if self.node_id in self.network.nodes:
-            del self.network[self.node_id]
+            del self.network[self.node_id]  # canopen's subscriptions go with it (NMT too)

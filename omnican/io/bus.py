@@ -8,7 +8,9 @@ counts both. Around it, one concern a module:
 - :mod:`omnican.io.transport`: opening the bus, handing reception between the Notifier
   and the loop, reopening it when it does not work, paced, on a thread of its own;
 - :mod:`omnican.io.bus_health`: whether it works (:class:`BusWatch`); the controller's
-  state, from the error frames SocketCAN delivers, is :mod:`omnican.protocol.can_state`.
+  state, from the error frames SocketCAN delivers, is :mod:`omnican.protocol.can_state`;
+- :mod:`omnican.io.owner`: what those parts see of the bus (a protocol: none of them
+  imports this module), and what records it.
 
 The names those modules hold are importable from here too, as before.
 """
@@ -34,8 +36,9 @@ from omnican.io.bus_health import (
     describe_send_error,
 )
 from omnican.io.listeners import FRAME_BITS as _FRAME_BITS
-from omnican.io.listeners import RX_ERROR_PAUSE_S, CountingNetwork, Recorder, Taps, Traffic
+from omnican.io.listeners import RX_ERROR_PAUSE_S, CountingNetwork, Taps, Traffic
 from omnican.io.network import FRAME_ERRORS, frame_error
+from omnican.io.owner import Recorder
 from omnican.io.transport import (
     NOTIFIER_STOP_S,
     RECONNECT_EVERY_S,

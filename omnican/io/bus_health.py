@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from omnican.io.bus import CanBus
+    from omnican.io.owner import BusOwner
 
 BUS_DOWN_AFTER_S = 0.05  # sends or receives failing for this long: the bus is down
 BUS_UP_AFTER_S = 0.2  # and working again for this long: it is back up
@@ -31,7 +31,7 @@ class BusWatch:
 
     __slots__ = ("_bus", "_fail_since", "_ok_since", "down", "failing")
 
-    def __init__(self, bus: CanBus) -> None:
+    def __init__(self, bus: BusOwner) -> None:
         self._bus = bus
         self.down = False
         self.failing: str | None = None  # the bus's trouble as of the last check

@@ -1,8 +1,8 @@
 """What the bus hands its frames to besides canopen's subscribers.
 
 The traffic count (frames and worst-case bits, both directions, for the bus load), the
-taps (listeners added while the bus runs: live views), the recorder's protocol, and
-canopen's network with every sent frame counted and recorded. :class:`omnican.io.bus.CanBus`
+taps (listeners added while the bus runs: live views), and canopen's network with every
+sent frame counted and recorded. :class:`omnican.io.bus.CanBus`
 owns one of each.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING
 
 import can
 
@@ -20,21 +20,10 @@ from omnican.plan.pdo import frame_bits
 from omnican.protocol.cia301 import SDO_RX_BASE
 
 if TYPE_CHECKING:
-    from omnican.io.bus import CanBus
+    from omnican.io.owner import BusOwner
 
 RX_ERROR_PAUSE_S = 0.05
 FRAME_BITS = tuple(frame_bits(n) for n in range(65))  # worst case, by data length
-
-
-class Recorder(Protocol):
-    """What records a bus: every received frame, every sent one (as plain values, on
-    the sending thread: queue and return), then closed with the bus."""
-
-    def on_message_received(self, msg: can.Message) -> None: ...
-
-    def record_sent(self, timestamp: float, can_id: int, data: bytes, channel: Any) -> None: ...
-
-    def close(self) -> None: ...
 
 
 class Taps(can.Listener):
@@ -73,7 +62,7 @@ class Traffic(can.Listener):
     sent them (the control loop, a configuration worker): one lock keeps the sums exact.
     Also notices receive errors, which python-can hands to ``on_error``."""
 
-    def __init__(self, owner: CanBus) -> None:
+    def __init__(self, owner: BusOwner) -> None:
         self._owner = owner
         self._lock = threading.Lock()
         self._frames = 0
@@ -120,7 +109,7 @@ class CountingNetwork(Network):
     recorded, and the configuration SDO requests counted per node (a node whose answers
     outnumber them is two devices on one id)."""
 
-    def __init__(self, owner: CanBus) -> None:
+    def __init__(self, owner: BusOwner) -> None:
         super().__init__()
         self._owner = owner
         self.sdo_requests: dict[int, int] = {}  # node id -> configuration requests sent

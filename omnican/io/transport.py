@@ -22,7 +22,7 @@ from omnican.io.bus_health import describe_open_error, open_error_reason
 from omnican.io.lockstep import LockstepBus
 
 if TYPE_CHECKING:
-    from omnican.io.bus import CanBus
+    from omnican.io.owner import BusOwner
 
 logger = logging.getLogger("omnican.io.bus")  # one name for the bus's story in the log
 
@@ -54,7 +54,7 @@ class Transport:
     ``network``): opened, handed over, released, reopened. Each reopening that succeeds
     increments the bus's ``generation``."""
 
-    def __init__(self, owner: CanBus) -> None:
+    def __init__(self, owner: BusOwner) -> None:
         self._owner = owner
         self.network = owner.network
         self.closed = False

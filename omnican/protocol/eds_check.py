@@ -21,8 +21,10 @@ wide enough for the top speed, a position counter that cannot pass half its span
 samples, write access where omnican writes, a velocity mode among 6502h's.
 
 Real drives' files understate their drives (objects marked not PDO-mappable, optional
-sub-indices left out, a sub 0 declared UNSIGNED16): none of that is refused here. What
-is refused is a file no drive could have, before a frame is sent.
+sub-indices left out, a sub 0 declared UNSIGNED16): none of that is refused here; the
+types accepted where CiA 301 names one are the drive's
+:class:`~omnican.protocol.vendors.Quirks`. What is refused is a file no drive could
+have, before a frame is sent.
 
 Pure: it reads a parsed :class:`canopen.ObjectDictionary`. canopen turns a data type
 it does not know into DOMAIN; ``declared`` (a function of the variable) gives the
@@ -53,9 +55,8 @@ from omnican.protocol.cia301 import (
     TPDO_COMM,
     TPDO_MAP,
 )
+from omnican.protocol.vendors import UNSIGNED_TYPES, Quirks, quirks_of
 
-UNSIGNED_TYPES = frozenset({dt.UNSIGNED8, dt.UNSIGNED16, dt.UNSIGNED24, dt.UNSIGNED32,
-                            dt.UNSIGNED40, dt.UNSIGNED48, dt.UNSIGNED56, dt.UNSIGNED64})
 #: The types an object omnican sends or reads as a number may have.
 INTEGER_TYPES = UNSIGNED_TYPES | {dt.INTEGER8, dt.INTEGER16, dt.INTEGER24, dt.INTEGER32,
                                   dt.INTEGER40, dt.INTEGER48, dt.INTEGER56, dt.INTEGER64}
@@ -88,9 +89,20 @@ class Want(NamedTuple):
     type_text: str
 
 
-U8 = Want(0, "", UNSIGNED_TYPES, "an unsigned integer")  # sub 0: ZLAC8015D declares UNSIGNED16
 U16 = frozenset({dt.UNSIGNED16})
 U32 = frozenset({dt.UNSIGNED32})
+
+
+def types_text(types: frozenset[int]) -> str:
+    """``an unsigned integer``, ``UNSIGNED8``, ``UNSIGNED8 or UNSIGNED16``."""
+    if types == UNSIGNED_TYPES:
+        return "an unsigned integer"
+    return " or ".join(TYPE_NAMES.get(t, f"0x{t:04X}") for t in sorted(types))
+
+
+def _sub0(quirks: Quirks) -> Want:
+    """A record's sub 0 (its highest sub-index), as the drive's quirks allow it."""
+    return Want(0, "", quirks.sub0_types, types_text(quirks.sub0_types))
 
 
 def _declared_type(var: od.ODVariable) -> int:
@@ -170,8 +182,12 @@ def _variable_problems(dictionary: od.ObjectDictionary, index: int, name: str,
             yield problem
 
 
-def _pdo_problems(dictionary: od.ObjectDictionary, declared: DeclaredType) -> Iterator[str]:
+def _pdo_problems(dictionary: od.ObjectDictionary, declared: DeclaredType,
+                  quirks: Quirks) -> Iterator[str]:
     """Every PDO the EDS offers: omnican maps it, or disables it through its COB-ID."""
+    u8 = _sub0(quirks)
+    parameter, parameter_text = quirks.pdo_parameter_types, types_text(
+        quirks.pdo_parameter_types)
     for kind, comm_base, map_base in (("RPDO", RPDO_COMM, RPDO_MAP),
                                       ("TPDO", TPDO_COMM, TPDO_MAP)):
         for n in range(MAX_PDOS):
@@ -191,16 +207,14 @@ def _pdo_problems(dictionary: od.ObjectDictionary, declared: DeclaredType) -> It
                 continue
             yield from _record_problems(
                 dictionary, comm_index, comm_name,
-                required=(U8, Want(PDO_COB_ID, "COB-ID", U32, "UNSIGNED32"),
-                          Want(PDO_TRANSMISSION_TYPE, "transmission type", UNSIGNED_TYPES,
-                               "an unsigned integer")),
-                optional=(Want(PDO_INHIBIT_TIME, "inhibit time", UNSIGNED_TYPES,
-                               "an unsigned integer"),
-                          Want(PDO_EVENT_TIMER, "event timer", UNSIGNED_TYPES,
-                               "an unsigned integer")),
+                required=(u8, Want(PDO_COB_ID, "COB-ID", U32, "UNSIGNED32"),
+                          Want(PDO_TRANSMISSION_TYPE, "transmission type", parameter,
+                               parameter_text)),
+                optional=(Want(PDO_INHIBIT_TIME, "inhibit time", parameter, parameter_text),
+                          Want(PDO_EVENT_TIMER, "event timer", parameter, parameter_text)),
                 why="mandatory in CiA 301", declared=declared)
             yield from _record_problems(
-                dictionary, map_index, map_name, required=(U8,), optional=(),
+                dictionary, map_index, map_name, required=(u8,), optional=(),
                 why="mandatory in CiA 301", declared=declared,
                 entries=Want(1, "", U32, "UNSIGNED32 (index, sub-index, bits)"))
 
@@ -208,8 +222,11 @@ def _pdo_problems(dictionary: od.ObjectDictionary, declared: DeclaredType) -> It
 def dictionary_problems(dictionary: od.ObjectDictionary,
                         declared: DeclaredType = _declared_type) -> list[str]:
     """What is wrong with the node-wide objects of ``dictionary``, one text each
-    (``0x1000 device type is missing (mandatory in CiA 301)``); empty if nothing."""
+    (``0x1000 device type is missing (mandatory in CiA 301)``); empty if nothing. The
+    types accepted where CiA 301 names one are the drive's quirks (:func:`quirks_of`)."""
     mandatory = "mandatory in CiA 301"
+    quirks = quirks_of(dictionary)
+    u8 = _sub0(quirks)
     problems = [
         *_variable_problems(dictionary, DEVICE_TYPE, "device type", U32, "UNSIGNED32",
                             mandatory, declared),
@@ -218,7 +235,7 @@ def dictionary_problems(dictionary: od.ObjectDictionary,
     ]
     problems += _record_problems(
         dictionary, IDENTITY, "identity object",
-        required=(U8, Want(1, "vendor-ID", U32, "UNSIGNED32")),
+        required=(u8, Want(1, "vendor-ID", U32, "UNSIGNED32")),
         optional=(Want(2, "product code", U32, "UNSIGNED32"),
                   Want(3, "revision number", U32, "UNSIGNED32"),
                   Want(4, "serial number", U32, "UNSIGNED32")),
@@ -230,9 +247,9 @@ def dictionary_problems(dictionary: od.ObjectDictionary,
     if isinstance(consumer, (od.ODArray, od.ODRecord)):  # a VAR: taken as no consumer
         problems += _record_problems(
             dictionary, CONSUMER_HEARTBEAT_TIME, "consumer heartbeat time",
-            required=(U8, Want(1, "consumer heartbeat time 1", U32, "UNSIGNED32")),
+            required=(u8, Want(1, "consumer heartbeat time 1", U32, "UNSIGNED32")),
             optional=(), why="omnican sets it to watch the host's heartbeat", declared=declared)
-    problems += _pdo_problems(dictionary, declared)
+    problems += _pdo_problems(dictionary, declared, quirks)
     return problems
 
 

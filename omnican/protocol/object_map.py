@@ -8,8 +8,9 @@ Drives lay out multiple axes in one of two ways:
   statusword, mode) are shared by both axes.
 
 :class:`AxisObjects` resolves the objects of one axis once, so the host
-(``drive.py``) and the simulator (``sim/``) agree on the addressing. No I/O: it
-only reads a parsed :class:`canopen.ObjectDictionary`.
+(``drive/``) and the simulator (``sim/``) agree on the addressing. Which objects hold
+signed values whatever the EDS declares is the drive's :class:`~omnican.protocol.vendors.Quirks`.
+No I/O: it only reads a parsed :class:`canopen.ObjectDictionary`.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from canopen.objectdictionary import datatypes
 
 from omnican.errors import ConfigError
 from omnican.protocol import eds_check
+from omnican.protocol.vendors import quirks_of
 
 AXIS_OFFSET = 0x800
 MAX_AXES = 8
@@ -81,14 +83,6 @@ NODE_WIDE = frozenset(
 # vl ramps are records (delta speed / delta time), resolved by index only.
 RECORDS = frozenset({Obj.VL_ACCEL, Obj.VL_DECEL, Obj.VL_QUICK_STOP})
 
-# Objects that hold signed quantities even where an EDS declares them unsigned
-# (ZLAC8015D declares 606Ch as UNSIGNED32, and its right motor's 6077h sub 2 too).
-SIGNED = frozenset(
-    {Obj.POSITION_ACTUAL, Obj.VELOCITY_ACTUAL, Obj.TARGET_VELOCITY, Obj.VL_TARGET,
-     Obj.VL_DEMAND, Obj.VL_ACTUAL, Obj.MODE, Obj.MODE_DISPLAY, Obj.TORQUE_ACTUAL,
-     Obj.CURRENT_ACTUAL, Obj.FOLLOWING_ERROR}
-)
-
 
 @dataclass(frozen=True)
 class Entry:
@@ -133,14 +127,15 @@ def _var_bits(var: od.ODVariable) -> int:
     return len(var)
 
 
-def _entry(obj: Obj | None, var: od.ODVariable, shared: bool) -> Entry:
+def _entry(obj: Obj | None, var: od.ODVariable, shared: bool, signed: frozenset[int]) -> Entry:
+    """``signed``: the objects (axis-0 index) read as signed whatever the EDS declares."""
     signed_type = var.data_type in od.SIGNED_TYPES
     return Entry(
         obj=obj,
         index=var.index,
         subindex=var.subindex,
         bits=_var_bits(var),
-        signed=signed_type or (obj is not None and obj in SIGNED),
+        signed=signed_type or (obj is not None and obj in signed),
         declared_signed=signed_type,
         shared=shared,
         pdo_mappable=bool(var.pdo_mappable),
@@ -156,7 +151,7 @@ def entry_at(dictionary: od.ObjectDictionary, index: int, subindex: int) -> Entr
     if not isinstance(var, od.ODVariable):
         raise KeyError(f"0x{index:04X}:{subindex:02X} is not a variable")
     obj = Obj(index) if index in Obj._value2member_map_ else None
-    return _entry(obj, var, shared=False)
+    return _entry(obj, var, shared=False, signed=quirks_of(dictionary).signed)
 
 
 def variable_at(dictionary: od.ObjectDictionary, index: int,
@@ -198,6 +193,7 @@ class AxisObjects:
         self.axis = axis
         self.num_axes = count_axes(dictionary)
         self.layout = axis_layout(dictionary)
+        self._signed = quirks_of(dictionary).signed
         self._entries: dict[Obj, Entry | None] = {}
         self._record_index: dict[Obj, int | None] = {}
 
@@ -205,21 +201,22 @@ class AxisObjects:
         d, k, base = self.dictionary, self.axis, int(obj)
         offset_item = d.get(base + AXIS_OFFSET * k) if k > 0 else None
         if isinstance(offset_item, od.ODVariable):
-            return _entry(obj, offset_item, shared=False)
+            return _entry(obj, offset_item, shared=False, signed=self._signed)
         if base not in d:
             return None
         item = d[base]
         if isinstance(item, od.ODVariable):
             if k == 0:
-                return _entry(obj, item, shared=self.num_axes > 1 and obj in NODE_WIDE)
+                return _entry(obj, item, shared=self.num_axes > 1 and obj in NODE_WIDE,
+                              signed=self._signed)
             if obj in NODE_WIDE and self.layout == "subindex":
-                return _entry(obj, item, shared=True)
+                return _entry(obj, item, shared=True, signed=self._signed)
             return None
         sub = k + 1
         if sub in item.subindices:
             var = item[sub]
             if isinstance(var, od.ODVariable):
-                return _entry(obj, var, shared=False)
+                return _entry(obj, var, shared=False, signed=self._signed)
         return None
 
     def get(self, obj: Obj) -> Entry | None:

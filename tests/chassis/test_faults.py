@@ -196,7 +196,7 @@ def test_a_reboot_during_reconfiguration_is_not_lost(
     sim, base = flaky
     node = base.nodes[0]
     drive = sim.drives[0]
-    original = node._setup._configure_ramps
+    original = node._sdo_config._configure_ramps
     rebooted_again = threading.Event()
 
     def ramps_then_reboot(*args: Any) -> None:
@@ -205,7 +205,7 @@ def test_a_reboot_during_reconfiguration_is_not_lost(
             rebooted_again.set()
             drive.reboot()  # mode and ramps written so far are gone
 
-    node._setup._configure_ramps = ramps_then_reboot  # type: ignore[method-assign]
+    node._sdo_config._configure_ramps = ramps_then_reboot  # type: ignore[method-assign]
     drive.reboot()
     assert wait_for(rebooted_again.is_set, 3.0)
     assert wait_for(lambda: node.node_id not in base._supervisor.configuring and not node.rebooted, 5.0)
@@ -222,21 +222,21 @@ def test_a_reboot_during_startup_configuration_is_not_lost(
         channel: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """Node 2 reboots in the middle of its first configuration: what was written before
     is gone, so it must be configured again before the base reports itself enabled."""
-    from omnican.drive.setup import NodeSetup
+    from omnican.drive.sdo_config import SdoConfig
 
     cfg = sim_config(channel)
-    original = NodeSetup._configure_ramps
+    original = SdoConfig._configure_ramps
     rebooted = threading.Event()
     with SimulatedBase.from_config(cfg) as sim:
         drive = sim.drives[1]
 
-        def ramps_then_reboot(self: NodeSetup) -> None:
+        def ramps_then_reboot(self: SdoConfig) -> None:
             original(self)
             if self.node.node_id == 2 and not rebooted.is_set():
                 rebooted.set()
                 drive.reboot()
 
-        monkeypatch.setattr(NodeSetup, "_configure_ramps", ramps_then_reboot)
+        monkeypatch.setattr(SdoConfig, "_configure_ramps", ramps_then_reboot)
         with Chassis.open(cfg) as base:
             assert rebooted.is_set()
             node = base.nodes[1]

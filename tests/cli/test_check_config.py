@@ -48,14 +48,15 @@ def test_the_first_line_says_a_bus_load_too_high_failed(
     assert capsys.readouterr().out.splitlines()[0] == f"{good}: OK"
 
 
-def _zlac(tmp_path: Path, watchdog_ms: int | None) -> Path:
+def _zlac(tmp_path: Path, watchdog_ms: int | None, eds: Path = VENDOR_EDS / "zlac8015d.eds"
+          ) -> Path:
     sdo = ("" if watchdog_ms is None else
            f'[[wheel.sdo]]\nobject = "0x2000:00"\nvalue = {watchdog_ms}\n')
     cfg = tmp_path / "zlac.toml"
     cfg.write_text(
         '[bus]\ninterface = "socketcan"\nchannel = "can0"\nbitrate = 1000000\n'
         '[chassis]\nlayout = "b21"\nbase_radius = 0.2\n'
-        + "".join(f'[[wheel]]\nnode_id = {n}\naxis = {a}\neds = "{VENDOR_EDS}/zlac8015d.eds"\n'
+        + "".join(f'[[wheel]]\nnode_id = {n}\naxis = {a}\neds = "{eds}"\n'
                   "velocity_scale = 100.0\nposition_scale = 1000.0\n" + sdo
                   for n, a in ((1, 0), (1, 1), (2, 0))))
     return cfg
@@ -73,3 +74,19 @@ def test_a_zlac_with_its_can_watchdog_set_is_not_warned_it_never_stops(
     assert main(["check-config", str(_zlac(tmp_path, None))]) == 0
     assert ("warning: no heartbeat consumer (1016h): this drive will not stop by itself"
             in capsys.readouterr().out)
+
+
+def test_a_watchdog_is_known_by_the_drive_its_eds_names(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The ZLAC8015D's EDS as another vendor's (only the vendor-ID changed): its 2000h is
+    nothing omnican knows of (the table is keyed by vendor and product,
+    omnican.protocol.vendors), so the drive is warned about as one that never stops."""
+    source = (VENDOR_EDS / "zlac8015d.eds").read_text()
+    stranger = tmp_path / "stranger.eds"
+    stranger.write_text(source.replace("VendorNumber=0x00000100", "VendorNumber=0x12345678")
+                        .replace("DefaultValue=0x00000100", "DefaultValue=0x12345678"))
+    assert main(["check-config", str(_zlac(tmp_path, 500, stranger))]) == 0
+    out = capsys.readouterr().out
+    assert "its CAN watchdog" not in out, out
+    assert out.count("warning: no heartbeat consumer (1016h): this drive will not stop by "
+                     "itself") == 2  # nodes 1 and 2

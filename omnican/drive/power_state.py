@@ -1,7 +1,8 @@
-"""Walking one CiA 402 power state machine (one controlword) towards a goal, with
-controlword bit masks: the bits it does not own (halt, mode bits) are kept, a fault
-reset is a clean rising edge of bit 7, a transition that does not happen in time is
-named. No I/O: :meth:`StageDriver.step` says which controlword to send."""
+"""The CiA 402 power state machine, from the host's side: walking one (one controlword)
+towards a goal, with controlword bit masks: the bits it does not own (halt, mode bits)
+are kept, a fault reset is a clean rising edge of bit 7, a transition that does not
+happen in time is named. No I/O: :meth:`StageDriver.step` says which controlword to
+send."""
 
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ import pytest
 
 from omnican import WHEEL_EDS
 from omnican.clock import SimClock
-from omnican.drive.sdoclient import CheckedSdoClient, SdoTooSlowError
+from omnican.drive.sdo_client import CheckedSdoClient, SdoTooSlowError
 
 
 class LateServer:

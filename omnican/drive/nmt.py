@@ -1,14 +1,21 @@
-"""A node's boot-up, and who answers as it: NMT reset communication, waiting for the
-boot-up (asking with an SDO read of 1000h whether a silent node is there, as CiA 302-2's
-boot process does), and two devices answering as one node id (each boot-up and SDO
-answer comes twice): refused before the node is started.
+"""NMT and boot (CiA 301, CiA 302-2's boot process): the NMT commands omnican sends a
+node (reset communication, start, enter pre-operational), waiting for its boot-up
+(asking with an SDO read of 1000h whether a silent node is there), and two devices
+answering as one node id (each boot-up and SDO answer comes twice): refused before the
+node is started.
 
-Used by :class:`omnican.drive.setup.NodeSetup` at the start of each configuration.
+What a node's heartbeats say (its NMT state, a boot-up) canopen's NMT master of the
+node hears (``RemoteNode.nmt``) and hands to :class:`omnican.drive.node.DriveNode`. The
+commands go out here as the two-byte frame they are: canopen's ``NmtMaster.send_command``
+raises KeyError once a heartbeat has reported a state outside its table (a shared bus
+carries such frames), and its ``wait_for_bootup`` waits on wall time, not on the node's
+clock.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
@@ -19,9 +26,26 @@ from omnican.errors import DriveError
 from omnican.protocol.cia301 import DEVICE_TYPE, NMT_COB_ID, NmtCommand
 
 if TYPE_CHECKING:
-    from omnican.drive.setup import Node
+    from omnican.drive.configurable import Node
+
+logger = logging.getLogger("omnican.drive")
 
 BOOT_RESETS = 4  # NMT resets sent (within boot_timeout_s) before a node counts as absent
+
+
+def send(node: Node, command: NmtCommand) -> None:
+    """One NMT command to ``node`` (COB-ID 0: the command, the node id)."""
+    node.network.send_message(NMT_COB_ID, bytes([command, node.node_id]))
+
+
+def enter_pre_operational(node: Node) -> None:
+    """The way out's last step, best effort: a bus that refuses the frame (down, its
+    transmit queue full) is logged, not raised (the drives' heartbeat consumers stop
+    them anyway)."""
+    try:
+        send(node, NmtCommand.ENTER_PRE_OPERATIONAL)
+    except (can.CanError, OSError, RuntimeError) as exc:
+        logger.debug("node %d: NMT pre-operational not sent: %s", node.node_id, exc)
 
 
 def reset_communication(node: Node, on_reset: Callable[[], None]) -> None:
@@ -57,8 +81,7 @@ def reset_communication(node: Node, on_reset: Callable[[], None]) -> None:
 
     def reset() -> float:
         on_reset()
-        node.network.send_message(NMT_COB_ID,
-                                  bytes([NmtCommand.RESET_COMMUNICATION, node.node_id]))
+        send(node, NmtCommand.RESET_COMMUNICATION)
         return clock.now()
 
     last_reset = reset()
@@ -112,7 +135,6 @@ def reset_communication(node: Node, on_reset: Callable[[], None]) -> None:
         node.configured_boot = node.boot_count
 
 
-
 def answers_device_type(node: Node) -> bool:
     """One SDO read of the device type (1000h), one attempt: the node is there."""
     sdo = node.remote.sdo
@@ -129,12 +151,10 @@ def answers_device_type(node: Node) -> bool:
         sdo.MAX_RETRIES = retries
 
 
-
 def twins_text(node: Node, evidence: str) -> str:
     """What a node two devices answer as is told."""
     return (f"node {node.node_id}: two devices answer as node {node.node_id} ({evidence}): "
             "a cloned drive? give each its own node id")
-
 
 
 @contextlib.contextmanager

@@ -1,84 +1,43 @@
-"""Configuring a node over SDO, and the way out.
+"""SDO configuration: what a node is set to in PRE-OPERATIONAL, by expedited SDO, and
+what the way out undoes.
 
-:meth:`NodeSetup.configure` (blocking, bounded, on the opening thread or a
-re-configuration worker): NMT reset communication and the boot-up (asked again when
-lost), the PDO plan of :mod:`omnican.plan.pdo` (or, for a drive that refuses it, its own
-mapping, restored by another reset communication; objects that mapping lacks go by
-expedited SDO every cycle), mode, ramps, heartbeat producer and consumer, 6007h, then
-NMT OPERATIONAL. Two devices answering as one node are refused before the start.
-:meth:`NodeSetup.stop` disables what the loop could not, clears the consumer and leaves
-OPERATIONAL.
+:meth:`SdoConfig.configure` (blocking, bounded; after the boot-up and the PDOs): the mode
+of operation (read back from 6061h), the ramps, the rated current (for the current in A),
+the ``[[wheel.sdo]]`` vendor settings, the heartbeat producer (1017h) and consumer
+(1016h, watching this host), the abort connection option (6007h).
+:meth:`SdoConfig.stop` disables what the loop could not and clears the consumer.
 
-One concern a module: the boot-up and two devices on one id in :mod:`omnican.drive.boot`,
-the PDOs in :mod:`omnican.drive.pdo_setup`, the SDO transfers and their errors in
-:mod:`omnican.drive.setup_sdo`; the order they run in, the mode, ramps and heartbeats here.
+:class:`SdoTransfers`: each transfer of a node's configuration, a failure one
+:class:`DriveError` naming the node, what it was doing and why (an abort's code in words,
+no answer, an answer slower than ``chassis.sdo_timeout_s``); the PDO configuration
+(:mod:`omnican.drive.pdo_config`) writes through it too.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import threading
-from typing import Any, Protocol
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import can
-import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from omnican.clock import Clock
-from omnican.config import ChassisSettings
-from omnican.drive.boot import counting_sdo_answers, reset_communication
-from omnican.drive.cyclic import AxisIO
-from omnican.drive.health import NodeHealth
-from omnican.drive.pdo_setup import PdoSetup
-from omnican.drive.sdoclient import SdoTooSlowError
-from omnican.drive.setup_sdo import SetupSdo
-from omnican.drive.stage import StageDriver
+from omnican.drive.power_state import StageDriver
+from omnican.drive.sdo_client import SdoTooSlowError
 from omnican.errors import DriveError
-from omnican.plan.health import HealthPlan
-from omnican.plan.node import NodeLayout
-from omnican.plan.pdo import NodePlan
 from omnican.protocol import cia402, heartbeat
 from omnican.protocol.cia301 import (
     CONSUMER_HEARTBEAT_TIME,
-    NMT_COB_ID,
     PRODUCER_HEARTBEAT_TIME,
-    NmtCommand,
     NmtState,
+    abort_text,
 )
 from omnican.protocol.cia402 import Command, Mode, State
-from omnican.protocol.heartbeat import HeartbeatWatch
-from omnican.protocol.object_map import Obj, obj_name
+from omnican.protocol.object_map import Entry, Obj, obj_name
 
-
-class Node(Protocol):
-    """What the configuration needs of a node (:class:`omnican.drive.DriveNode`)."""
-
-    node_id: int
-    network: canopen.Network
-    remote: canopen.RemoteNode
-    settings: ChassisSettings
-    layout: NodeLayout
-    dictionary: Any
-    eds_name: str
-    mode: Mode
-    has_consumer: bool
-    clock: Clock
-    stages: list[StageDriver]
-    axes: list[AxisIO]
-    nmt_state: int | None
-    seen_operational: bool
-    twins: bool
-    boot_count: int
-    configured_boot: int
-    _boot_seen: threading.Condition
-
-    health: NodeHealth
-    heartbeat: HeartbeatWatch
-
-    def use_plan(self, plan: NodePlan) -> None: ...
-
-    def use_health(self, plan: HealthPlan) -> None: ...
-
+if TYPE_CHECKING:
+    from omnican.drive.configurable import Node
 
 logger = logging.getLogger("omnican.drive")
 
@@ -87,42 +46,65 @@ _OFF_STATES = frozenset({State.SWITCH_ON_DISABLED, State.NOT_READY_TO_SWITCH_ON,
 MODE_READS, MODE_READ_GAP_S = 4, 0.05  # the mode display read back after setting the mode
 
 
-class NodeSetup:
-    """The SDO side of one node: its configuration and its way out."""
+class SdoTransfers:
+    """SDO downloads (and the errors of any transfer) of one node's configuration."""
 
     def __init__(self, node: Node) -> None:
         self.node = node
-        self._sdo = SetupSdo(node)
-        #: the PDOs: the plan, or the drive's own mapping (it keeps why it refused the plan)
-        self._pdos = PdoSetup(node, self._sdo, self._reset_communication)
-        self._later: list[str] = []  # warnings of a configuration, logged at its end
-        # The drive watches this host's heartbeat (1016h written since its last reset
-        # communication, which clears it): then the way out stops that.
-        self._watching = False
+
+    @contextlib.contextmanager
+    def errors(self, doing: str) -> Iterator[None]:
+        """SDO failures as one DriveError naming the node, what it was doing and why."""
+        node = self.node
+        try:
+            yield
+        except SdoAbortedError as exc:
+            raise DriveError(f"node {node.node_id}: {doing} refused: {abort_text(exc.code)}"
+                             ) from None
+        except SdoTooSlowError as exc:
+            raise DriveError(self.too_slow(exc)) from None
+        except SdoCommunicationError:
+            sdo = node.remote.sdo
+            wait = node.settings.sdo_timeout_s if not node.clock.lockstep else 0.0
+            raise DriveError(f"node {node.node_id}: no SDO answer {doing} ({sdo.MAX_RETRIES} "
+                             f"attempts{f', {wait:g} s each' if wait else ''})") from None
+
+    def too_slow(self, exc: SdoTooSlowError) -> str:
+        timeout = self.node.settings.sdo_timeout_s
+        return (f"node {self.node.node_id} answers SDOs after {exc.late_s:.2f} s, slower than "
+                f"chassis.sdo_timeout_s {timeout:g} s: raise it")
+
+    def write(self, entry_or_index: Entry | int, subindex: int, data: bytes,
+              what: str) -> None:
+        node = self.node
+        index = entry_or_index.index if isinstance(entry_or_index, Entry) else entry_or_index
+        with self.errors(f"writing {what} (0x{index:04X}:{subindex:02X})"):
+            node.remote.sdo.download(index, subindex, data)
+
+    def write_value(self, entry: Entry, value: int, what: str) -> None:
+        if entry.writable:
+            self.write(entry, entry.subindex, entry.encode(value), what)
+
+
+class SdoConfig:
+    """What one node is set to by SDO in PRE-OPERATIONAL, and its undoing on the way out."""
+
+    def __init__(self, node: Node, sdo: SdoTransfers) -> None:
+        self.node = node
+        self._sdo = sdo
+        #: warnings of a configuration, said at its end (once the answers were all one
+        #: device's: a second device on this id garbles SDO replies)
+        self.later: list[str] = []
+        #: The drive watches this host's heartbeat (1016h written since its last reset
+        #: communication, which clears it): then the way out stops that.
+        self.watching = False
 
     def configure(self, warn: list[str] | None = None) -> None:
-        """Reset communication, configure in PRE-OPERATIONAL, start. Blocking, bounded.
-
-        Raises DriveError naming the node and what it was doing; also when two devices
-        answer as this node (each boot-up and SDO answer comes twice), before it starts."""
-        node = self.node
-        self._later = []
-        with counting_sdo_answers(node):
-            self._configure(warn)
-        # What failed on the way, said once the answers were all one device's (a second
-        # device on this id garbles SDO replies: then its error is the only one).
-        for text in self._later:
-            logger.warning("%s", text)
-        node.network.send_message(NMT_COB_ID, bytes([NmtCommand.START, node.node_id]))
-
-    def _configure(self, warn: list[str] | None) -> None:
+        """Mode, ramps, rated currents, vendor settings, heartbeats, 6007h. Blocking,
+        bounded; raises DriveError naming the node and what it was doing."""
         node = self.node
         s = node.settings
-        node.seen_operational = False
-        self._reset_communication()
-        # PDOs first: a drive that refuses the plan is reset once more to get its own
-        # mapping back, which also resets what is set below in 1000h-1FFFh (1016h, 1017h).
-        self._pdos.configure(warn)
+        self.later = []
         for stage in node.stages:
             stage.forget()
             if stage.mode is not None:
@@ -141,7 +123,7 @@ class NodeSetup:
         if node.has_consumer:
             ms = heartbeat.consumer_time_ms(s.heartbeat_ms, s.heartbeat_timeout_factor)
             value = (s.host_node_id << 16) | ms
-            self._watching = True  # also if the write's answer is lost
+            self.watching = True  # also if the write's answer is lost
             self._sdo.write(CONSUMER_HEARTBEAT_TIME, 1, value.to_bytes(4, "little"),
                             "heartbeat consumer")
             abort = node.axes[0].objs.get(Obj.ABORT_OPTION)
@@ -150,19 +132,6 @@ class NodeSetup:
         elif warn is not None:
             warn.append(f"node {node.node_id} ({node.eds_name}) has no heartbeat consumer (1016h):"
                         " it will not stop by itself if this host dies")
-        for ax in node.axes:
-            ax.reseed()
-            ax.raw, ax.epoch = None, -1
-        self._pdos.drop_canopen_handlers()
-
-    def _reset_communication(self) -> None:
-        """NMT reset communication and the boot-up (:mod:`omnican.drive.boot`)."""
-
-        def cleared() -> None:
-            self._watching = False  # a reset communication clears 1016h
-            self.node.heartbeat.producer_off()  # and puts 1017h back to its power-on value
-
-        reset_communication(self.node, cleared)
 
     def _confirm_mode(self, stage: StageDriver) -> None:
         """Read the mode display (6061h) back: a drive that did not take the mode (a
@@ -233,19 +202,17 @@ class NodeSetup:
             except SdoTooSlowError as exc:
                 raise DriveError(self._sdo.too_slow(exc)) from None
             except (SdoAbortedError, SdoCommunicationError) as exc:
-                self._later.append(f"node {node.node_id}: reading the rated current "
+                self.later.append(f"node {node.node_id}: reading the rated current "
                                    f"({rated.address}) failed: {exc}")
                 continue
             node.health.scales[read.key] = rated.decode(raw) / 1_000_000.0  # mA per mille
 
     def stop(self) -> None:
-        """Disable any power stage not known to be off, stop watching the host (consumer
-        off) and leave OPERATIONAL; best effort."""
+        """Disable any power stage not known to be off and stop watching the host
+        (consumer off); best effort."""
         node = self.node
         # A bus that refuses frames (down, transmit queue full) must not turn the way
         # out into a traceback: the drives' heartbeat consumers stop them anyway.
-        if not node.boot_count or node.twins:
-            return  # never heard, or two devices answering as one: nothing was enabled
         for stage in node.stages:
             # The loop's disable did not get there (it did not run, or not for long
             # enough); a STOPPED node answers no SDO (its 6007h reaction stopped it).
@@ -260,14 +227,9 @@ class NodeSetup:
                 except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                     logger.warning("node %d: disabling its drive by SDO failed: %s",
                                    node.node_id, exc)
-        if node.has_consumer and self._watching:
+        if node.has_consumer and self.watching:
             try:
                 node.remote.sdo.download(CONSUMER_HEARTBEAT_TIME, 1, b"\x00\x00\x00\x00")
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                 logger.debug("node %d: clearing the heartbeat consumer failed: %s", node.node_id,
                              exc)
-        try:
-            node.network.send_message(NMT_COB_ID,
-                                      bytes([NmtCommand.ENTER_PRE_OPERATIONAL, node.node_id]))
-        except (can.CanError, OSError, RuntimeError) as exc:
-            logger.debug("node %d: NMT pre-operational not sent: %s", node.node_id, exc)

@@ -1,9 +1,9 @@
-"""A node's PDOs, configured through canopen's PdoMap: the plan of
+"""PDO configuration: a node's PDOs, configured through canopen's PdoMap: the plan of
 :mod:`omnican.plan.pdo` and the health plan's TPDOs; for a drive that refuses remapping,
 its own mapping, read and enabled (what that mapping lacks goes by expedited SDO every
 cycle); a health TPDO the drive refuses is read by SDO instead.
 
-Used by :class:`omnican.drive.setup.NodeSetup`, first thing after the boot-up.
+Run by :meth:`omnican.drive.node.DriveNode.configure` first thing after the boot-up.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import canopen
 
-from omnican.drive.setup_sdo import SetupSdo
+from omnican.drive.sdo_config import SdoTransfers
 from omnican.errors import DriveError
 from omnican.plan.health import HealthPlan
 from omnican.plan.pdo import NodePlan, PlannedPdo, SdoTransfer
@@ -23,16 +23,16 @@ from omnican.protocol.cia301 import COB_ID_INVALID, COB_ID_MASK, TPDO_COMM, TRAN
 from omnican.protocol.object_map import Entry, Obj, entry_at
 
 if TYPE_CHECKING:
-    from omnican.drive.setup import Node
+    from omnican.drive.configurable import Node
 
 logger = logging.getLogger("omnican.drive")
 
 
-class PdoSetup:
+class PdoConfig:
     """The PDO side of one node's configuration. A drive that refused the plan once
     (:attr:`refusal`) keeps its own mapping from then on, after a reboot too."""
 
-    def __init__(self, node: Node, sdo: SetupSdo, reset: Callable[[], None]) -> None:
+    def __init__(self, node: Node, sdo: SdoTransfers, reset: Callable[[], None]) -> None:
         self.node = node
         self._sdo = sdo
         self._reset = reset  # NMT reset communication, and the boot-up: the drive's own mapping
