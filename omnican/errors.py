@@ -46,7 +46,7 @@ def quote(value: object, limit: int = QUOTE_LIMIT) -> str:
     log, a status message or a service's answer. The repr of a long container is never
     built whole (only its first items)."""
     if isinstance(value, (str, bytes, bytearray)):
-        text = repr(value[: limit + 1])
+        text = _cut_repr(value, limit + 1)
         size = len(value)
         unit = "characters" if isinstance(value, str) else "bytes"
     elif isinstance(value, (list, tuple, dict, set, frozenset)):
@@ -59,6 +59,21 @@ def quote(value: object, limit: int = QUOTE_LIMIT) -> str:
     if len(text) <= limit:
         return text
     return f"{text[:limit]}... ({size} {unit})"
+
+
+def _cut_repr(value: str | bytes | bytearray, n: int) -> str:
+    """The repr of ``value``'s first ``n`` items, quoted as the whole value's repr is:
+    Python quotes with ``"`` a value holding a ``'`` and no ``"``, which the part cut off
+    may hold alone."""
+    text = repr(value[:n])
+    if len(value) > n:
+        quote_char = "'" if isinstance(value, str) else b"'"
+        other = '"' if isinstance(value, str) else b'"'
+        if quote_char in value and other not in value and not text.rstrip(")").endswith('"'):
+            start = text.index("'")  # after b or bytearray(b
+            end = text.rindex("'")
+            text = f'{text[:start]}"{text[start + 1:end]}"{text[end + 1:]}'
+    return text
 
 
 def _container_repr(value: object, limit: int) -> str:

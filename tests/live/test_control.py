@@ -19,7 +19,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from omnican import Pose2D, Twist, default_config
@@ -496,6 +496,8 @@ def test_a_long_bad_value_is_quoted_short_everywhere(caplog: pytest.LogCaptureFi
 
 @given(st.one_of(st.text(), st.binary(), st.lists(st.text()), st.floats(), st.integers(),
                  st.dictionaries(st.text(), st.text())), st.integers(8, 100))
+@example("000000000'", 8)  # the cut holds no ', the whole is quoted with "
+@example(b"000000000'", 8)
 def test_quote_is_short_and_begins_as_the_repr_does(value: Any, limit: int) -> None:
     text = quote(value, limit)
     full = repr(value)
