@@ -67,9 +67,11 @@ def _cut_repr(value: str | bytes | bytearray, n: int) -> str:
     may hold alone."""
     text = repr(value[:n])
     if len(value) > n:
-        quote_char = "'" if isinstance(value, str) else b"'"
-        other = '"' if isinstance(value, str) else b'"'
-        if quote_char in value and other not in value and not text.rstrip(")").endswith('"'):
+        if isinstance(value, str):
+            double = "'" in value and '"' not in value
+        else:
+            double = b"'" in value and b'"' not in value
+        if double and not text.rstrip(")").endswith('"'):
             start = text.index("'")  # after b or bytearray(b
             end = text.rindex("'")
             text = f'{text[:start]}"{text[start + 1:end]}"{text[end + 1:]}'
