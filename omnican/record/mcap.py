@@ -66,7 +66,7 @@ class McapRecorder:
         from omnican import __version__
 
         self._writer = Writer(self._file, compression=CompressionType.ZSTD)
-        self._writer.start(profile="ros2", library=f"omnican {__version__}")
+        self._writer.start(profile=telemetry.ROS2, library=f"omnican {__version__}")
         self.frames = 0
         self.error: str | None = None
         self._schemas: dict[str, int] = {}
