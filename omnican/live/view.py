@@ -196,7 +196,7 @@ class LiveView:
             return foxglove.Channel(topic, schema=telemetry.JSON_SCHEMAS[schema],
                                     context=self._ctx)
         return foxglove.Channel(
-            topic, schema=foxglove.Schema(name=schema, encoding="ros2msg",
+            topic, schema=foxglove.Schema(name=schema, encoding=cdr.SCHEMA_ENCODING,
                                           data=cdr.msgdef(schema).encode()),
             message_encoding="cdr", context=self._ctx)
 

@@ -119,7 +119,7 @@ class McapRecorder:
             return 0
         sid = self._schemas.get(msg.schema)
         if sid is None:
-            sid = self._writer.register_schema(msg.schema, "ros2msg",
+            sid = self._writer.register_schema(msg.schema, cdr.SCHEMA_ENCODING,
                                                cdr.msgdef(msg.schema).encode())
             self._schemas[msg.schema] = sid
         return sid
