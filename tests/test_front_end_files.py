@@ -81,9 +81,7 @@ def names_in(source: str, name: str, folder: str) -> list[str]:
             words = [node.attr]
         elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
             words = [node.name]
-        elif isinstance(node, ast.arg):
-            words = [node.arg]
-        elif isinstance(node, ast.keyword) and node.arg:
+        elif isinstance(node, ast.arg) or (isinstance(node, ast.keyword) and node.arg):
             words = [node.arg]
         elif isinstance(node, ast.alias):
             words = [w for w in (node.name, node.asname) if w]
