@@ -1,8 +1,8 @@
 """The Zenoh front end as a plug-in (:class:`omnican.front_end.FrontEnd`): ``--zenoh``
-beside a base puts it on Zenoh in rmw_zenoh's format (:class:`~omnican.zenoh.bridge.
-ZenohBridge`: telemetry out, cmd_vel in, the services), beside a simulator alone it
-publishes the simulator's true pose (:mod:`omnican.zenoh.simulator`). Its table is
-``[zenoh]`` (:mod:`omnican.zenoh.table`), its flags :mod:`omnican.zenoh.arguments`'.
+beside a base puts it on Zenoh in rmw_zenoh's format (the bridge: telemetry out, cmd_vel
+in, the services: :mod:`omnican.zenoh.bridge`), beside a simulator alone it publishes
+the simulator's true pose (:mod:`omnican.zenoh.simulator`). Its table is ``[zenoh]``
+(:mod:`omnican.zenoh.table`), its flags :mod:`omnican.zenoh.arguments`'.
 """
 
 from __future__ import annotations
