@@ -61,6 +61,7 @@ from bench_ros2 import thread_cpu_s
 from omnican import Chassis
 from omnican.sim import SimulatedBase
 from omnican.telemetry import cdr
+from omnican.telemetry.attach import add_truth
 from omnican.zenoh import rmw
 from omnican.zenoh.bridge import open_session
 from omnican.zenoh.settings import ZenohSettings
@@ -162,6 +163,7 @@ def loop_run(seconds: float, bridge_on: bool) -> dict[str, Any]:
             if bridge_on:
                 settings = ZenohSettings(mode="client", connect=(endpoint,))
                 session = open_session(settings)
+                add_truth(base, sim)  # as a command's session does
                 bridge = ZenohBridge(base, settings, session, sim=sim).start()
                 cmd = CmdVel(watcher, bridge.cmd_topic, bytes(range(16)))
             time.sleep(1.0)  # the sessions meet, the base reaches speed

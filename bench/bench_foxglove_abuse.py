@@ -35,6 +35,7 @@ from bench_chassis import config, cycle_starts, emit
 from omnican import Chassis
 from omnican.live import FoxgloveSettings, watch
 from omnican.sim import SimulatedBase
+from omnican.telemetry.attach import add_truth
 
 TOKEN = "bench-token"
 
@@ -128,6 +129,7 @@ def one_run(rate_hz: float, seconds: float, kind: str) -> dict[str, Any]:
             contextlib.ExitStack() as stack:
         runner = base._runner
         starts = cycle_starts(base)
+        add_truth(base, sim)  # as a command's session does
         view = stack.enter_context(watch(base, sim, settings))
         assert view is not None
         time.sleep(1.0)  # set-up done

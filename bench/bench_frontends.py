@@ -42,7 +42,9 @@ def one_run(rate_hz: float, seconds: float, frontends: bool, tmp: Path) -> dict[
         messages = None
         if frontends:
             from omnican.live import watch
+            from omnican.telemetry.attach import add_truth
 
+            add_truth(base, sim)  # as a command's session does
             view = stack.enter_context(watch(base, sim, "127.0.0.1:0"))
             assert view is not None
             watcher = _Watcher(view.url)

@@ -15,6 +15,7 @@ Run: ``python bench/bench_record.py`` (about a minute; ``--quick`` for a shorter
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import tempfile
 import threading
@@ -148,10 +149,13 @@ class _Watcher(threading.Thread):
 def bench_live(rate_hz: float, seconds: float) -> None:
     """The loop with a Foxglove live view that a client watches on every topic."""
     from omnican.live import watch
+    from omnican.telemetry.attach import add_truth
 
     cfg = config(rate_hz)
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
-            watch(base, sim, "127.0.0.1:0") as view:
+            contextlib.ExitStack() as stack:
+        add_truth(base, sim)  # as a command's session does
+        view = stack.enter_context(watch(base, sim, "127.0.0.1:0"))
         assert view is not None
         watcher = _Watcher(view.url)
         watcher.start()

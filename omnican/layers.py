@@ -6,6 +6,10 @@ and analyses know nothing of each other; neither do the front ends, below the co
 line that starts them). The order is written once, here; ``tests/test_layers.py`` holds
 every module of the package to it and the docs build draws it (docs/architecture.md).
 
+The front ends are plug-ins: :data:`FRONT_ENDS` is their registry, one line each (as
+python-can's ``BACKENDS``), and their folders are the front ends' layer. Nothing of a
+front end is imported until it is asked for (:mod:`omnican.front_end`).
+
 Pure: it reads no file. A caller hands it a module's source text.
 """
 
@@ -13,7 +17,36 @@ from __future__ import annotations
 
 import ast
 from collections.abc import Mapping
-from typing import Literal
+from typing import Literal, NamedTuple
+
+
+class FrontEndEntry(NamedTuple):
+    """A front end's line in the registry: its plug-in (``"omnican.<folder>.<module>:
+    <class>"``, a subclass of :class:`omnican.front_end.FrontEnd`), the extra it needs
+    (:mod:`omnican.extras`), and its own subcommands (command, one-line help; the
+    command's module is ``omnican.cli.<command>``), which ``omnican --help`` lists
+    without importing anything of it."""
+
+    plugin: str
+    extra: str | None = None
+    commands: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def folder(self) -> str:
+        """Its folder under ``omnican/`` (a member of the front ends' layer)."""
+        return self.plugin.split(":", 1)[0].split(".")[1]
+
+
+#: The front ends, by name (its config table's name too: ``[zenoh]``), in the order a
+#: command offers them. A new front end is its folder and one line here.
+FRONT_ENDS: dict[str, FrontEndEntry] = {
+    "ros2": FrontEndEntry("omnican.ros2.front_end:Ros2FrontEnd", "ros2", (
+        ("ros2", "run the base as a ROS 2 node (DDS; no ROS install)"),)),
+    "foxglove": FrontEndEntry("omnican.live.front_end:FoxgloveFrontEnd", "foxglove"),
+    "zenoh": FrontEndEntry("omnican.zenoh.front_end:ZenohFrontEnd", "zenoh", (
+        ("zenoh", "run the base on Zenoh (rmw_zenoh's format)"),
+        ("fleet", "every base on the Zenoh network: view, stop, recover"))),
+}
 
 #: Lowest first. A set is one layer of siblings.
 LAYERS: tuple[frozenset[str], ...] = tuple(frozenset(s) for s in (
@@ -28,7 +61,8 @@ LAYERS: tuple[frozenset[str], ...] = tuple(frozenset(s) for s in (
     {"telemetry"},       # what front ends publish, built once
     {"command", "record", "analysis"},
     {"sim"},             # simulated drives and base
-    {"ros2", "live", "gamepad", "zenoh"},  # front ends
+    {"front_end"},       # what a front end is (the plug-ins' base class)
+    {"gamepad", *(entry.folder for entry in FRONT_ENDS.values())},  # front ends
     {"cli"},             # the command line, which starts the others
 ))
 

@@ -50,3 +50,55 @@ def test_a_moved_name_is_the_new_module_with_a_warning(old: str, form: str) -> N
 
 def test_the_moved_names_are_the_face_s() -> None:
     assert set(MOVED) == FACE - {"__init__", "__main__"}
+
+
+# -- the front ends' tables, one typed table of the config since issue 39 ---------------
+
+EXAMPLE = ROOT / "examples" / "robot.toml"
+
+
+def test_a_front_ends_table_under_its_old_name_warns_and_is_the_same(tmp_path: object
+                                                                       ) -> None:
+    from pathlib import Path
+
+    from omnican.config import load_config
+
+    path = Path(str(tmp_path)) / "robot.toml"
+    path.write_text(EXAMPLE.read_text() + '\n[zenoh]\nnamespace = "/r"\n[ros2]\n'
+                    'node_name = "n"\n')
+    cfg = load_config(path)
+    for name in ("zenoh", "ros2"):
+        with pytest.warns(DeprecationWarning, match=rf"ChassisConfig\.{name} moved to "
+                          rf"ChassisConfig\.front_ends\['{name}'\]; the old name goes in "
+                          "the next release"):
+            assert getattr(cfg, name) is cfg.front_ends[name]
+    with pytest.warns(DeprecationWarning, match="ChassisConfig.foxglove moved"):
+        assert cfg.foxglove is None  # type: ignore[attr-defined]
+    with pytest.raises(AttributeError):
+        cfg.nothing  # type: ignore[attr-defined]  # noqa: B018
+
+
+def test_a_config_made_with_a_table_by_its_old_name_warns_and_reads_it() -> None:
+    from dataclasses import replace
+
+    from omnican.config import default_config
+
+    with pytest.warns(DeprecationWarning, match="ChassisConfig.ros2 moved"):
+        cfg = replace(default_config(), ros2={"joint_names": ["a", "b", "c"]})
+    assert cfg.front_ends["ros2"]["joint_names"] == ("a", "b", "c")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'rosx'"):
+        replace(default_config(), rosx={})
+
+
+@pytest.mark.parametrize("name", ["ZenohTable", "ZENOH_MODES", "ZENOH_RATES",
+                                  "ZENOH_SECURITY"])
+def test_a_name_of_the_zenoh_table_moved_from_the_config_warns(name: str) -> None:
+    import omnican.config
+    import omnican.zenoh.table
+
+    with pytest.warns(DeprecationWarning, match=rf"omnican\.config\.{name} moved to "
+                      rf"omnican\.zenoh\.table\.{name}; the old name goes in the next "
+                      "release"):
+        assert getattr(omnican.config, name) is getattr(omnican.zenoh.table, name)
+    with pytest.raises(AttributeError):
+        omnican.config.KEYS  # noqa: B018  # a table module's own name, never the config's

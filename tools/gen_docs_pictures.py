@@ -80,8 +80,8 @@ def teleop(out: Path) -> None:
     from rich.console import Console
 
     from omnican import Chassis, Twist
-    from omnican.cli.common import SIM_BITRATE
     from omnican.cli.dashboard import dashboard
+    from omnican.cli.session import SIM_BITRATE
     from omnican.cli.terminal import Events
     from omnican.clock import SimClock
     from omnican.command.teleop import TeleopModel

@@ -28,8 +28,10 @@ from omnican.cli.common import (
     logging_for_command,
 )
 from omnican.extras import needs
+from omnican.layers import FRONT_ENDS
 
-# Command -> (module under omnican.cli, one-line help, the extra it needs).
+# Command -> (module under omnican.cli, one-line help, the extra it needs): the library's,
+# then each front end's own (the registry's: omnican.layers.FRONT_ENDS).
 COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "teleop": ("teleop", "drive the base from the keyboard (live dashboard)", None),
     "drive": ("drive", "drive a scripted motion and print the pose", None),
@@ -39,9 +41,8 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "calibrate": ("calibrate", "calibrate the wheel scales and the base radius", None),
     "plot": ("plot", "plot a recording: trajectory, wheel speeds, drive states", "plot"),
     "check-config": ("check_config", "validate config files and their EDS files offline", None),
-    "ros2": ("ros2", "run the base as a ROS 2 node (DDS; no ROS install)", "ros2"),
-    "zenoh": ("zenoh", "run the base on Zenoh (rmw_zenoh's format)", "zenoh"),
-    "fleet": ("fleet", "every base on the Zenoh network: view, stop, recover", "zenoh"),
+    **{command: (command.replace("-", "_"), help_text, entry.extra)
+       for entry in FRONT_ENDS.values() for command, help_text in entry.commands},
 }
 #: The modules of the subcommands, in the order ``--help`` lists them.
 SUBCOMMANDS = tuple(module for module, _, _ in COMMANDS.values())

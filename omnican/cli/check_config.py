@@ -15,7 +15,8 @@ import argparse
 import math
 from typing import TYPE_CHECKING, Any
 
-from omnican.cli.common import EXIT_OK, EXIT_USAGE, check_front_ends, fail, positive_int
+from omnican.cli.common import EXIT_OK, EXIT_USAGE, fail, positive_int
+from omnican.cli.front_ends import check_tables as check_front_ends
 from omnican.config import ChassisConfig, load_config, reference_rows
 from omnican.errors import ConfigError
 from omnican.plan.health_fields import BY_QUANTITY, HEALTH_FIELDS

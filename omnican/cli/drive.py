@@ -27,42 +27,44 @@ from dataclasses import asdict
 from typing import Any
 
 from omnican.chassis import Chassis, supervisor
+from omnican.cli import front_ends
 from omnican.cli.common import (
     EXIT_FAILURE,
     EXIT_OK,
     UsageError,
-    add_bus_arguments,
-    add_foxglove_arguments,
-    add_record_argument,
-    add_sim_time_arguments,
     finite_float,
     fixed,
-    foxglove_settings,
     interrupted_exit,
     interrupted_word,
     pose_dict,
     pose_line,
     positive_float,
-    progress_bar,
-    recording,
     rounded,
+)
+from omnican.cli.progress import progress_bar
+from omnican.cli.session import (
+    add_bus_arguments,
+    add_record_argument,
+    add_sim_time_arguments,
     session,
 )
-from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command import motion
 from omnican.command.motion import Leg
 from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
 from omnican.errors import BaseStoppedError, ConfigError, OmnicanError
-from omnican.live import prepare, watch
 from omnican.plan.health_fields import HEALTH_FIELDS
 
 DEFAULT_DURATION_S = 1.0
-_BOTH_DRIVE = ("--foxglove-control takes the motion from Foxglove: give no motion, only "
-               "--duration (or --no-foxglove-control to drive the motion given)")
-_NO_MOTION = ("give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega, --square SIDE, "
-              "or --foxglove-control or --zenoh to take it from Foxglove or Zenoh")
 SQUARE_SPEED, SQUARE_OMEGA = 0.3, 1.0  # m/s, rad/s
+
+
+def no_motion() -> str:
+    """What drive says when it is given nothing to drive: the motions, and the front ends
+    that could drive instead."""
+    flags, titles = front_ends.drive_flags()
+    return ("give a motion: --vx/--vy/--wz, --speed/--heading-deg/--omega, --square SIDE, "
+            f"or {' or '.join(flags)} to take it from {' or '.join(titles)}")
 
 
 def add_subparser(sub: Any) -> None:
@@ -95,8 +97,7 @@ def add_subparser(sub: Any) -> None:
                    help='print {"pose", "twist", "duration_s", "wheels"} (+ "true_pose" under '
                         '--sim); a run-time failure prints {"error", "pose", ...} and exits 1')
     add_record_argument(p)
-    add_foxglove_arguments(p)
-    add_zenoh_arguments(p)
+    front_ends.add_arguments(p, "base")
     add_bus_arguments(p)
     add_sim_time_arguments(p)
     p.set_defaults(func=run)
@@ -116,9 +117,10 @@ def legs(args: argparse.Namespace) -> list[Leg] | None:
 def _legs(args: argparse.Namespace) -> list[Leg] | None:
     cartesian = any(v is not None for v in (args.vx, args.vy, args.wz))
     polar = any(v is not None for v in (args.speed, args.heading_deg, args.omega))
+    refused = front_ends.motion_refused(args)  # a front end that drives instead
     if args.square is not None:
-        if getattr(args, "foxglove_control", None):
-            raise UsageError(_BOTH_DRIVE)
+        if refused is not None:
+            raise UsageError(refused)
         if cartesian or args.heading_deg is not None:
             raise UsageError("--square takes only --speed and --omega")
         if args.duration is not None:
@@ -134,10 +136,10 @@ def _legs(args: argparse.Namespace) -> list[Leg] | None:
             raise UsageError(f"motion refused: --square {args.square:g}: {exc}") from None
     if cartesian and polar:
         raise UsageError("give either --vx/--vy/--wz or --speed/--heading-deg/--omega")
-    if getattr(args, "foxglove_control", None) and (cartesian or polar):
-        raise UsageError(_BOTH_DRIVE)
+    if refused is not None and (cartesian or polar):
+        raise UsageError(refused)
     if not (cartesian or polar):
-        return None  # Foxglove's, if control is on (the config may say so)
+        return None  # a front end's to drive, if one may (the config may say so)
     duration = args.duration if args.duration is not None else DEFAULT_DURATION_S
     if polar:
         if args.heading_deg is not None and args.speed is None:
@@ -156,7 +158,7 @@ def execute(base: Chassis, plan: list[Leg]) -> motion.MotionResult:
 
 
 def take_commands(base: Chassis, duration_s: float | None,
-                  whence: str = "Foxglove") -> motion.MotionResult:
+                  whence: str) -> motion.MotionResult:
     """Command nothing for ``duration_s`` (None: until Ctrl-C) while ``whence``
     (Foxglove, Zenoh) drives; the measured twist at the end."""
     clock = base.clock
@@ -174,7 +176,7 @@ def take_commands(base: Chassis, duration_s: float | None,
 
 
 class Arbitrated:
-    """The base as a motion drives it beside front ends that drive too (Zenoh): its
+    """The base as a motion drives it beside front ends that drive too (Zenoh's): its
     commands go through a command source of the base's one arbiter, so that a cmd_vel
     publisher cannot take the base over mid-motion (it is refused while the motion
     drives), and a stop from another source (~/stop, a fleet stop) ends the motion:
@@ -206,9 +208,8 @@ def _note(text: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     plan = legs(args)
-    if plan is None and args.foxglove is None and not args.foxglove_control \
-            and not args.zenoh and not args.config:  # a config may turn Zenoh on
-        raise UsageError(_NO_MOTION)  # no server, so no Foxglove to drive
+    if plan is None and not front_ends.asked(args) and not args.config:  # a config may
+        raise UsageError(no_motion())  # turn a front end on; else none could drive
     seen: dict[str, Any] = {}  # what is known when a run-time failure ends the run
     try:
         return _run(args, plan, seen)
@@ -281,18 +282,18 @@ def _stop_said_once() -> Iterator[_StopSaidOnce]:
 
 def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]) -> int:
     with session(args) as s, _stop_said_once() as stops:
-        fox = foxglove_settings(args, s.cfg)
-        control = fox is not None and fox.control
-        zenoh = front_end_settings(args, s.cfg)
-        if given is None and not (control or zenoh):
-            raise UsageError(_NO_MOTION)
-        if given is not None and control:
-            raise UsageError(_BOTH_DRIVE)
-        if control and s.clock.lockstep:
-            raise UsageError("--foxglove-control drives in real time: drop --fast and "
-                             "--sim-speed")
-        if zenoh and s.clock.lockstep:
-            raise UsageError("--zenoh runs in real time: drop --fast and --sim-speed")
+        running = front_ends.from_args(args, s.cfg, "base")
+        drivers = [front_end for front_end in running if front_end.drives]
+        if given is None and not drivers:
+            raise UsageError(no_motion())
+        for front_end in running:
+            problem = front_end.motion_problem() if given is not None else None
+            if problem is not None:
+                raise UsageError(problem)
+        for front_end in running:
+            problem = front_end.lockstep_problem() if s.clock.lockstep else None
+            if problem is not None:
+                raise UsageError(problem)
         plan: list[Leg] = given or []
         too_much = motion.extent_problem(plan, s.cfg) if plan else None
         if too_much is not None:  # before anything moves, as a value beyond sense is
@@ -303,15 +304,11 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
             print(f"omnican: warning: vx={_number(r.vx)} vy={_number(r.vy)} wz={_number(r.wz)} "
                   f"is beyond the base's limits ({c.limit}): driving vx={fixed(a.vx, 3)} "
                   f"vy={fixed(a.vy, 3)} wz={fixed(a.wz, 3)}", file=sys.stderr)
-        if fox is not None:
-            prepare(s.cfg)  # its slow set-up before the control loop runs
-        whence = "Foxglove" if control else "Zenoh"
-        if control and zenoh:
-            whence = "Foxglove and Zenoh"
-        with Chassis.open(s.cfg, record=recording(args.record), clock=s.clock) as base, \
-                watch(base, s.sim, fox, announce=_note), \
-                zenoh_front_end(zenoh, base, s.sim, _note):
-            driven: Any = Arbitrated(base) if zenoh else base
+        front_ends.prepare(running, s.cfg)  # their slow set-up before the control loop runs
+        whence = " and ".join(front_end.title for front_end in drivers)
+        with s.open_base(record=args.record) as base, \
+                front_ends.attached(running, base, s.sim, announce=_note):
+            driven: Any = Arbitrated(base) if drivers else base
             try:
                 result = (execute(driven, plan) if plan else
                           take_commands(base, args.duration, whence))

@@ -74,7 +74,7 @@ PEER_HINT = ("a peer sees only the bases it can open a link of its own to: "
 
 
 def add_subparser(sub: Any) -> None:
-    from omnican.cli.zenoh import add_network_arguments
+    from omnican.zenoh.arguments import add_network_arguments
 
     p = sub.add_parser("fleet", help="every base on the Zenoh network: view, stop, recover",
                        description=__doc__,
@@ -108,7 +108,7 @@ def settings_of(args: argparse.Namespace) -> ZenohSettings:
     addresses are loopback or firewalled), a client sees every base its router sees."""
     from dataclasses import replace
 
-    from omnican.cli.zenoh import settings_from
+    from omnican.zenoh.arguments import settings_from
 
     settings = settings_from(args)
     if not getattr(args, "router", False):

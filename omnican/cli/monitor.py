@@ -34,14 +34,8 @@ from omnican.analysis.traffic import (
     listening,
     load_dbc,
 )
-from omnican.cli.common import (
-    EXIT_OK,
-    add_bus_arguments,
-    add_record_argument,
-    load,
-    positive_float,
-    session,
-)
+from omnican.cli.common import EXIT_OK, positive_float
+from omnican.cli.session import add_bus_arguments, add_record_argument, load, session
 
 logger = logging.getLogger(__name__)
 

@@ -24,17 +24,13 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from omnican.cli.common import (
-    EXIT_OK,
-    UsageError,
+from omnican.cli.common import EXIT_OK, UsageError, finite_float, pose_line, positive_float
+from omnican.cli.progress import progress_bar
+from omnican.cli.session import (
     add_config_argument,
     add_record_argument,
     add_sim_time_arguments,
-    finite_float,
     load,
-    pose_line,
-    positive_float,
-    progress_bar,
     recording,
     session,
 )

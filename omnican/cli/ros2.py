@@ -13,25 +13,15 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-from omnican.cli.common import (
-    EXIT_OK,
-    UsageError,
-    add_bus_arguments,
-    add_foxglove_arguments,
-    add_record_argument,
-    foxglove_settings,
-    load,
-    positive_float,
-    recording,
-    serve_lines,
-    session,
-)
-from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
+from omnican.cli import front_ends
+from omnican.cli.common import EXIT_OK, UsageError, positive_float
+from omnican.cli.console import serve_lines
+from omnican.cli.session import add_bus_arguments, add_record_argument, load, session
 from omnican.errors import ConfigError
-from omnican.live import prepare, watch
 
 
 def stdin_help() -> str:
@@ -88,15 +78,14 @@ def add_subparser(sub: Any) -> None:
                      help="this machine only: loopback, no multicast, peer 127.0.0.1")
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
-    add_foxglove_arguments(p)
-    add_zenoh_arguments(p, graph=False)  # the ROS 2 graph's flags above serve both
+    front_ends.add_arguments(p, "node")  # the ROS 2 graph's flags above serve them too
     add_record_argument(p)
     add_bus_arguments(p, sim_help="run against simulated drives in this process; DDS stays "
                       "on loopback unless --dds-interface or --dds-peer says otherwise")
     p.set_defaults(func=run)
 
 
-def settings_from(args: argparse.Namespace, table: dict[str, Any] | None, origin: str,
+def settings_from(args: argparse.Namespace, table: Mapping[str, Any] | None, origin: str,
                   env: dict[str, str] | None = None) -> Any:
     """[ros2] of the config, then ROS_DOMAIN_ID, then the flags; validated."""
     from omnican.ros2.settings import from_table, parse_remap, validate
@@ -141,58 +130,58 @@ def settings_from(args: argparse.Namespace, table: dict[str, Any] | None, origin
     return validate(s, origin)
 
 
-#: [ros2] keys the base's telemetry reads (omnican.telemetry.settings), for every front end.
-TELEMETRY_KEYS = ("odom_frame", "base_frame", "joint_names", "wheel_radius", "odom_slip",
-                  "node_name", "odom_rate_hz", "joint_states_rate_hz", "diagnostics_rate_hz")
+#: Where the ROS 2 node sits in the ROS graph: a front end beside it that joins the graph
+#: too (Zenoh's) sits there unless its own table says otherwise.
+GRAPH_KEYS = ("domain_id", "namespace", "node_name", "cmd_vel_stamped")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         import cyclonedds.domain  # noqa: F401  (the ros2 extra)
 
-        from omnican.ros2.bridge import Bridge
-        from omnican.ros2.transport import DdsTransport
+        from omnican.ros2.bridge import Bridge  # noqa: F401
+        from omnican.ros2.transport import DdsTransport  # noqa: F401
     except ImportError:
         from omnican.extras import install_hint
 
         raise UsageError(f"'ros2' needs cyclonedds: {install_hint('ros2')}") from None
-    from omnican.chassis import Chassis
+    from omnican.ros2.front_end import Ros2FrontEnd
     from omnican.ros2.settings import describe_network
+    from omnican.ros2.table import TELEMETRY_KEYS, Ros2Table
 
     cfg = load(args)
     origin = str(cfg.source) if cfg.source else "command line"
-    settings = settings_from(args, dict(cfg.ros2) if cfg.ros2 else None, origin)
-    from omnican.zenoh.settings import GRAPH_KEYS
-
-    zenoh = front_end_settings(args, cfg, {key: getattr(settings, key) for key in GRAPH_KEYS})
+    table = cfg.front_ends.get("ros2")
+    settings = settings_from(args, table, origin)
+    node = Ros2FrontEnd(settings)
+    graph = {key: getattr(settings, key) for key in GRAPH_KEYS}
+    others = front_ends.from_args(args, cfg, "node", graph)
     with session(args) as sess:
         # What every front end says alike (frames, joints, rates) is read from [ros2] by
         # the base's telemetry: the command line's values go there too.
-        run_cfg = replace(sess.cfg, ros2={**(sess.cfg.ros2 or {}), **{
-            key: getattr(settings, key) for key in TELEMETRY_KEYS}})
+        values = {**(table or {}), **{key: getattr(settings, key) for key in TELEMETRY_KEYS}}
+        run_cfg = replace(sess.cfg, front_ends=sess.cfg.front_ends.replace(
+            "ros2", Ros2Table(**values)))
         if settings.cmd_vel_timeout_s is not None:
             run_cfg = replace(run_cfg, chassis=replace(run_cfg.chassis,
                                                        cmd_timeout_s=settings.cmd_vel_timeout_s))
         # cmd_vel's publishers and Foxglove's clients drive one at a time: each is a
         # source of commands of the base's own (Chassis.command_source)
-        fox = foxglove_settings(args, run_cfg)
-        transport = DdsTransport(settings, os.environ.get("CYCLONEDDS_URI"))
-        if fox is not None:
-            prepare(run_cfg)  # its slow set-up before the control loop runs
+        running = [node, *others]
         try:
-            with Chassis.open(run_cfg, record=recording(args.record)) as base, \
-                    Bridge(base, settings, transport, sim=sess.sim) as bridge, \
-                    watch(base, sess.sim, fox, announce=lambda t: print(t, flush=True)), \
-                    zenoh_front_end(zenoh, base, sess.sim, lambda t: print(t, flush=True)):
+            front_ends.prepare(running, run_cfg)  # DDS, and the others' slow set-up
+            with sess.open_base(run_cfg, record=args.record) as base, \
+                    front_ends.attached(running, base, sess.sim,
+                                        announce=lambda t: print(t, flush=True)):
+                bridge = node.bridge
                 _print_startup(bridge, describe_network(settings), run_cfg.chassis.cmd_timeout_s)
                 try:
                     serve_lines(lambda line: command(bridge, line), args.duration)
                 finally:
-                    bridge.close()
-                    transport.close()
+                    node.close()
                     _print_summary(bridge)
         finally:
-            transport.close()
+            node.close()
     print("drives disabled", flush=True)
     return EXIT_OK
 

@@ -17,7 +17,8 @@ from rich.console import Console
 from rich.table import Table
 
 from omnican.analysis.scan import FoundNode, check, scan
-from omnican.cli.common import EXIT_FAILURE, EXIT_OK, add_bus_arguments, positive_float, session
+from omnican.cli.common import EXIT_FAILURE, EXIT_OK, positive_float
+from omnican.cli.session import add_bus_arguments, session
 from omnican.plan.node import node_layouts
 from omnican.protocol.cia402 import MODE_NAMES
 

@@ -21,20 +21,17 @@ from collections.abc import Mapping
 from typing import Any
 
 from omnican.chassis.realtime import realtime_refusal
-from omnican.cli.common import (
-    UsageError,
+from omnican.cli import front_ends
+from omnican.cli.common import UsageError, finite_float, positive_float
+from omnican.cli.console import serve_lines
+from omnican.cli.session import (
     add_config_argument,
     add_python_can_arguments,
     bus_overrides,
     check_bus,
-    finite_float,
     load,
-    positive_float,
-    serve_lines,
 )
-from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_truth
 from omnican.io.hub import DEFAULT_PORT, LoopbackHub
-from omnican.live import foxglove_address, prepare, watch
 from omnican.sim import SimulatedBase
 from omnican.sim.console import COMMANDS, command, commands_help
 
@@ -52,19 +49,9 @@ def add_subparser(sub: Any) -> None:
                    help="standard deviation added to reported positions (default 0)")
     p.add_argument("--frame-loss", type=finite_float, default=0.0, metavar="P",
                    help="probability 0-1 of losing each PDO/heartbeat frame (default 0)")
-    p.add_argument("--foxglove", nargs="?", const="", type=foxglove_address,
-                   metavar="[HOST:]PORT", help="serve the ground truth and the bus to Foxglove on "
-                   "[HOST:]PORT (default 127.0.0.1:8765; loopback unless a host is given)")
-    add_zenoh_arguments(p, commands=False, what=ZENOH_HELP)
+    front_ends.add_arguments(p, "sim")
     add_python_can_arguments(p, "bus arguments (serve on this bus instead of a hub)")
     p.set_defaults(func=run)
-
-
-ZENOH_HELP = ("publish the ground truth on Zenoh in rmw_zenoh's format: NS/sim/true_pose "
-              "(geometry_msgs/PoseStamped) at the [zenoh] odom rate, from the node "
-              "NAME_sim (omnican_sim); the [zenoh] table of the config configures it, the "
-              "flags win over it; --no-zenoh keeps the table's enabled = true off; needs "
-              "the zenoh extra")
 
 
 def parse_serve(text: str | None) -> tuple[str, int]:
@@ -101,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.frame_loss <= 1:
         raise UsageError(f"--frame-loss must be 0-1, got {args.frame_loss:g}")
     options = {"encoder_noise": args.encoder_noise, "frame_loss": args.frame_loss}
-    zenoh = front_end_settings(args, cfg)
+    running = front_ends.from_args(args, cfg, "sim")
     hub = None
     if on_bus:
         check_bus(cfg.bus)
@@ -117,8 +104,7 @@ def run(args: argparse.Namespace) -> int:
         where = hub.url
         connect = f"omnican teleop -i remote -c {hub.url}"
     try:
-        if args.foxglove is not None:
-            prepare(cfg)  # its slow set-up before the simulated drives run
+        front_ends.prepare(running, cfg)  # their slow set-up before the drives run
         # Its drives keep up with a control loop in another process: at that loop's
         # real-time priority where this process may, else a note on how to get it.
         with SimulatedBase.from_config(cfg, rt_priority=cfg.chassis.rt_priority,
@@ -132,8 +118,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)
             print("type a command here: " + ", ".join(syntax for syntax, _ in COMMANDS),
                   flush=True)
-            with watch(None, sim, args.foxglove, announce=_say), \
-                    zenoh_truth(zenoh, sim, _say):
+            with front_ends.attached(running, None, sim, announce=_say):
                 serve(sim, args.duration)
             if hub is not None:  # its clients see the bus go before the drives go quiet
                 hub.close()

@@ -24,28 +24,22 @@ from rich.live import Live
 from omnican.chassis import Chassis
 from omnican.chassis.actions import Action, Outcome
 from omnican.chassis.arbiter import CommandSource
+from omnican.cli import front_ends
 from omnican.cli.common import (
     EXIT_FAILURE,
     EXIT_OK,
     UsageError,
-    add_bus_arguments,
-    add_foxglove_arguments,
-    add_record_argument,
-    foxglove_settings,
     pose_line,
     positive_float,
-    recording,
-    session,
 )
 from omnican.cli.dashboard import (
     dashboard,
 )
+from omnican.cli.session import add_bus_arguments, add_record_argument, session
 from omnican.cli.terminal import Events, Screen, cbreak, logs_into, read_keys
-from omnican.cli.zenoh import add_zenoh_arguments, front_end_settings, zenoh_front_end
 from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
 from omnican.gamepad.device import Gamepad, config_table, pad_command, teleop_model_for
-from omnican.live import prepare, watch
 
 LOOP_S = 0.05
 
@@ -61,14 +55,16 @@ def add_subparser(sub: Any) -> None:
     p.add_argument("--key-timeout", type=float, default=0.6, metavar="S",
                    help="stop when no key arrives for this long (default 0.6; 0: never)")
     add_record_argument(p)
-    add_foxglove_arguments(p)
+    front_ends.add_arguments(p, "base", inputs=add_gamepad_argument)
+    add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
+    p.set_defaults(func=run)
+
+
+def add_gamepad_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gamepad", nargs="?", const="", metavar="DEVICE",
                    help="drive with a gamepad (evdev; default: the first one found, or e.g. "
                         "/dev/input/event5): hold LB/L1 to move, RB/R1 for turbo, left stick "
                         "moves, right stick turns; the [gamepad] table of --config maps it")
-    add_zenoh_arguments(p)
-    add_bus_arguments(p, sim_help="drive simulated drives in this process (no hardware)")
-    p.set_defaults(func=run)
 
 
 def beyond_limits(speed: float, turn: float, keys: TeleopModel) -> list[str]:
@@ -225,13 +221,11 @@ def run(args: argparse.Namespace) -> int:
         title = f"omnican teleop - {where}, nodes {nodes}"
         if pad is not None:
             title += f" - gamepad {pad.name}"
-        fox = foxglove_settings(args, s.cfg)
-        zenoh = front_end_settings(args, s.cfg)
+        running = front_ends.from_args(args, s.cfg, "base")
         # Foxglove's clients, Zenoh's cmd_vel publishers may drive too
-        shared = (fox is not None and fox.control) or zenoh is not None
+        shared = any(front_end.drives for front_end in running)
         console.print(f"{title}: bringing the drives up...", style="dim")
-        if fox is not None:
-            prepare(s.cfg)  # its slow set-up before the control loop runs
+        front_ends.prepare(running, s.cfg)  # their slow set-up before the control loop runs
 
         screen = Screen(fd)
 
@@ -239,17 +233,13 @@ def run(args: argparse.Namespace) -> int:
             console.print(text, style="dim")
             events.lines.append(f"{time.strftime('%H:%M:%S')} {text}")
 
-        with Chassis.open(s.cfg, record=recording(args.record)) as base, \
-                watch(base, s.sim, fox, announce=announce) as view, \
-                zenoh_front_end(zenoh, base, s.sim, announce) as bridge, \
+        with s.open_base(record=args.record) as base, \
+                front_ends.attached(running, base, s.sim, announce), \
                 cbreak(fd, lambda: events.say(SUSPEND_REFUSED), screen.resumed), \
                 logs_into(events), \
                 Live(console=console, screen=True, auto_refresh=False, transient=True) as live:
             screen.live = live
-            if view is not None:
-                title += f" - Foxglove {view.url}" + (" (control on)" if fox.control else "")
-            if bridge is not None:
-                title += f" - Zenoh {bridge.settings.node_fq_name}"
+            title += front_ends.headlines(running)
             try:
                 drive_loop(base, keys, fd, live, title, events, pad, shared, screen)
             except KeyboardInterrupt:  # Ctrl-C quits like Esc

@@ -17,27 +17,19 @@ ros2 and sim take --zenoh to run the same beside what they do.
 from __future__ import annotations
 
 import argparse
-import contextlib
-from collections.abc import Callable, Iterator, Mapping
-from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
-from omnican.cli.common import (
-    EXIT_OK,
-    UsageError,
-    add_bus_arguments,
-    load,
-    positive_float,
-    serve_lines,
-    session,
+from omnican.cli.common import EXIT_OK, UsageError, positive_float, positive_int
+from omnican.cli.console import serve_lines
+from omnican.cli.session import add_bus_arguments, load, session
+from omnican.zenoh.arguments import (
+    add_graph_arguments,
+    add_network_arguments,
+    preflight,
+    settings_from,
 )
-from omnican.config import ZENOH_MODES, ZENOH_SECURITY
-from omnican.errors import ConfigError
-
-if TYPE_CHECKING:
-    from omnican.chassis import Chassis
-    from omnican.config import ChassisConfig
-    from omnican.zenoh.settings import ZenohSettings
+from omnican.zenoh.front_end import node_line, zenoh_front_end
 
 
 def add_subparser(sub: Any) -> None:
@@ -50,201 +42,12 @@ def add_subparser(sub: Any) -> None:
                    help="stop after S seconds (default: until Ctrl-C or 'quit')")
     add_bus_arguments(p, sim_help="run against simulated drives in this process")
     p.set_defaults(func=run)
-    from omnican.cli import zenoh_credentials
-
     more = p.add_subparsers(title="subcommand (instead of running the base)",
                             metavar="credentials", parser_class=type(p))
-    zenoh_credentials.add_subparser(more)
+    add_credentials_subparser(more)
 
 
 CONSOLE_SOURCE = "omnican zenoh's console"  # what the other sources are told of it
-ZENOH_HELP = ("also put the base on Zenoh, in rmw_zenoh's format (as omnican zenoh does: "
-              "odom, tf, joint_states, diagnostics, battery_state out, cmd_vel in through "
-              "the one arbiter, ~/stop, ~/recover, ~/reset_odometry); the [zenoh] table of "
-              "the config configures it, the flags win over it; --no-zenoh keeps the "
-              "table's enabled = true off; needs the zenoh extra")
-
-
-def add_zenoh_arguments(parser: argparse.ArgumentParser, graph: bool = True,
-                        commands: bool = True, what: str = ZENOH_HELP) -> None:
-    """``--zenoh`` (and ``--no-zenoh``) for a command that runs something else too, with
-    the network flags and, unless the command has its own (``omnican ros2``: one ROS
-    graph serves both), the graph flags."""
-    parser.add_argument("--zenoh", action=argparse.BooleanOptionalAction, default=None,
-                        help=what)
-    if graph:
-        add_graph_arguments(parser, commands, title="Zenoh: the ROS 2 graph "
-                            "(override [zenoh] of the config)")
-    add_network_arguments(parser)
-
-
-def add_graph_arguments(parser: argparse.ArgumentParser, commands: bool = True,
-                        title: str = "ROS 2 graph (override [zenoh] of the config)") -> None:
-    """Where the base sits in the ROS 2 graph: --namespace, --node-name, --domain-id,
-    --cmd-vel-stamped (``commands``). Not given: the [zenoh] table's, else its defaults."""
-    node = parser.add_argument_group(title)
-    node.add_argument("--namespace", metavar="NS",
-                      help="the robot's namespace, e.g. /robot1 (default none)")
-    node.add_argument("--node-name", metavar="NAME",
-                      help="node name (default omnican" + ("" if commands else
-                                                           "; the simulator's: NAME_sim")
-                      + ")")
-    node.add_argument("--domain-id", type=int, metavar="N",
-                      help="ROS domain 0-232: the first chunk of every key (default 0)")
-    if commands:
-        node.add_argument("--cmd-vel-stamped", action="store_true", default=None,
-                          help="cmd_vel carries geometry_msgs/TwistStamped")
-
-
-def add_network_arguments(parser: argparse.ArgumentParser) -> None:
-    """How a Zenoh session connects: --zenoh-connect, --zenoh-listen, --zenoh-mode,
-    --zenoh-multicast, --zenoh-config (the base's front end and ``omnican fleet`` alike).
-    Not given: the [zenoh] table's, else its defaults."""
-    net = parser.add_argument_group("Zenoh network (override [zenoh] of the config)")
-    net.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
-                     help="connect to a router or peer, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    net.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
-                     help="listen on ENDPOINT, e.g. tcp/127.0.0.1:0 (repeatable)")
-    net.add_argument("--zenoh-mode", choices=ZENOH_MODES, default=None,
-                     help="a peer (default) or a client of the router")
-    net.add_argument("--zenoh-multicast", action=argparse.BooleanOptionalAction,
-                     default=None, help="find peers by multicast scouting (default off)")
-    net.add_argument("--zenoh-config", metavar="FILE",
-                     help="a Zenoh JSON5 config (TLS, authentication, access control), "
-                          "applied before the flags")
-    net.add_argument("--zenoh-credentials", metavar="DIR",
-                     help="the fleet's credentials ('omnican zenoh credentials' made them): "
-                          "mutual TLS, and a base's or router's access control")
-    net.add_argument("--zenoh-identity", metavar="ROLE/NAME",
-                     help="whose credentials: base/NAME (runs under /NAME), operator/NAME, "
-                          "viewer/NAME, router/NAME")
-    net.add_argument("--zenoh-security", choices=ZENOH_SECURITY, default=None,
-                     help="mtls (the default with --zenoh-credentials) or none")
-    net.add_argument("--zenoh-allow-insecure", action="store_true", default=None,
-                     help="listen beyond loopback without credentials: anyone who reaches "
-                          "it could drive the robot")
-
-
-#: flag (argparse's name) -> the ZenohSettings field it sets.
-_FLAGS = {"domain_id": "domain_id", "namespace": "namespace", "node_name": "node_name",
-          "cmd_vel_stamped": "cmd_vel_stamped", "zenoh_mode": "mode",
-          "zenoh_multicast": "multicast", "zenoh_config": "config_file",
-          "zenoh_credentials": "credentials", "zenoh_identity": "identity",
-          "zenoh_security": "security", "zenoh_allow_insecure": "allow_insecure"}
-_NETWORK = ("zenoh_connect", "zenoh_listen", "zenoh_mode", "zenoh_multicast", "zenoh_config",
-            "zenoh_credentials", "zenoh_identity", "zenoh_security", "zenoh_allow_insecure")
-
-
-def settings_from(args: argparse.Namespace, cfg: ChassisConfig | None = None,
-                  graph: Mapping[str, Any] | None = None) -> ZenohSettings:
-    """The Zenoh settings: the flags given, then the config's [zenoh] table, then
-    ``graph`` (``omnican ros2``'s node: namespace, node name, domain, cmd_vel type),
-    then the defaults; validated (ConfigError naming the file or the command line)."""
-    from omnican.zenoh.settings import checked, from_table
-
-    origin = str(cfg.source) if cfg is not None and cfg.source else "config"
-    s = from_table(cfg.zenoh if cfg is not None else None, origin, graph)
-    changes: dict[str, Any] = {}
-    for flag, key in _FLAGS.items():
-        value = getattr(args, flag, None)
-        if value is not None:
-            changes[key] = value
-    for flag, key in (("zenoh_connect", "connect"), ("zenoh_listen", "listen")):
-        if getattr(args, flag, None):
-            changes[key] = tuple(getattr(args, flag))
-    return checked(s, "command line", **changes)
-
-
-def front_end_settings(args: argparse.Namespace, cfg: ChassisConfig,
-                       graph: Mapping[str, Any] | None = None) -> ZenohSettings | None:
-    """The Zenoh front end's settings when the command is to run one (``--zenoh``, a
-    ``--zenoh-*`` flag, or ``[zenoh] enabled = true`` without ``--no-zenoh``), else None.
-    Checked before any drive comes up: a missing extra, a bad value or a Zenoh config
-    file that is not there is one line (UsageError, ConfigError)."""
-    network = [f"--{flag.replace('_', '-')}" for flag in _NETWORK if getattr(args, flag, None)]
-    asked = getattr(args, "zenoh", None)
-    if asked is False and network:
-        raise UsageError(f"{network[0]} is for the Zenoh front end: drop --no-zenoh")
-    table = cfg.zenoh.enabled if cfg.zenoh is not None else False
-    if not (asked or network or (asked is None and table)):
-        return None
-    from omnican.extras import needs
-
-    why = needs("zenoh", "--zenoh")
-    if why is not None:
-        raise UsageError(why)
-    settings = settings_from(args, cfg, graph)
-    preflight(settings)
-    return settings
-
-
-def preflight(settings: ZenohSettings, base: bool = True) -> None:
-    """What opening the session would refuse, refused now, before any drive comes up: a
-    Zenoh config or credentials that are not there (named), credentials not a base's
-    (``base``: the session is a base's) or not its namespace's, a session that would
-    listen beyond loopback without credentials. ConfigError, one line."""
-    from omnican.zenoh.bridge import session_config
-    from omnican.zenoh.settings import base_problem
-
-    problem = base_problem(settings) if base else None
-    if problem is not None:
-        raise ConfigError(problem)
-    session_config(settings)
-
-
-@contextlib.contextmanager
-def zenoh_front_end(settings: ZenohSettings | None, base: Chassis, sim: Any = None,
-                    announce: Callable[[str], None] | None = None) -> Iterator[Any]:
-    """The base on Zenoh while the block runs (yields the
-    :class:`~omnican.zenoh.bridge.ZenohBridge`; None and nothing done without
-    ``settings``): a session opened as the settings say, the bridge on it (``sim``: the
-    simulator's true pose goes along), its one startup line to ``announce``; the bridge,
-    then the session closed at the end."""
-    if settings is None:
-        yield None
-        return
-    from omnican.zenoh.bridge import ZenohBridge, open_session
-
-    with contextlib.closing(open_session(settings)) as session, \
-            ZenohBridge(base, settings, session, sim=sim) as bridge:
-        if announce is not None:
-            out = ", ".join(pub.name for pub in bridge.publishers.values())
-            announce(f"{node_line(bridge)}: in {bridge.cmd_topic}; out {out}")
-        yield bridge
-
-
-@contextlib.contextmanager
-def zenoh_truth(settings: ZenohSettings | None, sim: Any,
-                announce: Callable[[str], None] | None = None) -> Iterator[Any]:
-    """``omnican sim --zenoh``: the simulator's true pose on Zenoh, from the node
-    ``<node name>_sim``, while the block runs (None and nothing done without
-    ``settings``); its one startup line to ``announce``."""
-    if settings is None:
-        yield None
-        return
-    from omnican.zenoh.bridge import open_session
-    from omnican.zenoh.simulator import publish_truth
-
-    settings = replace(settings, node_name=f"{settings.node_name}_sim")
-    with contextlib.closing(open_session(settings)) as session, \
-            publish_truth(sim, settings, session) as truth:
-        if announce is not None:
-            announce(f"{node_line(truth)}: out {truth.publisher.name} "
-                     f"{truth.rate_hz:g} Hz")
-        yield truth
-
-
-def node_line(front: Any) -> str:
-    """``Zenoh node /robot1/omnican on domain 0 (session ..., peer; connect: ...;
-    multicast off)``: the first line a Zenoh front end says."""
-    s = front.settings
-    node = s.node_fq_name
-    where = ", ".join(s.connect) or "no router given"
-    who = s.who
-    secured = f"mTLS as {who}" if who is not None else "no credentials"
-    return (f"Zenoh node {node} on domain {s.domain_id} (session {front.node.session_id}, "
-            f"{s.mode}; connect: {where}; multicast {'on' if s.multicast else 'off'}; "
-            f"{secured})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -253,11 +56,9 @@ def run(args: argparse.Namespace) -> int:
     why = needs("zenoh", "'zenoh'")
     if why is not None:
         raise UsageError(why)
-    from omnican.chassis import Chassis
-
     settings = settings_from(args, load(args))
     preflight(settings)
-    with session(args) as sess, Chassis.open(sess.cfg) as base, \
+    with session(args) as sess, sess.open_base() as base, \
             zenoh_front_end(settings, base, sess.sim) as bridge:
         _print_startup(bridge, base.cfg.chassis.cmd_timeout_s)
         try:
@@ -312,3 +113,144 @@ def _command(bridge: Any, sim: Any, line: str) -> str | None:
     if words[0].lower() == "recover":
         return recover()
     return f"error: unknown command {words[0]!r} (recover, quit; more under --sim)"
+
+
+# ------------------------------------------------------------ credentials
+
+CREDENTIALS_HELP = """\
+omnican zenoh credentials: a fleet's certificates and Zenoh configs, in one folder.
+
+Makes a certificate authority (CA) and, for each member named, a certificate and key
+(its common name the name) and its Zenoh config, in three roles and the routers:
+
+  base      publishes its telemetry and serves its services under /NAME; takes cmd_vel,
+            ~/recover and its other services from operators only, ~/stop from viewers too
+  operator  may drive, stop and recover every base
+  viewer    reads everything, and may call ~/stop (a stop is not a command)
+  router    passes on what each may send (a fleet without one gets 'router')
+
+Every link is mutual TLS with the CA's certificates; the bases and routers enforce the
+roles (Zenoh's access control, default deny). Run it again on the same folder to add
+members (--remove takes one out): the CA and the certificates already made are kept, and
+every base's and router's zenoh.json5 is written anew (copy them over and restart).
+Use them with --zenoh-credentials DIR --zenoh-identity ROLE/NAME. Needs cryptography
+(the zenoh-security extra) on this machine only.
+"""
+
+#: (flag, role) in the order they are told.
+_ROLE_FLAGS = (("router", "router"), ("base", "base"), ("operator", "operator"),
+               ("viewer", "viewer"))
+DEFAULT_ROUTER = "router"
+
+
+def add_credentials_subparser(sub: Any) -> None:
+    p = sub.add_parser("credentials", help="make a fleet's certificates and Zenoh configs "
+                       "(bases, operators, viewers)", description=CREDENTIALS_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("folder", metavar="DIR", type=Path,
+                   help="the folder to make (or to add members to)")
+    p.add_argument("--base", action="append", default=[], metavar="NAME",
+                   help="a base; it runs under the namespace /NAME (repeatable)")
+    p.add_argument("--operator", action="append", default=[], metavar="NAME",
+                   help="an operator: may drive, stop and recover (repeatable)")
+    p.add_argument("--viewer", action="append", default=[], metavar="NAME",
+                   help="a viewer: reads, and may stop (repeatable)")
+    p.add_argument("--router", action="append", default=[], metavar="NAME",
+                   help=f"a router (repeatable; default one called {DEFAULT_ROUTER!r})")
+    p.add_argument("--remove", action="append", default=[], metavar="NAME",
+                   help="take a member out: no base or router lets its certificate do "
+                        "anything any more (repeatable)")
+    p.add_argument("--domain-id", type=int, metavar="N",
+                   help="ROS domain 0-232 of the fleet's keys (default 0; kept from then on)")
+    p.add_argument("--days", type=positive_int, default=730, metavar="N",
+                   help="how long a member's certificate is valid (default 730)")
+    p.add_argument("--installed-at", type=Path, metavar="PATH",
+                   help="where the folder will be on the members' machines: the paths "
+                        "zenohd or rmw_zenoh read in the configs (default DIR; omnican "
+                        "finds the files itself)")
+    p.set_defaults(func=run_credentials)
+
+
+def run_credentials(args: argparse.Namespace) -> int:
+    from omnican.extras import needs
+
+    why = needs("zenoh-security", "'zenoh credentials'")
+    if why is not None:
+        raise UsageError(why)
+    from omnican.zenoh.credentials import make, read_roster
+    from omnican.zenoh.security import Identity, check_name
+
+    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
+        raise UsageError(f"--domain-id {args.domain_id}: not 0..232")
+    add: list[Identity] = []
+    for flag, role in _ROLE_FLAGS:
+        for name in getattr(args, flag):
+            try:
+                add.append(Identity(role, check_name(role, name)))
+            except ValueError as exc:
+                raise UsageError(f"--{flag} {name}: {exc}") from None
+    root: Path = args.folder
+    before = read_roster(root.expanduser().resolve()) if root.exists() else None
+    if before is None and not add:
+        raise UsageError("name the members: --base NAME, --operator NAME, --viewer NAME")
+    has_router = any(w.role == "router" for w in add) or (
+        before is not None and before.names("router"))
+    if not has_router:
+        add.insert(0, Identity("router", DEFAULT_ROUTER))
+    report = make(root, add, domain_id=args.domain_id, remove=tuple(args.remove),
+                  days=args.days, installed_at=args.installed_at,
+                  say=lambda line: print(line, flush=True))
+    roster = report.roster
+    counts = ", ".join(f"{len(roster.names(role))} {role}{'s' * (len(roster.names(role)) != 1)}"
+                       for role in ("router", "base", "operator", "viewer"))
+    loaded = _check_loads(report)
+    print(f"fleet of domain {roster.domain_id} in {report.root}: {counts} (made "
+          f"{len(report.made)}, kept {len(report.kept)}); {loaded}", flush=True)
+    changed = report.made or report.removed
+    if before is not None and changed and (before.names("base") or before.names("router")):
+        print("the access control changed: give every base and router its new zenoh.json5 "
+              "and restart it", flush=True)
+    _print_use(report.root, roster)
+    return EXIT_OK
+
+
+def _check_loads(report: Any) -> str:
+    """Every member's zenoh.json5 read back by Zenoh (when it is installed here)."""
+    from omnican.extras import missing
+    from omnican.zenoh.credentials import Files
+
+    if missing("zenoh") is not None:
+        return "Zenoh is not installed here to read them back"
+    import zenoh
+
+    from omnican.errors import ConfigError
+    from omnican.zenoh.bridge import zenoh_words
+
+    for who in report.roster.identities():
+        path = Files.of(report.root, who).config
+        try:
+            zenoh.Config.from_file(str(path))
+        except zenoh.ZError as exc:
+            raise ConfigError(f"{path}: Zenoh cannot read it: {zenoh_words(exc)}") from None
+    return "every zenoh.json5 reads in Zenoh"
+
+
+def _print_use(root: Path, roster: Any) -> None:
+    """How each role uses its folder (one line per role the fleet has)."""
+    creds = f"--zenoh-credentials {root}"
+    uses = {
+        "router": (f"omnican fleet --router {creds} --zenoh-identity router/NAME "
+                   "--zenoh-listen tls/0.0.0.0:7447  (or zenohd -c "
+                   f"{root}/router/NAME/zenoh.json5)"),
+        "base": (f"omnican zenoh {creds} --zenoh-identity base/NAME --namespace /NAME "
+                 "--zenoh-connect tls/ROUTER:7447"),
+        "operator": (f"omnican fleet {creds} --zenoh-identity operator/NAME "
+                     "--zenoh-connect tls/ROUTER:7447"),
+        "viewer": (f"omnican fleet {creds} --zenoh-identity viewer/NAME "
+                   "--zenoh-connect tls/ROUTER:7447"),
+    }
+    print(f"each machine needs {root}/ca.pem and its own ROLE/NAME folder (never ca.key); "
+          "then:", flush=True)
+    for role in ("router", "base", "operator", "viewer"):
+        if roster.names(role):
+            print(f"  {role + ':':<9} {uses[role]}", flush=True)

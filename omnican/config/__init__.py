@@ -12,6 +12,9 @@ Three parts, data flowing one way:
   ranges; :mod:`omnican.config.wheels` the ``[[wheel]]`` tables and their EDS files).
   Every problem is a :class:`~omnican.errors.ConfigError` whose message names the key, e.g.
   ``robot.toml: wheel[2].node_id: must be 1-127, got 200``.
+- :mod:`omnican.config.front_ends`: the front ends' tables (``[ros2]``, ``[foxglove]``,
+  ``[zenoh]``...), each declared by its front end and read through the front ends'
+  registry; a config holds them as one typed table (``cfg.front_ends``).
 
 The names below are the package's; import them from here.
 """
@@ -19,7 +22,9 @@ The names below are the package's; import them from here.
 from __future__ import annotations
 
 import sys
+from typing import Any
 
+from omnican.config.front_ends import FrontEndTable, FrontEndTables, TableSpec, moved_name
 from omnican.config.model import (
     DEMO_CHASSIS,
     DEMO_ESTOP,
@@ -32,7 +37,6 @@ from omnican.config.model import (
     SimTruth,
     VendorSetting,
     WheelConfig,
-    ZenohTable,
     default_config,
     derive_scales,
 )
@@ -55,10 +59,8 @@ from omnican.config.schema import (
     SDO_TYPES,
     VELOCITY_UNITS,
     WHEEL_EDS,
-    ZENOH_MODES,
-    ZENOH_RATES,
-    ZENOH_SECURITY,
     Key,
+    defaults_of,
     reference_rows,
     schema_defaults,
 )
@@ -86,20 +88,20 @@ __all__ = [
     "SDO_TYPES",
     "VELOCITY_UNITS",
     "WHEEL_EDS",
-    "ZENOH_MODES",
-    "ZENOH_RATES",
-    "ZENOH_SECURITY",
     "ChassisConfig",
     "ChassisSettings",
     "EstopSettings",
+    "FrontEndTable",
+    "FrontEndTables",
     "Key",
     "PowerSettings",
     "SimTruth",
+    "TableSpec",
     "VendorSetting",
     "WheelConfig",
-    "ZenohTable",
     "check_eds_files",
     "default_config",
+    "defaults_of",
     "derive_scales",
     "gamepad_values",
     "load_config",
@@ -109,3 +111,9 @@ __all__ = [
     "tomllib",
     "with_live_limits",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """Names that moved to a front end's own table module keep working for one release,
+    with a DeprecationWarning naming their new home (``ZenohTable``...)."""
+    return moved_name(name)

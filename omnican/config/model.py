@@ -13,6 +13,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from omnican.config.front_ends import FrontEndTable, FrontEndTables, read_table
+from omnican.config.front_ends import moved as moved_table
 from omnican.config.schema import (
     CHASSIS_SCALED,
     VELOCITY_UNITS,
@@ -22,6 +24,7 @@ from omnican.config.schema import (
 from omnican.core.kinematics import LAYOUTS, OmniKinematics
 from omnican.core.limits import VelocityLimits
 from omnican.errors import ConfigError
+from omnican.layers import FRONT_ENDS
 from omnican.protocol.cia402 import Mode
 
 
@@ -114,40 +117,6 @@ class SimTruth:
     position_scale: tuple[float, ...] | None = None  # one per wheel, counts per m
 
 
-_ZENOH = schema_defaults("zenoh")
-
-
-@dataclass(frozen=True)
-class ZenohTable:
-    """The ``[zenoh]`` table, its types and ranges checked (the names and endpoints are
-    checked where they are used, by ``omnican.zenoh.settings``). ``config_file`` and
-    ``credentials`` are made whole against the config file's folder; ``given``: the keys
-    the table gave (under ``omnican ros2 --zenoh`` the others of the ROS graph are the
-    ROS 2 node's)."""
-
-    enabled: bool = _ZENOH["enabled"]
-    domain_id: int = _ZENOH["domain_id"]
-    namespace: str = _ZENOH["namespace"]
-    node_name: str = _ZENOH["node_name"]
-    mode: str = _ZENOH["mode"]
-    connect: tuple[str, ...] = ()
-    listen: tuple[str, ...] = ()
-    multicast: bool = _ZENOH["multicast"]
-    config_file: str | None = _ZENOH["config_file"]
-    cmd_vel_stamped: bool = _ZENOH["cmd_vel_stamped"]
-    odom_rate_hz: float = _ZENOH["odom_rate_hz"]
-    joint_states_rate_hz: float = _ZENOH["joint_states_rate_hz"]
-    battery_state_rate_hz: float = _ZENOH["battery_state_rate_hz"]
-    status_rate_hz: float = _ZENOH["status_rate_hz"]
-    wheels_rate_hz: float = _ZENOH["wheels_rate_hz"]
-    summary_rate_hz: float = _ZENOH["summary_rate_hz"]
-    security: str | None = _ZENOH["security"]
-    credentials: str | None = _ZENOH["credentials"]
-    identity: str | None = _ZENOH["identity"]
-    allow_insecure: bool = _ZENOH["allow_insecure"]
-    given: frozenset[str] = field(default=frozenset(), compare=False)
-
-
 #: What a ``[chassis]`` table must give (or may leave to the wheels' angle_deg), for a
 #: ChassisSettings made in code: the demo base's (:func:`default_config`).
 DEMO_CHASSIS: dict[str, Any] = {"layout": "b21", "base_radius": 0.19}
@@ -205,23 +174,52 @@ class ChassisSettings:
         return _CHASSIS[key]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class ChassisConfig:
-    """The whole robot. ``bus`` is passed to ``can.Bus``; None = python-can's own config."""
+    """The whole robot. ``bus`` is passed to ``can.Bus``; None = python-can's own config.
+    ``front_ends``: the front ends' tables the config gave (``[ros2]``, ``[foxglove]``,
+    ``[zenoh]``...), each its front end's own type (a table given as a mapping of its
+    keys is read as a config file's is)."""
 
     chassis: ChassisSettings
     wheels: tuple[WheelConfig, ...]
     bus: Mapping[str, Any] | None = None
     source: Path | None = field(default=None, compare=False)
-    ros2: Mapping[str, Any] | None = None  # the [ros2] table, schema-checked (omnican ros2)
     power: PowerSettings | None = None  # the [power] table
     estop: EstopSettings | None = None  # the [estop] table
-    foxglove: Mapping[str, Any] | None = None  # the [foxglove] table, schema-checked (--foxglove)
     # The [sim] table: not the robot's description, so not part of equality.
     sim: SimTruth | None = field(default=None, compare=False)
     # The [gamepad] table as given, checked (omnican.command.gamepad maps a pad with it).
     gamepad: Mapping[str, Any] | None = None
-    zenoh: ZenohTable | None = None  # the [zenoh] table (--zenoh, omnican zenoh)
+    front_ends: FrontEndTables = field(default_factory=FrontEndTables)
+
+    def __init__(self, chassis: ChassisSettings, wheels: tuple[WheelConfig, ...],
+                 bus: Mapping[str, Any] | None = None, source: Path | None = None,
+                 power: PowerSettings | None = None, estop: EstopSettings | None = None,
+                 sim: SimTruth | None = None, gamepad: Mapping[str, Any] | None = None,
+                 front_ends: Mapping[str, Any] | None = None, **moved: Any) -> None:
+        tables = {name: table if isinstance(table, FrontEndTable) else read_table(name, table)
+                  for name, table in (front_ends or {}).items()}
+        for name, given in moved.items():  # ros2=, zenoh=...: the tables' old names
+            if name not in FRONT_ENDS:
+                raise TypeError(f"ChassisConfig() got an unexpected keyword argument {name!r}")
+            if given is None:
+                tables.pop(name, None)
+                continue
+            table = given if isinstance(given, FrontEndTable) else read_table(name, given)
+            tables[name] = moved_table("ChassisConfig", name, table)
+        for name, value in (("chassis", chassis), ("wheels", wheels), ("bus", bus),
+                            ("source", source), ("power", power), ("estop", estop),
+                            ("sim", sim), ("gamepad", gamepad),
+                            ("front_ends", FrontEndTables(tables))):
+            object.__setattr__(self, name, value)
+
+    def __getattr__(self, name: str) -> Any:
+        """``cfg.zenoh`` & co.: a front end's table under its name before the tables were
+        one (``cfg.front_ends``), for one release."""
+        if name in FRONT_ENDS:
+            return moved_table("ChassisConfig", name, self.front_ends.get(name))
+        raise AttributeError(f"'ChassisConfig' object has no attribute {name!r}")
 
     def kinematics(self) -> OmniKinematics:
         c = self.chassis

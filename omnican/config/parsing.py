@@ -15,6 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from omnican.config.front_ends import read_tables
 from omnican.config.model import (
     ChassisConfig,
     ChassisSettings,
@@ -22,9 +23,8 @@ from omnican.config.model import (
     PowerSettings,
     SimTruth,
     WheelConfig,
-    ZenohTable,
 )
-from omnican.config.reader import Reader, suggest
+from omnican.config.reader import Reader, short, suggest
 from omnican.config.schema import (
     BUS_KEYS,
     CHASSIS_SCALED,
@@ -37,8 +37,6 @@ from omnican.config.schema import (
     NUMBER,
     PDO_MAPPINGS,
     SCHEMA,
-    ZENOH_MODES,
-    ZENOH_SECURITY,
 )
 from omnican.config.wheels import check_eds_files, check_wheels, parse_wheel
 from omnican.core.kinematics import LAYOUTS
@@ -51,8 +49,13 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib  # type: ignore[import-not-found,unused-ignore]
 
-#: The tables of a config: [bus] (free-form, passed to can.Bus) and SCHEMA's.
-SECTIONS = ("bus", *(section for section in SCHEMA if "." not in section))
+
+
+def sections() -> tuple[str, ...]:
+    """The tables of a config: [bus] (free-form, passed to can.Bus) and SCHEMA's (the
+    front ends' among them)."""
+    return ("bus", *(section for section in SCHEMA if "." not in section))
+
 _UNLIMITED_OK = ("max_speed", "max_angular_speed")  # inf: no such limit
 _SCALED = CHASSIS_SCALED
 
@@ -73,9 +76,10 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
                  check_eds: bool = True) -> ChassisConfig:
     """Validate a parsed TOML document into a :class:`ChassisConfig`."""
     r = Reader(origin)
+    known = sections()
     for key in data:
-        if key not in SECTIONS:
-            raise r.fail(key, f"unknown section {key!r}{suggest(key, SECTIONS)}")
+        if key not in known:
+            raise r.fail(key, f"unknown section {key!r}{suggest(key, known)}")
     bus = data.get("bus")
     if bus is not None and not isinstance(bus, dict):
         raise r.fail("bus", "must be a table")
@@ -136,20 +140,13 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
         parse_wheel(r, i, w, settings, base_dir) for i, w in enumerate(raw_wheels)
     )
     check_wheels(r, settings, wheels)
-    ros2 = r.table("ros2", data["ros2"], "ros2") if "ros2" in data else None
-    if ros2 is not None:
-        for key in ("joint_names", "peers"):
-            if ros2[key] is not None and not all(isinstance(v, str) for v in ros2[key]):
-                raise r.fail(f"ros2.{key}", "must be an array of strings")
+    front_ends = read_tables(r, data, base_dir)
     gamepad = _gamepad_table(r, data["gamepad"]) if "gamepad" in data else None
     power = _parse_power(r, data["power"]) if "power" in data else None
     estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
-    foxglove = _foxglove_table(r, data["foxglove"], base_dir) if "foxglove" in data else None
     sim = _parse_sim(r, data["sim"], len(wheels)) if "sim" in data else None
-    zenoh = _parse_zenoh(r, data["zenoh"], base_dir) if "zenoh" in data else None
-    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, ros2=ros2, power=power,
-                        estop=estop, foxglove=foxglove, sim=sim, gamepad=gamepad,
-                        zenoh=zenoh)
+    cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, power=power, estop=estop,
+                        sim=sim, gamepad=gamepad, front_ends=front_ends)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -179,31 +176,6 @@ def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
     radius = t["base_radius"]
     return SimTruth(None if radius is None else float(radius),
                     None if values is None else tuple(float(v) for v in values))
-
-
-def _parse_zenoh(r: Reader, data: Any, base_dir: Path | None) -> ZenohTable:
-    """The ``[zenoh]`` table: types, ranges, the mode and security; the paths of the config
-    file and the credentials made whole (omnican.zenoh.settings checks the names, the
-    endpoints and the identity)."""
-    t = r.table("zenoh", data, "zenoh")
-    if t["mode"] not in ZENOH_MODES:
-        raise r.fail("zenoh.mode", f"must be one of {', '.join(ZENOH_MODES)}, got "
-                     f"{_short(t['mode'])}")
-    for key in ("connect", "listen"):
-        t[key] = t[key] or []
-        if not all(isinstance(v, str) for v in t[key]):
-            raise r.fail(f"zenoh.{key}", "must be an array of endpoints (strings), e.g. "
-                         "[\"tcp/192.168.1.10:7447\"]")
-        t[key] = tuple(t[key])
-    if t["security"] is not None and t["security"] not in ZENOH_SECURITY:
-        raise r.fail("zenoh.security", f"must be one of {', '.join(ZENOH_SECURITY)}, got "
-                     f"{_short(t['security'])}")
-    for key in ("config_file", "credentials"):
-        if t[key] is not None:
-            p = Path(t[key]).expanduser()
-            t[key] = str(p if p.is_absolute() or base_dir is None else base_dir / p)
-    numbers = {k: float(v) for k, v in t.items() if SCHEMA["zenoh"][k].types == NUMBER}
-    return ZenohTable(**{**t, **numbers}, given=frozenset(data))
 
 
 def _parse_power(r: Reader, table: Any) -> PowerSettings:
@@ -244,14 +216,8 @@ def _check_bus_numbers(r: Reader, bus: Mapping[str, Any]) -> None:
         value = bus[key]
         if isinstance(value, bool) or not isinstance(value, spec.types):
             raise r.fail(f"bus.{key}", f"must be an integer number of bit/s, e.g. 500000, "
-                         f"got {_short(value)}")
+                         f"got {short(value)}")
         r.in_range(f"bus.{key}", spec, value)
-
-
-def _short(value: Any) -> str:
-    """``repr(value)``, at most 40 characters of it."""
-    text = repr(value)
-    return text if len(text) <= 40 else f"{text[:37]}..."
 
 
 def _check_limit(r: Reader, key: str, value: Any) -> float:
@@ -333,17 +299,6 @@ def _check_stop_bound(r: Reader, cfg: ChassisConfig, given: Iterable[str]) -> No
                          f"speed {speed:.3g} {unit} in {speed / value:.3g} s; every stop must "
                          f"end within {MAX_STOP_S:g} s: at least {low:.3g} {unit}^2 (or lower "
                          f"{of})")
-
-
-def _foxglove_table(r: Reader, data: Any, base_dir: Path | None) -> dict[str, Any]:
-    """The ``[foxglove]`` table, its types checked; the TLS files' paths relative to the
-    config file made whole (omnican.live.settings checks the rest)."""
-    table = r.table("foxglove", data, "foxglove")
-    for key in ("tls_cert", "tls_key"):
-        if table[key] is not None:
-            p = Path(table[key]).expanduser()
-            table[key] = str(p if p.is_absolute() or base_dir is None else base_dir / p)
-    return table
 
 
 def _gamepad_table(r: Reader, table: Any) -> dict[str, Any]:

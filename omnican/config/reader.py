@@ -9,6 +9,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 from omnican.config.schema import SCHEMA, Key
@@ -22,6 +23,21 @@ def suggest(word: str, known: Iterable[str]) -> str:
     close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.75)
     return f" (did you mean {close[0]!r}?)" if close else \
         " (the keys: omnican check-config --help)"
+
+
+def short(value: Any) -> str:
+    """``repr(value)``, at most 40 characters of it (how a message quotes a bad value)."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:37]}..."
+
+
+def whole_path(value: str | None, base_dir: Path | None) -> str | None:
+    """A path a config gives (None: none), made whole against the config file's folder
+    ``base_dir`` (None: as given); ``~`` expanded."""
+    if value is None:
+        return None
+    p = Path(value).expanduser()
+    return str(p if p.is_absolute() or base_dir is None else base_dir / p)
 
 
 class Reader:

@@ -1,8 +1,9 @@
 """The configuration schema: every key of every table, its type, default, range and
-meaning (:data:`SCHEMA`), and the values some keys take (:data:`VELOCITY_UNITS`,
-:data:`PDO_MAPPINGS`, the gamepad's codes and presets...). The one place a default or a
-range is written: the dataclasses of :mod:`omnican.config.model` take their defaults from
-here, :mod:`omnican.config.parsing` checks a TOML document against it, and README's
+meaning (:data:`SCHEMA`; a front end's table is its own, read through the front ends'
+registry), and the values some keys take (:data:`VELOCITY_UNITS`, :data:`PDO_MAPPINGS`,
+the gamepad's codes and presets...). The one place a default or a range is written: the
+dataclasses of :mod:`omnican.config.model` take their defaults from here,
+:mod:`omnican.config.parsing` checks a TOML document against it, and README's
 configuration reference is made from it (:func:`reference_rows`, checked by a test).
 
 Pure data: no I/O.
@@ -11,11 +12,13 @@ Pure data: no I/O.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from omnican.core.limits import MAX_ACCEL_SENSE, MAX_SPEED_SENSE
+from omnican.layers import FRONT_ENDS
 
 #: The bundled generic wheel-drive EDS (inside the installed package).
 WHEEL_EDS: Path = Path(__file__).resolve().parents[1] / "eds" / "omnican_wheel.eds"
@@ -111,25 +114,8 @@ _DECEL = (0.001, 2 * MAX_ACCEL_SENSE)  # the default is twice the acceleration
 _WAIT = (0.01, 60.0)  # s: a CAN round trip and a scheduler's tick fit the lowest
 _RATE = (0.01, 5000.0)  # Hz
 _SCALE = (1e-6, 1e12)  # units per SI unit, either sign
-_ROS_RATE = (0.01, 1000.0)  # Hz, a topic's publish rate
-
-#: Values of zenoh.mode (a router is a process of its own: zenohd, rmw_zenohd).
-ZENOH_MODES = ("peer", "client")
-#: Values of zenoh.security (omnican.zenoh.security: the fleet's certificates and roles).
-ZENOH_SECURITY = ("none", "mtls")
-#: The [zenoh] rate keys and the topic each sets (omnican.zenoh.settings'
-#: ``ZenohSettings.rates_hz``; tf goes with odom).
-ZENOH_RATES: dict[str, str] = {
-    "odom_rate_hz": "/odom", "joint_states_rate_hz": "/joint_states",
-    "battery_state_rate_hz": "/battery_state", "status_rate_hz": "/status",
-    "wheels_rate_hz": "/wheels", "summary_rate_hz": "/base_summary",
-}
-_ZENOH_RATE_DEFAULTS = {"odom_rate_hz": 50.0, "joint_states_rate_hz": 50.0,
-                        "battery_state_rate_hz": 1.0, "status_rate_hz": 10.0,
-                        "wheels_rate_hz": 10.0, "summary_rate_hz": 2.0}
-_ZENOH_RATE_NOTES = {"odom_rate_hz": " (tf with it)",
-                     "summary_rate_hz": " (the fleet's view; and at once on a change)"}
-
+#: The range of a wait (s) and of a topic's publish rate (Hz), for the front ends' keys.
+WAIT_S, TOPIC_RATE_HZ = _WAIT, (0.01, 1000.0)
 
 #: The highest chassis.rt_priority: Linux's highest SCHED_FIFO priority.
 MAX_RT_PRIORITY = 99
@@ -188,8 +174,9 @@ GAMEPAD_PRESETS: dict[str, dict[str, str]] = {
 _AXES = ("vx", "vy", "wz")
 _GAMEPAD_SCALES = {"vx": (-0.3, -0.8), "vy": (-0.3, -0.8), "wz": (-1.0, -2.0)}  # turbo 2nd
 
-# Section -> key -> spec. The [bus] table is free-form (passed to can.Bus).
-SCHEMA: dict[str, dict[str, Key]] = {
+# The library's tables: section -> key -> spec. The [bus] table is free-form (passed to
+# can.Bus); the front ends' tables are their own (SCHEMA reads them).
+_OWN: dict[str, dict[str, Key]] = {
     "chassis": {
         "layout": Key((str,), None, "wheel preset: \"b21\" (180, -60, 60 deg) or \"a12\" "
                       "(0, 120, -120 deg); omit and give angle_deg per wheel instead"),
@@ -329,96 +316,6 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "node_id": Key((int,), None, "the drive whose input it is; default every node",
                        range=(1, 127)),
     },
-    # Read by `omnican ros2` (omnican/ros2/settings.py checks the values).
-    "ros2": {
-        "namespace": Key((str,), "", "ROS 2 namespace of the node and its relative topics"),
-        "node_name": Key((str,), "omnican", "ROS 2 node name (~/ topics live under it)"),
-        "domain_id": Key((int,), None, "DDS domain 0-232; default: ROS_DOMAIN_ID, else 0",
-                         range=(0, 232)),
-        "cmd_vel_topic": Key((str,), "cmd_vel", "velocity commands in (Twist)"),
-        "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of Twist"),
-        "cmd_vel_timeout_s": Key(NUMBER, None, "no cmd_vel for this long -> stop; default "
-                                 "[chassis] cmd_timeout_s", range=_WAIT),
-        "odom_topic": Key((str,), "odom", "nav_msgs/Odometry out"),
-        "odom_frame": Key((str,), "odom", "frame of the odometry pose"),
-        "base_frame": Key((str,), "base_link", "frame of the base (odometry child frame)"),
-        "odom_rate_hz": Key(NUMBER, 50.0, "odom and tf publish rate", range=_ROS_RATE),
-        "publish_tf": Key((bool,), True, "publish the odom -> base_link transform"),
-        "tf_topic": Key((str,), "/tf", "tf2_msgs/TFMessage out"),
-        "joint_states_topic": Key((str,), "joint_states", "sensor_msgs/JointState out"),
-        "joint_states_rate_hz": Key(NUMBER, 50.0, "joint_states publish rate", range=_ROS_RATE),
-        "joint_names": Key((list,), None, "one joint name per wheel; default wheel_0_joint, "
-                           "wheel_1_joint, ..."),
-        "wheel_radius": Key(NUMBER, None, "m, for joint angles; default the wheels' "
-                            "wheel_radius (no joint_states without one)", range=(0.001, 10.0)),
-        "diagnostics_topic": Key((str,), "/diagnostics", "diagnostic_msgs/DiagnosticArray out"),
-        "diagnostics_rate_hz": Key(NUMBER, 1.0, "diagnostics rate (and at once on a change)",
-                                   range=_ROS_RATE),
-        "battery_state_topic": Key((str,), "battery_state", "sensor_msgs/BatteryState out: the "
-                                   "drives' DC link (when they report one)"),
-        "battery_state_rate_hz": Key(NUMBER, 1.0, "battery_state publish rate", range=_ROS_RATE),
-        "recover_topic": Key((str,), "~/recover", "std_msgs/Empty in: clear a latched stop"),
-        "odom_slip": Key(NUMBER, 0.02, "1-sigma wheel slip per metre rolled, a fraction "
-                         "(covariances)", range=(0.0, 0.99)),
-        "interface": Key((str,), None, "DDS network interface name or address; default all"),
-        "peers": Key((list,), None, "unicast discovery peers (addresses or host names)"),
-        "multicast": Key((bool,), True, "DDS multicast discovery"),
-    },
-    # Read by the live view (--foxglove; omnican/live/settings.py checks the values).
-    "foxglove": {
-        "control": Key((bool,), False, "drive from Foxglove (Teleop panel, services, "
-                       "parameters); --foxglove-control, off: the view only watches"),
-        "cmd_vel_topic": Key((str,), "/cmd_vel", "topic Foxglove's Teleop panel publishes "
-                             "geometry_msgs/Twist on"),
-        "allow_remote": Key((bool,), False, "control on a server that other hosts can reach "
-                            "(a host other than loopback); --foxglove-allow-remote"),
-        "tls_cert": Key((str,), None, "PEM certificate (relative to the config file): serve "
-                        "wss:// (a phone's browser needs it); with tls_key"),
-        "tls_key": Key((str,), None, "PEM private key of tls_cert"),
-        "origins": Key((list,), None, "web pages (Origin) whose browsers may connect, e.g. "
-                       "[\"https://app.foxglove.dev\"], \"*\" any; default Foxglove's app "
-                       "(app. and studio.foxglove.dev) and desktop (file://); "
-                       "--foxglove-origin adds one"),
-        "token": Key((str,), None, "a secret a client must give to drive (ws://host:port/"
-                     "?token=...): without it, it may only watch; --foxglove-token"),
-    },
-    # Read by the Zenoh front end (omnican zenoh, --zenoh; omnican/zenoh/settings.py
-    # checks the names and endpoints). The command line's flags win over it.
-    "zenoh": {
-        "enabled": Key((bool,), False, "turn the Zenoh front end on for teleop, drive, ros2 "
-                       "and sim without --zenoh (--no-zenoh keeps it off)"),
-        "domain_id": Key((int,), 0, "ROS domain: the first chunk of every key "
-                         "(rmw_zenoh's ROS_DOMAIN_ID)", range=(0, 232)),
-        "namespace": Key((str,), "", "the robot's namespace, e.g. \"/robot1\""),
-        "node_name": Key((str,), "omnican", "node name (omnican sim's is this + \"_sim\")"),
-        "mode": Key((str,), "peer", "\"peer\" or \"client\" (of the router connected to)"),
-        "connect": Key((list,), None, "routers or peers to connect to, e.g. "
-                       "[\"tcp/192.168.1.10:7447\"] (rmw_zenoh's router port)"),
-        "listen": Key((list,), None, "endpoints to listen on, e.g. [\"tls/192.168.1.20:7448\"]; "
-                      "default loopback (a peer: tcp/127.0.0.1:0; tls/ with credentials); "
-                      "beyond loopback needs credentials or allow_insecure"),
-        "multicast": Key((bool,), False, "find peers by multicast scouting"),
-        "config_file": Key((str,), None, "a Zenoh JSON5 config (relative to the config "
-                           "file): TLS, authentication, access control; applied first"),
-        "cmd_vel_stamped": Key((bool,), False, "cmd_vel carries TwistStamped instead of "
-                               "Twist"),
-        "security": Key((str,), None, "\"mtls\": TLS links with the fleet's certificates "
-                        "both ways, and a base's or router's access control (who may drive); "
-                        "\"none\"; default \"mtls\" when credentials is given, else "
-                        "\"none\""),
-        "credentials": Key((str,), None, "the folder 'omnican zenoh credentials' made "
-                           "(relative to the config file): its ca.pem and the identity's "
-                           "folder"),
-        "identity": Key((str,), None, "whose certificate the session presents: "
-                        "\"base/NAME\" (the base runs under /NAME), \"operator/NAME\", "
-                        "\"viewer/NAME\" or \"router/NAME\""),
-        "allow_insecure": Key((bool,), False, "listen beyond loopback without credentials "
-                              "(anyone who reaches it could drive the robot); "
-                              "--zenoh-allow-insecure"),
-        **{key: Key(NUMBER, _ZENOH_RATE_DEFAULTS[key], f"{topic[1:]} publish rate"
-                    + _ZENOH_RATE_NOTES.get(key, ""), range=_ROS_RATE)
-           for key, topic in ZENOH_RATES.items()},
-    },
     # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
     # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.
     "sim": {
@@ -455,14 +352,54 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
 }
 
+
+
+class Schema(Mapping[str, Mapping[str, Key]]):
+    """Section -> key -> spec of every table a config may have: the library's own, and
+    each front end's (its own, read through the front ends' registry when first asked
+    for: :mod:`omnican.config.front_ends`), in the order README lists them: the base's
+    tables, the front ends' (before ``before``), then the rest."""
+
+    def __init__(self, own: dict[str, dict[str, Key]], before: str) -> None:
+        self._own = own
+        self._before = before
+
+    def __getitem__(self, section: str) -> Mapping[str, Key]:
+        if section in self._own:
+            return self._own[section]
+        if section in FRONT_ENDS:
+            from omnican.config.front_ends import keys_of
+
+            return keys_of(section)
+        raise KeyError(section)
+
+    def __iter__(self) -> Iterator[str]:
+        names = list(self._own)
+        at = names.index(self._before)
+        front = [name for name in FRONT_ENDS if name not in self._own]
+        return iter(names[:at] + front + names[at:])
+
+    def __len__(self) -> int:
+        return len(list(iter(self)))
+
+
+#: Every key of every table (the library's and the front ends').
+SCHEMA: Mapping[str, Mapping[str, Key]] = Schema(_OWN, before="sim")
+
 #: The [chassis] keys that default to a factor times another: key -> (other key, factor).
-CHASSIS_SCALED = {name: spec.scaled for name, spec in SCHEMA["chassis"].items() if spec.scaled}
+CHASSIS_SCALED = {name: spec.scaled for name, spec in _OWN["chassis"].items() if spec.scaled}
+
+
+def defaults_of(keys: Mapping[str, Key]) -> dict[str, Any]:
+    """Key -> default of every key of a table's keys (None: required, scaled or no
+    value)."""
+    return {name: spec.default for name, spec in keys.items()}
 
 
 def schema_defaults(section: str) -> dict[str, Any]:
     """Key -> default of every key of a :data:`SCHEMA` section (None: required, scaled or
     no value)."""
-    return {name: spec.default for name, spec in SCHEMA[section].items()}
+    return defaults_of(SCHEMA[section])
 
 
 def default_text(spec: Key) -> str:

@@ -20,11 +20,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from omnican.config import schema_defaults
+from omnican.config import defaults_of
 from omnican.errors import ConfigError
+from omnican.live.table import KEYS
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8765
-_DEFAULTS = schema_defaults("foxglove")
+_DEFAULTS = defaults_of(KEYS)
 #: The first foxglove-sdk that tells the server's listener when a client leaves (it
 #: unadvertises the client's channels; 0.25.2, "Fix a leak when disconnecting clients that
 #: are still advertising"): without it the base could not stop when its driver leaves.
@@ -194,3 +195,25 @@ def resolve(table: Mapping[str, Any] | None, address: str | None, *,
             "robot: add --foxglove-allow-remote (or [foxglove] allow_remote = true) to mean "
             "it, or serve on 127.0.0.1")
     return s
+
+
+def foxglove_address(text: str) -> str:
+    """argparse type for ``--foxglove [HOST:]PORT``: checked here, so a bad address or a
+    missing SDK is a usage error before any drive is touched."""
+    import argparse
+    import importlib.util
+
+    try:
+        parse_address(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if importlib.util.find_spec("foxglove") is None:
+        from omnican.extras import install_hint
+
+        raise argparse.ArgumentTypeError(f"needs the Foxglove SDK: {install_hint('foxglove')}")
+    return text
+
+
+FOXGLOVE_HELP = ("serve a live view to Foxglove on [HOST:]PORT (default 127.0.0.1:8765; "
+                 "loopback unless a host is given, e.g. 0.0.0.0:8765 to watch from another "
+                 "machine)")

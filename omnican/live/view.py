@@ -196,7 +196,7 @@ class LiveView:
             return foxglove.Channel(topic, schema=telemetry.JSON_SCHEMAS[schema],
                                     context=self._ctx)
         return foxglove.Channel(
-            topic, schema=foxglove.Schema(name=schema, encoding="ros2msg",
+            topic, schema=foxglove.Schema(name=schema, encoding=cdr.SCHEMA_ENCODING,
                                           data=cdr.msgdef(schema).encode()),
             message_encoding="cdr", context=self._ctx)
 
@@ -261,13 +261,15 @@ def describe_control(view: LiveView) -> list[str]:
 @contextlib.contextmanager
 def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = None,
           announce: Any = None) -> Iterator[LiveView | None]:
-    """What a front end adds around a running base (or a simulator alone, ``base``
-    None): the simulator's ground truth into the base's telemetry (a recording, the ROS 2
-    bridge, the view), and a Foxglove server when ``foxglove`` (``[HOST:]PORT``, or
-    :class:`FoxgloveSettings`) is given; with control on in the settings, its clients
-    may drive the base, each a source of commands of the base's own
+    """A Foxglove server beside a running base (or a simulator alone, ``base`` None: its
+    own telemetry, its ground truth and the frames its drives hear) while the block runs,
+    when ``foxglove`` (``[HOST:]PORT``, or :class:`FoxgloveSettings`) is given. It shows
+    the base's telemetry as it is: the simulator's ground truth is in it when whoever
+    runs the base beside a simulator put it there
+    (:func:`omnican.telemetry.attach.add_truth`). With control on in the settings, its
+    clients may drive the base, each a source of commands of the base's own
     (:meth:`~omnican.chassis.Chassis.command_source`: one at a time, shared with the front
-    end's other sources).
+    end's other sources); ``sim``: the simulator whose fault console they may use.
     ``announce(text)`` is told where the server listens and what control allows."""
     settings: FoxgloveSettings | None = None
     if isinstance(foxglove, FoxgloveSettings):
@@ -278,16 +280,11 @@ def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = 
         except ValueError as exc:
             raise ConfigError(f"--foxglove: {exc}") from None
         settings = FoxgloveSettings(host=host, port=port)
+    if settings is None:
+        yield None
+        return
     with contextlib.ExitStack() as stack:
-        if base is not None:
-            feed = feed_of(base)
-            if sim is not None:
-                feed.truth = sim
-        else:
-            feed = stack.enter_context(simulator_feed(sim))
-        if settings is None:
-            yield None
-            return
+        feed = feed_of(base) if base is not None else stack.enter_context(simulator_feed(sim))
         control = None
         if settings.control and base is not None:
             control = Control(base, settings, sim)
@@ -300,25 +297,3 @@ def watch(base: Any, sim: Any = None, foxglove: str | FoxgloveSettings | None = 
             logger.warning("Foxglove control on %s:%d: anyone who reaches this host can "
                            "drive the robot", settings.host, view.port)
         yield view
-
-
-def foxglove_address(text: str) -> str:
-    """argparse type for ``--foxglove [HOST:]PORT``: checked here, so a bad address or a
-    missing SDK is a usage error before any drive is touched."""
-    import argparse
-    import importlib.util
-
-    try:
-        parse_address(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    if importlib.util.find_spec("foxglove") is None:
-        from omnican.extras import install_hint
-
-        raise argparse.ArgumentTypeError(f"needs the Foxglove SDK: {install_hint('foxglove')}")
-    return text
-
-
-FOXGLOVE_HELP = ("serve a live view to Foxglove on [HOST:]PORT (default 127.0.0.1:8765; "
-                 "loopback unless a host is given, e.g. 0.0.0.0:8765 to watch from another "
-                 "machine)")

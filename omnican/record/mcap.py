@@ -66,7 +66,7 @@ class McapRecorder:
         from omnican import __version__
 
         self._writer = Writer(self._file, compression=CompressionType.ZSTD)
-        self._writer.start(profile="ros2", library=f"omnican {__version__}")
+        self._writer.start(profile=telemetry.ROS2, library=f"omnican {__version__}")
         self.frames = 0
         self.error: str | None = None
         self._schemas: dict[str, int] = {}
@@ -119,7 +119,7 @@ class McapRecorder:
             return 0
         sid = self._schemas.get(msg.schema)
         if sid is None:
-            sid = self._writer.register_schema(msg.schema, "ros2msg",
+            sid = self._writer.register_schema(msg.schema, cdr.SCHEMA_ENCODING,
                                                cdr.msgdef(msg.schema).encode())
             self._schemas[msg.schema] = sid
         return sid

@@ -125,9 +125,7 @@ class Bridge:
         self.base = base
         self.settings = settings
         self.sim = sim
-        self._feed = feed = feed_of(base)
-        if sim is not None:
-            feed.truth = sim  # the simulator's ground truth goes along (~/sim/true_pose)
+        self._feed = feed = feed_of(base)  # the truth in it: telemetry.attach.add_truth
         self.joint_names = feed.settings.joint_names
         radii = feed.settings.wheel_radii
         self.wheel_radii: list[float] | None = list(radii) if radii is not None else None

@@ -17,8 +17,9 @@ from typing import Any
 from xml.etree import ElementTree
 from xml.sax.saxutils import quoteattr
 
-from omnican.config import schema_defaults
+from omnican.config import defaults_of
 from omnican.errors import ConfigError
+from omnican.ros2.table import KEYS
 
 #: eProsima's RTPS vendor id (Fast DDS, the default ROS 2 middleware). Fast DDS 3 (ROS 2
 #: Kilted and later) announces XTypes type information that Cyclone does not find
@@ -44,8 +45,8 @@ _NAME_TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _NET_WORD = re.compile(r"^[!-+\--~]+$")
 
 
-# The [ros2] defaults are written once, in omnican.config.SCHEMA (None there: not given).
-_D = schema_defaults("ros2")
+# The [ros2] defaults are written once, in omnican.ros2.table (None there: not given).
+_D = defaults_of(KEYS)
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,9 @@
 """How the telemetry attaches from above: to a base (:func:`feed_of`), or to a simulator
 with no base (:func:`simulator_feed`, ``omnican sim --foxglove``). Neither knows of it:
 a base offers its snapshots to one sink (:mod:`omnican.chassis.sink`) and its frames to
-listeners; a simulator runs a tick on its clock and hears its drives' frames.
+listeners; a simulator runs a tick on its clock and hears its drives' frames. A base
+that runs beside a simulator carries the simulator's ground truth in its telemetry
+(:func:`add_truth`, the one place it is wired): every front end shows it as it is.
 
 The DBC attaches here too: the feed decodes frames with the base's DBC (cantools,
 imported when a front end first wants decoded frames).
@@ -30,6 +32,16 @@ def feed_of(base: Chassis) -> Feed:
     same feed; it is closed with the base (its last sample: the base's last snapshot).
     Raises RuntimeError once the base is closed."""
     return base.attachments.setdefault("telemetry", lambda: _base_feed(base))
+
+
+def add_truth(base: Chassis, sim: Simulator | None) -> None:
+    """The simulator ``sim`` (None: none) that ``base`` runs against: its ground truth
+    goes with every sample of the base's telemetry from now on (``/sim/true_pose`` and
+    ``/sim/pose2d`` of every front end, of a recording). The one place the truth is
+    wired, by whoever runs a base beside a simulator (the command line's session), before
+    the front ends attach; no front end wires it."""
+    if sim is not None:
+        feed_of(base).truth = sim
 
 
 def _base_feed(base: Chassis) -> Feed:

@@ -42,6 +42,10 @@ def typestore() -> Any:
     return store
 
 
+#: The encoding of a ROS 2 type's schema text (MCAP's and Foxglove's name for it).
+SCHEMA_ENCODING = "ros2msg"
+
+
 @cache
 def msgdef(typename: str) -> str:
     """The ``ros2msg`` schema text of a type: its definition, then every type it uses."""

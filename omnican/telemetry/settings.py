@@ -2,11 +2,12 @@
 radius, the odometry's slip (its covariance), the diagnostics' name prefix and rate,
 and how often the base is sampled. Read from the config once, for all of them.
 
-They come from the ``[ros2]`` table (``odom_frame``, ``base_frame``, ``joint_names``,
-``wheel_radius``, ``odom_slip``, ``node_name``, ``diagnostics_rate_hz`` and the publish
-rates), whose defaults are :data:`omnican.config.SCHEMA`'s; the ROS 2 bridge, the live
-view and the MCAP recorder all use them, so a recording names its joints as the robot
-published them. Pure: no I/O.
+They come from the front end's table that names them for every front end (``[ros2]``'s
+``odom_frame``, ``base_frame``, ``joint_names``, ``wheel_radius``, ``odom_slip``,
+``node_name``, ``diagnostics_rate_hz`` and the publish rates: its
+:attr:`~omnican.config.front_ends.TableSpec.telemetry`), else its defaults; the ROS 2
+bridge, the live view and the MCAP recorder all use them, so a recording names its
+joints as the robot published them. Pure: no I/O.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from omnican.config import SCHEMA, ChassisConfig
+from omnican.config import ChassisConfig
 from omnican.core.wheel_odometry import SPEED_WINDOW_S
 from omnican.errors import ConfigError
 
@@ -40,13 +41,12 @@ class TelemetrySettings:
 
     @classmethod
     def from_config(cls, cfg: ChassisConfig, **overrides: Any) -> TelemetrySettings:
-        """From ``cfg`` (its ``[ros2]`` table, else the schema's defaults); ``overrides``
-        by field name (the command line's)."""
-        table: Mapping[str, Any] = cfg.ros2 or {}
+        """From ``cfg`` (the front ends' tables, else their defaults); ``overrides`` by
+        field name (the command line's)."""
+        table: Mapping[str, Any] = cfg.front_ends.telemetry()
 
         def get(key: str) -> Any:
-            value = table.get(key)
-            return SCHEMA["ros2"][key].default if value is None else value
+            return table[key]
 
         n = len(cfg.wheels)
         names = tuple(get("joint_names") or (f"wheel_{i}_joint" for i in range(n)))

@@ -238,9 +238,7 @@ class ZenohBridge:
         self.base = base
         self.settings = settings.validate()
         self.session = session
-        feed = feed_of(base)
-        if sim is not None:
-            feed.truth = sim  # the simulator's ground truth goes along (sim/true_pose)
+        feed = feed_of(base)  # the simulator's truth in it: omnican.telemetry.attach.add_truth
         ns = settings.ros_namespace
         self.node = rmw.Node(settings.domain_id, str(session.info.zid()), 0,
                              settings.node_name, namespace=ns)

@@ -15,7 +15,7 @@ reached it could drive the robot. ``security = "mtls"`` gives the session the fl
 certificates and, for a base or a router, its access control
 (:mod:`omnican.zenoh.security`, made by ``omnican zenoh credentials``).
 
-The defaults are the ``[zenoh]`` table's (:data:`omnican.config.SCHEMA`);
+The defaults are the ``[zenoh]`` table's (:mod:`omnican.zenoh.table`);
 :func:`from_table` makes settings of a config's table.
 """
 
@@ -29,9 +29,10 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from omnican.config import ZENOH_RATES, ZENOH_SECURITY, ZenohTable, schema_defaults
+from omnican.config import defaults_of
 from omnican.errors import ConfigError
 from omnican.zenoh.security import Identity
+from omnican.zenoh.table import KEYS, ZENOH_RATES, ZENOH_SECURITY, ZenohTable
 
 MODES = ("peer", "client", "router")
 #: A ROS 2 name chunk: what rmw_zenoh's key expressions can carry unchanged.
@@ -39,7 +40,7 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _ENDPOINT = re.compile(r"^(tcp|udp|quic|tls|ws|unixsock-stream)/\S+$")
 
 
-_D = schema_defaults("zenoh")
+_D = defaults_of(KEYS)
 #: Where the base sits in the ROS graph: under ``omnican ros2 --zenoh`` the ROS 2
 #: node's, unless the [zenoh] table or a flag says otherwise.
 GRAPH_KEYS = ("domain_id", "namespace", "node_name", "cmd_vel_stamped")

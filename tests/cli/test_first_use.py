@@ -426,7 +426,7 @@ def test_record_refuses_a_format_it_cannot_read_back(tmp_path: Path) -> None:
 
 def test_every_format_record_takes_is_read_back(tmp_path: Path) -> None:
     from omnican import default_config
-    from omnican.cli.common import recording_suffixes
+    from omnican.cli.session import recording_suffixes
     from omnican.record import replay
 
     for suffix in [*recording_suffixes(), ".log.gz"]:

@@ -9,7 +9,7 @@ import io
 from hypothesis import given
 from hypothesis import strategies as st
 
-from omnican.cli.common import ProgressBar, clock_time
+from omnican.cli.progress import ProgressBar, clock_time
 
 
 class Terminal(io.StringIO):

@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from omnican.cli.common import serve_lines
+from omnican.cli.console import serve_lines
 
 
 def _stdin_of(data: bytes, keep_open: bool) -> tuple[io.TextIOWrapper, int | None]:

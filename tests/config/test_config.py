@@ -366,8 +366,8 @@ def test_ros2_settings_defaults_are_the_schemas(tmp_path: Path) -> None:
             assert f.default == spec.default, f.name
             assert type(f.default) is type(spec.default), f.name
     cfg = load_config(write(tmp_path, GOOD + "\n[ros2]\n"))
-    assert cfg.ros2 is not None
-    assert from_table(cfg.ros2) == from_table({})
+    assert cfg.front_ends.get("ros2") is not None
+    assert from_table(cfg.front_ends["ros2"]) == from_table({})
 
 
 # ---------------------------------------------------------------- numbers beyond sense

@@ -30,7 +30,7 @@ from omnican.telemetry import messages as m
 from tests.interop.foxglove_node.harness import HERE as NODE_DIR
 from tests.interop.foxglove_node.harness import node_modules
 from tests.support.foxglove_client import FoxgloveClient
-from tests.support.helpers import drive_for, lockstep_rig
+from tests.support.helpers import drive_for, lockstep_rig, with_truth
 
 ROOT = Path(__file__).resolve().parents[2]
 LAYOUT = json.loads((ROOT / "foxglove" / "omnican-layout.json").read_text())
@@ -66,7 +66,7 @@ def test_the_app_parses_every_channel_of_the_live_view_and_decodes_its_messages(
 
     expected = {*m.TOPICS, m.CAN_RX, m.CAN_TX, "/can/TPDO2_node1"}
     first: dict[str, bytes] = {}
-    with lockstep_rig(channel) as (_, sim, base), \
+    with lockstep_rig(channel) as (_, sim, base), with_truth(base, sim), \
             watch(base, sim, "127.0.0.1:0") as view:
         assert view is not None
         client = FoxgloveClient(view.url)

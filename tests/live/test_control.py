@@ -839,10 +839,10 @@ def test_the_foxglove_table_is_read_with_paths_relative_to_the_config(tmp_path: 
                      .read_text() + '\n[foxglove]\ncontrol = true\ncmd_vel_topic = "/teleop"\n'
                      'tls_cert = "tls/cert.pem"\ntls_key = "tls/key.pem"\n')
     cfg = load_config(robot)
-    s = resolve(cfg.foxglove, "127.0.0.1:9000")
+    s = resolve(cfg.front_ends.get("foxglove"), "127.0.0.1:9000")
     assert (s.control, s.cmd_vel_topic, s.port, s.scheme) == (True, "/teleop", 9000, "wss")
     assert s.tls_cert == tmp_path / "tls" / "cert.pem"
-    assert resolve(cfg.foxglove, None, control=False).control is False  # the flag wins
+    assert resolve(cfg.front_ends.get("foxglove"), None, control=False).control is False  # the flag wins
 
 
 @pytest.mark.parametrize(("table", "address", "message"), [

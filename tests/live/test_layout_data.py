@@ -14,7 +14,7 @@ import pytest
 
 from omnican import telemetry
 from omnican.cli import main
-from omnican.cli.common import SIM_BITRATE
+from omnican.cli.session import SIM_BITRATE
 from omnican.telemetry.messages import _SERIES, JSON_SCHEMAS
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -23,7 +23,7 @@ from omnican.cli import main
 from omnican.live import watch
 from omnican.sim import SimulatedBase
 from tests.support.foxglove_client import FoxgloveClient
-from tests.support.helpers import drive_for, one_error_line, sim_config, wait_for
+from tests.support.helpers import drive_for, one_error_line, sim_config, wait_for, with_truth
 
 
 def free_port() -> int:
@@ -134,7 +134,7 @@ def test_fault_shows_in_diagnostics_and_wheels(channel: str) -> None:
     # is about what the viewer shows of a fault, not about scheduling latency.
     cfg = sim_config(channel, heartbeat_timeout_factor=10.0)
     with SimulatedBase.from_config(cfg) as sim, Chassis.open(cfg) as base, \
-            watch(base, sim, "127.0.0.1:0") as view:
+            with_truth(base, sim), watch(base, sim, "127.0.0.1:0") as view:
         assert listening_on(view.port) == {"0100007F"}
         client = FoxgloveClient(view.url)
         try:

@@ -39,7 +39,7 @@ from omnican.ros2.settings import (
 from omnican.sim import SimulatedBase
 from omnican.telemetry import messages as model
 from omnican.telemetry.covariance import UNOBSERVED_VARIANCE, OdomCovariance
-from tests.support.helpers import lockstep_rig, one_error_line, sim_config, wait_for
+from tests.support.helpers import lockstep_rig, one_error_line, sim_config, wait_for, with_truth
 
 names = st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True)
 
@@ -86,13 +86,13 @@ def test_ros2_table_from_toml(tmp_path: Path) -> None:
                     + 'namespace = "robot1"\ndomain_id = 17\npeers = ["10.0.0.2"]\n')
     cfg = load_config(path)
     assert cfg.wheels[0].wheel_radius == 0.05
-    s = from_table(cfg.ros2 or {}, str(path))
+    s = from_table(cfg.front_ends.get("ros2") or {}, str(path))
     assert s.node_namespace == "/robot1" and s.domain_id == 17 and s.peers == ("10.0.0.2",)
     assert s.topic("cmd_vel") == "/robot1/cmd_vel"
     assert s.topic("tf") == "/tf" and s.topic("diagnostics") == "/diagnostics"
     assert s.topic("recover") == "/robot1/omnican/recover"
     assert s.wheel_joint_names(3) == ("wheel_0_joint", "wheel_1_joint", "wheel_2_joint")
-    assert default_config().ros2 is None and default_config().wheels[0].wheel_radius == 0.05
+    assert default_config().front_ends.get("ros2") is None and default_config().wheels[0].wheel_radius == 0.05
 
 
 @pytest.mark.parametrize(("line", "message"), [
@@ -115,7 +115,7 @@ def test_bad_ros2_tables_name_the_key(tmp_path: Path, line: str, message: str) -
     path.write_text(text.split("\n[ros2]\n")[0] + "\n[ros2]\n" + line + "\n")
     with pytest.raises(ConfigError, match=re.escape(message)):
         cfg = load_config(path)
-        from_table(cfg.ros2 or {}, str(path))
+        from_table(cfg.front_ends.get("ros2") or {}, str(path))
 
 
 def test_cyclone_config_layers() -> None:
@@ -339,8 +339,8 @@ def test_bridge_drives_publishes_and_recovers(rig: tuple[SimulatedBase, Chassis]
 
     sim, base = rig
     t = MemoryTransport()
-    with Bridge(base, Ros2Settings(diagnostics_rate_hz=5.0), t, sim=sim,
-                poll_thread=False) as bridge:
+    with with_truth(base, sim), Bridge(base, Ros2Settings(diagnostics_rate_hz=5.0), t,
+                                       sim=sim, poll_thread=False) as bridge:
         assert set(t.readers) == {"/cmd_vel", "/omnican/recover"}
         assert t.qos["/tf"].depth == TF_DEPTH and t.qos["/odom"].reliable
         def at_speed() -> bool:  # cmd_vel kept coming, as a nav stack sends it
@@ -574,7 +574,7 @@ def test_battery_state_is_published_at_its_rate_and_follows_the_battery(
     sim, base = rig
     t = MemoryTransport()
     settings = Ros2Settings(namespace="/robot1", battery_state_rate_hz=10.0)
-    with Bridge(base, settings, t, sim=sim) as bridge:
+    with with_truth(base, sim), Bridge(base, settings, t, sim=sim) as bridge:
         assert wait_for(lambda: t.last("/robot1/battery_state") is not None, 2.0)
         msg = t.last("/robot1/battery_state")
         assert msg.voltage == pytest.approx(24.0, abs=0.2) and msg.power_supply_health == 1

@@ -16,7 +16,7 @@ import pytest
 
 from omnican import Chassis
 from omnican.cli import build_parser
-from omnican.cli.common import session
+from omnican.cli.session import session
 from omnican.protocol import heartbeat
 from omnican.protocol.cia301 import EMCY_BASE, EMCY_HEARTBEAT, HEARTBEAT_BASE
 from omnican.protocol.cia402 import State

@@ -106,3 +106,13 @@ def lockstep_rig(channel: str) -> Iterator[tuple[SimClock, SimulatedBase, Chassi
     with SimulatedBase.from_config(cfg, clock=clock) as sim, \
             Chassis.open(cfg, clock=clock) as base:
         yield clock, sim, base
+
+
+@contextmanager
+def with_truth(base: Chassis, sim: SimulatedBase) -> Iterator[None]:
+    """The simulator's ground truth in the base's telemetry while the block runs, as a
+    command's session puts it there (:func:`omnican.telemetry.attach.add_truth`)."""
+    from omnican.telemetry.attach import add_truth
+
+    add_truth(base, sim)
+    yield

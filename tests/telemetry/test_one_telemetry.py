@@ -18,7 +18,7 @@ from omnican.record.recording import FileRecording
 from omnican.sim import SimulatedBase
 from tests.ros2.test_bridge import MemoryTransport
 from tests.support.foxglove_client import FoxgloveClient
-from tests.support.helpers import drive_for, sim_config, wait_for
+from tests.support.helpers import drive_for, sim_config, wait_for, with_truth
 
 COMPARED = {"/odom": "nav_msgs/msg/Odometry", "/tf": "tf2_msgs/msg/TFMessage",
             "/joint_states": "sensor_msgs/msg/JointState",
@@ -69,7 +69,7 @@ def test_bridge_live_view_and_recording_say_the_same(channel: str, tmp_path: Pat
     live: list[tuple[str, int, bytes]] = []
     with SimulatedBase.from_config(cfg, clock=clock) as sim, \
             Chassis.open(cfg, clock=clock, record=FileRecording(record)) as base, \
-            watch(base, sim, "127.0.0.1:0") as view, \
+            with_truth(base, sim), watch(base, sim, "127.0.0.1:0") as view, \
             Bridge(base, Ros2Settings(), transport, sim=sim):
         assert view is not None
         client = FoxgloveClient(view.url)

@@ -126,7 +126,7 @@ def test_joint_states_are_wheel_angles(travel: list[float], radius: float) -> No
 def test_joint_states_use_the_configured_names_and_need_every_wheel_radius() -> None:
     from dataclasses import replace
 
-    named = replace(CFG, ros2={"joint_names": ["back", "right", "left"]})
+    named = replace(CFG, front_ends={"ros2": {"joint_names": ["back", "right", "left"]}})
     js = telemetry.joint_states(sample(), TelemetrySettings.from_config(named))
     assert js is not None and js["name"] == ["back", "right", "left"]
     no_radius = replace(CFG, wheels=tuple(replace(w, wheel_radius=None) for w in CFG.wheels))

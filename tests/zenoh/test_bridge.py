@@ -19,7 +19,7 @@ from omnican.chassis import Chassis
 from omnican.clock import SimClock
 from omnican.sim import SimulatedBase
 from omnican.zenoh import rmw
-from tests.support.helpers import lockstep_rig
+from tests.support.helpers import lockstep_rig, with_truth
 from tests.zenoh.conftest import client, wait_real
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed "
@@ -341,7 +341,8 @@ def test_the_simulators_truth_goes_along_when_given(
     session, watcher = open_session(settings), client(router)
     got: list[bytes] = []
     try:
-        with ZenohBridge(base, settings, session, sim=sim, poll_thread=False) as bridge:
+        with with_truth(base, sim), \
+                ZenohBridge(base, settings, session, sim=sim, poll_thread=False) as bridge:
             pub = bridge.publishers[TRUE_POSE]
             assert pub.name == "/robot2/sim/true_pose"
             sub = watcher.declare_subscriber(pub.key,

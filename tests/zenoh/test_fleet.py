@@ -18,7 +18,7 @@ from omnican.chassis import Chassis
 from omnican.clock import SimClock
 from omnican.core.kinematics import Twist
 from omnican.sim import SimulatedBase
-from tests.support.helpers import lockstep_rig
+from tests.support.helpers import lockstep_rig, with_truth
 from tests.zenoh.conftest import client, wait_real
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed "
@@ -39,7 +39,8 @@ def based(channel: str, router: str, namespace: str) -> Iterator[Rig]:
     with lockstep_rig(channel) as (clock, sim, base):
         session = open_session(settings)
         try:
-            with ZenohBridge(base, settings, session, sim=sim, poll_thread=False) as bridge:
+            with with_truth(base, sim), \
+                    ZenohBridge(base, settings, session, sim=sim, poll_thread=False) as bridge:
                 yield clock, sim, base, bridge, session
         finally:
             session.close()

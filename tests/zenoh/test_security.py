@@ -302,8 +302,9 @@ def test_the_zenoh_table_takes_credentials_relative_to_the_file(tmp_path: Path) 
 
     text = _robot('credentials = "fleet"\nidentity = "base/robot1"\nnamespace = "/robot1"\n')
     cfg = parse_config(tomllib.loads(text), "robot.toml", base_dir=tmp_path, check_eds=False)
-    assert cfg.zenoh is not None and cfg.zenoh.credentials == str(tmp_path / "fleet")
-    s = from_table(cfg.zenoh, "robot.toml")
+    table = cfg.front_ends.get("zenoh")
+    assert table is not None and table.credentials == str(tmp_path / "fleet")
+    s = from_table(table, "robot.toml")
     assert s.mtls and s.who == Identity("base", "robot1")
 
 
@@ -314,7 +315,7 @@ def test_the_zenoh_table_takes_credentials_relative_to_the_file(tmp_path: Path) 
     ('security = "mtls"', "robot.toml: zenoh: security \"mtls\" needs the credentials"),
 ])
 def test_check_config_refuses_in_one_line(table: str, words: str, tmp_path: Path) -> None:
-    from omnican.cli.common import check_front_ends
+    from omnican.cli.front_ends import check_tables as check_front_ends
     from omnican.config import load_config
 
     path = tmp_path / "robot.toml"

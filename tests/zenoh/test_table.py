@@ -11,9 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from omnican.config import SCHEMA, ZENOH_RATES, ZenohTable, load_config
+from omnican.config import SCHEMA, load_config
 from omnican.errors import ConfigError
 from omnican.zenoh.settings import GRAPH_KEYS, ZenohSettings, from_table
+from omnican.zenoh.table import ZENOH_RATES, ZenohTable
 from tests.support.helpers import one_error_line
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "robot.toml"
@@ -43,7 +44,7 @@ def test_the_table_is_parsed_with_its_paths_made_whole(tmp_path: Path) -> None:
         'mode = "client"\nconnect = ["tcp/127.0.0.1:7447"]\nlisten = ["tcp/127.0.0.1:0"]\n'
         'multicast = true\nconfig_file = "zenoh.json5"\ncmd_vel_stamped = true\n'
         "odom_rate_hz = 20\nsummary_rate_hz = 0.5\n")))
-    t = cfg.zenoh
+    t = cfg.front_ends.get("zenoh")
     assert t is not None and t.enabled and t.domain_id == 7 and t.mode == "client"
     assert t.connect == ("tcp/127.0.0.1:7447",) and t.listen == ("tcp/127.0.0.1:0",)
     assert t.config_file == str(tmp_path.resolve() / "zenoh.json5")
@@ -65,8 +66,8 @@ def test_no_table_and_an_empty_one_are_the_front_ends_defaults(tmp_path: Path) -
         assert getattr(ZenohTable(), name) == SCHEMA["zenoh"][name].default, name
     assert set(ZENOH_RATES) <= set(SCHEMA["zenoh"])
     cfg = load_config(config(tmp_path, ""))
-    assert cfg.zenoh == ZenohTable()
-    assert from_table(cfg.zenoh) == from_table(None) == ZenohSettings()
+    assert cfg.front_ends["zenoh"] == ZenohTable()
+    assert from_table(cfg.front_ends["zenoh"]) == from_table(None) == ZenohSettings()
 
 
 @pytest.mark.parametrize(("table", "words"), [
@@ -114,7 +115,7 @@ def _args(argv: list[str]) -> object:
 
 
 def test_the_flags_win_over_the_table(tmp_path: Path) -> None:
-    from omnican.cli.zenoh import settings_from
+    from omnican.zenoh.arguments import settings_from
 
     cfg = load_config(config(tmp_path, (
         'namespace = "/table"\ndomain_id = 3\nmode = "client"\n'
@@ -134,7 +135,7 @@ def test_the_flags_win_over_the_table(tmp_path: Path) -> None:
 
 def test_under_ros2_the_graph_is_the_ros2_nodes_unless_the_table_or_a_flag_says(
         tmp_path: Path) -> None:
-    from omnican.cli.zenoh import settings_from
+    from omnican.zenoh.arguments import settings_from
 
     graph = {"namespace": "/ros", "node_name": "ros_node", "domain_id": 9,
              "cmd_vel_stamped": True}
@@ -157,7 +158,7 @@ def test_under_ros2_the_graph_is_the_ros2_nodes_unless_the_table_or_a_flag_says(
 def test_what_turns_the_front_end_on(tmp_path: Path, argv: list[str], table: str,
                                      on: bool) -> None:
     pytest.importorskip("zenoh")
-    from omnican.cli.zenoh import front_end_settings
+    from omnican.zenoh.arguments import front_end_settings
 
     cfg = load_config(config(tmp_path, table))
     got = front_end_settings(_args(["drive", "--vx", "0.1", *argv]), cfg)  # type: ignore[arg-type]

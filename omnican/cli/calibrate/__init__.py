@@ -49,14 +49,12 @@ from omnican.cli.calibrate.guided import (
     simulated_base,
 )
 from omnican.cli.calibrate.output import write_config
-from omnican.cli.common import (
-    UsageError,
+from omnican.cli.common import UsageError, finite_float, positive_float
+from omnican.cli.session import (
     add_bus_arguments,
     add_record_argument,
     add_sim_time_arguments,
     bus_overrides,
-    finite_float,
-    positive_float,
 )
 
 __all__ = [

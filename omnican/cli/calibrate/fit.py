@@ -19,7 +19,8 @@ from omnican.cli.calibrate.output import (
     wheel_changes,
     write_config,
 )
-from omnican.cli.common import EXIT_OK, UsageError, load
+from omnican.cli.common import EXIT_OK, UsageError
+from omnican.cli.session import load
 from omnican.record import replay
 
 

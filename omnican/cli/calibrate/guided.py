@@ -21,15 +21,9 @@ from omnican.cli.calibrate.output import (
     wheel_changes,
     write_config,
 )
-from omnican.cli.common import (
-    EXIT_FAILURE,
-    EXIT_OK,
-    UsageError,
-    load,
-    progress_bar,
-    recording,
-    session,
-)
+from omnican.cli.common import EXIT_FAILURE, EXIT_OK, UsageError
+from omnican.cli.progress import progress_bar
+from omnican.cli.session import load, recording, session
 from omnican.command import motion
 from omnican.config import ChassisConfig, SimTruth
 from omnican.core.odometry import Pose2D
