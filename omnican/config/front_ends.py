@@ -166,9 +166,3 @@ def moved_name(name: str) -> Any:
     raise AttributeError(f"module 'omnican.config' has no attribute {name!r}")
 
 
-def keys_of(name: str) -> Mapping[str, Key]:
-    """The keys of front end ``name``'s table (SCHEMA's section of it)."""
-    spec = table_spec(name)
-    return spec.keys if spec is not None else {}
-
-

@@ -367,10 +367,13 @@ class Schema(Mapping[str, Mapping[str, Key]]):
     def __getitem__(self, section: str) -> Mapping[str, Key]:
         if section in self._own:
             return self._own[section]
-        if section in FRONT_ENDS:
-            from omnican.config.front_ends import keys_of
+        if section in FRONT_ENDS:  # its plug-in's table (config.front_ends reads them)
+            import importlib
 
-            return keys_of(section)
+            module, _, cls = FRONT_ENDS[section].plugin.partition(":")
+            spec = getattr(importlib.import_module(module), cls).table
+            keys: Mapping[str, Key] = spec.keys if spec is not None else {}
+            return keys
         raise KeyError(section)
 
     def __iter__(self) -> Iterator[str]:
