@@ -335,7 +335,7 @@ def test_every_front_end_answers_by_the_one_table(
         if situation == DRIVER:
             fe.drive()
         elif situation == OTHER:
-            assert another.send(Twist(0.05, 0.0, 0.0)) is None
+            assert another.drive(Twist(0.05, 0.0, 0.0)).ok
         calls = spy(base, sim, monkeypatch)
         done, said = fe.act(action)
         effect = EFFECTS[action]
@@ -346,7 +346,7 @@ def test_every_front_end_answers_by_the_one_table(
         if not want and said:
             assert ANOTHER in said, said  # a refusal names who drives
         if want and action.stops and situation == OTHER:  # it took control from the driver
-            assert another.send(Twist(0.05, 0.0, 0.0)) is not None
+            assert not another.drive(Twist(0.05, 0.0, 0.0)).ok
             assert another.stopped_by() is not None
 
 

@@ -97,7 +97,7 @@ def share_command(source: CommandSource, command: Twist) -> str | None:
     it goes too (the keys let go: the base stops) and gives control up. Returns who
     refused it (None: not refused)."""
     if not command.is_zero():
-        return source.send(command)
+        return source.drive(command).refused_by
     source.release(stop=True)  # stops the base only if these keys drove it
     return None
 
@@ -182,7 +182,7 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             command = keys.command(time.monotonic())
             shown = note
         if not shared:  # the only source: every command goes, zeros too
-            source.send(command)
+            source.drive(command)
         else:
             refused = share_command(source, command)
             driver = source.holder()
