@@ -135,3 +135,22 @@ def test_a_command_source_s_send_and_may_act_warn_and_answer_as_before() -> None
         assert other.may_act() == "keys" == other.may(Action.RECOVER).refused_by
     with pytest.warns(DeprecationWarning, match="may_act"):
         assert keys.may_act() is None
+
+
+def test_a_displacement_is_no_twist_and_the_old_forms_warn_for_one_release() -> None:
+    from omnican import Displacement, Pose2D, Twist
+
+    step = Displacement(0.3, -0.1, 0.4)
+    pose = Pose2D.exp(step)
+    with pytest.warns(DeprecationWarning, match=r"Pose2D\.exp\(Twist\) moved to Pose2D\.exp"
+                      r"\(Displacement\) \(a Twist is a velocity: Displacement\.of\(twist, "
+                      r"dt_s\)\); the old form goes in the next release"):
+        assert Pose2D.exp(Twist(0.3, -0.1, 0.4)) == pose
+    assert Pose2D.exp(Displacement.of(Twist(0.15, -0.05, 0.2), 2.0)) == pose
+    back = pose.log()
+    assert not isinstance(back, Twist)
+    for old, new in (("vx", "dx"), ("vy", "dy"), ("wz", "dtheta")):
+        with pytest.warns(DeprecationWarning, match=rf"a displacement's {old} moved to "
+                          rf"Displacement\.{new} \(a Twist is a velocity\); the old name "
+                          "goes in the next release"):
+            assert getattr(back, old) == getattr(back, new)

@@ -30,7 +30,7 @@ from omnican.core.limits import (
     command_problem,
     desaturate_twist,
 )
-from omnican.core.odometry import Pose2D
+from omnican.core.odometry import Displacement, Pose2D
 from omnican.errors import BaseStoppedError
 
 logger = logging.getLogger(__name__)
@@ -206,7 +206,7 @@ def planned_end(start: Pose2D, leg: Leg) -> Pose2D:
                       start.y + leg.distance * math.sin(direction), start.theta)
     if leg.angle is not None:
         return Pose2D(start.x, start.y, start.theta + math.copysign(leg.angle, leg.twist.wz))
-    return start.compose(Pose2D.exp(leg.twist.scaled(leg.seconds)))
+    return start.compose(Pose2D.exp(Displacement.of(leg.twist, leg.seconds)))
 
 
 def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,
