@@ -36,7 +36,7 @@ from omnican.cli.dashboard import (
     dashboard,
 )
 from omnican.cli.session import add_bus_arguments, add_record_argument, session
-from omnican.cli.terminal import Events, Screen, cbreak, logs_into, read_keys
+from omnican.cli.terminal import RecentEvents, Screen, cbreak, logs_into, read_keys
 from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
 from omnican.gamepad.device import Gamepad, config_table, pad_command, teleop_model_for
@@ -145,7 +145,7 @@ def source_name(gamepad: bool) -> str:
 
 
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: Events, pad: Gamepad | None = None, shared: bool = False,
+               events: RecentEvents, pad: Gamepad | None = None, shared: bool = False,
                screen: Screen | None = None) -> None:
     """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. When
     ``shared`` (Foxglove may drive too) the keys command only while they move the base
@@ -202,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--key-timeout must be 0 or more seconds, got {args.key_timeout}")
     fd = sys.stdin.fileno()
     console = Console()
-    events = Events()
+    events = RecentEvents()
     final = None
     failed = False
     pad = None
