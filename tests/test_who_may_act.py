@@ -432,7 +432,7 @@ def test_a_stop_from_another_process_stops_whoever_drives_and_the_console_asks_t
 
     odom = session.declare_subscriber(rmw.data_key(0, "/odom", odom_type,
                                                    rmw.type_hash(odom_type)), heard)
-    node = rmw.Node(0, "0", 0, "omnican", namespace="/")
+    node = rmw.RosNode(0, "0", 0, "omnican", namespace="/")
     calls = itertools.count(1)
 
     def call(name: str) -> tuple[bool, str]:
