@@ -1,5 +1,9 @@
-"""omnican fleet's dashboard: the keys (select, stop, recover, stop every base), the
-requests they make and the events their answers give, drawn a few times a second."""
+"""omnican fleet's dashboard: its keys, the requests they make and the events their
+answers give.
+
+A few times a second it reads the keys (select a base, stop it, recover it, stop every
+base), collects the answers that came into the events, and draws the screen
+(:mod:`omnican.cli.fleet_view`)."""
 
 from __future__ import annotations
 

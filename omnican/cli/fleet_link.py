@@ -1,7 +1,10 @@
 """The fleet view's link to the bases: its Zenoh session and
-:class:`~omnican.zenoh.fleet.Fleet`, opened in a thread of its own (again while the
-router cannot be reached), what keeps the view from the bases, and what the view may ask
-of them (a viewer's recover, a recover of a name two sessions claim)."""
+:class:`~omnican.zenoh.fleet.Fleet`, and what the view may ask of the bases.
+
+The session opens in a thread of its own, and again while the router cannot be reached
+(:class:`Link`), so that the view says what keeps it from the bases, and hears Ctrl-C,
+meanwhile. A viewer's identity may not recover (:func:`may_recover`), and no one
+recovers a name two sessions claim (:data:`CONFLICT`: the recover would reach each)."""
 
 from __future__ import annotations
 
