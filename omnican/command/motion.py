@@ -1,9 +1,10 @@
-"""Scripted motion: legs, the square, and running them on a base.
+"""Scripted motion on a base: the legs driven one after the other, each goal leg stopped
+on its goal.
 
 :func:`run` drives the legs (:mod:`omnican.command.legs`, fitted to the base by
-:mod:`omnican.command.fit`) one after the other: a timed leg for its time, a goal leg
-until the odometry says it reached its goal, then stopped on it (and crept back onto it
-when it stopped off it). Goal legs are measured against the plan, not against where the
+:mod:`omnican.command.feasibility`): a timed leg for its time, a goal leg until the
+odometry says it reached its goal, then stopped on it (and crept back onto it when it
+stopped off it). Goal legs are measured against the plan, not against where the
 previous leg happened to stop: a square's fourth turn ends on the start heading plus 360
 degrees as the odometry measures it, however much each earlier turn over- or undershot.
 
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from omnican.clock import REAL_TIME, Clock
-from omnican.command.fit import (
+from omnican.command.feasibility import (
     SETTLE_ESTIMATE_S,
     Clamp,
     clamp,
