@@ -6,7 +6,7 @@ publisher and publishes its summary there, twice a second; :class:`Fleet` lists 
 bases it hears (:class:`BaseView`) and asks them to stop or recover. Which tokens are
 bases, and how they are found whatever a stranger declares, is
 :mod:`omnican.zenoh.discovery`'s; the requests and their answers (each taken only from
-the session that owns the service) :mod:`omnican.zenoh.requests`'.
+the session that owns the service) :mod:`omnican.zenoh.calls`'.
 
 A base whose token goes is LOST: its session closed, or the router dropped it. A killed
 process's TCP link drops at once, and the router withdraws its tokens at once; a network
@@ -29,6 +29,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from omnican.zenoh.calls import ROUTER_TIMEOUT, TIMEOUT_S, Answer, Call, Caller, same_session
 from omnican.zenoh.discovery import (
     DEFAULT_PERIOD_S,
     INVENTORY_AFTER_S,
@@ -47,7 +48,6 @@ from omnican.zenoh.discovery import (
     Entry,
     check,
 )
-from omnican.zenoh.requests import ROUTER_TIMEOUT, TIMEOUT_S, Answer, Call, Requests, same_session
 from omnican.zenoh.summary import SILENT_PERIODS, Summary
 
 __all__ = [
@@ -117,7 +117,7 @@ class Fleet:
         self.clock = clock
         self._closed = False
         self._cancel = zenoh.CancellationToken()  # every query of the fleet's, at close
-        self._requests = Requests(session, clock, self._cancel)
+        self._caller = Caller(session, clock, self._cancel)
         # Last: its callbacks start at once.
         self._discovery = Discovery(session, domain_id, clock, self._cancel)
 
@@ -144,12 +144,12 @@ class Fleet:
     @property
     def intruders(self) -> int:
         """Replies from a session that does not own the service."""
-        return self._requests.intruders
+        return self._caller.intruders
 
     @property
     def gid(self) -> bytes:
         """The GID the fleet's requests carry (their answers must name it)."""
-        return self._requests.gid
+        return self._caller.gid
 
     @property
     def opened(self) -> float:
@@ -270,7 +270,7 @@ class Fleet:
         discovery = self._discovery
         with discovery.lock:
             entries = [discovery.entries.get(view.key) for view in chosen]
-        return self._requests.call(service, timeout_s, unheard, unknown,
+        return self._caller.call(service, timeout_s, unheard, unknown,
                                    [(view.key, view.name, view.zid, entry)
                                     for view, entry in zip(chosen, entries, strict=True)])
 

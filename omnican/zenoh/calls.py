@@ -2,7 +2,7 @@
 answers, each taken only from the session that owns the service.
 
 The services are std_srvs/Trigger in rmw_zenoh's request/reply form
-(:mod:`omnican.zenoh.services`), the same path as a ROS 2 client's: :class:`Requests`
+(:mod:`omnican.zenoh.services`), the same path as a ROS 2 client's: :class:`Caller`
 sends every request of a :class:`Call` first (one Zenoh query per service key: every
 session that claims a name answers it) and the answers are collected as they come, each
 bounded by a timeout; a base that does not answer in time is reported so, and one whose
@@ -137,8 +137,8 @@ class Call:
 Target = tuple[str, str, str, Entry | None]
 
 
-class Requests:
-    """The requests a fleet view sends on ``session``; ``cancel`` (a
+class Caller:
+    """Sends a fleet view's requests on ``session``; ``cancel`` (a
     ``zenoh.CancellationToken``) ends them. ``clock``: monotonic seconds."""
 
     def __init__(self, session: Any, clock: Callable[[], float], cancel: Any) -> None:
