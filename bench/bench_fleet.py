@@ -361,8 +361,9 @@ def fleet_part(count: int, seconds: float) -> None:
                     if b.seen is None and row is not None and row.summary is not None:
                         b.seen = now
                 time.sleep(0.01)
-            with fleet._lock:  # when each base's token came, and its first summary
-                found = {e.name: e.found_at for e in fleet._entries.values()}
+            tokens = fleet._discovery  # when each base's token came, and its first summary
+            with tokens.lock:
+                found = {e.name: e.found_at for e in tokens.entries.values()}
             for b in bases:
                 b.token_at = found.get(b.name)
             from_spawn = [b.seen - b.spawned for b in bases if b.seen is not None]

@@ -1,8 +1,8 @@
 """A simulated omni base: one simulated drive per node of a config, plus ground truth.
 
-The true pose is integrated from the drives' *physical* wheel motion (not from the
-encoder values they report, which may be noisy, wrapped or reset by a reboot)
-through the base's true kinematics.
+The drives are made as the config reads them (:mod:`omnican.sim.wiring`); the true pose
+is integrated from their *physical* wheel motion through the base's true kinematics
+(:mod:`omnican.sim.truth`).
 
 Where the drives run: on a housekeeping thread and python-can's Notifier (real time), on
 the simulated clock (lock-step), or, ``stepped``, on the control loop of a base opened in
@@ -33,18 +33,18 @@ import numpy.typing as npt
 
 from omnican.chassis.realtime import realtime_refusal
 from omnican.clock import REAL_TIME, Clock
-from omnican.config import ChassisConfig, WheelConfig
+from omnican.config import ChassisConfig
 from omnican.core.kinematics import OmniKinematics, Twist
-from omnican.core.odometry import Odometry, Pose2D
+from omnican.core.odometry import Pose2D
 from omnican.errors import BusError, ConfigError
 from omnican.io import stepped as stepped_io
 from omnican.io.bus_health import describe_open_error
 from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
-from omnican.protocol.object_map import Obj
 from omnican.sim.drive import SimulatedDrive
-from omnican.sim.health import QUANTITIES, EstopInput
 from omnican.sim.scheduler import SimScheduler
+from omnican.sim.truth import GroundTruth
+from omnican.sim.wiring import health_wiring, make_drive
 
 logger = logging.getLogger(__name__)
 
@@ -96,13 +96,10 @@ class SimulatedBase:
         self.drives = drives
         self.wheel_axes = wheel_axes
         self.true_kinematics = true_kinematics
-        self._counts_per_metre = counts_per_metre
-        self._scales = [float(c) for c in counts_per_metre]
-        self._odo = Odometry(true_kinematics)
+        self._truth = GroundTruth(wheel_axes, true_kinematics, counts_per_metre, clock)
         self._lock = threading.Lock()
         self._closed = False
-        self._odo.update(self._true_travel())
-        scheduler.add(self._tick)
+        scheduler.add(self._truth.follow)
         self._channel: str | None = None  # offered to a base's loop on this channel
         self._rt_priority = 0
         #: why the drives' threads run at normal priority though ``rt_priority`` asked
@@ -112,8 +109,6 @@ class SimulatedBase:
         self.stepping = False
         self._receive: Any = None
         self._last_tick = -math.inf
-        self._stepper = 0  # the loop's thread (threading.get_ident) while stepping
-        self._truth: tuple[Pose2D, Twist] | None = None  # as of its last cycle
 
     @classmethod
     def from_config(
@@ -188,12 +183,12 @@ class SimulatedBase:
         drives: list[SimulatedDrive] = []
         try:
             by_node: dict[int, SimulatedDrive] = {}
-            health = _health_wiring(cfg, scales)
+            health = health_wiring(cfg, scales)
             for node_id, wheels in cfg.nodes().items():
-                by_node[node_id] = cls._make_drive(network, node_id, wheels, scheduler,
-                                                   {**health[node_id], **options,
-                                                    **(drive_options or {}).get(node_id, {}),
-                                                    "clock": clock})
+                by_node[node_id] = make_drive(network, node_id, wheels, scheduler,
+                                              {**health[node_id], **options,
+                                               **(drive_options or {}).get(node_id, {}),
+                                               "clock": clock})
                 drives.append(by_node[node_id])
             wheel_axes = [(by_node[w.node_id], w.axis) for w in cfg.wheels]
             counts = np.array([w.position_scale * s for w, s in zip(cfg.wheels, scales,
@@ -217,79 +212,22 @@ class SimulatedBase:
         logger.info("simulated base: nodes %s on %s", sorted(by_node), bus_kwargs)
         return base
 
-    @staticmethod
-    def _make_drive(network: canopen.Network, node_id: int, wheels: list[WheelConfig],
-                    scheduler: SimScheduler, options: Mapping[str, Any]) -> SimulatedDrive:
-        eds = {w.eds for w in wheels}
-        if len(eds) > 1:
-            raise ConfigError(f"node {node_id}: its wheels name different EDS files "
-                              f"({', '.join(sorted(str(e) for e in eds))})")
-        probe = SimulatedDrive(network, node_id, wheels[0].eds, scheduler=scheduler, boot=False,
-                               clock=options.get("clock", REAL_TIME))
-        n_axes = probe.num_axes
-        probe.close()
-        cpu = [1.0] * n_axes
-        for w in wheels:
-            cpu[w.axis] = w.position_scale / w.velocity_scale
-        return SimulatedDrive(network, node_id, wheels[0].eds, scheduler=scheduler,
-                              counts_per_unit=cpu, **options)
-
     # ------------------------------------------------------------ truth
-
-    def _true_travel(self, now: float | None = None, moved: bool = True) -> list[float]:
-        """What each wheel rolled on the ground (a wheel off the ground moves nothing), at
-        ``now`` (default the present); ``moved=False``: as the drives last moved them."""
-        t = self.clock.now() if now is None else now
-        return [(d.ground_counts(axis, t) if moved else d.axes[axis].ground_position)
-                * (1.0 - d.slip) / scale
-                for (d, axis), scale in zip(self.wheel_axes, self._scales, strict=True)]
-
-    def _tick(self, now: float) -> None:
-        """The truth follows the wheels as their drives last moved them (on the SYNC, or
-        in their own housekeeping when no SYNC comes): moving them here as well would
-        move every motor twice a cycle. While a loop runs the drives, the truth is also
-        kept for other threads to read (:attr:`true_pose`)."""
-        with self._lock:
-            if not self._closed:
-                self._odo.step(self._true_travel(now, moved=False))
-                if self.stepping:  # this is the loop's thread: the drives just moved
-                    self._truth = (self._odo.pose, self._twist(advance=False))
 
     @property
     def true_pose(self) -> Pose2D:
         """Ground-truth pose of the base (m, m, rad; theta continuous). While a base's
         loop runs the drives (``stepped``), another thread reads it as of the loop's last
         cycle: taking the drives' locks there could hold the loop up."""
-        truth = self._truth_elsewhere()
-        if truth is not None:
-            return truth[0]
-        with self._lock:
-            return self._odo.update(self._true_travel())
+        return self._truth.pose
 
     @property
     def true_twist(self) -> Twist:
         """Ground-truth body velocity now (m/s, m/s, rad/s); see :attr:`true_pose`."""
-        truth = self._truth_elsewhere()
-        return truth[1] if truth is not None else self._twist(advance=True)
-
-    def _twist(self, advance: bool) -> Twist:
-        speeds = np.array([(d.velocity_counts(axis) if advance else d.axes[axis].state.velocity)
-                           * (1.0 - d.slip) if d.axes[axis].grounded else 0.0
-                           for d, axis in self.wheel_axes]) / self._counts_per_metre
-        return self.true_kinematics.to_twist(speeds)
-
-    def _truth_elsewhere(self) -> tuple[Pose2D, Twist] | None:
-        """The truth of the loop's last cycle, for a thread other than the loop's while
-        the loop runs the drives; None otherwise."""
-        truth = self._truth
-        if truth is None or not self.stepping or threading.get_ident() == self._stepper:
-            return None
-        return truth
+        return self._truth.twist
 
     def reset_truth(self, pose: Pose2D | None = None) -> None:
-        with self._lock:
-            self._odo.update(self._true_travel())
-            self._odo.reset(pose)
+        self._truth.reset(pose)
 
     def set_battery(self, volts: float) -> None:
         """The battery feeding every drive's DC link is at ``volts`` from now on
@@ -338,8 +276,7 @@ class SimulatedBase:
         self._receive = (network.lockstep_receiver() if isinstance(network, Network)
                          else listeners_receiver(network.listeners))
         self._last_tick = -math.inf
-        self._stepper = threading.get_ident()
-        self._truth = None
+        self._truth.run_on(threading.get_ident())
         self.stepping = True
         logger.debug("simulated drives run on the control loop")
 
@@ -366,6 +303,7 @@ class SimulatedBase:
         """The loop no longer runs the drives: their own threads again (with their
         priority), before the base's shutdown talks to them."""
         self.stepping = False
+        self._truth.run_on(0)
         if self._closed:
             return
         network = self.network
@@ -397,6 +335,7 @@ class SimulatedBase:
             if self._closed:
                 return
             self._closed = True
+        self._truth.stop()
         if self._channel is not None:
             stepped_io.withdraw(self._channel, self)
         self.scheduler.close()
@@ -410,30 +349,3 @@ class SimulatedBase:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-
-def _health_wiring(cfg: ChassisConfig, true_scale: Sequence[float]) -> dict[int, dict[str, Any]]:
-    """Per node, what the drives need to report as ``cfg`` reads them: each axis's counts
-    per metre (the motor current follows the wheel's motion), the vendor objects the
-    config names and their units, and where the e-stop is wired."""
-    from omnican.plan.node import node_layouts
-
-    out: dict[int, dict[str, Any]] = {}
-    for layout in node_layouts(cfg):
-        axes = {a.wheel_index: a.wheel.axis for a in layout.axes}
-        n_axes = max(1, layout.axes[0].objs.num_axes)
-        per_m = [0.0] * n_axes
-        for a in layout.axes:
-            per_m[a.wheel.axis] = a.wheel.position_scale * true_scale[a.wheel_index]
-        # A config's scale says the object's unit: the simulator serves it so (6078h and
-        # 6077h count per mille whatever: their scale is the rated current's).
-        signals = {r.key: (r.quantity, axes[r.wheels[0]], r.scale)
-                   for r in layout.health.reads
-                   if r.quantity in QUANTITIES and r.scale is not None and
-                   not (r.quantity == "torque" and r.entry.obj is Obj.TORQUE_ACTUAL)}
-        options: dict[str, Any] = {"counts_per_m": per_m, "signals": signals}
-        entry, estop = layout.estop_entry, layout.estop
-        if estop is not None and entry is not None:
-            options["estop_input"] = EstopInput(entry.index, entry.subindex, estop.bit,
-                                                estop.active_low)
-        out[layout.node_id] = options
-    return out

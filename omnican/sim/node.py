@@ -8,7 +8,8 @@ configured them (taken from 14xxh-1Axxh on entering OPERATIONAL); event-driven T
 with inhibit and event times; a heartbeat producer (1017h) and consumer (1016h);
 silence when frozen, and random frame loss. :class:`SimNode` handles the frames; what
 reading and writing an object does is :mod:`omnican.sim.objects`', the PDOs at run time
-:mod:`omnican.sim.process_data`'s, the heartbeats' bookkeeping :mod:`omnican.sim.heartbeat`'s.
+:mod:`omnican.sim.process_data`'s, the heartbeats' bookkeeping :mod:`omnican.sim.heartbeat`'s,
+putting the frames on the bus :mod:`omnican.sim.transmit`'s.
 
 What the device does with its objects is the :class:`Application`'s (the CiA 402
 drive, :mod:`omnican.sim.drive`): it provides the dynamic objects' readers and hears
@@ -19,19 +20,16 @@ Notifier thread (or the sender's, in lock-step) under the drive's lock.
 from __future__ import annotations
 
 import logging
-import math
 import random
 import struct
 import threading
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-import can
 import canopen
 from canopen import objectdictionary as od
 
 from omnican.clock import Clock
-from omnican.io.bus import prepared_message
 from omnican.protocol.cia301 import (
     COB_ID_MASK,
     EMCY_BASE,
@@ -51,10 +49,10 @@ from omnican.sim.heartbeat import Heartbeat
 from omnican.sim.objects import NodeObjects, ObjectHooks
 from omnican.sim.pdo import read_uint
 from omnican.sim.process_data import ProcessData
+from omnican.sim.transmit import SEND_WARNING_EVERY_S, Transmitter  # noqa: F401 (here too)
 
 logger = logging.getLogger(__name__)
 
-SEND_WARNING_EVERY_S = 5.0  # a refused send is logged at most this often
 _OPERATIONAL = int(NmtState.OPERATIONAL)  # a plain name: NmtState.X is a descriptor call
 
 Key = tuple[int, int]
@@ -136,12 +134,7 @@ class SimNode:
         #: also at once on both, as the simulator always did)
         self.heartbeat_periodic = False
         self._subscribed_hb: set[int] = set()
-        self._send_failures = 0
-        # One frame per COB-ID, refilled for each send (under the send lock): every
-        # interface only reads a frame while sending it, and can.Message's constructor
-        # is most of what a simulated frame costs.
-        self._frames: dict[int, can.Message] = {}
-        self._send_warned_at = -math.inf
+        self._tx = Transmitter(network, self.node_id, clock)
 
         # LocalNode produces its heartbeat from a 1017h write callback; we do it ourselves.
         local._write_callbacks.remove(local.nmt.on_write)
@@ -348,28 +341,11 @@ class SimNode:
         return self.frame_loss > 0 and self._rng.random() < self.frame_loss
 
     def _send(self, cob_id: int, data: bytes, droppable: bool = True) -> None:
+        """``data`` on ``cob_id``, unless the node is frozen or closed, or (``droppable``)
+        the frame is lost (:attr:`frame_loss`)."""
         if self.frozen or self.closed or (droppable and self.frame_loss and self._lost()):
             return
-        bus = self.network.bus
-        if bus is None:
-            return
-        try:
-            with self.network.send_lock:
-                msg = self._frames.get(cob_id)
-                if msg is None:
-                    msg = self._frames[cob_id] = prepared_message(cob_id, bytes(data))
-                else:
-                    msg.data = data  # type: ignore[assignment]  # bytes (see prepared_message)
-                    msg.dlc = len(data)
-                bus.send(msg)
-        except (can.CanError, OSError, RuntimeError) as exc:
-            # A link that is down refuses every frame: say so once, then now and then.
-            self._send_failures += 1
-            now = self.clock.now()
-            if now - self._send_warned_at >= SEND_WARNING_EVERY_S:
-                self._send_warned_at = now
-                logger.warning("simulated node %d could not send 0x%03X (%d frames refused "
-                               "so far): %s", self.node_id, cob_id, self._send_failures, exc)
+        self._tx.send(cob_id, data)
 
     # ------------------------------------------------------------ lifecycle
 
