@@ -508,7 +508,7 @@ def stand_ins(endpoint: str, count: int, seconds: float) -> None:
     zid = str(session.info.zid())
     gids = []
     for i in range(count):
-        node = rmw.Node(0, zid, i, "omnican", namespace=f"/robot{i}")
+        node = rmw.RosNode(0, zid, i, "omnican", namespace=f"/robot{i}")
         fq = f"/robot{i}/base_summary"
         token = node.endpoint_token(1, rmw.Kind.PUBLISHER, fq, STRING, hash_, rmw.Qos())
         gids.append(rmw.gid_of(token))  # what a base's summaries carry: its token's GID
@@ -605,7 +605,7 @@ def spoofer(endpoint: str, count: int) -> None:
     session = client(endpoint)
     zid, hash_ = str(session.info.zid()), rmw.type_hash(STRING)
     tokens = [session.liveliness().declare_token(
-        rmw.Node(0, zid, i, "omnican", namespace=f"/spoof{i}").endpoint_token(
+        rmw.RosNode(0, zid, i, "omnican", namespace=f"/spoof{i}").endpoint_token(
             1, rmw.Kind.PUBLISHER, f"/spoof{i}/base_summary", STRING, hash_, rmw.Qos()))
         for i in range(count)]
     print("ready", flush=True)

@@ -24,6 +24,7 @@ if TYPE_CHECKING:  # the same names for type checkers and editors ("X as X": re-
     from omnican.core.kinematics import Twist as Twist
     from omnican.core.limits import VelocityLimiter as VelocityLimiter
     from omnican.core.limits import VelocityLimits as VelocityLimits
+    from omnican.core.odometry import Displacement as Displacement
     from omnican.core.odometry import Odometry as Odometry
     from omnican.core.odometry import Pose2D as Pose2D
     from omnican.errors import BusError as BusError
@@ -42,7 +43,7 @@ _HOMES = {
     "OmnicanError": "errors",
     "OmniKinematics": "core.kinematics", "Twist": "core.kinematics",
     "VelocityLimiter": "core.limits", "VelocityLimits": "core.limits",
-    "Odometry": "core.odometry", "Pose2D": "core.odometry",
+    "Odometry": "core.odometry", "Pose2D": "core.odometry", "Displacement": "core.odometry",
     "Chassis": "chassis", "WheelState": "chassis",
 }
 

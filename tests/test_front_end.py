@@ -99,7 +99,7 @@ def test_it_runs_beside_a_simulated_base_takes_its_telemetry_and_stops_it(
         refused: list[str] = []
 
         def stopped_by_echo() -> bool:
-            who = driver.send(Twist(0.2, 0.0, 0.0))
+            who = driver.drive(Twist(0.2, 0.0, 0.0)).refused_by
             if who is not None:
                 refused.append(who)
             return who is not None

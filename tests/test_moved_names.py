@@ -102,3 +102,55 @@ def test_a_name_of_the_zenoh_table_moved_from_the_config_warns(name: str) -> Non
         assert getattr(omnican.config, name) is getattr(omnican.zenoh.table, name)
     with pytest.raises(AttributeError):
         omnican.config.KEYS  # noqa: B018  # a table module's own name, never the config's
+
+
+# -- names that mean one thing (issue 39 step 4) -----------------------------------------
+
+def test_a_command_source_s_send_and_may_act_warn_and_answer_as_before() -> None:
+    from omnican.chassis.actions import Action
+    from omnican.chassis.arbiter import CommandArbiter, CommandSource
+    from omnican.clock import SimClock
+    from omnican.core.kinematics import Twist
+
+    class Base:  # what a command source asks of a base, and no more
+        def __init__(self) -> None:
+            self.clock = SimClock()
+            self.twists: list[Twist] = []
+
+        def set_twist(self, twist: Twist) -> None:
+            self.twists.append(twist)
+
+    base, arbiter = Base(), CommandArbiter(0.5)
+    keys = CommandSource(base, arbiter, "keys")  # type: ignore[arg-type]
+    other = CommandSource(base, arbiter, "other")  # type: ignore[arg-type]
+    moved = r"CommandSource\.{}\(\) moved to CommandSource\.{}, which returns an Outcome; " \
+            "the old name goes in the next release"
+    with pytest.warns(DeprecationWarning, match=moved.format("send", r"drive\(\)")):
+        assert keys.send(Twist(0.1, 0.0, 0.0)) is None
+    with pytest.warns(DeprecationWarning, match=moved.format("send", r"drive\(\)")):
+        assert other.send(Twist(0.2, 0.0, 0.0)) == "keys"
+    assert base.twists == [Twist(0.1, 0.0, 0.0)]
+    with pytest.warns(DeprecationWarning, match=moved.format(
+            "may_act", r"may\(Action\.RECOVER\)")):
+        assert other.may_act() == "keys" == other.may(Action.RECOVER).refused_by
+    with pytest.warns(DeprecationWarning, match="may_act"):
+        assert keys.may_act() is None
+
+
+def test_a_displacement_is_no_twist_and_the_old_forms_warn_for_one_release() -> None:
+    from omnican import Displacement, Pose2D, Twist
+
+    step = Displacement(0.3, -0.1, 0.4)
+    pose = Pose2D.exp(step)
+    with pytest.warns(DeprecationWarning, match=r"Pose2D\.exp\(Twist\) moved to Pose2D\.exp"
+                      r"\(Displacement\) \(a Twist is a velocity: Displacement\.of\(twist, "
+                      r"dt_s\)\); the old form goes in the next release"):
+        assert Pose2D.exp(Twist(0.3, -0.1, 0.4)) == pose
+    assert Pose2D.exp(Displacement.of(Twist(0.15, -0.05, 0.2), 2.0)) == pose
+    back = pose.log()
+    assert not isinstance(back, Twist)
+    for old, new in (("vx", "dx"), ("vy", "dy"), ("wz", "dtheta")):
+        with pytest.warns(DeprecationWarning, match=rf"a displacement's {old} moved to "
+                          rf"Displacement\.{new} \(a Twist is a velocity\); the old name "
+                          "goes in the next release"):
+            assert getattr(back, old) == getattr(back, new)

@@ -335,7 +335,7 @@ def test_every_front_end_answers_by_the_one_table(
         if situation == DRIVER:
             fe.drive()
         elif situation == OTHER:
-            assert another.send(Twist(0.05, 0.0, 0.0)) is None
+            assert another.drive(Twist(0.05, 0.0, 0.0)).ok
         calls = spy(base, sim, monkeypatch)
         done, said = fe.act(action)
         effect = EFFECTS[action]
@@ -346,7 +346,7 @@ def test_every_front_end_answers_by_the_one_table(
         if not want and said:
             assert ANOTHER in said, said  # a refusal names who drives
         if want and action.stops and situation == OTHER:  # it took control from the driver
-            assert another.send(Twist(0.05, 0.0, 0.0)) is not None
+            assert not another.drive(Twist(0.05, 0.0, 0.0)).ok
             assert another.stopped_by() is not None
 
 
@@ -432,7 +432,7 @@ def test_a_stop_from_another_process_stops_whoever_drives_and_the_console_asks_t
 
     odom = session.declare_subscriber(rmw.data_key(0, "/odom", odom_type,
                                                    rmw.type_hash(odom_type)), heard)
-    node = rmw.Node(0, "0", 0, "omnican", namespace="/")
+    node = rmw.RosNode(0, "0", 0, "omnican", namespace="/")
     calls = itertools.count(1)
 
     def call(name: str) -> tuple[bool, str]:

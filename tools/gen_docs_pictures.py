@@ -82,7 +82,7 @@ def teleop(out: Path) -> None:
     from omnican import Chassis, Twist
     from omnican.cli.dashboard import dashboard
     from omnican.cli.session import SIM_BITRATE
-    from omnican.cli.terminal import Events
+    from omnican.cli.terminal import RecentEvents
     from omnican.clock import SimClock
     from omnican.command.teleop import TeleopModel
     from omnican.config import default_config
@@ -100,7 +100,7 @@ def teleop(out: Path) -> None:
         while clock.now() < end:
             base.set_velocity(command.vx, command.vy, command.wz)
             clock.sleep(0.05)
-        events = Events()
+        events = RecentEvents()
         events.lines.append("12:00:00 base running: the keys drive it")
         width, height = TELEOP_SCREEN
         screen = dashboard(base, keys, command, "omnican teleop - simulated base, nodes 1, 2, 3",

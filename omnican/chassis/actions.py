@@ -30,7 +30,7 @@ from types import MappingProxyType
 class Action(enum.Enum):
     """An operator's action on a base, named as the docs' table names it."""
 
-    DRIVE = "drive"  # send a velocity (CommandSource.send)
+    DRIVE = "drive"  # send a velocity (CommandSource.drive)
     STOP = "stop"  # a controlled stop; the next command moves again
     HALT = "halt"  # a stop held until a recover (Zenoh's ~/stop, the fleet stop)
     RECOVER = "recover"

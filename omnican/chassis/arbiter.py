@@ -15,7 +15,7 @@ limit, the simulator's console) is the driver's, or anyone's while no one drives
 
 A front end does not apply these rules itself: it asks the base for a
 :class:`CommandSource` (:meth:`omnican.chassis.Chassis.command_source`), one per source,
-and sends, stops, halts, recovers, resets the pose and changes limits through it; each
+and drives, stops, halts, recovers, resets the pose and changes limits through it; each
 action returns its :class:`~omnican.chassis.actions.Outcome` (done, refused by whom, or
 failed) that the front end only words. Every source of one base shares the base's one
 arbiter, so a new front end shares control with the others by construction. The arbiter
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import threading
+import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Protocol
@@ -53,26 +54,27 @@ class CommandArbiter:
         self._stopped: dict[str, tuple[str, float]] = {}  # source -> (by whom, last heard)
 
     def claim(self, source: str, now: float, send: Callable[[], None] | None = None
-              ) -> str | None:
-        """``source`` wants to command at ``now``: None if it may (it holds control from
-        here on; ``send``, the command, runs before anyone can take control away), else
-        the name of the source that holds control (or that stopped this one). A command
-        the base refuses (``send`` raises, e.g. ValueError for a value beyond sense)
-        takes no control: the error goes to the caller, nothing else changes."""
+              ) -> Outcome:
+        """``source`` wants to command at ``now`` (:attr:`Action.DRIVE`): done
+        (:attr:`Outcome.ok`) if it may, and it holds control from here on (``send``, the
+        command, runs before anyone can take control away); else refused by the source
+        that holds control, or that stopped this one (:attr:`Outcome.refused_by`). A
+        command the base refuses (``send`` raises, e.g. ValueError for a value beyond
+        sense) takes no control: the error goes to the caller, nothing else changes."""
         with self._lock:
             stopped = self._stopped.get(source)
             if stopped is not None:
                 if now - stopped[1] <= self.timeout_s:
                     self._stopped[source] = (stopped[0], now)  # still pressing: still out
-                    return stopped[0]
+                    return Outcome(Action.DRIVE, source, refused_by=stopped[0])
                 del self._stopped[source]  # it let go
             holder = refuser(Action.DRIVE, source, self._current(now))
             if holder is not None:
-                return holder
+                return Outcome(Action.DRIVE, source, refused_by=holder)
             if send is not None:
                 send()
             self._holder, self._last = source, now
-            return None
+            return Outcome(Action.DRIVE, source)
 
     def ask(self, source: str, action: Action, now: float) -> Outcome:
         """Whether ``source`` may take ``action`` at ``now``, by the table
@@ -137,12 +139,6 @@ class CommandArbiter:
         with self._lock:
             return self._current(now)
 
-    def may_act(self, source: str, now: float) -> str | None:
-        """Whether ``source`` may do what only the controller may while one drives
-        (recover, change a limit, reset odometry): None if it may, else the holder. Does
-        not take control. (:meth:`ask` answers for each action.)"""
-        return self.ask(source, Action.RECOVER, now).refused_by
-
     def _current(self, now: float) -> str | None:
         if self._holder is not None and now - self._last > self.timeout_s:
             self._holder = None  # silent for the timeout: the base stopped by itself
@@ -198,14 +194,23 @@ class CommandSource:
         """How long a silent holder keeps control (the chassis watchdog's timeout)."""
         return self._arbiter.timeout_s
 
-    def send(self, twist: Twist) -> str | None:
+    def drive(self, twist: Twist) -> Outcome:
         """Command the base to ``twist`` (body frame: m/s, m/s, rad/s), if this source may
-        (it then holds control): None if sent, else the source that holds control (or
-        that stopped this one, see :meth:`stopped_by`), and nothing is sent. A twist the
-        base refuses (ValueError: NaN, beyond sense) raises and takes no control. A zero
-        twist is a command like any other: it holds control too."""
+        (it then holds control): done (:attr:`Outcome.ok`) if sent, else refused by the
+        source that holds control, or that stopped this one (:attr:`Outcome.refused_by`;
+        :meth:`stopped_by` tells which), and nothing is sent. A twist the base refuses
+        (ValueError: NaN, beyond sense) raises and takes no control. A zero twist is a
+        command like any other: it holds control too."""
         base = self._base
         return self._arbiter.claim(self.name, base.clock.now(), lambda: base.set_twist(twist))
+
+    def send(self, twist: Twist) -> str | None:
+        """Deprecated (goes in the next release): :meth:`drive`, whose answer is an
+        :class:`~omnican.chassis.actions.Outcome`. None if sent, else the refuser."""
+        warnings.warn("CommandSource.send() moved to CommandSource.drive(), which returns "
+                      "an Outcome; the old name goes in the next release",
+                      DeprecationWarning, stacklevel=2)
+        return self.drive(twist).refused_by
 
     def stop(self) -> str | None:
         """Stop the base now, whoever drives (anyone may). If another source drove, it
@@ -278,9 +283,11 @@ class CommandSource:
         return self._arbiter.holder(self._base.clock.now())
 
     def may_act(self) -> str | None:
-        """Whether this source may do what only the controller may while one drives
-        (recover, change a limit, reset odometry): None if it may, else who drives.
-        (:meth:`may` answers for each action.)"""
+        """Deprecated (goes in the next release): ``may(Action.RECOVER)``, whose answer
+        is an :class:`~omnican.chassis.actions.Outcome`. None if it may, else who drives."""
+        warnings.warn("CommandSource.may_act() moved to CommandSource.may(Action.RECOVER), "
+                      "which returns an Outcome; the old name goes in the next release",
+                      DeprecationWarning, stacklevel=2)
         return self.may(Action.RECOVER).refused_by
 
     def stopped_by(self) -> str | None:

@@ -28,7 +28,7 @@ from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.protocol.cia402 import State
 
 
-class Events(Protocol):
+class EventLines(Protocol):
     """What the dashboard shows of the events: the newest lines, oldest first."""
 
     @property
@@ -226,7 +226,7 @@ def _wheels(base: Chassis, width: int) -> tuple[RenderableType, bool]:
 
 
 def dashboard(base: Chassis, keys: TeleopModel, command: Twist, title: str,
-              events: Events, note: str, width: int = 120,
+              events: EventLines, note: str, width: int = 120,
               height: int | None = None) -> Group:
     """The screen: header, pose and twist, wheels, status, keys, events (as many of the
     newest as fit ``height`` lines). In a window too small for all of it, the parts give

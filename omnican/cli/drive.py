@@ -192,10 +192,10 @@ class Arbitrated:
         return getattr(self._base, name)
 
     def set_velocity(self, vx: float, vy: float, wz: float) -> None:
-        other = self._source.send(Twist(vx, vy, wz))
-        if other is not None:
+        sent = self._source.drive(Twist(vx, vy, wz))
+        if not sent.ok:
             how = "stopped by" if self._source.stopped_by() else "taken over by"
-            raise BaseStoppedError(f"{how} {other}")
+            raise BaseStoppedError(f"{how} {sent.refused_by}")
 
 
 def _number(value: float) -> str:

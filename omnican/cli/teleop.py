@@ -36,7 +36,7 @@ from omnican.cli.dashboard import (
     dashboard,
 )
 from omnican.cli.session import add_bus_arguments, add_record_argument, session
-from omnican.cli.terminal import Events, Screen, cbreak, logs_into, read_keys
+from omnican.cli.terminal import RecentEvents, Screen, cbreak, logs_into, read_keys
 from omnican.command.teleop import Intent, TeleopModel, key_help
 from omnican.core.kinematics import Twist
 from omnican.gamepad.device import Gamepad, config_table, pad_command, teleop_model_for
@@ -97,7 +97,7 @@ def share_command(source: CommandSource, command: Twist) -> str | None:
     it goes too (the keys let go: the base stops) and gives control up. Returns who
     refused it (None: not refused)."""
     if not command.is_zero():
-        return source.send(command)
+        return source.drive(command).refused_by
     source.release(stop=True)  # stops the base only if these keys drove it
     return None
 
@@ -145,7 +145,7 @@ def source_name(gamepad: bool) -> str:
 
 
 def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str,
-               events: Events, pad: Gamepad | None = None, shared: bool = False,
+               events: RecentEvents, pad: Gamepad | None = None, shared: bool = False,
                screen: Screen | None = None) -> None:
     """Keys (or the gamepad) in, commands out, dashboard refreshed, until Esc. When
     ``shared`` (Foxglove may drive too) the keys command only while they move the base
@@ -182,7 +182,7 @@ def drive_loop(base: Chassis, keys: TeleopModel, fd: int, live: Live, title: str
             command = keys.command(time.monotonic())
             shown = note
         if not shared:  # the only source: every command goes, zeros too
-            source.send(command)
+            source.drive(command)
         else:
             refused = share_command(source, command)
             driver = source.holder()
@@ -202,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--key-timeout must be 0 or more seconds, got {args.key_timeout}")
     fd = sys.stdin.fileno()
     console = Console()
-    events = Events()
+    events = RecentEvents()
     final = None
     failed = False
     pad = None

@@ -191,8 +191,9 @@ class Screen:
 API_TO_KEYS = re.compile(r"recover\(\) starts( |$)")
 
 
-class Events(logging.Handler):
-    """Log records go to the dashboard instead of over it."""
+class RecentEvents(logging.Handler):
+    """A logging handler that keeps the newest five log lines (time-stamped) for the
+    dashboard to show, instead of printing them over it."""
 
     def __init__(self) -> None:
         super().__init__(logging.INFO)

@@ -81,14 +81,14 @@ class CmdVelIntake:
                         f"vy={quote(t.vy, QUOTE_CHARS)} wz={quote(t.wz, QUOTE_CHARS)}")
             return
         try:
-            holder = source.send(t)
+            sent = source.drive(t)
         except ValueError as exc:
             self.reject(source, quote(str(exc), 200))
             return
         except DriveError:
             return  # closing
-        if holder is not None:  # someone else drives (another publisher, a Foxglove client)
-            self.refuse(source, holder)
+        if sent.refused_by is not None:  # someone else drives (a publisher, a Foxglove client)
+            self.refuse(source, sent.refused_by)
             return
         if self.driver != source.name:
             self.driver = source.name

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 from omnican.core.kinematics import Twist
 from omnican.core.limits import MAX_POSE_SENSE
-from omnican.core.odometry import Pose2D
+from omnican.core.odometry import Displacement, Pose2D
 
 DISTANCE_TOLERANCE_M = 0.001
 ANGLE_TOLERANCE_RAD = math.radians(0.1)
@@ -183,7 +183,7 @@ def planned_end(start: Pose2D, leg: Leg) -> Pose2D:
                       start.y + leg.distance * math.sin(direction), start.theta)
     if leg.angle is not None:
         return Pose2D(start.x, start.y, start.theta + math.copysign(leg.angle, leg.twist.wz))
-    return start.compose(Pose2D.exp(leg.twist.scaled(leg.seconds)))
+    return start.compose(Pose2D.exp(Displacement.of(leg.twist, leg.seconds)))
 
 
 def goal_command(leg: Leg, start: Pose2D, pose: Pose2D, max_accel: float,

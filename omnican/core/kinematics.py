@@ -39,9 +39,9 @@ LAYOUTS: dict[str, tuple[float, ...]] = {
 
 @dataclass(frozen=True)
 class Twist:
-    """Body velocity in the body frame: ``vx``, ``vy`` in m/s, ``wz`` in rad/s.
-
-    Also used for a body displacement over a step (m, m, rad)."""
+    """Body velocity in the body frame: ``vx``, ``vy`` in m/s, ``wz`` in rad/s (as
+    WPILib's ``ChassisSpeeds``). A displacement (m, m, rad) is a
+    :class:`~omnican.core.odometry.Displacement`."""
 
     vx: float = 0.0
     vy: float = 0.0
@@ -222,7 +222,8 @@ class OmniKinematics:
     def to_twist(self, wheel_speeds: Sequence[float] | FloatArray) -> Twist:
         """Body twist from wheel rim speeds (least squares when N > 3).
 
-        Also maps wheel travel deltas (m) to a body displacement (m, m, rad)."""
+        Linear, so wheel travel deltas (m) map the same way, to a body displacement's
+        dx, dy, dtheta (m, m, rad: :class:`~omnican.core.odometry.Displacement`)."""
         speeds = _finite_array(wheel_speeds, "wheel_speeds")
         if speeds.shape != (self.num_wheels,):
             raise ValueError(

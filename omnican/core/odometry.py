@@ -14,6 +14,7 @@ Pure module: no I/O, no CAN imports.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -35,6 +36,52 @@ def _sinc_terms(theta: float) -> tuple[float, float]:
         t2 = theta * theta
         return 1.0 - t2 / 6.0 + t2 * t2 / 120.0, theta / 2.0 - theta * t2 / 24.0
     return math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta
+
+
+@dataclass(frozen=True)
+class Displacement:
+    """A body displacement in the body frame at its start: ``dx``, ``dy`` in m, ``dtheta``
+    in rad, what :meth:`Pose2D.exp` maps to a pose and :meth:`Pose2D.log` from one (as
+    WPILib's ``Twist2d``). A velocity is a :class:`~omnican.core.kinematics.Twist`; one
+    held for a time moves a :meth:`of` it."""
+
+    dx: float = 0.0
+    dy: float = 0.0
+    dtheta: float = 0.0
+
+    @classmethod
+    def of(cls, twist: Twist, dt_s: float) -> Displacement:
+        """The displacement of body velocity ``twist`` held for ``dt_s`` seconds (its
+        exponential is the pose reached, :meth:`Pose2D.exp`)."""
+        return cls(twist.vx * dt_s, twist.vy * dt_s, twist.wz * dt_s)
+
+    def is_finite(self) -> bool:
+        return math.isfinite(self.dx) and math.isfinite(self.dy) and math.isfinite(self.dtheta)
+
+    # One release: log() and Odometry.delta gave a Twist, read as vx, vy, wz.
+    @property
+    def vx(self) -> float:
+        """Deprecated: :attr:`dx` (the next release drops it)."""
+        _moved("vx", "dx")
+        return self.dx
+
+    @property
+    def vy(self) -> float:
+        """Deprecated: :attr:`dy` (the next release drops it)."""
+        _moved("vy", "dy")
+        return self.dy
+
+    @property
+    def wz(self) -> float:
+        """Deprecated: :attr:`dtheta` (the next release drops it)."""
+        _moved("wz", "dtheta")
+        return self.dtheta
+
+
+def _moved(old: str, new: str) -> None:
+    warnings.warn(f"a displacement's {old} moved to Displacement.{new} (a Twist is a "
+                  "velocity); the old name goes in the next release", DeprecationWarning,
+                  stacklevel=3)
 
 
 @dataclass(frozen=True)
@@ -68,17 +115,24 @@ class Pose2D:
         return origin.inverse().compose(self)
 
     @classmethod
-    def exp(cls, delta: Twist) -> Pose2D:
-        """SE(2) exponential: the pose reached by moving with constant body twist
-        ``delta`` (m, m, rad over one unit of time) from the origin."""
-        a, b = _sinc_terms(delta.wz)
-        return cls(a * delta.vx - b * delta.vy, b * delta.vx + a * delta.vy, delta.wz)
+    def exp(cls, delta: Displacement | Twist) -> Pose2D:
+        """SE(2) exponential: the pose reached from the origin by body displacement
+        ``delta`` (m, m, rad), moved along at a constant velocity. (A :class:`Twist`, read
+        as a displacement over one second, is deprecated: :meth:`Displacement.of`.)"""
+        if isinstance(delta, Twist):
+            warnings.warn("Pose2D.exp(Twist) moved to Pose2D.exp(Displacement) (a Twist is "
+                          "a velocity: Displacement.of(twist, dt_s)); the old form goes in "
+                          "the next release", DeprecationWarning, stacklevel=2)
+            delta = Displacement(delta.vx, delta.vy, delta.wz)
+        a, b = _sinc_terms(delta.dtheta)
+        return cls(a * delta.dx - b * delta.dy, b * delta.dx + a * delta.dy, delta.dtheta)
 
-    def log(self) -> Twist:
+    def log(self) -> Displacement:
         """Inverse of :meth:`exp` (theta taken as is, not wrapped)."""
         a, b = _sinc_terms(self.theta)
         det = a * a + b * b
-        return Twist((a * self.x + b * self.y) / det, (-b * self.x + a * self.y) / det, self.theta)
+        return Displacement((a * self.x + b * self.y) / det, (-b * self.x + a * self.y) / det,
+                            self.theta)
 
     def distance_to(self, other: Pose2D) -> float:
         return math.hypot(self.x - other.x, self.y - other.y)
@@ -127,9 +181,9 @@ class Odometry:
         return self._x, self._y, self._th
 
     @property
-    def delta(self) -> Twist:
+    def delta(self) -> Displacement:
         """Body displacement of the last step (m, m, rad), in the body frame at its start."""
-        return Twist(*self._d)
+        return Displacement(*self._d)
 
     @property
     def last_step(self) -> tuple[float, float, float]:

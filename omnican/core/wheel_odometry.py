@@ -42,8 +42,9 @@ class CounterSample(Protocol):
     restarts: int  # times the counter restarted (a reboot); raised by whoever sees it
 
 
-class Sample:
-    """A :class:`CounterSample` of its own (for decoders and tests)."""
+class CounterSampleSlot:
+    """Where one wheel's newest counter sample is left, as a plain object: a
+    :class:`CounterSample` for decoders and tests (a drive's own is its receive state)."""
 
     __slots__ = ("epoch", "raw", "restarts")
 
@@ -120,7 +121,7 @@ def fold_counter(counts: float, last_raw: int | None, raw: int, bits: int) -> fl
     """Continuous counts after the raw sample ``raw`` of a ``bits``-wide counter, the
     previous being ``last_raw`` (None: the first sample, or the first after a reboot:
     the counts stay where they are); :class:`EncoderCounters`' fold of one sample."""
-    sample = Sample(last_raw, 0)
+    sample = CounterSampleSlot(last_raw, 0)
     counters = EncoderCounters((sample,), (bits,), (1.0,))
     counters.wheels[0].counts = counts
     if last_raw is not None:

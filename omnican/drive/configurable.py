@@ -1,7 +1,8 @@
-"""What configuring a node needs of it: the :class:`Node` protocol that NMT and boot
-(:mod:`~omnican.drive.nmt`), the SDO configuration (:mod:`~omnican.drive.sdo_config`)
-and the PDO configuration (:mod:`~omnican.drive.pdo_config`) take, so that none of them
-imports the node that runs them (:class:`omnican.drive.node.DriveNode`).
+"""What configuring a node needs of it: the :class:`ConfigurableNode` protocol that NMT
+and boot (:mod:`~omnican.drive.nmt`), the SDO configuration
+(:mod:`~omnican.drive.sdo_config`) and the PDO configuration
+(:mod:`~omnican.drive.pdo_config`) take, so that none of them imports the node that runs
+them (:class:`omnican.drive.node.DriveNode`).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from omnican.protocol.cia402 import Mode
 from omnican.protocol.heartbeat import HeartbeatWatch
 
 
-class Node(Protocol):
+class ConfigurableNode(Protocol):
     """What the configuration needs of a node (:class:`omnican.drive.DriveNode`)."""
 
     node_id: int

@@ -26,19 +26,19 @@ from omnican.errors import DriveError
 from omnican.protocol.cia301 import DEVICE_TYPE, NMT_COB_ID, NmtCommand
 
 if TYPE_CHECKING:
-    from omnican.drive.configurable import Node
+    from omnican.drive.configurable import ConfigurableNode
 
 logger = logging.getLogger("omnican.drive")
 
 BOOT_RESETS = 4  # NMT resets sent (within boot_timeout_s) before a node counts as absent
 
 
-def send(node: Node, command: NmtCommand) -> None:
+def send(node: ConfigurableNode, command: NmtCommand) -> None:
     """One NMT command to ``node`` (COB-ID 0: the command, the node id)."""
     node.network.send_message(NMT_COB_ID, bytes([command, node.node_id]))
 
 
-def enter_pre_operational(node: Node) -> None:
+def enter_pre_operational(node: ConfigurableNode) -> None:
     """The way out's last step, best effort: a bus that refuses the frame (down, its
     transmit queue full) is logged, not raised (the drives' heartbeat consumers stop
     them anyway)."""
@@ -48,7 +48,7 @@ def enter_pre_operational(node: Node) -> None:
         logger.debug("node %d: NMT pre-operational not sent: %s", node.node_id, exc)
 
 
-def reset_communication(node: Node, on_reset: Callable[[], None]) -> None:
+def reset_communication(node: ConfigurableNode, on_reset: Callable[[], None]) -> None:
     """NMT reset communication and wait for the boot-up: the drive's 1000h-1FFFh
     (PDOs, heartbeat) are back at their power-on values.
 
@@ -135,7 +135,7 @@ def reset_communication(node: Node, on_reset: Callable[[], None]) -> None:
         node.configured_boot = node.boot_count
 
 
-def answers_device_type(node: Node) -> bool:
+def answers_device_type(node: ConfigurableNode) -> bool:
     """One SDO read of the device type (1000h), one attempt: the node is there."""
     sdo = node.remote.sdo
     retries = sdo.MAX_RETRIES
@@ -151,14 +151,14 @@ def answers_device_type(node: Node) -> bool:
         sdo.MAX_RETRIES = retries
 
 
-def twins_text(node: Node, evidence: str) -> str:
+def twins_text(node: ConfigurableNode, evidence: str) -> str:
     """What a node two devices answer as is told."""
     return (f"node {node.node_id}: two devices answer as node {node.node_id} ({evidence}): "
             "a cloned drive? give each its own node id")
 
 
 @contextlib.contextmanager
-def counting_sdo_answers(node: Node) -> Iterator[None]:
+def counting_sdo_answers(node: ConfigurableNode) -> Iterator[None]:
     """Count this node's SDO answers against the requests sent meanwhile: a second
     device on the same id answers every request too."""
     answers = [0]

@@ -23,7 +23,7 @@ from omnican.protocol.cia301 import COB_ID_INVALID, COB_ID_MASK, TPDO_COMM, TRAN
 from omnican.protocol.object_map import Entry, Obj, entry_at
 
 if TYPE_CHECKING:
-    from omnican.drive.configurable import Node
+    from omnican.drive.configurable import ConfigurableNode
 
 logger = logging.getLogger("omnican.drive")
 
@@ -32,7 +32,8 @@ class PdoConfig:
     """The PDO side of one node's configuration. A drive that refused the plan once
     (:attr:`refusal`) keeps its own mapping from then on, after a reboot too."""
 
-    def __init__(self, node: Node, sdo: SdoTransfers, reset: Callable[[], None]) -> None:
+    def __init__(self, node: ConfigurableNode, sdo: SdoTransfers,
+                 reset: Callable[[], None]) -> None:
         self.node = node
         self._sdo = sdo
         self._reset = reset  # NMT reset communication, and the boot-up: the drive's own mapping

@@ -37,7 +37,7 @@ from omnican.protocol.cia402 import Command, Mode, State
 from omnican.protocol.object_map import Entry, Obj, obj_name
 
 if TYPE_CHECKING:
-    from omnican.drive.configurable import Node
+    from omnican.drive.configurable import ConfigurableNode
 
 logger = logging.getLogger("omnican.drive")
 
@@ -49,7 +49,7 @@ MODE_READS, MODE_READ_GAP_S = 4, 0.05  # the mode display read back after settin
 class SdoTransfers:
     """SDO downloads (and the errors of any transfer) of one node's configuration."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: ConfigurableNode) -> None:
         self.node = node
 
     @contextlib.contextmanager
@@ -89,7 +89,7 @@ class SdoTransfers:
 class SdoConfig:
     """What one node is set to by SDO in PRE-OPERATIONAL, and its undoing on the way out."""
 
-    def __init__(self, node: Node, sdo: SdoTransfers) -> None:
+    def __init__(self, node: ConfigurableNode, sdo: SdoTransfers) -> None:
         self.node = node
         self._sdo = sdo
         #: warnings of a configuration, said at its end (once the answers were all one

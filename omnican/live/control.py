@@ -245,7 +245,7 @@ class Control:
         try:
             twist = decode_twist(channel.encoding, channel.schema_name, data)
             # The base checks the values (Chassis.set_twist: beyond sense, refused).
-            holder = commands.send(twist)
+            sent = commands.drive(twist)
         except ValueError as exc:
             self.refused += 1
             mine = commands.may(Action.DRIVE).ok  # the driver's (or it could drive now)
@@ -258,6 +258,7 @@ class Control:
                 self._status("Warning", f"{source}: {channel.topic}: {exc}: {what}",
                              _STATUS_REFUSED)
             return
+        holder = sent.refused_by
         if holder is not None:
             self.refused += 1
             with self._lock:

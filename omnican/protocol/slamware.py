@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from omnican.core.kinematics import OmniKinematics, Twist
-from omnican.core.odometry import Pose2D
+from omnican.core.odometry import Displacement, Pose2D
 
 CMD_SET_V_AND_GET_DEADRECKON = 0x41
 
@@ -129,9 +129,9 @@ class DeadReckoner:
         if self._last is None:
             self._last = travel
             return Pose2D()
-        delta = self._kin.to_twist(travel - self._last)
+        moved = self._kin.to_twist(travel - self._last)  # travel maps as speeds do
         self._last = travel
-        return Pose2D.exp(delta)
+        return Pose2D.exp(Displacement(moved.vx, moved.vy, moved.wz))
 
     def handle(
         self,

@@ -30,7 +30,12 @@ import numpy.typing as npt
 
 from omnican.config import ChassisConfig
 from omnican.core.odometry import Odometry
-from omnican.core.wheel_odometry import SPEED_WINDOW_S, EncoderCounters, Sample, WheelOdometry
+from omnican.core.wheel_odometry import (
+    SPEED_WINDOW_S,
+    CounterSampleSlot,
+    EncoderCounters,
+    WheelOdometry,
+)
 from omnican.errors import RecordingError  # noqa: F401 (what a reader raises, named here too)
 from omnican.plan.codec import PdoCodec
 from omnican.plan.health_fields import HEALTH_FIELDS
@@ -308,7 +313,7 @@ def decode(frames: Iterable[Frame], cfg: ChassisConfig,
     booted: set[int] = set()
     reset: set[int] = set()  # nodes the host reset (NMT): their next boot-up is no reboot
     # Each wheel's newest position sample, tagged with its SYNC (syncs), as the loop's.
-    samples = [Sample() for _ in range(n)]
+    samples = [CounterSampleSlot() for _ in range(n)]
     odo = WheelOdometry(Odometry(kin), EncoderCounters(samples, bits, pscale))
     poses_rows: list[tuple[float, float, float]] = []
     speed_rows: list[list[float]] = []

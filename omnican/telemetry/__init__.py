@@ -18,10 +18,10 @@ from omnican.telemetry.messages import (
            JSON_SCHEMAS,
            ROS2,
            TOPICS,
-           Sample,
+           TelemetrySample,
 )
 from omnican.telemetry.model import Message, Telemetry
 from omnican.telemetry.settings import TelemetrySettings
 
 __all__ = ["CAN_FRAME", "CAN_RX", "CAN_TX", "JSON", "JSON_SCHEMAS", "ROS2", "TOPICS", "Feed",
-           "Message", "Sample", "Sink", "Telemetry", "TelemetrySettings"]
+           "Message", "Sink", "Telemetry", "TelemetrySample", "TelemetrySettings"]

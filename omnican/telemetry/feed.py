@@ -24,7 +24,7 @@ from omnican.chassis.state import Snapshot
 from omnican.clock import Clock
 from omnican.core.kinematics import OmniKinematics
 from omnican.telemetry.frames import FrameMessages, FrameTap
-from omnican.telemetry.messages import Sample
+from omnican.telemetry.messages import TelemetrySample
 from omnican.telemetry.model import Message, Telemetry
 from omnican.telemetry.settings import TelemetrySettings
 
@@ -165,13 +165,13 @@ class Feed:
                 except Exception:  # a front end must never take the others (or the robot) down
                     logger.exception("telemetry: %s failed to publish", type(sink).__name__)
 
-    def _sample(self, snapshot: Snapshot | None, stamp_ns: int) -> Sample:
+    def _sample(self, snapshot: Snapshot | None, stamp_ns: int) -> TelemetrySample:
         truth = self.truth
         true_pose = truth.true_pose if truth is not None else None
         true_twist = truth.true_twist if truth is not None else None
         if snapshot is None:
-            return Sample(stamp_ns, None, None, None, (), None, true_pose, true_twist)
-        return Sample(stamp_ns, snapshot.pose, snapshot.twist, snapshot.command,
+            return TelemetrySample(stamp_ns, None, None, None, (), None, true_pose, true_twist)
+        return TelemetrySample(stamp_ns, snapshot.pose, snapshot.twist, snapshot.command,
                       snapshot.wheels, snapshot.status, true_pose, true_twist)
 
     # ------------------------------------------------------------ closing

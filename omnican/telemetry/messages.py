@@ -1,4 +1,5 @@
-"""Every message a front end publishes about the base, built from one :class:`Sample`.
+"""Every message a front end publishes about the base, built from one
+:class:`TelemetrySample`.
 
 Pure: a sample in, plain values out. ROS 2 messages (``nav_msgs/msg/Odometry``,
 ``tf2_msgs/msg/TFMessage``, ``sensor_msgs/msg/JointState``,
@@ -41,7 +42,7 @@ _SERIES = tuple(f for f in HEALTH_FIELDS if not f.register)
 
 
 @dataclass(frozen=True)
-class Sample:
+class TelemetrySample:
     """The base at one control cycle, stamped: what every message of it is made from.
     ``stamp_ns``: ns since the epoch on the base's clock. Without a base (the simulator
     alone) only the truth is set."""
@@ -95,7 +96,7 @@ def _pose(p: Pose2D) -> dict[str, Any]:
 # ------------------------------------------------------------------ ROS 2 messages
 
 
-def odometry(s: Sample, settings: TelemetrySettings, pose_covariance: Sequence[float],
+def odometry(s: TelemetrySample, settings: TelemetrySettings, pose_covariance: Sequence[float],
              twist_covariance: Sequence[float]) -> dict[str, Any]:
     """nav_msgs/msg/Odometry: pose in the odom frame, twist in the body frame, with the
     dead-reckoning covariances (:mod:`omnican.telemetry.covariance`)."""
@@ -110,7 +111,7 @@ def odometry(s: Sample, settings: TelemetrySettings, pose_covariance: Sequence[f
     }
 
 
-def transforms(s: Sample, settings: TelemetrySettings) -> dict[str, Any]:
+def transforms(s: TelemetrySample, settings: TelemetrySettings) -> dict[str, Any]:
     """tf2_msgs/msg/TFMessage: the one transform odom -> base_link."""
     assert s.pose is not None
     p = s.pose
@@ -132,7 +133,7 @@ def path(ns: int, points: Sequence[tuple[int, Pose2D]], frame: str) -> dict[str,
             "poses": [pose_stamped(t, p, frame) for t, p in points]}
 
 
-def joint_states(s: Sample, settings: TelemetrySettings) -> dict[str, Any] | None:
+def joint_states(s: TelemetrySample, settings: TelemetrySettings) -> dict[str, Any] | None:
     """sensor_msgs/msg/JointState, one revolute joint per wheel (the configured names):
     angle (rad) and angular speed (rad/s) from rim travel and rim speed, positive in the
     wheel's drive direction. None when the wheel radius is unknown."""
@@ -245,7 +246,7 @@ def wheel_status(w: WheelState, prefix: str, joint: str) -> dict[str, Any]:
         *((f.name, f.text(getattr(w, f.name))) for f in HEALTH_FIELDS)])
 
 
-def diagnostics(s: Sample, settings: TelemetrySettings) -> dict[str, Any]:
+def diagnostics(s: TelemetrySample, settings: TelemetrySettings) -> dict[str, Any]:
     """diagnostic_msgs/msg/DiagnosticArray: the base, the CAN bus, one status per wheel."""
     assert s.status is not None
     prefix = settings.prefix
@@ -261,7 +262,7 @@ POWER_SUPPLY_HEALTH_UNKNOWN, POWER_SUPPLY_HEALTH_GOOD, POWER_SUPPLY_HEALTH_DEAD 
 POWER_SUPPLY_TECHNOLOGY_UNKNOWN = 0
 
 
-def battery_state(s: Sample, settings: TelemetrySettings) -> dict[str, Any] | None:
+def battery_state(s: TelemetrySample, settings: TelemetrySettings) -> dict[str, Any] | None:
     """sensor_msgs/msg/BatteryState of the DC link the drives measure (the median of
     theirs); None when no drive reports one. What the drives cannot know (the battery's
     current, charge, temperature) is NaN, as the message says for unmeasured values;
@@ -300,7 +301,7 @@ def pose2d(ns: int, p: Pose2D) -> dict[str, Any]:
             "heading_deg": math.degrees(p.heading)}
 
 
-def twist(s: Sample) -> dict[str, Any]:
+def twist(s: TelemetrySample) -> dict[str, Any]:
     """Commanded (applied after the limits) against measured body velocity."""
     assert s.command is not None and s.twist is not None
     out: dict[str, Any] = {"timestamp": json_time(s.stamp_ns), "command": _twist_json(s.command),
@@ -318,7 +319,7 @@ def _given(out: dict[str, Any], **maybe: Any) -> dict[str, Any]:
     return out
 
 
-def wheels(s: Sample) -> dict[str, Any]:
+def wheels(s: TelemetrySample) -> dict[str, Any]:
     """Each wheel's drive; ``statusword`` and what the drive reports (``current_a``,
     ``torque_pct``, ``voltage_v``, ``temperature_c``: omnican.plan.health_fields, but for a
     register) only when the drive gives them."""
@@ -332,7 +333,7 @@ def wheels(s: Sample) -> dict[str, Any]:
         for w in s.wheels]}
 
 
-def status(s: Sample) -> dict[str, Any]:
+def status(s: TelemetrySample) -> dict[str, Any]:
     """The base as a whole; ``bus_load`` (a fraction of the bitrate) only when the
     bitrate is known, the CAN error counters and ``battery_v`` only when measured."""
     st = s.status

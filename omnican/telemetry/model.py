@@ -82,7 +82,8 @@ class Telemetry:
         self._trail_period_ns = round(TRAIL_PERIOD_S * 1e9)
         self._trail_ns: int | None = None
 
-    def messages(self, s: m.Sample, wants: Wants = _all, last: bool = False) -> list[Message]:
+    def messages(self, s: m.TelemetrySample, wants: Wants = _all, last: bool = False
+                 ) -> list[Message]:
         """The messages of sample ``s`` on the topics ``wants`` accepts. ``last``: the
         final sample of a run (its diagnostics go whether due or not)."""
         settings, ns = self.settings, s.stamp_ns

@@ -201,7 +201,7 @@ def _passwords(conf: Any) -> bool:
 class _Publisher:
     """One topic's Zenoh publisher, its liveliness token and its attachment's state."""
 
-    def __init__(self, session: Any, node: rmw.Node, entity_id: int, fq_name: str,
+    def __init__(self, session: Any, node: rmw.RosNode, entity_id: int, fq_name: str,
                  type_name: str, qos: rmw.Qos) -> None:
         hash_ = rmw.type_hash(type_name)
         self.name = fq_name
@@ -240,7 +240,7 @@ class ZenohBridge:
         self.session = session
         feed = feed_of(base)  # the simulator's truth in it: omnican.telemetry.attach.add_truth
         ns = settings.ros_namespace
-        self.node = rmw.Node(settings.domain_id, str(session.info.zid()), 0,
+        self.node = rmw.RosNode(settings.domain_id, str(session.info.zid()), 0,
                              settings.node_name, namespace=ns)
         self._node_token = session.liveliness().declare_token(self.node.token())
         topics = [t for t in PUBLISHED

@@ -198,8 +198,9 @@ class Qos:
 
 
 @dataclass(frozen=True)
-class Node:
-    """A node as the graph sees it: ``session_id`` is the Zenoh session's id (hex)."""
+class RosNode:
+    """A ROS 2 node as the ROS graph sees it (not a CANopen node): ``session_id`` is the
+    Zenoh session's id (hex)."""
 
     domain_id: int
     session_id: str
@@ -221,7 +222,7 @@ class Node:
                        hash_: str, qos: Qos) -> str:
         """The liveliness token of a publisher, subscription, service or client."""
         if kind is Kind.NODE:
-            raise ValueError("a node's token is Node.token()")
+            raise ValueError("a node's token is RosNode.token()")
         return (f"{self._prefix(entity_id, kind)}/{mangle(fq_name)}/"
                 f"{dds_type_name(type_name)}/{hash_}/{qos.encode()}")
 
@@ -264,7 +265,7 @@ class Token:
     declared it and, for an endpoint, what it announces. ``name`` is the endpoint's fully
     qualified name (``/robot1/base_summary``) and ``type_name`` its ROS 2 type."""
 
-    node: Node
+    node: RosNode
     entity_id: int
     kind: Kind
     name: str = ""
@@ -279,7 +280,7 @@ class Token:
 
 
 def parse_token(key: str) -> Token:
-    """The inverse of :meth:`Node.token` and :meth:`Node.endpoint_token`: a token's key
+    """The inverse of :meth:`RosNode.token` and :meth:`RosNode.endpoint_token`: a token's key
     expression in, its fields out (an empty namespace or enclave reads back as ``/``,
     which writes the same ``%``). ValueError for a key that is not such a token."""
     chunks = key.split("/")
@@ -292,7 +293,7 @@ def parse_token(key: str) -> Token:
     if not all(c.isdigit() for c in (domain, node_id, entity_id)) or not session \
             or not name or "%" in name:
         raise ValueError(f"not an rmw_zenoh liveliness token: {key!r}")
-    node = Node(int(domain), session, int(node_id), name, namespace=unmangle(namespace),
+    node = RosNode(int(domain), session, int(node_id), name, namespace=unmangle(namespace),
                 enclave=unmangle(enclave))
     if kind is Kind.NODE:
         return Token(node, int(entity_id), kind)

@@ -174,8 +174,8 @@ def namespace_keys(domain_id: int, base: str) -> list[str]:
 
 def token_keys(domain_id: int, base: str) -> list[str]:
     """The liveliness tokens of nodes in a base's namespace: ``@ros2_lv/<domain>/<session>
-    /<node>/<entity>/<kind>/<enclave>/%<base>/...`` (rmw's :meth:`~omnican.zenoh.rmw.Node.
-    token` and :meth:`~omnican.zenoh.rmw.Node.endpoint_token`)."""
+    /<node>/<entity>/<kind>/<enclave>/%<base>/...`` (rmw's :meth:`~omnican.zenoh.rmw.RosNode.
+    token` and :meth:`~omnican.zenoh.rmw.RosNode.endpoint_token`)."""
     return [f"{rmw.ADMIN_SPACE}/{domain_id}/*/*/*/*/*/{rmw.mangle('/' + base)}/**"]
 
 

@@ -67,7 +67,7 @@ def trigger_hash() -> str:
     return rmw.service_type_hash(TRIGGER, "", "bool success\nstring message")
 
 
-def service_key(node: rmw.Node, name: str) -> str:
+def service_key(node: rmw.RosNode, name: str) -> str:
     """The data key of the node's service ``name`` (``~/name``)."""
     fq = rmw.fully_qualified(node.namespace, f"{node.name}/{name}")
     return f"{node.domain_id}/{fq[1:]}/{rmw.dds_type_name(TRIGGER)}/{trigger_hash()}"
@@ -77,7 +77,7 @@ class Services:
     """The queryables and tokens of :data:`SERVICES` on ``session`` for ``node``; call
     :meth:`poll` to answer what arrived."""
 
-    def __init__(self, session: Any, node: rmw.Node, caller: Callable[[bytes], CommandSource],
+    def __init__(self, session: Any, node: rmw.RosNode, caller: Callable[[bytes], CommandSource],
                  first_entity_id: int) -> None:
         import zenoh
 

@@ -38,7 +38,7 @@ class TruthPublisher:
     def __init__(self, settings: ZenohSettings, session: Any, state_rate_hz: float) -> None:
         self.settings = settings.validate()
         ns = settings.ros_namespace
-        self.node = rmw.Node(settings.domain_id, str(session.info.zid()), 0,
+        self.node = rmw.RosNode(settings.domain_id, str(session.info.zid()), 0,
                              settings.node_name, namespace=ns)
         self._node_token = session.liveliness().declare_token(self.node.token())
         self.publisher = _Publisher(session, self.node, 1,

@@ -29,29 +29,29 @@ from tests.support.helpers import lockstep_rig, still
 
 def test_the_first_source_holds_control_until_it_is_silent_or_leaves() -> None:
     arb = CommandArbiter(0.5)
-    assert arb.claim("a", 0.0) is None
-    assert arb.claim("b", 0.1) == "a"  # refused, told who drives
-    assert arb.claim("a", 0.4) is None  # a fresh command keeps it
-    assert arb.claim("b", 0.8) == "a"  # 0.4 s since a's last: still a's
-    assert arb.claim("b", 0.95) is None  # a silent for 0.55 s: free, and b takes it
+    assert arb.claim("a", 0.0).ok
+    assert arb.claim("b", 0.1).refused_by == "a"  # refused, told who drives
+    assert arb.claim("a", 0.4).ok  # a fresh command keeps it
+    assert arb.claim("b", 0.8).refused_by == "a"  # 0.4 s since a's last: still a's
+    assert arb.claim("b", 0.95).ok  # a silent for 0.55 s: free, and b takes it
     assert arb.holder(0.95) == "b"
     assert not arb.release("a", 1.0)  # a does not hold it: nothing happens
     assert arb.holder(1.0) == "b"
     assert not arb.release("b", 1.6)  # b's hold had lapsed: it did not hold it then
-    assert arb.claim("b", 1.6) is None
+    assert arb.claim("b", 1.6).ok
     assert arb.release("b", 1.7)
     assert arb.holder(1.7) is None
-    assert arb.claim("a", 1.7) is None
+    assert arb.claim("a", 1.7).ok
 
 
 def test_who_may_act_while_someone_drives() -> None:
     arb = CommandArbiter(0.5)
-    assert arb.may_act("b", 0.0) is None  # no one drives
+    assert arb.ask("b", Action.RECOVER, 0.0).refused_by is None  # no one drives
     arb.claim("a", 0.0)
-    assert arb.may_act("a", 0.1) is None
-    assert arb.may_act("b", 0.1) == "a"
+    assert arb.ask("a", Action.RECOVER, 0.1).refused_by is None
+    assert arb.ask("b", Action.RECOVER, 0.1).refused_by == "a"
     assert arb.holder(0.1) == "a"  # asking takes nothing
-    assert arb.may_act("b", 0.6) is None
+    assert arb.ask("b", Action.RECOVER, 0.6).refused_by is None
 
 
 def test_a_stop_by_another_takes_control_until_the_driver_lets_go() -> None:
@@ -63,11 +63,11 @@ def test_a_stop_by_another_takes_control_until_the_driver_lets_go() -> None:
     assert arb.stop_by("b", 0.2) == "a"
     assert arb.holder(0.2) is None
     for t in (0.3, 0.6, 0.9):  # a keeps pressing: refused, told who stopped it
-        assert arb.claim("a", t) == "b"
+        assert arb.claim("a", t).refused_by == "b"
         assert arb.stopped_by("a", t) == "b"
-    assert arb.claim("c", 1.0) is None  # anyone else may drive meanwhile
+    assert arb.claim("c", 1.0).ok  # anyone else may drive meanwhile
     arb.release("c", 1.0)
-    assert arb.claim("a", 1.41) is None  # a let go for more than 0.5 s: it drives again
+    assert arb.claim("a", 1.41).ok  # a let go for more than 0.5 s: it drives again
     assert arb.stopped_by("a", 1.41) is None
 
 
@@ -96,7 +96,7 @@ def test_control_changes_hands_only_when_the_holder_is_silent_or_gone(
             if holder == source:
                 holder = None
             continue
-        refused = arb.claim(source, now)
+        refused = arb.claim(source, now).refused_by
         if holder is None or holder == source:
             assert refused is None
             holder, last = source, now
@@ -160,18 +160,18 @@ def test_two_sources_share_the_base_one_at_a_time() -> None:
     assert keys.timeout_s == 0.5
 
     # claim: the first to send drives; the other is refused and told who drives
-    assert keys.send(Twist(0.2, 0.0, 0.0)) is None
+    assert keys.drive(Twist(0.2, 0.0, 0.0)).ok
     assert (keys.holder(), zenoh.holder()) == ("keys", "keys")
     clock.sleep(0.1)
-    assert zenoh.send(Twist(0.0, 0.0, 1.0)) == "keys"
-    assert zenoh.may_act() == "keys" and keys.may_act() is None
+    assert zenoh.drive(Twist(0.0, 0.0, 1.0)).refused_by == "keys"
+    assert zenoh.may(Action.RECOVER).refused_by == "keys" and keys.may(Action.RECOVER).ok
     assert base.calls == [("twist", Twist(0.2, 0.0, 0.0))]  # the refused twist went nowhere
 
     # timeout hand-over: keys silent for longer than the timeout, zenoh takes control
     clock.sleep(0.45)  # 0.55 s since keys' last command
-    assert zenoh.send(Twist(0.0, 0.0, 1.0)) is None
+    assert zenoh.drive(Twist(0.0, 0.0, 1.0)).ok
     assert keys.holder() == "zenoh"
-    assert keys.send(Twist(0.3, 0.0, 0.0)) == "zenoh"
+    assert keys.drive(Twist(0.3, 0.0, 0.0)).refused_by == "zenoh"
 
     # a stop by the one not driving: the base stops, the driver is out until it lets go
     calls = len(base.calls)
@@ -180,10 +180,10 @@ def test_two_sources_share_the_base_one_at_a_time() -> None:
     assert keys.holder() is None
     for _ in range(3):  # zenoh keeps sending: refused, told who stopped it
         clock.sleep(0.2)
-        assert zenoh.send(Twist(0.0, 0.0, 1.0)) == "keys"
+        assert zenoh.drive(Twist(0.0, 0.0, 1.0)).refused_by == "keys"
         assert zenoh.stopped_by() == "keys"
     assert base.calls[calls:] == [("stop", None)]
-    assert keys.send(Twist(0.1, 0.0, 0.0)) is None  # meanwhile anyone else may drive
+    assert keys.drive(Twist(0.1, 0.0, 0.0)).ok  # meanwhile anyone else may drive
 
     # release: keys leave; the base stops (they drove it) and control is free
     calls = len(base.calls)
@@ -194,7 +194,7 @@ def test_two_sources_share_the_base_one_at_a_time() -> None:
     assert keys.holder() is None
     clock.sleep(0.6)  # zenoh let go of its refused commands: it drives again
     assert zenoh.stopped_by() is None
-    assert zenoh.send(Twist(0.0, 0.0, 0.5)) is None
+    assert zenoh.drive(Twist(0.0, 0.0, 0.5)).ok
     assert zenoh.release() and base.calls[-1] == ("twist", Twist(0.0, 0.0, 0.5))
 
 
@@ -202,9 +202,9 @@ def test_a_twist_the_base_refuses_takes_no_control() -> None:
     base = FakeBase()
     keys, zenoh = base.command_source("keys"), base.command_source("zenoh")
     with pytest.raises(ValueError, match="not finite"):
-        zenoh.send(Twist(math.nan, 0.0, 0.0))
+        zenoh.drive(Twist(math.nan, 0.0, 0.0))
     assert zenoh.holder() is None and base.calls == []
-    assert keys.send(Twist(0.1, 0.0, 0.0)) is None
+    assert keys.drive(Twist(0.1, 0.0, 0.0)).ok
 
 
 _ACTIONS = st.lists(st.tuples(st.sampled_from(["a", "b"]),
@@ -224,7 +224,7 @@ def test_the_base_moves_only_for_the_source_that_holds_control(
         source, before = sources[name], base.arbiter.holder(base.clock.now())
         calls = len(base.calls)
         if action == "send":
-            refused = source.send(Twist(0.1, 0.0, 0.0))
+            refused = source.drive(Twist(0.1, 0.0, 0.0)).refused_by
             sent = base.calls[calls:]
             assert (refused is None) == (sent == [("twist", Twist(0.1, 0.0, 0.0))])
             if refused is None:
@@ -258,17 +258,17 @@ def test_every_source_of_a_base_shares_its_one_arbiter(
     keys, zenoh = base.command_source("keys"), base.command_source("zenoh")
     assert keys.timeout_s == base.cfg.chassis.cmd_timeout_s
     sent = Twist(0.2, 0.0, 0.0)
-    assert keys.send(sent) is None
-    assert zenoh.send(Twist(0.0, 0.0, 1.0)) == "keys"
+    assert keys.drive(sent).ok
+    assert zenoh.drive(Twist(0.0, 0.0, 1.0)).refused_by == "keys"
     assert clock.run_until(lambda: sim.true_twist.vx == pytest.approx(0.2, abs=0.01),
                            2.0, 0.02)
     assert base.command == sent and abs(sim.true_twist.wz) < 1e-2  # zenoh's went nowhere
     assert zenoh.stop() == "keys"  # anyone may stop
     clock.sleep(0.1)
-    assert keys.send(sent) == "zenoh" and keys.stopped_by() == "zenoh"  # out till it lets go
+    assert keys.drive(sent).refused_by == "zenoh" and keys.stopped_by() == "zenoh"  # out till it lets go
     assert clock.run_until(lambda: still(sim), 2.0, 0.02)
     clock.sleep(base.cfg.chassis.cmd_timeout_s)
-    assert zenoh.send(Twist(0.0, 0.0, 0.5)) is None
+    assert zenoh.drive(Twist(0.0, 0.0, 0.5)).ok
     assert clock.run_until(lambda: base.command == Twist(0.0, 0.0, 0.5), 2.0, 0.02)
     assert zenoh.release(stop=True)
     assert clock.run_until(lambda: still(sim), 2.0, 0.02)
@@ -310,7 +310,7 @@ def test_the_arbiter_answers_every_action_by_the_table(
         driver = arb.holder(now)
         ran: list[str] = []
         if action is Action.DRIVE:
-            refused = arb.claim(source, now, functools.partial(ran.append, "drive"))
+            refused = arb.claim(source, now, functools.partial(ran.append, "drive")).refused_by
             assert (refused is None) == bool(ran)
             if refused is None:
                 assert driver in (None, source) and arb.holder(now) == source
@@ -333,7 +333,7 @@ def test_every_action_through_a_source_answers_who_refused_or_what_failed() -> N
     keys, client = base.command_source("keys"), base.command_source("client")
     acts = {"recover": client.recover, "reset_pose": client.reset_pose,
             "set_limits": lambda: client.set_limits(max_speed=0.2)}
-    assert keys.send(Twist(0.2, 0.0, 0.0)) is None
+    assert keys.drive(Twist(0.2, 0.0, 0.0)).ok
     for name, act in acts.items():
         answer = act()
         assert (answer.ok, answer.refused_by, answer.failed) == (False, "keys", None), name
@@ -351,6 +351,6 @@ def test_every_action_through_a_source_answers_who_refused_or_what_failed() -> N
     assert (failed.ok, failed.refused_by, failed.failed) == (
         False, None, "recover refused: e-stop pressed")
     assert failed.why == "recover refused: e-stop pressed"
-    assert keys.may(Action.RECOVER).ok and keys.may_act() is None
+    assert keys.may(Action.RECOVER).ok and keys.may(Action.RECOVER).refused_by is None
     with pytest.raises(ValueError, match="own method"):
         client.act(Action.STOP, lambda: None)

@@ -18,7 +18,7 @@ from rich.screen import Screen
 from omnican import Pose2D, Twist, default_config
 from omnican.chassis.state import ChassisStatus, WheelState
 from omnican.cli.dashboard import dashboard
-from omnican.cli.terminal import EVENT_INDENT, Events, event_lines
+from omnican.cli.terminal import EVENT_INDENT, RecentEvents, event_lines
 from omnican.command.teleop import TeleopModel
 from omnican.protocol.cia402 import State
 
@@ -54,15 +54,15 @@ class StandIn:
                              battery_v=23.9, battery="ok", estop=self.stopped_reason == ESTOP)
 
 
-def events(*texts: str) -> Events:
-    out = Events()
+def events(*texts: str) -> RecentEvents:
+    out = RecentEvents()
     for text in texts:
         out.say(text)
     return out
 
 
 def screen(base: Any, width: int, height: int, note: str = "",
-           said: Events | None = None) -> list[str]:
+           said: RecentEvents | None = None) -> list[str]:
     """The frame as teleop's Live draws it: the dashboard in a screen of width x height."""
     console = Console(width=width, height=height, record=True, color_system=None,
                       file=io.StringIO())

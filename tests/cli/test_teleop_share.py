@@ -39,7 +39,7 @@ def test_the_keys_drive_while_they_move_and_let_go_when_idle() -> None:
         assert share_command(keys, move) is None
         base.clock.sleep(0.05)
     assert keys.holder() == "the terminal's keys"
-    assert client.send(Twist(0.0, 0.0, 1.0)) == "the terminal's keys"
+    assert client.drive(Twist(0.0, 0.0, 1.0)).refused_by == "the terminal's keys"
     assert share_command(keys, Twist()) is None  # let go: the base stops, control is free
     assert base.calls == [("twist", move)] * 3 + [("stop", None)]
     assert keys.holder() is None
@@ -53,11 +53,11 @@ def test_idle_keys_neither_stop_nor_block_a_client_that_drives() -> None:
     base = StandInBase()
     keys = base.command_source("the terminal's keys")
     client = base.command_source("Foxglove client 1")
-    assert client.send(Twist(0.0, 0.0, 1.0)) is None
+    assert client.drive(Twist(0.0, 0.0, 1.0)).ok
     for _ in range(20):  # a second of idle keys beside the client's commands
         base.clock.sleep(0.05)
         assert share_command(keys, Twist()) is None
-        assert client.send(Twist(0.0, 0.0, 1.0)) is None
+        assert client.drive(Twist(0.0, 0.0, 1.0)).ok
     assert ("stop", None) not in base.calls
     assert share_command(keys, Twist(0.2, 0.0, 0.0)) == "Foxglove client 1"  # refused
 
@@ -71,7 +71,7 @@ def test_keys_stopped_by_a_client_do_not_stop_the_next_driver() -> None:
     assert share_command(keys, Twist(0.2, 0.0, 0.0)) is None
     assert first.stop() == "the terminal's keys"
     assert share_command(keys, Twist(0.2, 0.0, 0.0)) == "Foxglove client 1"
-    assert second.send(Twist(0.0, 0.3, 0.0)) is None
+    assert second.drive(Twist(0.0, 0.3, 0.0)).ok
     calls = len(base.calls)
     assert share_command(keys, Twist()) is None
     assert base.calls[calls:] == []
@@ -97,7 +97,7 @@ def test_the_dashboard_tells_who_stopped_the_keys_from_who_drives() -> None:
     assert "is driving" not in note and keys.holder() is None
     base.clock.sleep(0.6)  # let go
     assert share_command(keys, Twist()) is None
-    assert publisher.send(Twist(0.0, 0.0, 0.5)) is None  # now someone does drive
+    assert publisher.drive(Twist(0.0, 0.0, 0.5)).ok  # now someone does drive
     refused = share_command(keys, move)
     assert refused == "Zenoh cmd_vel publisher 77"
     assert refusal_note(keys, refused) == ("Zenoh cmd_vel publisher 77 is driving: space "

@@ -343,14 +343,14 @@ def test_the_key_map_is_teleop_twist_keyboards() -> None:
     ("M", "back-left"), ("<", "back"), (">", "back-right"),
 ])
 def test_each_key_goes_where_the_help_says(key: str, where: str) -> None:
-    from omnican import Pose2D
+    from omnican import Displacement, Pose2D
     from omnican.command.teleop import TeleopModel, key_direction
 
     assert key_direction(key) == where
     # And the base really goes there: one second of the key's command from the origin.
     m = TeleopModel(0.3, 1.0, 1.0, 5.0, 0.0)
     m.press(key, 0.0)
-    end = Pose2D.exp(m.command(0.0))
+    end = Pose2D.exp(Displacement.of(m.command(0.0), 1.0))
     along = "forward" if end.x > 1e-6 else "back" if end.x < -1e-6 else ""
     side = "left" if end.y > 1e-6 else "right" if end.y < -1e-6 else ""
     expected = "-".join(w for w in (along, side) if w) or (

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from omnican import Odometry, OmniKinematics, Pose2D, Twist
 from omnican.core.wheel_odometry import (
     SPEED_WINDOW_S,
+    CounterSampleSlot,
     EncoderCounters,
-    Sample,
     WheelOdometry,
     fold_counter,
 )
@@ -24,13 +24,13 @@ COUNTS_PER_M = [-4772.44 * 10, 5000.0, 123456.0]  # signed, as position_scale
 
 
 def wheel_odometry(bits: list[int], counts_per_m: list[float] | None = None,
-                   window_s: float = SPEED_WINDOW_S) -> tuple[WheelOdometry, list[Sample]]:
-    samples = [Sample() for _ in bits]
+                   window_s: float = SPEED_WINDOW_S) -> tuple[WheelOdometry, list[CounterSampleSlot]]:
+    samples = [CounterSampleSlot() for _ in bits]
     counters = EncoderCounters(samples, bits, counts_per_m or COUNTS_PER_M)
     return WheelOdometry(Odometry(KIN), counters, window_s), samples
 
 
-def give(samples: list[Sample], raws: list[int], epoch: int) -> None:
+def give(samples: list[CounterSampleSlot], raws: list[int], epoch: int) -> None:
     for s, raw in zip(samples, raws, strict=True):
         s.raw, s.epoch = raw, epoch
 
@@ -120,9 +120,9 @@ def test_a_set_without_every_wheel_is_not_integrated() -> None:
 
 def test_the_counters_want_one_width_and_scale_per_wheel() -> None:
     with pytest.raises(ValueError, match="one of each per wheel"):
-        EncoderCounters([Sample(), Sample()], [32, 32, 32], [1.0, 1.0])
+        EncoderCounters([CounterSampleSlot(), CounterSampleSlot()], [32, 32, 32], [1.0, 1.0])
     with pytest.raises(ValueError, match="expected 3 wheel counters, got 2"):
-        WheelOdometry(Odometry(KIN), EncoderCounters([Sample(), Sample()], [32, 32], [1.0, 1.0]))
+        WheelOdometry(Odometry(KIN), EncoderCounters([CounterSampleSlot(), CounterSampleSlot()], [32, 32], [1.0, 1.0]))
 
 
 # ---------------------------------------------------------------- the window and the twist

@@ -113,7 +113,7 @@ def test_diagnostics_give_every_value_by_its_name() -> None:
 
 def test_the_wheels_topic_and_its_schema_carry_every_value_but_a_register() -> None:
     shown = values()
-    sample = telemetry.Sample(stamp_ns=1, pose=Pose2D(), twist=Twist(), command=Twist(),
+    sample = telemetry.TelemetrySample(stamp_ns=1, pose=Pose2D(), twist=Twist(), command=Twist(),
                               wheels=(wheel(**shown), wheel(1)), status=None)
     with_values, without = telemetry.wheels(sample)["wheels"]
     schema = telemetry.JSON_SCHEMAS["omnican.Wheels"]["properties"]["wheels"]["items"]
@@ -140,7 +140,7 @@ def test_the_dashboard_has_a_column_per_value_with_one(channel: str) -> None:
         drive_for(base, 1.0, vx=0.3)
         keys = TeleopModel.for_config(base.cfg, 0.3, 1.0, 0.6)
         console = Console(width=120, record=True, color_system=None, file=io.StringIO())
-        console.print(dashboard.dashboard(base, keys, Twist(), "omnican teleop", terminal.Events(),
+        console.print(dashboard.dashboard(base, keys, Twist(), "omnican teleop", terminal.RecentEvents(),
                                        "", 120, 30))
         lines = console.export_text().splitlines()
         header = next(line for line in lines if "wheel" in line and "state" in line)
@@ -203,7 +203,7 @@ def test_settings_still_make_every_message() -> None:
     """The messages made of a wheel with every value still build (and round-trip the
     values): a smoke test of the whole Telemetry path."""
     settings = TelemetrySettings.from_config(default_config())
-    sample = telemetry.Sample(stamp_ns=1, pose=Pose2D(), twist=Twist(), command=Twist(),
+    sample = telemetry.TelemetrySample(stamp_ns=1, pose=Pose2D(), twist=Twist(), command=Twist(),
                               wheels=tuple(wheel(i, **values()) for i in range(3)),
                               status=telemetry_status())
     assert len(telemetry.diagnostics(sample, settings)["status"]) == 2 + 3

@@ -225,7 +225,7 @@ def test_teleop_tells_a_network_stop_from_a_driver(router: str) -> None:
             assert time.monotonic() < end, "\n".join(term.frame())
             term.read(0.1)
         gid = bytes(range(16))
-        replies = session.get(service_key(rmw.Node(0, "0", 0, "omnican", namespace="/"),
+        replies = session.get(service_key(rmw.RosNode(0, "0", 0, "omnican", namespace="/"),
                                           "stop"),
                               payload=b"\x00\x01\x00\x00\x00",
                               attachment=rmw.Attachment(1, 0, gid).encode(), timeout=TIMEOUT_S)

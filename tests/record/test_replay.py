@@ -15,7 +15,12 @@ from hypothesis import strategies as st
 
 from omnican import ChassisConfig, Odometry, default_config
 from omnican.cli import main
-from omnican.core.wheel_odometry import EncoderCounters, Sample, WheelOdometry, fold_counter
+from omnican.core.wheel_odometry import (
+    CounterSampleSlot,
+    EncoderCounters,
+    WheelOdometry,
+    fold_counter,
+)
 from omnican.plan.codec import PdoCodec
 from omnican.plan.node import NodeLayout, node_layouts
 from omnican.protocol.cia402 import State
@@ -228,7 +233,7 @@ def test_window_speeds_are_the_loops_window(t_steps: list[int], counts: list[int
     exact in binary: the two compare the same differences)."""
     t = np.cumsum([0.0, *t_steps]) / 1024
     travel = np.cumsum(counts[:len(t)]).astype(float)[:, None] / PS
-    samples = [Sample() for _ in range(3)]
+    samples = [CounterSampleSlot() for _ in range(3)]
     odo = WheelOdometry(Odometry(CFG.kinematics()),
                         EncoderCounters(samples, [32] * 3, [PS] * 3), window_s=0.125)
     live = []

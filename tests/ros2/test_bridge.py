@@ -456,7 +456,7 @@ def test_cmd_vel_waits_while_another_source_drives(rig: tuple[SimulatedBase, Cha
         # The Foxglove client drives (a turn), sending as its Teleop panel does; every
         # cmd_vel between its commands is refused, however slowly this machine runs.
         for _ in range(10):
-            assert foxglove.send(Twist(0.0, 0.0, 0.5)) is None
+            assert foxglove.drive(Twist(0.0, 0.0, 0.5)).ok
             _send(t, bridge, "/cmd_vel", _twist(0.3, 0.0, 0.0))
             time.sleep(0.02)
         assert bridge.cmd_vel_refused == 10

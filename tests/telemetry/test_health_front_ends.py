@@ -15,7 +15,7 @@ from rich.console import Console
 from omnican import Chassis
 from omnican.cli import main
 from omnican.cli.dashboard import dashboard
-from omnican.cli.terminal import Events
+from omnican.cli.terminal import RecentEvents
 from omnican.clock import SimClock
 from omnican.command.teleop import TeleopModel
 from omnican.core.kinematics import Twist
@@ -37,7 +37,7 @@ def rig(channel: str) -> Iterator[Rig]:
 def screen(base: Chassis, width: int = 80) -> list[str]:
     keys = TeleopModel.for_config(base.cfg, 0.3, 1.0, 0.6)
     console = Console(width=width, record=True, color_system=None, file=io.StringIO())
-    console.print(dashboard(base, keys, Twist(), "omnican teleop", Events(), "", width, 24))
+    console.print(dashboard(base, keys, Twist(), "omnican teleop", RecentEvents(), "", width, 24))
     return console.export_text().splitlines()
 
 

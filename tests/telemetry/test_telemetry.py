@@ -49,8 +49,8 @@ ORIGIN = Pose2D()
 
 
 def sample(pose: Pose2D = ORIGIN, wheels: tuple[WheelState, ...] | None = None,
-           **kw: object) -> telemetry.Sample:
-    return telemetry.Sample(
+           **kw: object) -> telemetry.TelemetrySample:
+    return telemetry.TelemetrySample(
         stamp_ns=1_700_000_000_123_456_789, pose=pose, twist=Twist(0.1, 0.2, 0.3),
         command=Twist(0.1, 0.2, 0.3), wheels=wheels or tuple(wheel(i) for i in range(3)),
         status=status(**kw))
@@ -136,7 +136,7 @@ def test_joint_states_use_the_configured_names_and_need_every_wheel_radius() -> 
     assert telemetry.joint_states(sample(), TelemetrySettings.from_config(one_missing)) is None
 
 
-def _levels(s: telemetry.Sample) -> dict[str, tuple[int, str]]:
+def _levels(s: telemetry.TelemetrySample) -> dict[str, tuple[int, str]]:
     msg = decoder("diagnostic_msgs/msg/DiagnosticArray")(
         cdr.encode("diagnostic_msgs/msg/DiagnosticArray", telemetry.diagnostics(s, SETTINGS)))
     return {st.name: (ord(st.level) if isinstance(st.level, bytes) else st.level, st.message)
@@ -176,7 +176,7 @@ def test_diagnostics_once_a_period_and_at_once_on_a_change() -> None:
     model = Telemetry(SETTINGS, CFG.kinematics())
 
     def diag_at(ns: int, **kw: object) -> bool:
-        s = telemetry.Sample(**{**sample(**kw).__dict__, "stamp_ns": ns})
+        s = telemetry.TelemetrySample(**{**sample(**kw).__dict__, "stamp_ns": ns})
         return any(m.topic == "/diagnostics" for m in model.messages(s))
 
     assert diag_at(0)
@@ -187,7 +187,7 @@ def test_diagnostics_once_a_period_and_at_once_on_a_change() -> None:
 
 
 def test_every_state_topic_is_declared_and_encodes() -> None:
-    s = telemetry.Sample(**{**sample(battery_v=23.9).__dict__, "true_pose": Pose2D(1, 2, 3),
+    s = telemetry.TelemetrySample(**{**sample(battery_v=23.9).__dict__, "true_pose": Pose2D(1, 2, 3),
                             "true_twist": Twist(1, 0, 0)})
     topics = {m.topic: m for m in Telemetry(SETTINGS, CFG.kinematics()).messages(s)}
     assert set(topics) == set(telemetry.TOPICS)
@@ -384,7 +384,7 @@ def test_the_odometry_pose_and_path_so_far_go_out_as_the_3d_panel_draws_them() -
     paths: list[tuple[int, object]] = []
     for i in range(100):  # 2 s at 50 Hz, 0.5 m/s along x
         ns = 1_700_000_000_000_000_000 + i * 20_000_000
-        s = telemetry.Sample(**{**sample(Pose2D(0.01 * i, 0.0, 0.0)).__dict__, "stamp_ns": ns})
+        s = telemetry.TelemetrySample(**{**sample(Pose2D(0.01 * i, 0.0, 0.0)).__dict__, "stamp_ns": ns})
         out = {m.topic: m for m in model.messages(s)}
         pose = decoder("geometry_msgs/msg/PoseStamped")(out["/odom/pose"].payload())
         assert (pose.header.frame_id, pose.pose.position.x) == ("odom", pytest.approx(0.01 * i))

@@ -53,7 +53,7 @@ class FakeBase:
 
     def __init__(self, session: Any, namespace: str, node: str = "omnican",
                  zid: str | None = None, node_id: int = 0) -> None:
-        self.node = rmw.Node(0, zid or str(session.info.zid()), node_id, node,
+        self.node = rmw.RosNode(0, zid or str(session.info.zid()), node_id, node,
                              namespace=namespace)
         self.name = rmw.fully_qualified(namespace, node)
         topic = rmw.fully_qualified(namespace, "base_summary")
@@ -90,7 +90,7 @@ class FakeBase:
         self._token.undeclare()
 
 
-def rogue(session: Any, node: rmw.Node, service: str,
+def rogue(session: Any, node: rmw.RosNode, service: str,
           answer: Callable[[Any], None]) -> Any:
     """A complete queryable of ``session`` on another node's service key."""
     return session.declare_queryable(service_key(node, service), answer, complete=True)
@@ -109,7 +109,7 @@ def fake_tokens(session: Any, count: int, prefix: str = "fake") -> list[Any]:
     hash_ = rmw.type_hash(STRING)
     out = []
     for i in range(count):
-        node = rmw.Node(0, zid, i, "omnican", namespace=f"/{prefix}{i}")
+        node = rmw.RosNode(0, zid, i, "omnican", namespace=f"/{prefix}{i}")
         out.append(session.liveliness().declare_token(node.endpoint_token(
             1, rmw.Kind.PUBLISHER, f"/{prefix}{i}/base_summary", STRING, hash_, rmw.Qos())))
     return out

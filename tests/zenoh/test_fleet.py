@@ -111,7 +111,7 @@ def test_two_bases_are_found_and_summarized(two: tuple[Rig, Rig], fleet: Any) ->
     driver = base1.command_source("the test's driver")
     assert run_until(two, lambda: fleet.find("robot1").summary.speed[0] > 0.15
                      and fleet.find("robot1").summary.driver == "the test's driver",
-                     each=lambda: driver.send(Twist(0.2, 0.0, 0.0)))
+                     each=lambda: driver.drive(Twist(0.2, 0.0, 0.0)))
     assert sim1.true_twist.vx == pytest.approx(0.2, abs=0.02)
     assert bridge1.publishers["/base_summary"].count > 0
     assert bridge1.publishers["/status"].count > 0 and bridge1.publishers["/wheels"].count > 0
@@ -123,7 +123,7 @@ def test_the_fleet_stop_reaches_both_bases(two: tuple[Rig, Rig], fleet: Any) -> 
 
     def drive() -> None:  # both keep being driven: the stop must hold against them
         for d in drivers:
-            d.send(Twist(0.2, 0.0, 0.3))
+            d.drive(Twist(0.2, 0.0, 0.3))
 
     assert run_until(two, lambda: all(s.true_twist.vx > 0.15 for s in sims)
                      and summarized(fleet, NAMES)(), each=drive)
@@ -154,13 +154,13 @@ def test_the_fleet_stop_reaches_both_bases(two: tuple[Rig, Rig], fleet: Any) -> 
     # the base is recovered over the fleet.
     others = [rig[2].command_source("another nav stack") for rig in two]
     for _ in range(20):
-        run_until(two, lambda: True, each=lambda: [o.send(Twist(0.2, 0.0, 0.0))
+        run_until(two, lambda: True, each=lambda: [o.drive(Twist(0.2, 0.0, 0.0))
                                                    for o in others])
     assert all(abs(s.true_twist.vx) < 1e-3 for s in sims)
     # A recover while a source still streams commands is refused (the base would move
     # on the next one): the nav stack is told who drives.
     call = fleet.request("recover", sorted(NAMES), timeout_s=TIMEOUT_S)
-    assert run_until(two, call.done, each=lambda: [o.send(Twist(0.2, 0.0, 0.0))
+    assert run_until(two, call.done, each=lambda: [o.drive(Twist(0.2, 0.0, 0.0))
                                                    for o in others])
     assert all(not a.success and "another nav stack is driving" in a.message
                for a in call.answers()), call.answers()
@@ -172,7 +172,7 @@ def test_the_fleet_stop_reaches_both_bases(two: tuple[Rig, Rig], fleet: Any) -> 
     assert run_until(two, call.done)
     assert all(a.success for a in call.answers()), call.answers()
     assert run_until(two, lambda: all(s.true_twist.vx > 0.1 for s in sims),
-                     each=lambda: [o.send(Twist(0.2, 0.0, 0.0)) for o in others])
+                     each=lambda: [o.drive(Twist(0.2, 0.0, 0.0)) for o in others])
 
 
 def test_recover_and_a_base_that_does_not_answer(two: tuple[Rig, Rig], fleet: Any) -> None:

@@ -92,9 +92,9 @@ def test_only_the_session_that_owns_a_service_answers_for_it(
         from omnican.core.kinematics import Twist
 
         assert run_until((rig,), lambda: rig[1].true_twist.vx > 0.1,
-                         each=lambda: driver.send(Twist(0.2, 0.0, 0.0)))
+                         each=lambda: driver.drive(Twist(0.2, 0.0, 0.0)))
         call = fleet.request("stop", [ROBOT1], TIMEOUT_S)
-        assert run_until((rig,), call.done, each=lambda: driver.send(Twist(0.2, 0.0, 0.0)))
+        assert run_until((rig,), call.done, each=lambda: driver.drive(Twist(0.2, 0.0, 0.0)))
         (got,) = call.answers()
         assert (got.name, got.answered, got.success, got.message) == (
             ROBOT1, True, True, "stopped: held until recover"), got
@@ -102,7 +102,7 @@ def test_only_the_session_that_owns_a_service_answers_for_it(
         assert "an intruder on its service" in str(got)
         assert fleet.intruders >= 1
         assert run_until((rig,), lambda: still(rig[1]),
-                         each=lambda: driver.send(Twist(0.2, 0.0, 0.0)))
+                         each=lambda: driver.drive(Twist(0.2, 0.0, 0.0)))
         rogue.undeclare()
 
 

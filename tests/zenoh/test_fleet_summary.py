@@ -195,7 +195,7 @@ NAMESPACES = st.lists(CHUNK, max_size=3).map(lambda cs: "/" + "/".join(cs))
 HASH = st.binary(min_size=32, max_size=32).map(lambda b: "RIHS01_" + b.hex())
 QOS = st.builds(rmw.Qos, st.sampled_from(rmw.Reliability), st.sampled_from(rmw.Durability),
                 st.integers(1, 1000))
-NODES = st.builds(rmw.Node, st.integers(0, 232), st.binary(min_size=16, max_size=16).map(
+NODES = st.builds(rmw.RosNode, st.integers(0, 232), st.binary(min_size=16, max_size=16).map(
     bytes.hex), st.integers(0, 99), CHUNK, NAMESPACES, NAMESPACES)
 TYPES = st.sampled_from(["std_msgs/msg/String", "nav_msgs/msg/Odometry",
                          "std_srvs/srv/Trigger"])
@@ -204,7 +204,7 @@ TYPES = st.sampled_from(["std_msgs/msg/String", "nav_msgs/msg/Odometry",
 @given(NODES, st.integers(1, 10**6), st.sampled_from([k for k in rmw.Kind
                                                      if k is not rmw.Kind.NODE]),
        NAMESPACES, CHUNK, TYPES, HASH, QOS)
-def test_tokens_read_back_into_their_fields(node: rmw.Node, entity_id: int, kind: rmw.Kind,
+def test_tokens_read_back_into_their_fields(node: rmw.RosNode, entity_id: int, kind: rmw.Kind,
                                             ns: str, name: str, type_name: str, hash_: str,
                                             qos: rmw.Qos) -> None:
     fq = rmw.fully_qualified(ns, name)

@@ -23,7 +23,7 @@ ZIDS = st.binary(min_size=1, max_size=16).map(bytes.hex)
 HASH = rmw.type_hash(STRING)
 
 
-def token(node: rmw.Node, topic: str | None = None, type_name: str = STRING,
+def token(node: rmw.RosNode, topic: str | None = None, type_name: str = STRING,
           kind: rmw.Kind = rmw.Kind.PUBLISHER) -> rmw.Token:
     fq = topic or rmw.fully_qualified(node.namespace, "base_summary")
     return rmw.parse_token(node.endpoint_token(1, kind, fq, type_name, HASH, rmw.Qos()))
@@ -32,26 +32,26 @@ def token(node: rmw.Node, topic: str | None = None, type_name: str = STRING,
 @given(ZIDS, NAMESPACES, CHUNK, st.integers(0, 232))
 def test_a_bases_summary_token_can_be_a_base(zid: str, ns: str, name: str,
                                              domain: int) -> None:
-    node = rmw.Node(domain, zid, 3, name, namespace=ns)
+    node = rmw.RosNode(domain, zid, 3, name, namespace=ns)
     assert check(token(node), domain) is None
     assert check(token(node), (domain + 1) % 233) == f"domain {domain}, not {(domain + 1) % 233}"
 
 
 @pytest.mark.parametrize(("node", "topic", "type_name", "kind", "why"), [
-    (rmw.Node(0, "ab12", 0, "omnican", namespace="/r1"), "/r2/base_summary", STRING,
+    (rmw.RosNode(0, "ab12", 0, "omnican", namespace="/r1"), "/r2/base_summary", STRING,
      rmw.Kind.PUBLISHER, "not its node's base_summary"),
-    (rmw.Node(0, "ab12", 0, "omnican", namespace="/r1"), None, "nav_msgs/msg/Odometry",
+    (rmw.RosNode(0, "ab12", 0, "omnican", namespace="/r1"), None, "nav_msgs/msg/Odometry",
      rmw.Kind.PUBLISHER, "not a String publisher"),
-    (rmw.Node(0, "ab12", 0, "omnican", namespace="/r1"), None, STRING,
+    (rmw.RosNode(0, "ab12", 0, "omnican", namespace="/r1"), None, STRING,
      rmw.Kind.SUBSCRIPTION, "not a String publisher"),
-    (rmw.Node(0, "not-hex", 0, "omnican", namespace="/r1"), None, STRING,
+    (rmw.RosNode(0, "not-hex", 0, "omnican", namespace="/r1"), None, STRING,
      rmw.Kind.PUBLISHER, "its session id is not a Zenoh id"),
-    (rmw.Node(0, "ab12", 0, "omnican", namespace="/evil\x1b[2J"), None, STRING,
+    (rmw.RosNode(0, "ab12", 0, "omnican", namespace="/evil\x1b[2J"), None, STRING,
      rmw.Kind.PUBLISHER, "its node's name is not a ROS 2 name"),
-    (rmw.Node(0, "ab12", 0, "omni can", namespace="/r1"), None, STRING,
+    (rmw.RosNode(0, "ab12", 0, "omni can", namespace="/r1"), None, STRING,
      rmw.Kind.PUBLISHER, "its node's name is not a ROS 2 name"),
 ])
-def test_what_cannot_be_a_bases_token_says_why(node: rmw.Node, topic: str | None,
+def test_what_cannot_be_a_bases_token_says_why(node: rmw.RosNode, topic: str | None,
                                                type_name: str, kind: rmw.Kind,
                                                why: str) -> None:
     assert check(token(node, topic, type_name, kind), 0) == why

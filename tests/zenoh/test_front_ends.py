@@ -126,7 +126,7 @@ def test_a_stop_from_the_network_ends_a_scripted_drive(router: str, session: Any
                                       TIMEOUT_S)
         assert refused is not None and f"cmd_vel from Zenoh cmd_vel publisher {other.hex()} " \
             "ignored: the scripted motion is driving" in refused, proc.lines
-        node = rmw.Node(0, "0", 0, "omnican", namespace="/")
+        node = rmw.RosNode(0, "0", 0, "omnican", namespace="/")
         gid = bytes(range(16))
         replies = session.get(service_key(node, "stop"), payload=b"\x00\x01\x00\x00\x00",
                               attachment=rmw.Attachment(1, 0, gid).encode(),

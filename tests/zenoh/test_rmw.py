@@ -36,18 +36,18 @@ def test_the_design_documents_key_expressions() -> None:
 
 
 def test_the_design_documents_liveliness_tokens() -> None:
-    listener = rmw.Node(2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "listener")
+    listener = rmw.RosNode(2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "listener")
     assert listener.token() == "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
     assert listener.endpoint_token(10, rmw.Kind.SUBSCRIPTION, "/chatter", "std_msgs/msg/String",
                                    STRING_HASH, rmw.Qos(depth=10)) == (
         "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/10/MS/%/%/listener/%chatter/"
         f"std_msgs::msg::dds_::String_/{STRING_HASH}/::,10:,:,:,,")
-    talker = rmw.Node(2, "8b20917502ee955ac4476e0266340d5c", 0, "talker")
+    talker = rmw.RosNode(2, "8b20917502ee955ac4476e0266340d5c", 0, "talker")
     assert talker.endpoint_token(10, rmw.Kind.PUBLISHER, "/chatter", "std_msgs/msg/String",
                                  STRING_HASH, rmw.Qos(depth=7)) == (
         "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
         f"std_msgs::msg::dds_::String_/{STRING_HASH}/::,7:,:,:,,")
-    server = rmw.Node(2, "f9980ee0495eaafb3e38f0d19e2eae12", 0, "add_two_ints_server")
+    server = rmw.RosNode(2, "f9980ee0495eaafb3e38f0d19e2eae12", 0, "add_two_ints_server")
     assert server.endpoint_token(10, rmw.Kind.SERVICE, "/add_two_ints",
                                  "example_interfaces/srv/AddTwoInts", ADD_TWO_INTS_HASH,
                                  rmw.Qos(depth=10)) == (
@@ -57,7 +57,7 @@ def test_the_design_documents_liveliness_tokens() -> None:
 
 
 def test_a_namespaced_node_and_other_qos() -> None:
-    node = rmw.Node(0, "ab", 3, "base", namespace="/robot1")
+    node = rmw.RosNode(0, "ab", 3, "base", namespace="/robot1")
     assert node.token() == "@ros2_lv/0/ab/3/3/NN/%/%robot1/base"
     qos = rmw.Qos(rmw.Reliability.BEST_EFFORT, rmw.Durability.TRANSIENT_LOCAL, 1)
     assert qos.encode() == "2:1:,1:,:,:,,"
@@ -141,7 +141,7 @@ def test_any_bytes_decode_or_raise_value_error(data: bytes) -> None:
 @given(st.lists(_ident, min_size=1, max_size=3), _ident, st.integers(0, 232))
 def test_tokens_have_no_empty_chunk_and_name_the_endpoint(ns: list[str], node: str,
                                                           domain: int) -> None:
-    n = rmw.Node(domain, "0123abcd", 0, node, namespace="/" + "/".join(ns))
+    n = rmw.RosNode(domain, "0123abcd", 0, node, namespace="/" + "/".join(ns))
     token = n.endpoint_token(1, rmw.Kind.PUBLISHER, rmw.fully_qualified(n.namespace, "odom"),
                              "nav_msgs/msg/Odometry", "RIHS01_x", rmw.Qos())
     chunks = token.split("/")

@@ -176,7 +176,7 @@ def fleets(draw: st.DrawFn) -> Roster:
 
 def keys(domain: int, base: str) -> dict[str, str]:
     """A base's keys as rmw_zenoh writes them (the node omnican under /<base>)."""
-    node = rmw.Node(domain, "5f3a", 0, "omnican", namespace=f"/{base}")
+    node = rmw.RosNode(domain, "5f3a", 0, "omnican", namespace=f"/{base}")
     srv = "std_srvs::srv::dds_::Trigger_/RIHS01_" + "e" * 64
     twist = rmw.data_key(domain, f"/{base}/cmd_vel", "geometry_msgs/msg/Twist", "RIHS01_" + "a" * 64)
     return {"cmd_vel": twist, "odom": f"{domain}/{base}/odom/x/RIHS01_" + "b" * 64,

@@ -100,7 +100,7 @@ def peer(ns: NetNs, root: Path, who: str | None, endpoint: str, steps: list[list
     from omnican.zenoh.security import tls_entries
     from omnican.zenoh.services import service_key
 
-    node = rmw.Node(0, "0", 0, "omnican", namespace="/robot1")
+    node = rmw.RosNode(0, "0", 0, "omnican", namespace="/robot1")
     if who is None:
         tls = [("transport/link/tls", json.dumps({
             "root_ca_certificate": str(root / "ca.pem"), "enable_mtls": True,

@@ -283,11 +283,11 @@ def test_through_the_router_no_member_speaks_for_a_base(channel: str, creds: Cre
                 summary_key, lambda s: summaries.append(s.payload.to_bytes())))
             fakes = []
             for liar in (viewer, robot2):
-                node = rmw.Node(0, str(liar.info.zid()), 0, "omnican", namespace="/robot1")
+                node = rmw.RosNode(0, str(liar.info.zid()), 0, "omnican", namespace="/robot1")
                 fakes.append(liar.liveliness().declare_token(node.token()))
             fake = robot2.declare_publisher(summary_key)
             # robot2's own namespace goes through: the positive control for its link
-            own = rmw.Node(0, str(robot2.info.zid()), 0, "omnican", namespace="/robot2")
+            own = rmw.RosNode(0, str(robot2.info.zid()), 0, "omnican", namespace="/robot2")
             fakes.append(robot2.liveliness().declare_token(own.token()))
 
             def heard() -> bool:

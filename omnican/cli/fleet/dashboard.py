@@ -46,11 +46,11 @@ def _quiet_errors() -> Iterator[None]:
 def dashboard(settings: ZenohSettings, args: argparse.Namespace) -> int:
     from rich.live import Live
 
-    from omnican.cli.terminal import Events, Screen, cbreak, logs_into, read_keys
+    from omnican.cli.terminal import RecentEvents, Screen, cbreak, logs_into, read_keys
 
     fd = sys.stdin.fileno()
     console = Console()
-    events = Events()
+    events = RecentEvents()
     where = ("the router on " + (", ".join(args.zenoh_listen) or ROUTER_LISTEN)
              if getattr(args, "router", False) else ", ".join(args.zenoh_connect) or "peers")
     title = f"domain {args.domain_id} via {where}"
