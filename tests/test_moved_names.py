@@ -154,3 +154,29 @@ def test_a_displacement_is_no_twist_and_the_old_forms_warn_for_one_release() -> 
                           rf"Displacement\.{new} \(a Twist is a velocity\); the old name "
                           "goes in the next release"):
             assert getattr(back, old) == getattr(back, new)
+
+
+def test_a_wheel_s_sdo_writes_under_their_old_name_warn_and_are_the_same() -> None:
+    from dataclasses import replace
+
+    import omnican.config
+    from omnican import WheelConfig, default_config
+    from omnican.config import SdoWrite
+
+    moved = r"{} moved to WheelConfig\.sdo_writes \(the \[\[wheel\.sdo\]\] writes are no " \
+            r"settings\); the old name goes in the next release"
+    writes = (SdoWrite("0x2000:00", 500),)
+    wheel = replace(default_config().wheels[0], sdo_writes=writes)
+    with pytest.warns(DeprecationWarning, match=moved.format(r"WheelConfig\.settings")):
+        assert wheel.settings is wheel.sdo_writes is writes
+    with pytest.warns(DeprecationWarning, match=moved.format(r"WheelConfig\(settings=\)")):
+        again = replace(default_config().wheels[0], settings=writes)
+    assert again == wheel
+    with pytest.warns(DeprecationWarning, match=moved.format(r"WheelConfig\(settings=\)")):
+        made = WheelConfig(1, 0, wheel.eds, 1.0, 1.0, settings=writes)
+    assert made.sdo_writes == writes
+    with pytest.raises(TypeError, match="unexpected keyword argument 'setings'"):
+        WheelConfig(1, 0, wheel.eds, 1.0, 1.0, setings=writes)  # type: ignore[call-arg]
+    with pytest.warns(DeprecationWarning, match=r"omnican\.config\.VendorSetting moved to "
+                      r"omnican\.config\.SdoWrite; the old name goes in the next release"):
+        assert omnican.config.VendorSetting is SdoWrite

@@ -25,7 +25,7 @@ import can
 
 import omnican
 from omnican.errors import BusError, ConfigError
-from omnican.io.bus_health import describe_open_error
+from omnican.io.bus_watch import describe_open_error
 from omnican.plan.pdo import frame_bits
 from omnican.protocol import cia402
 from omnican.protocol.cia301 import canopen_name

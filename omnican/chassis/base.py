@@ -27,8 +27,8 @@ from dataclasses import replace
 from typing import Any
 
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
+from omnican.chassis.checks import ChassisChecks
 from omnican.chassis.cycle import ControlCycle
-from omnican.chassis.health import HealthMonitor
 from omnican.chassis.lifecycle import Lifecycle
 from omnican.chassis.opening import make_base
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
@@ -67,9 +67,9 @@ class Chassis:
         self.nodes = nodes
         self._period = 1.0 / cfg.chassis.rate_hz
         self._supervisor = sup = NodeSupervisor(nodes, bus, clock, self._call_soon,
-                                                HealthMonitor(cfg, nodes, bus))
+                                                ChassisChecks(cfg, nodes, bus))
         self._loop = loop = ControlCycle(cfg, bus, nodes, sup, clock)
-        sup.monitor.speeds = loop.wheel_speeds
+        sup.checks.speeds = loop.wheel_speeds
         self._runner: ThreadRunner | LockstepRunner = (
             LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
             if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed,

@@ -280,7 +280,7 @@ class ControlCycle:
         snap.applied = command
         snap.wheel_values = wheels
         snap.info = self._wheel_info
-        snap.health = sup.monitor.values
+        snap.checked = sup.checks.values
         snap.enabled = (latched is None and not offline and not configuring and
                         not bus_down and self._all_enabled)
         snap.stopped_reason = latched
@@ -297,7 +297,7 @@ class ControlCycle:
 
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
-        every drive enabled) as of the last cycle: what the health checks compare."""
+        every drive enabled) as of the last cycle: what the chassis checks compare."""
         return self._targets, self.wheel_odometry.speeds(), self._stale, self._all_enabled
 
 

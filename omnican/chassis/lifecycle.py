@@ -106,7 +106,7 @@ class Lifecycle:
         if loop.watch.down:
             raise DriveError(f"{sup.latched or 'the CAN bus is down'}: recover once it is "
                              "back (status.bus_up)")
-        refused = sup.monitor.recover_refused()
+        refused = sup.checks.recover_refused()
         if refused is not None:
             raise DriveError(f"recover refused: {refused}")
         timeout = timeout_s if timeout_s is not None else (
@@ -123,7 +123,7 @@ class Lifecycle:
                 now = self.clock.now()
                 loop.command = (Twist(), now)
                 why = ("the CAN bus is down: recover once it is back (status.bus_up)"
-                       if loop.watch.down else sup.monitor.recover_refused())
+                       if loop.watch.down else sup.checks.recover_refused())
                 if why is None:
                     sup.begin_recover(now)
                 outcome.append(why)
@@ -140,7 +140,7 @@ class Lifecycle:
         if outcome[0] is not None:
             raise DriveError(f"recover refused: {outcome[0]}")
         try:
-            self.wait_enabled(timeout, "recover", refuse=sup.monitor.recover_refused)
+            self.wait_enabled(timeout, "recover", refuse=sup.checks.recover_refused)
             logger.info("recovered: every drive enabled")
         finally:
             loop.call_soon(sup.end_recover)

@@ -3,8 +3,8 @@
 :class:`WheelState` and :class:`ChassisStatus` are what ``Chassis.wheels`` and
 ``Chassis.status`` return; :class:`Snapshot` is what the control loop publishes once a
 cycle (plain numbers and tuples, each by name) and the objects are made from, on first
-read, by the reader. :class:`Health` is what the health checks add to every snapshot,
-made at their rate. Pure: no I/O.
+read, by the reader. :class:`CheckResults` is what the chassis checks
+(:mod:`omnican.chassis.checks`) add to every snapshot, made at their rate. Pure: no I/O.
 """
 
 from __future__ import annotations
@@ -66,8 +66,8 @@ class ChassisStatus:
     battery: str | None = None  # "ok", "low" or "cutoff" ([power]); None: no [power] table
 
 
-class StatusHealth(NamedTuple):
-    """What the health checks add to the status: :class:`ChassisStatus`'s fields of the
+class StatusChecks(NamedTuple):
+    """What the chassis checks add to the status: :class:`ChassisStatus`'s fields of the
     same names (``warnings`` follow the loop's)."""
 
     can_state: str | None = None
@@ -80,17 +80,17 @@ class StatusHealth(NamedTuple):
     warnings: tuple[str, ...] = ()
 
 
-class Health(NamedTuple):
-    """What the health checks found, carried by every snapshot until the next check:
+class CheckResults(NamedTuple):
+    """What the chassis checks found, carried by every snapshot until the next check:
     per wheel (by index) what its drive reports, and the status's part."""
 
     wheels: tuple[WheelHealth, ...]
-    status: StatusHealth
+    status: StatusChecks
 
 
-def no_health(wheels: int) -> Health:
-    """The health part of a snapshot before anything was read."""
-    return Health((NO_WHEEL_HEALTH,) * wheels, StatusHealth())
+def nothing_checked(wheels: int) -> CheckResults:
+    """The checks' part of a snapshot before anything was read."""
+    return CheckResults((NO_WHEEL_HEALTH,) * wheels, StatusChecks())
 
 
 class Snapshot:
@@ -104,8 +104,8 @@ class Snapshot:
     is stored the first time)."""
 
     __slots__ = ("_command", "_pose", "_status", "_twist", "_wheels", "applied",
-                 "bus_bits_per_s", "bus_error", "bus_load", "bus_up", "command_age_s", "cycles",
-                 "enabled", "health", "info", "late_fraction", "loop_hz", "measured",
+                 "bus_bits_per_s", "bus_error", "bus_load", "bus_up", "checked", "command_age_s",
+                 "cycles", "enabled", "info", "late_fraction", "loop_hz", "measured",
                  "stopped_reason", "warnings", "wheel_values", "xyt")
 
     xyt: tuple[float, float, float]  # the pose: x, y (m), theta (rad)
@@ -115,7 +115,7 @@ class Snapshot:
     #: :attr:`wheels`
     wheel_values: tuple[Any, ...]
     info: tuple[tuple[int, int, int, float], ...]  # per wheel: index, node id, axis, scale
-    health: Health  # made at the health-check rate, not by the cycle
+    checked: CheckResults  # made at the checks' rate, not by the cycle
     # The cycle's part of ChassisStatus, by the same names.
     enabled: bool
     stopped_reason: str | None
@@ -164,7 +164,7 @@ class Snapshot:
         try:
             return self._status
         except AttributeError:
-            h = self.health.status
+            h = self.checked.status
             self._status = status = ChassisStatus(
                 enabled=self.enabled, stopped_reason=self.stopped_reason,
                 command_age_s=self.command_age_s, loop_hz=self.loop_hz,
@@ -185,7 +185,7 @@ class Snapshot:
         # The measured rim speeds from the loop's speed window: (travel now, travel at the
         # window's start, its span).
         targets, (travel, travel0, span), flags, drives = self.wheel_values
-        health = self.health.wheels
+        health = self.checked.wheels
         out = []
         for i, ((index, node_id, axis, scale), (online, stale),
                 (counts, statusword, mode, error_value, error, fault_text)) in enumerate(

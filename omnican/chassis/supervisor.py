@@ -4,7 +4,7 @@ configured again after a reboot or when the bus comes back, recovered, and disab
 the way out.
 
 Read top to bottom: :meth:`NodeSupervisor.configure_all` (startup), :meth:`check` (each
-health check, on the loop thread), :meth:`bus_went_down` / :meth:`bus_came_back`,
+check, on the loop thread), :meth:`bus_went_down` / :meth:`bus_came_back`,
 :meth:`begin_recover` / :meth:`end_recover`, :meth:`disable_all` and :meth:`stop_nodes`
 (shutdown). Everything but startup and the re-configuration workers runs on the loop
 thread; the workers hand their results back through ``call_soon``. Configuring the nodes
@@ -21,13 +21,13 @@ import logging
 import math
 from collections.abc import Callable
 
+from omnican.chassis.checks import ChassisChecks
 from omnican.chassis.configurator import (
     RECONFIGURE_ATTEMPTS,
     STARTUP_ATTEMPTS,
     Configurator,
     combine_node_errors,
 )
-from omnican.chassis.health import HealthMonitor
 from omnican.clock import Clock
 from omnican.drive import DriveNode
 from omnican.io.bus import CanBus
@@ -68,10 +68,10 @@ class NodeSupervisor:
 
     def __init__(self, nodes: list[DriveNode], bus: CanBus, clock: Clock,
                  call_soon: Callable[[Callable[[], None]], None],
-                 monitor: HealthMonitor) -> None:
+                 checks: ChassisChecks) -> None:
         self.nodes = nodes
         #: the drives' health, the wheels' tracking, e-stop, battery, CAN controller
-        self.monitor = monitor
+        self.checks = checks
         self._bus = bus
         self.clock = clock
         self.stages = [s for n in nodes for s in n.stages]
@@ -153,15 +153,15 @@ class NodeSupervisor:
         self.latched = f"{self.latched}; {reason}"
 
     def check(self, now: float, all_enabled: bool = False) -> None:
-        """One health check of every node not being configured; ``all_enabled``: every
+        """One check of every node not being configured; ``all_enabled``: every
         stage was just seen OPERATION ENABLED (the loop tests that each cycle), so no
         state machine needs a look."""
         configuring, offline, sdo_aborts = self.configuring, self.offline, self._sdo_aborts
         if self._foreign_nmt:
             self._foreign_nmt_seen()
-        monitor = self.monitor
-        if now >= monitor.next_at:
-            monitor.check(now, self)
+        checks = self.checks
+        if now >= checks.next_at:
+            checks.check(now, self)
         for node in self.nodes:
             nid = node.node_id
             if nid in configuring:
@@ -295,7 +295,7 @@ class NodeSupervisor:
                 self._start_node(node, now)
         for stage in self.stages:
             stage.set_goal(State.OPERATION_ENABLED, allow_fault_reset=True)
-        self.monitor.recovered()
+        self.checks.recovered()
         self.latched = None
 
     def end_recover(self) -> None:

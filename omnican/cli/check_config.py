@@ -178,7 +178,7 @@ def host_loss_line(layout: NodeLayout) -> str:
     from omnican.protocol.vendors import quirks_of
 
     watchdogs = quirks_of(layout.dictionary).watchdogs
-    for write in layout.settings_writes:
+    for write in layout.sdo_writes:
         unit = watchdogs.get((write.entry.index, write.entry.subindex))
         if unit is None:
             continue
@@ -194,8 +194,8 @@ def host_loss_line(layout: NodeLayout) -> str:
 
 
 def health_lines(layout: NodeLayout) -> list[str]:
-    """What a node reports of its health and how it is read; its e-stop; its vendor
-    settings."""
+    """What a node reports of its health and how it is read; its e-stop; its
+    ``[[wheel.sdo]]`` writes."""
     # What the drives report (but a register), and the following error.
     shown = {f.quantity for f in HEALTH_FIELDS if not f.register} | {"following_error"}
     lines = []
@@ -218,7 +218,7 @@ def health_lines(layout: NodeLayout) -> list[str]:
             lines.append(f"e-stop: {entry.name} ({entry.address}) bit {layout.estop.bit} "
                          f"{pressed} = pressed ({how})")
     lines += [f"vendor setting in PRE-OPERATIONAL: {w.describe()}" for w in
-              layout.settings_writes]
+              layout.sdo_writes]
     return lines
 
 

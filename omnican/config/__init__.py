@@ -34,8 +34,8 @@ from omnican.config.model import (
     ChassisSettings,
     EstopSettings,
     PowerSettings,
+    SdoWrite,
     SimTruth,
-    VendorSetting,
     WheelConfig,
     default_config,
     derive_scales,
@@ -95,9 +95,9 @@ __all__ = [
     "FrontEndTables",
     "Key",
     "PowerSettings",
+    "SdoWrite",
     "SimTruth",
     "TableSpec",
-    "VendorSetting",
     "WheelConfig",
     "check_eds_files",
     "default_config",
@@ -114,6 +114,13 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    """Names that moved to a front end's own table module keep working for one release,
-    with a DeprecationWarning naming their new home (``ZenohTable``...)."""
+    """Names that moved keep working for one release, with a DeprecationWarning naming
+    their new home: to a front end's own table module (``ZenohTable``...), and
+    ``VendorSetting`` (a ``[[wheel.sdo]]`` write is no setting: :class:`SdoWrite`)."""
+    if name == "VendorSetting":
+        import warnings
+
+        warnings.warn("omnican.config.VendorSetting moved to omnican.config.SdoWrite; the "
+                      "old name goes in the next release", DeprecationWarning, stacklevel=2)
+        return SdoWrite
     return moved_name(name)

@@ -7,7 +7,9 @@ Pure: no I/O. A TOML document becomes these in :mod:`omnican.config.parsing`.
 
 from __future__ import annotations
 
+import functools
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -66,15 +68,43 @@ class WheelConfig:
     voltage_scale: float = _WHEEL["voltage_scale"]
     temperature: str | None = _WHEEL["temperature"]
     temperature_scale: float = _WHEEL["temperature_scale"]
-    settings: tuple[VendorSetting, ...] = ()  # [[wheel.sdo]]
+    sdo_writes: tuple[SdoWrite, ...] = ()  # [[wheel.sdo]]
 
     @property
     def name(self) -> str:
         return f"node {self.node_id}" + (f" axis {self.axis}" if self.axis else "")
 
+    @property
+    def settings(self) -> tuple[SdoWrite, ...]:
+        """Deprecated: :attr:`sdo_writes` (the next release drops it)."""
+        _moved_writes("WheelConfig.settings")
+        return self.sdo_writes
+
+
+_wheel_init = WheelConfig.__init__
+
+
+@functools.wraps(_wheel_init)  # its signature, for help() and the API page
+def _wheel_init_moved(self: WheelConfig, *args: Any, **kwargs: Any) -> None:
+    """``WheelConfig(settings=...)`` (and ``replace(wheel, settings=...)``), the
+    ``[[wheel.sdo]]`` writes under their old name, for one release."""
+    if "settings" in kwargs:
+        _moved_writes("WheelConfig(settings=)")
+        kwargs["sdo_writes"] = kwargs.pop("settings")
+    _wheel_init(self, *args, **kwargs)
+
+
+WheelConfig.__init__ = _wheel_init_moved  # type: ignore[method-assign]
+
+
+def _moved_writes(old: str) -> None:
+    warnings.warn(f"{old} moved to WheelConfig.sdo_writes (the [[wheel.sdo]] writes are no "
+                  "settings); the old name goes in the next release", DeprecationWarning,
+                  stacklevel=3)
+
 
 @dataclass(frozen=True)
-class VendorSetting:
+class SdoWrite:
     """One ``[[wheel.sdo]]`` table: ``value`` written to ``object`` (as the config names
     it) in PRE-OPERATIONAL; ``type`` None: the EDS's."""
 

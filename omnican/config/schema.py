@@ -122,7 +122,7 @@ MAX_RT_PRIORITY = 99
 
 #: Values of chassis.pdo_mapping (what omnican.plan.pdo does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
-#: Values of chassis.lifted_wheel (what the health checks do with a wheel off the ground).
+#: Values of chassis.lifted_wheel (what the chassis checks do with a wheel off the ground).
 LIFTED_WHEEL = ("warn", "stop", "off")
 
 #: [chassis] keys a running base takes while it runs (:meth:`omnican.Chassis.set_limits`,

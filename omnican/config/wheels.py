@@ -1,4 +1,4 @@
-"""The ``[[wheel]]`` tables (their ``[[wheel.sdo]]`` vendor settings too) and the EDS
+"""The ``[[wheel]]`` tables (their ``[[wheel.sdo]]`` SDO writes too) and the EDS
 files they name: each wheel checked against :data:`~omnican.config.schema.SCHEMA` into a
 :class:`~omnican.config.model.WheelConfig`, the wheels checked together, and each EDS
 checked for what a node needs.
@@ -15,7 +15,7 @@ from typing import Any
 from omnican.config.model import (
     ChassisConfig,
     ChassisSettings,
-    VendorSetting,
+    SdoWrite,
     WheelConfig,
     derive_scales,
 )
@@ -92,7 +92,7 @@ def parse_wheel(r: Reader, i: int, data: Any, settings: ChassisSettings,
         voltage_scale=float(w["voltage_scale"]),
         temperature=w["temperature"],
         temperature_scale=float(w["temperature_scale"]),
-        settings=_parse_settings(r, where, w["sdo"]),
+        sdo_writes=_parse_sdo_writes(r, where, w["sdo"]),
     )
 
 
@@ -167,7 +167,7 @@ def check_eds_files(cfg: ChassisConfig, origin: str = "config") -> None:
 
 
 
-def _parse_settings(r: Reader, where: str, raw: Any) -> tuple[VendorSetting, ...]:
+def _parse_sdo_writes(r: Reader, where: str, raw: Any) -> tuple[SdoWrite, ...]:
     """A wheel's [[wheel.sdo]] tables (checked against the EDS later)."""
     if raw is None:
         return ()
@@ -183,6 +183,6 @@ def _parse_settings(r: Reader, where: str, raw: Any) -> tuple[VendorSetting, ...
         value = t["value"]
         if isinstance(value, float) and not math.isfinite(value):
             raise r.fail(f"{where}.sdo[{k}].value", f"must be finite, got {value!r}")
-        out.append(VendorSetting(t["object"], value, kind))
+        out.append(SdoWrite(t["object"], value, kind))
     return tuple(out)
 

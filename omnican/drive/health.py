@@ -1,6 +1,7 @@
 """A node's health values at run time: the health TPDOs decoded as they arrive (on the
 receiving thread: values copied, nothing else) and the round-robin expedited SDO reads
-of the rest, one request at a time, sent on the loop thread at the health-check rate.
+of the rest, one request at a time, sent on the loop thread as often as
+``chassis.health_rate_hz`` says.
 
 The plan is :mod:`omnican.plan.health`'s; :class:`NodeHealth` keeps the newest raw value
 of each object and when it came, and says what each wheel's values are in SI units.

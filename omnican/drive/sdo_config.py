@@ -3,7 +3,7 @@ what the way out undoes.
 
 :meth:`SdoConfig.configure` (blocking, bounded; after the boot-up and the PDOs): the mode
 of operation (read back from 6061h), the ramps, the rated current (for the current in A),
-the ``[[wheel.sdo]]`` vendor settings, the heartbeat producer (1017h) and consumer
+the ``[[wheel.sdo]]`` writes, the heartbeat producer (1017h) and consumer
 (1016h, watching this host), the abort connection option (6007h).
 :meth:`SdoConfig.stop` disables what the loop could not and clears the consumer.
 
@@ -100,7 +100,7 @@ class SdoConfig:
         self.watching = False
 
     def configure(self, warn: list[str] | None = None) -> None:
-        """Mode, ramps, rated currents, vendor settings, heartbeats, 6007h. Blocking,
+        """Mode, ramps, rated currents, the [[wheel.sdo]] writes, heartbeats, 6007h. Blocking,
         bounded; raises DriveError naming the node and what it was doing."""
         node = self.node
         s = node.settings
@@ -112,7 +112,7 @@ class SdoConfig:
             self._confirm_mode(stage)
         self._configure_ramps()
         self._read_rated_currents()
-        for write in node.layout.settings_writes:  # [[wheel.sdo]]
+        for write in node.layout.sdo_writes:  # [[wheel.sdo]]
             self._sdo.write(write.entry, write.entry.subindex, write.data,
                             f"{write.entry.name} from {write.origin}")
         self._sdo.write(PRODUCER_HEARTBEAT_TIME, 0, s.heartbeat_ms.to_bytes(2, "little"),

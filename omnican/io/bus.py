@@ -7,7 +7,7 @@ counts both. Around it, one concern a module:
   bus load, a recorder (:mod:`omnican.record.can_log`), the taps added while it runs);
 - :mod:`omnican.io.transport`: opening the bus, handing reception between the Notifier
   and the loop, reopening it when it does not work, paced, on a thread of its own;
-- :mod:`omnican.io.bus_health`: whether it works (:class:`BusWatch`); the controller's
+- :mod:`omnican.io.bus_watch`: whether it works (:class:`BusWatch`); the controller's
   state, from the error frames SocketCAN delivers, is :mod:`omnican.protocol.can_state`;
 - :mod:`omnican.io.owner`: what those parts see of the bus (a protocol: none of them
   imports this module), and what records it.
@@ -26,7 +26,7 @@ import can
 import canopen
 
 from omnican.clock import REAL_TIME, Clock
-from omnican.io.bus_health import (
+from omnican.io.bus_watch import (
     BUS_DOWN_AFTER_S,
     BUS_UP_AFTER_S,
     CAME_BACK,

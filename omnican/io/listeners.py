@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import can
 
-from omnican.io.bus_health import describe_receive_error
+from omnican.io.bus_watch import describe_receive_error
 from omnican.io.network import Network
 from omnican.plan.pdo import frame_bits
 from omnican.protocol.cia301 import SDO_RX_BASE

@@ -1,6 +1,6 @@
 """The bus as its parts see it: what the transport (:mod:`omnican.io.transport`), the
 traffic count and the counting network (:mod:`omnican.io.listeners`) and the bus watch
-(:mod:`omnican.io.bus_health`) read and write of the :class:`~omnican.io.bus.CanBus`
+(:mod:`omnican.io.bus_watch`) read and write of the :class:`~omnican.io.bus.CanBus`
 that owns them (:class:`BusOwner`), and what records a bus (:class:`Recorder`).
 Protocols, so that no part imports the bus that owns it.
 """

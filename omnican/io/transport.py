@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import can
 
 from omnican.errors import BusError, ConfigError
-from omnican.io.bus_health import describe_open_error, open_error_reason
+from omnican.io.bus_watch import describe_open_error, open_error_reason
 from omnican.io.lockstep import LockstepBus
 
 if TYPE_CHECKING:

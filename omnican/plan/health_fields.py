@@ -2,7 +2,7 @@
 and how the front ends show it.
 
 :class:`WheelHealth` is the record: one per wheel, made a few times a second by the
-health checks (:mod:`omnican.chassis.health`) and carried by every snapshot;
+chassis checks (:mod:`omnican.chassis.checks`) and carried by every snapshot;
 :class:`omnican.chassis.state.WheelState` has its fields. Each field is declared with
 its :class:`HealthField`, and :data:`HEALTH_FIELDS`, the table of them in that order, is
 what the rest reads: the health plan (:mod:`omnican.plan.health`: which objects, the
@@ -91,7 +91,7 @@ class WheelHealth:
     def of(cls, values: dict[str, float | int | None]) -> WheelHealth:
         """The values given by field name (of :data:`HEALTH_FIELDS`; one not given:
         None), made without the frozen ``__init__``: a store per field into the
-        instance's dict, about a tenth of the instructions (the health checks make one
+        instance's dict, about a tenth of the instructions (the chassis checks make one
         per wheel a few times a second, on the loop thread)."""
         made = object.__new__(cls)
         made.__dict__.update(values)  # the class's defaults (None) stand for the rest

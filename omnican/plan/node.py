@@ -119,10 +119,10 @@ class NodeLayout:
                             if self.estop is not None else None)
         #: [[wheel.sdo]] of its wheels, resolved and checked against the EDS
         try:
-            self.settings_writes = vendor_writes(self.dictionary, wheels)
+            self.sdo_writes = vendor_writes(self.dictionary, wheels)
         except ConfigError as exc:
             raise ConfigError(f"node {node_id}: EDS {eds.name}: {exc}") from None
-        overwrite = overwrite_problem(self.settings_writes, self.configured_by_omnican)
+        overwrite = overwrite_problem(self.sdo_writes, self.configured_by_omnican)
         if overwrite is not None:
             raise ConfigError(f"node {node_id}: {overwrite}")
 

@@ -1,10 +1,10 @@
-"""Vendor settings (``[[wheel.sdo]]``): objects a drive needs set at every configuration,
+"""The ``[[wheel.sdo]]`` writes: objects a drive needs set at every configuration,
 written in PRE-OPERATIONAL at startup, after a reboot and after the bus comes back
 (the ZLAC8015D's communication-offline timeout, 2000h, is one: that drive has no
 heartbeat consumer).
 
-Each setting is checked against the drive's EDS before anything is sent: the object
-exists, is writable, has an integer (or boolean) type the setting's type matches, and
+Each write is checked against the drive's EDS before anything is sent: the object
+exists, is writable, has an integer (or boolean) type the write's type matches, and
 the value fits that type and the EDS's LowLimit/HighLimit. Pure: a parsed object
 dictionary in, the bytes to write out.
 """
@@ -17,11 +17,11 @@ from dataclasses import dataclass
 from canopen import objectdictionary as od
 from canopen.objectdictionary import datatypes
 
-from omnican.config import SDO_TYPES, VendorSetting, WheelConfig
+from omnican.config import SDO_TYPES, SdoWrite, WheelConfig
 from omnican.errors import ConfigError
 from omnican.protocol.object_map import Entry, variable_at
 
-#: EDS data types a setting may have: (bits, signed).
+#: EDS data types a written object may have: (bits, signed).
 _EDS_TYPES: dict[int, tuple[int, bool]] = {
     datatypes.BOOLEAN: (8, False), datatypes.INTEGER8: (8, True),
     datatypes.INTEGER16: (16, True), datatypes.INTEGER32: (32, True),
@@ -36,7 +36,7 @@ _TYPE_NAMES = {datatypes.BOOLEAN: "BOOLEAN", datatypes.INTEGER8: "INTEGER8",
 
 @dataclass(frozen=True)
 class VendorWrite:
-    """One setting, resolved: ``data`` goes to ``entry`` by expedited SDO."""
+    """One ``[[wheel.sdo]]`` write, resolved: ``data`` goes to ``entry`` by expedited SDO."""
 
     entry: Entry
     value: int
@@ -47,14 +47,14 @@ class VendorWrite:
         return f"{self.entry.name} ({self.entry.address}) = {self.value} ({self.origin})"
 
 
-def resolve(dictionary: od.ObjectDictionary, setting: VendorSetting, axis: int,
+def resolve(dictionary: od.ObjectDictionary, sdo: SdoWrite, axis: int,
             origin: str) -> VendorWrite:
-    """Check one setting against the EDS; :class:`ConfigError` (one line) if it cannot
+    """Check one write against the EDS; :class:`ConfigError` (one line) if it cannot
     be written as given."""
     from omnican.plan.health import find_object
 
     try:
-        entry = find_object(dictionary, setting.object, axis)
+        entry = find_object(dictionary, sdo.object, axis)
     except ConfigError as exc:
         raise ConfigError(f"{origin}.object: {exc}") from None
     what = f"{origin}: {entry.name} ({entry.address})"
@@ -63,10 +63,10 @@ def resolve(dictionary: od.ObjectDictionary, setting: VendorSetting, axis: int,
     if not var.writable:
         raise ConfigError(f"{what} is not writable (AccessType {var.access_type})")
     eds_type = _EDS_TYPES.get(var.data_type or 0)
-    if setting.type is not None:
-        given = SDO_TYPES[setting.type]
+    if sdo.type is not None:
+        given = SDO_TYPES[sdo.type]
         if eds_type is not None and given != eds_type:
-            raise ConfigError(f"{what}: type {setting.type} does not match the EDS's "
+            raise ConfigError(f"{what}: type {sdo.type} does not match the EDS's "
                               f"{_TYPE_NAMES[var.data_type or 0]}")
         bits, signed = given
     elif eds_type is not None:
@@ -74,7 +74,7 @@ def resolve(dictionary: od.ObjectDictionary, setting: VendorSetting, axis: int,
     else:
         raise ConfigError(f"{what} has DataType 0x{var.data_type or 0:04X}: omnican writes "
                           "integers and booleans (give type if the EDS is wrong)")
-    value = _integer(setting.value, var.data_type == datatypes.BOOLEAN or setting.type == "bool",
+    value = _integer(sdo.value, var.data_type == datatypes.BOOLEAN or sdo.type == "bool",
                      what)
     lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
     if isinstance(var.min, int):
@@ -82,7 +82,7 @@ def resolve(dictionary: od.ObjectDictionary, setting: VendorSetting, axis: int,
     if isinstance(var.max, int):
         hi = min(hi, var.max)
     if not lo <= value <= hi:
-        raise ConfigError(f"{what}: {setting.value!r} is out of range {lo}-{hi}")
+        raise ConfigError(f"{what}: {sdo.value!r} is out of range {lo}-{hi}")
     return VendorWrite(entry, value, value.to_bytes(bits // 8, "little", signed=signed), origin)
 
 
@@ -102,9 +102,9 @@ def _integer(value: int | float | bool, boolean: bool, what: str) -> int:
 
 def overwrite_problem(writes: Sequence[VendorWrite],
                       owned: Callable[[int, int], str | None]) -> str | None:
-    """The first setting that would overwrite an object omnican configures itself
-    (``owned(index, subindex)`` says what for; None: not omnican's). Settings are
-    written after omnican's own configuration, so such a setting would undo it."""
+    """The first write that would overwrite an object omnican configures itself
+    (``owned(index, subindex)`` says what for; None: not omnican's). They are
+    written after omnican's own configuration, so such a write would undo it."""
     for write in writes:
         why = owned(write.entry.index, write.entry.subindex)
         if why is not None:
@@ -115,12 +115,12 @@ def overwrite_problem(writes: Sequence[VendorWrite],
 
 def vendor_writes(dictionary: od.ObjectDictionary,
                   wheels: Sequence[tuple[int, WheelConfig]]) -> tuple[VendorWrite, ...]:
-    """The settings of a node's wheels, resolved, in order; one object given twice
+    """The ``[[wheel.sdo]]`` writes of a node's wheels, resolved, in order; one object given twice
     must have one value."""
     out: dict[tuple[int, int], VendorWrite] = {}
     for index, wheel in wheels:
-        for k, setting in enumerate(wheel.settings):
-            write = resolve(dictionary, setting, wheel.axis, f"wheel[{index}].sdo[{k}]")
+        for k, sdo in enumerate(wheel.sdo_writes):
+            write = resolve(dictionary, sdo, wheel.axis, f"wheel[{index}].sdo[{k}]")
             key = (write.entry.index, write.entry.subindex)
             seen = out.get(key)
             if seen is not None and seen.value != write.value:

@@ -38,7 +38,7 @@ from omnican.core.kinematics import OmniKinematics, Twist
 from omnican.core.odometry import Pose2D
 from omnican.errors import BusError, ConfigError
 from omnican.io import stepped as stepped_io
-from omnican.io.bus_health import describe_open_error
+from omnican.io.bus_watch import describe_open_error
 from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
 from omnican.sim.drive import SimulatedDrive

@@ -351,12 +351,12 @@ def test_render_round_trips() -> None:
 def test_render_keeps_what_the_drives_report_and_their_settings() -> None:
     """A calibrated config written back keeps the health objects, [[wheel.sdo]], [power]
     and [estop] as they were."""
-    from omnican.config import EstopSettings, PowerSettings, VendorSetting
+    from omnican.config import EstopSettings, PowerSettings, SdoWrite
 
     base = default_config()
     wheels = (replace(base.wheels[0], current="0x30D1:02", current_scale=0.001, torque="",
-                      settings=(VendorSetting("0x2000:00", 500),
-                                VendorSetting("Some flag", True, "bool"))),
+                      sdo_writes=(SdoWrite("0x2000:00", 500),
+                                  SdoWrite("Some flag", True, "bool"))),
               *base.wheels[1:])
     cfg = replace(base, wheels=wheels, power=PowerSettings(cutoff_v=21.5, delay_s=2.0),
                   estop=EstopSettings(bit=14, object="0x6041", active_low=True, node_id=2))

@@ -52,7 +52,7 @@ STOPS: dict[str, Callable[[SimulatedBase, LockstepBus], None]] = {
 def in_the_window(base: Chassis, then: Callable[[], None]) -> None:
     """recover()'s first check answers as it would, then ``then`` runs (the loop thread
     going on meanwhile) before recover() asks the loop to clear the stop."""
-    monitor = base._supervisor.monitor
+    monitor = base._supervisor.checks
     check = monitor.recover_refused
     calls: list[str | None] = []
 
@@ -88,7 +88,7 @@ def test_recover_is_refused_when_the_cutoff_is_reached_while_it_runs(
     assert wait_for(lambda: base.status.stopped_reason is not None, 1.0, clock=clock)
     sim.drives[0].clear_fault()
     sim.set_battery(19.0)
-    monitor = base._supervisor.monitor
+    monitor = base._supervisor.checks
     assert monitor.battery is not None and not monitor.battery.cut  # its delay runs
 
     def meanwhile() -> None:

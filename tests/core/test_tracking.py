@@ -17,7 +17,7 @@ from omnican.core.tracking import (
     TrackingDetector,
 )
 
-DT = 0.02  # the health checks' period (50 Hz)
+DT = 0.02  # the chassis checks' period (50 Hz)
 ERROR, TIME_S, LAG_S, RATIO = 0.1, 0.5, 0.3, 0.5
 
 

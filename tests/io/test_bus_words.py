@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from omnican.io.bus_health import (
+from omnican.io.bus_watch import (
     bus_where,
     describe_open_error,
     describe_receive_error,

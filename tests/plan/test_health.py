@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from omnican import WHEEL_EDS, default_config
 from omnican.cli import main
-from omnican.config import EstopSettings, VendorSetting
+from omnican.config import EstopSettings, SdoWrite
 from omnican.errors import ConfigError
 from omnican.plan.health import find_object, node_reads, plan_health
 from omnican.plan.node import node_layouts
@@ -119,18 +119,18 @@ def test_every_read_goes_once_by_pdo_or_sdo_within_the_drives_limits(spare: int,
 
 
 def test_vendor_settings_are_checked_against_the_eds() -> None:
-    ok = resolve(ZLAC, VendorSetting("0x2000:00", 500), 0, "wheel[0].sdo[0]")
+    ok = resolve(ZLAC, SdoWrite("0x2000:00", 500), 0, "wheel[0].sdo[0]")
     assert ok.data == (500).to_bytes(2, "little")
     assert ok.describe() == "Offline Communication Parameter (0x2000:00) = 500 (wheel[0].sdo[0])"
-    by_name = resolve(ZLAC, VendorSetting("Offline Communication Parameter", 7, "u16"), 0, "w")
+    by_name = resolve(ZLAC, SdoWrite("Offline Communication Parameter", 7, "u16"), 0, "w")
     assert by_name.entry.address == "0x2000:00"
     cases = [
-        (VendorSetting("0x2999:00", 1), "wheel[0].sdo[0].object: the EDS has no object"),
-        (VendorSetting("0x2031:00", 1), "Software Version (0x2031:00) is not writable"),
-        (VendorSetting("0x2000:00", 1, "u32"), "type u32 does not match the EDS's UNSIGNED16"),
-        (VendorSetting("0x2000:00", 70000), "70000 is out of range 0-65535"),
-        (VendorSetting("0x2001:00", 200), "200 is out of range 0-127"),  # the EDS's limits
-        (VendorSetting("0x2000:00", 1.5), "is an integer, got 1.5"),
+        (SdoWrite("0x2999:00", 1), "wheel[0].sdo[0].object: the EDS has no object"),
+        (SdoWrite("0x2031:00", 1), "Software Version (0x2031:00) is not writable"),
+        (SdoWrite("0x2000:00", 1, "u32"), "type u32 does not match the EDS's UNSIGNED16"),
+        (SdoWrite("0x2000:00", 70000), "70000 is out of range 0-65535"),
+        (SdoWrite("0x2001:00", 200), "200 is out of range 0-127"),  # the EDS's limits
+        (SdoWrite("0x2000:00", 1.5), "is an integer, got 1.5"),
     ]
     for setting, message in cases:
         with pytest.raises(ConfigError) as err:

@@ -176,7 +176,7 @@ def test_a_cutoff_reached_during_recover_refuses_it_across_processes(
         drive_for(base, 0.5, vx=0.3)
         process.command("fault 1 0x8130")
         keep_driving(base, "node 1 fault", 5.0)
-        monitor = base._supervisor.monitor
+        monitor = base._supervisor.checks
         check = monitor.recover_refused
         window: list[str | None] = []
 

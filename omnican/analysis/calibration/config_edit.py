@@ -215,11 +215,11 @@ def render_config(cfg: ChassisConfig, comment: str = "", digits: int = 7) -> str
             # None for an object: none (what "" says in a config)
             lines.append(f"{key} = " + (_toml_string(value or "") if not isinstance(
                 value, float) else format_number(value)))
-        for setting in w.settings:
-            lines += ["[[wheel.sdo]]", f"object = {_toml_string(setting.object)}",
-                      f"value = {_toml_value(setting.value)}"]
-            if setting.type is not None:
-                lines.append(f'type = "{setting.type}"')
+        for write in w.sdo_writes:
+            lines += ["[[wheel.sdo]]", f"object = {_toml_string(write.object)}",
+                      f"value = {_toml_value(write.value)}"]
+            if write.type is not None:
+                lines.append(f'type = "{write.type}"')
     if cfg.sim is not None:
         lines += ["", f"[sim]  {_SIM_COMMENT}", *_sim_lines(cfg.sim)]
     for table, settings in (("power", cfg.power), ("estop", cfg.estop)):

@@ -18,7 +18,7 @@ the loop thread by the supervisor (never by the control cycle itself):
 - the health values themselves (:mod:`omnican.drive.health`): the round-robin SDO reads
   are sent from here, and what each wheel shows is made here (a
   :class:`~omnican.plan.health_fields.WheelHealth` per wheel, a
-  :class:`~omnican.chassis.state.StatusHealth`), handed to every snapshot until the next
+  :class:`~omnican.chassis.state.StatusChecks`), handed to every snapshot until the next
   check.
 """
 
@@ -30,7 +30,7 @@ from collections.abc import Callable, Sequence
 from typing import Protocol
 
 from omnican.chassis.battery import BatteryMonitor, base_voltage
-from omnican.chassis.state import Health, StatusHealth, no_health
+from omnican.chassis.state import CheckResults, StatusChecks, nothing_checked
 from omnican.config import ChassisConfig
 from omnican.core.lift import LiftDetector
 from omnican.core.limits import longest_stop_s
@@ -49,7 +49,7 @@ logger = logging.getLogger("omnican.chassis")
 
 class Latches(Protocol):
     """What the checks read of the NodeSupervisor (omnican.chassis.supervisor), and how they
-    stop the base: the supervisor owns this monitor and hands itself to each check."""
+    stop the base: the supervisor owns these checks and hands itself to each check."""
 
     latched: str | None
     recovering: bool
@@ -97,7 +97,7 @@ class _Estop:
         return bool(raw >> self.bit & 1) != self.active_low
 
 
-class HealthMonitor:
+class ChassisChecks:
     """See the module docstring. ``speeds`` (set by the base) reads the cycle's targets
     and measured speeds."""
 
@@ -158,7 +158,7 @@ class HealthMonitor:
         self.estop_held: str | None = None
         self.bus_off: str | None = None
         #: what each snapshot carries until the next check
-        self.values: Health = no_health(len(axes))
+        self.values: CheckResults = nothing_checked(len(axes))
 
     def check(self, now: float, sup: Latches) -> None:
         """What is due at ``now`` (loop thread, once ``next_at`` has come); ``sup``
@@ -213,7 +213,7 @@ class HealthMonitor:
             level = "cutoff" if battery.cut else "low" if battery.low else "ok"
         can = self._bus.controller.state
         seen = can.error_frames > 0
-        self.values = Health(tuple(wheel_values), StatusHealth(
+        self.values = CheckResults(tuple(wheel_values), StatusChecks(
             can_state=can.state if seen else None, can_tx_errors=can.tx_errors,
             can_rx_errors=can.rx_errors, can_error_frames=can.error_frames, estop=pressed,
             battery_v=volts, battery=level, warnings=warnings))

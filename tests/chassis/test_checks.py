@@ -14,7 +14,7 @@ import can
 import pytest
 
 from omnican import Chassis, ChassisConfig, load_config
-from omnican.chassis.state import Snapshot, StatusHealth
+from omnican.chassis.state import Snapshot, StatusChecks
 from omnican.clock import SimClock
 from omnican.errors import DriveError
 from omnican.io.lockstep import LockstepBus
@@ -455,15 +455,15 @@ def test_a_rated_current_the_drive_will_not_give_is_one_warning_and_no_amps(
 
 def test_a_snapshot_carries_each_value_by_name(rig: Rig) -> None:
     """The cycle fills every field of its snapshot; the status and the wheels are made of
-    them and of the health checks' record, name for name."""
+    them and of the chassis checks' record, name for name."""
     clock, _sim, base = rig
     drive_for(base, 0.5, vx=0.3)
     snap = base._loop.snapshot
     missing = [n for n in Snapshot.__slots__ if not n.startswith("_") and not hasattr(snap, n)]
     assert not missing
-    status, health = snap.status, snap.health
+    status, health = snap.status, snap.checked
     assert (status.cycles, status.enabled, status.bus_up) == (snap.cycles, True, True)
-    for name in StatusHealth._fields:
+    for name in StatusChecks._fields:
         expected = getattr(health.status, name)
         if name == "warnings":
             expected = snap.warnings + expected
