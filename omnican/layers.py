@@ -25,11 +25,14 @@ class FrontEndEntry(NamedTuple):
     <class>"``, a subclass of :class:`omnican.front_end.FrontEnd`), the extra it needs
     (:mod:`omnican.extras`), and its own subcommands (command, one-line help; the
     command's module is ``omnican.cli.<command>``), which ``omnican --help`` lists
-    without importing anything of it."""
+    without importing anything of it. ``foreign_threads``: the modules of its libraries
+    that call into Python from threads of their own; a process that imported one ends
+    past the interpreter's finalization (:func:`omnican.cli.main`)."""
 
     plugin: str
     extra: str | None = None
     commands: tuple[tuple[str, str], ...] = ()
+    foreign_threads: tuple[str, ...] = ()
 
     @property
     def folder(self) -> str:
@@ -45,7 +48,8 @@ FRONT_ENDS: dict[str, FrontEndEntry] = {
     "foxglove": FrontEndEntry("omnican.live.front_end:FoxgloveFrontEnd", "foxglove"),
     "zenoh": FrontEndEntry("omnican.zenoh.front_end:ZenohFrontEnd", "zenoh", (
         ("zenoh", "run the base on Zenoh (rmw_zenoh's format)"),
-        ("fleet", "every base on the Zenoh network: view, stop, recover"))),
+        ("fleet", "every base on the Zenoh network: view, stop, recover")),
+        foreign_threads=("zenoh",)),
 }
 
 #: Lowest first. A set is one layer of siblings.

@@ -119,12 +119,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _exit_past_foreign_threads(code: int) -> None:
-    """End a process that imported Zenoh now, its output flushed, without the
-    interpreter's finalization: a Zenoh thread calling into Python meanwhile is ended by
-    it with a forced unwind through Rust frames, which aborts the process ("FATAL:
-    exception not rethrown", exit -6 instead of the command's code; 2 runs in 120 of
-    ``fleet --once --json``). Every command has closed what it opened by now."""
-    if "zenoh" not in sys.modules:
+    """End a process that imported a front end whose library calls into Python from
+    threads of its own (its registry line says ``foreign_threads``) now, its output
+    flushed, without the interpreter's finalization: such a thread calling into Python
+    meanwhile is ended by it with a forced unwind through Rust frames, which aborts the
+    process ("FATAL: exception not rethrown", exit -6 instead of the command's code; 2
+    runs in 120 of ``fleet --once --json``). Every command has closed what it opened by
+    now."""
+    from omnican.layers import FRONT_ENDS
+
+    if not any(module in sys.modules for entry in FRONT_ENDS.values()
+               for module in entry.foreign_threads):
         return
     import logging
     import os
