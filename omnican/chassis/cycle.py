@@ -22,6 +22,7 @@ from omnican.chassis.state import Snapshot
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import Clock
 from omnican.config import ChassisConfig
+from omnican.core.imu import ImuInbox
 from omnican.core.kinematics import Twist
 from omnican.core.limits import VelocityLimiter
 from omnican.core.odometry import Odometry
@@ -105,6 +106,9 @@ class ControlCycle:
         # Every sink_every-th snapshot goes to sink (0: none; see offer_to).
         self.sink: Callable[[Snapshot], None] = _no_sink
         self.sink_every = 0
+        #: where a configured IMU's samples wait for the cycle (None: no IMU; set by
+        #: whoever attaches the IMU source before the loop starts)
+        self.imu: ImuInbox | None = None
         self.snapshot = self._make_snapshot(clock.now())
 
     def call_soon(self, fn: Callable[[], None]) -> None:
