@@ -122,6 +122,8 @@ MAX_RT_PRIORITY = 99
 
 #: Values of chassis.pdo_mapping (what omnican.plan.pdo does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
+#: Values of imu.source: where an IMU's readings come from.
+IMU_SOURCES = ("can", "ros2", "zenoh")
 #: Values of chassis.lifted_wheel (what the chassis checks do with a wheel off the ground).
 LIFTED_WHEEL = ("warn", "stop", "off")
 
@@ -316,6 +318,37 @@ _OWN: dict[str, dict[str, Key]] = {
         "node_id": Key((int,), None, "the drive whose input it is; default every node",
                        range=(1, 127)),
     },
+    # An IMU whose yaw rate the base fuses with its wheels' (omnican.core.fusion): on this
+    # CAN bus, described by a DBC (omnican.io.imu), or a sensor_msgs/Imu someone else
+    # publishes on ROS 2 or Zenoh. A silent one is a status warning, never a stop.
+    "imu": {
+        "source": Key((str,), None, "where the IMU's readings come from: " + ", ".join(
+            f'"{s}"' for s in IMU_SOURCES) + " (a sensor_msgs/Imu topic)",
+                      required=True),
+        "dbc": Key((str,), None, "can: the DBC file describing the IMU's messages (relative to "
+                   "the config file); e.g. the bundled \"openimu300ri.dbc\""),
+        "message": Key((str,), None, "can: the DBC message carrying the yaw rate (its name)"),
+        "yaw_rate": Key((str,), None, "can: the signal of that message with the yaw rate "
+                        "(about the IMU's z axis)"),
+        "yaw_rate_unit": Key((str,), None, "can: \"deg/s\" or \"rad/s\"; default the DBC "
+                             "signal's unit"),
+        "accel_message": Key((str,), None, "can: the DBC message with the accelerations; "
+                             "default the yaw rate's"),
+        "accel_x": Key((str,), None, "can: the signal with the acceleration along the IMU's "
+                       "x axis (optional)"),
+        "accel_y": Key((str,), None, "can: the signal with the acceleration along the IMU's "
+                       "y axis (optional)"),
+        "accel_unit": Key((str,), None, "can: \"m/s^2\" or \"g\"; default the DBC "
+                          "signal's unit"),
+        "topic": Key((str,), "/imu/data", "ros2, zenoh: the sensor_msgs/Imu topic"),
+        "mount_yaw_deg": Key(NUMBER, 0.0, "the IMU's x axis turned this far counter-clockwise "
+                             "of the base's (turns its accelerations; the yaw rate stays)",
+                             range=(-360.0, 360.0)),
+        "upside_down": Key((bool,), False, "the IMU's z axis points down (mounted upside down, "
+                           "or a z-down frame): its yaw rate and y axis are negated"),
+        "stale_s": Key(NUMBER, 0.5, "no reading for this long: the IMU counts as silent (a "
+                       "status warning; the base falls back to its wheels)", range=_WAIT),
+    },
     # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
     # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.
     "sim": {
@@ -326,6 +359,23 @@ _OWN: dict[str, dict[str, Key]] = {
                               "of the simulated wheels (magnitude): one number for every "
                               "wheel, or one per wheel; default the configured ones",
                               range=_SCALE),
+    },
+    # The simulated base's gyro ([sim.gyro]): with a CAN [imu], `--sim` publishes the true
+    # yaw rate through the IMU's DBC message, as this gyro would measure it.
+    "sim.gyro": {
+        "enabled": Key((bool,), True, "publish the gyro (false: an IMU that stays silent)"),
+        "rate_hz": Key(NUMBER, 100.0, "how often the gyro's message is sent",
+                       range=(1.0, 1000.0)),
+        "bias_deg_s": Key(NUMBER, 0.0, "deg/s the gyro reads at rest (its bias at start)",
+                          range=(-100.0, 100.0)),
+        "drift_deg_s": Key(NUMBER, 0.0, "deg/s per square root of a second: how fast the "
+                           "bias wanders (a random walk)", range=(0.0, 10.0)),
+        "noise_deg_s": Key(NUMBER, 0.0, "deg/s: the white noise of each reading (standard "
+                           "deviation)", range=(0.0, 100.0)),
+        "mount_yaw_deg": Key(NUMBER, None, "how the simulated IMU really sits; default as "
+                             "[imu] says", range=(-360.0, 360.0)),
+        "seed": Key((int,), 0, "seed of the gyro's noise and drift (the same run twice)",
+                    range=(0, 2**32 - 1)),
     },
     # Read by `omnican teleop --gamepad` (omnican.command.gamepad). A key left out is the
     # preset's; every preset has the defaults below. evdev's sticks read + to the right
