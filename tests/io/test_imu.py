@@ -4,10 +4,12 @@ gyro sending them as that IMU would; a silent IMU's last sample time standing st
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
+from pathlib import Path
 
 import can
 import cantools
@@ -21,6 +23,8 @@ from omnican.core.imu import ImuInbox
 from omnican.io.bus import CanBus
 from omnican.io.imu import CanImu
 from omnican.sim import SimulatedBase
+from tests.cli.test_first_use import EXAMPLE, run_main
+from tests.config.test_imu_config import FOUR_LINES
 from tests.support.helpers import drive_for, sim_config, wait_for
 
 OPENIMU = BUNDLED_DBC / "openimu300ri.dbc"
@@ -181,3 +185,24 @@ def test_a_noisy_drifting_gyro_repeats_with_its_seed(channel: str) -> None:
             runs.append([s.yaw_rate for s in base.imu.drain()])
     assert runs[0] == runs[1]
     assert len(set(runs[0])) > 10  # noise: not one value
+
+
+def test_drive_sim_with_an_imu_table_gets_samples_end_to_end(tmp_path: Path,
+                                                             channel: str) -> None:
+    """`omnican drive --sim --json` with the four lines of a CAN IMU: the simulated gyro's
+    frames reach the base (``"imu"``); ``[sim.gyro] enabled = false``: none, ever."""
+    path = tmp_path / "robot.toml"
+    text = (EXAMPLE.read_text().replace('channel = "can0"', f'channel = "{channel}"')
+            .replace('interface = "socketcan"', 'interface = "virtual"'))
+    path.write_text(text + FOUR_LINES)
+    code, out, err = run_main(["drive", "--sim", "--fast", "--config", str(path), "--wz", "0.5",
+                               "--duration", "1", "--json"])
+    assert code == 0, err
+    imu = json.loads(out)["imu"]
+    assert imu["source"] == "can" and imu["samples"] >= 90  # 100 Hz for a second and more
+    assert imu["silent_s"] is not None and imu["silent_s"] < 0.5
+    path.write_text(text + FOUR_LINES + "\n[sim.gyro]\nenabled = false\n")
+    code, out, err = run_main(["drive", "--sim", "--fast", "--config", str(path), "--wz", "0.5",
+                               "--duration", "1", "--json"])
+    assert code == 0, err
+    assert json.loads(out)["imu"] == {"source": "can", "samples": 0, "silent_s": None}
