@@ -159,3 +159,20 @@ def host_time(stamp_wall: float, now: float, now_wall: float,
     if not (0.0 <= age <= max_age_s):
         return now
     return now - age
+
+
+def sample_of_imu_msg(mount: ImuMount, stamp_s: float, angular_z: float, accel_x: float,
+                      accel_y: float, rate_covariance0: float, accel_covariance0: float,
+                      now: float, now_wall: float) -> ImuSample | None:
+    """A ``sensor_msgs/Imu`` (header stamp ``stamp_s`` in s since the epoch, its
+    ``angular_velocity.z``, ``linear_acceleration.x/.y``, element 0 of their covariances)
+    as a sample in the base's frame, received at ``now`` (monotonic) when the wall clock
+    read ``now_wall``. None where the message has no angular velocity (element 0 of its
+    covariance -1, as sensor_msgs/Imu says for "no estimate") or a value is not finite;
+    its accelerations are left out likewise. Its time: :func:`host_time` of the stamp."""
+    if rate_covariance0 == -1.0 or not math.isfinite(angular_z):
+        return None
+    t = host_time(stamp_s, now, now_wall)
+    if accel_covariance0 == -1.0 or not (math.isfinite(accel_x) and math.isfinite(accel_y)):
+        return mount.to_base(t, angular_z)
+    return mount.to_base(t, angular_z, accel_x, accel_y)
