@@ -53,6 +53,7 @@ class CanImu(can.Listener):
         self._accel_key = ((self._accel.frame_id, bool(self._accel.is_extended_frame))
                            if self._accel is not None else None)
         self._rate_factor = dbc.rate_factor
+        self._yaw_signal = settings.yaw_rate or ""  # dbc_imu checked it is given
         self._accel_factor = dbc.accel_factor
         self._mount = ImuMount(settings.mount_yaw_deg, settings.upside_down)
         self._accel_now: tuple[float, float, float] | None = None  # (t, x, y) in SI
@@ -106,7 +107,7 @@ class CanImu(can.Listener):
         if values is None:
             return
         s = self.settings
-        rate = float(values[s.yaw_rate]) * self._rate_factor  # type: ignore[index]
+        rate = float(values[self._yaw_signal]) * self._rate_factor
         if not math.isfinite(rate):
             return
         t = self._time(msg)

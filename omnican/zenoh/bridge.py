@@ -42,10 +42,10 @@ from omnican.errors import ConfigError
 from omnican.telemetry import JSON, TOPICS, Message
 from omnican.telemetry.attach import feed_of
 from omnican.zenoh import rmw
-from omnican.zenoh.security import ENFORCING, tls_entries
-from omnican.zenoh.services import SOURCE as SERVICE_CLIENT
 from omnican.zenoh.imu import ZenohImu
+from omnican.zenoh.security import ENFORCING, tls_entries
 from omnican.zenoh.services import SERVICES, Services
+from omnican.zenoh.services import SOURCE as SERVICE_CLIENT
 from omnican.zenoh.settings import (
     ZenohSettings,
     config_entries,

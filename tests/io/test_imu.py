@@ -4,6 +4,7 @@ gyro sending them as that IMU would; a silent IMU's last sample time standing st
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections.abc import Iterator
@@ -123,7 +124,7 @@ def test_the_simulated_gyro_reaches_the_inbox_at_its_rate_in_its_units(channel: 
         steady = got[len(got) // 2:]  # turning at 0.5 rad/s by then
         mean = sum(s.yaw_rate for s in steady) / len(steady)
         assert mean == pytest.approx(0.5 + 0.5 * DEG, abs=0.01)
-        assert all(a.t < b.t for a, b in zip(got, got[1:], strict=False))
+        assert all(a.t < b.t for a, b in itertools.pairwise(got))
         assert got[-1].t <= clock.now()
         while (msg := tap.get_message(0)) is not None:
             frames.append(msg)

@@ -18,16 +18,16 @@ from tests.support.helpers import sim_config
 
 pytest.importorskip("cyclonedds")
 
-from omnican.ros2 import msgs  # noqa: E402
-from omnican.ros2.bridge import Bridge  # noqa: E402
-from omnican.ros2.settings import Ros2Settings  # noqa: E402
+from omnican.ros2 import msgs
+from omnican.ros2.bridge import Bridge
+from omnican.ros2.settings import Ros2Settings
 
 
 def _imu(wz: float, stamp: float = 0.0, ax: float = 0.0, ay: float = 0.0,
          rate_cov0: float = 0.0) -> msgs.Imu:
     sec = int(stamp)
     return msgs.Imu(
-        header=msgs.Header(stamp=msgs.Time(sec, int(round((stamp - sec) * 1e9)))),
+        header=msgs.Header(stamp=msgs.Time(sec, round((stamp - sec) * 1e9))),
         angular_velocity=msgs.Vector3(0.0, 0.0, wz),
         angular_velocity_covariance=[rate_cov0] + [0.0] * 8,
         linear_acceleration=msgs.Vector3(ax, ay, 9.81))

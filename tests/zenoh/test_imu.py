@@ -4,6 +4,7 @@ the host's clock; what is not an Imu is counted, never put. On a loopback router
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Iterator
@@ -31,7 +32,7 @@ def _imu_cdr(wz: float, stamp: float = 0.0, ax: float = 0.0, ay: float = 0.0,
     sec = int(stamp)
     vec = lambda x, y, z: {"x": x, "y": y, "z": z}  # noqa: E731
     return cdr.encode("sensor_msgs/msg/Imu", {
-        "header": {"stamp": {"sec": sec, "nanosec": int(round((stamp - sec) * 1e9))},
+        "header": {"stamp": {"sec": sec, "nanosec": round((stamp - sec) * 1e9)},
                    "frame_id": "imu_link"},
         "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
         "orientation_covariance": [-1.0] + [0.0] * 8,
@@ -82,7 +83,7 @@ def test_a_zenoh_imu_at_100hz_reaches_the_inbox(imu_bridge: tuple[Chassis, Any],
         # turned half round about z: its x points back, its y right
         assert got[0].accel_x == pytest.approx(-1.0) and got[0].accel_y == pytest.approx(0.5)
         assert all(before - 0.01 <= s.t <= after for s in got)
-        assert all(a.t <= b.t for a, b in zip(got, got[1:], strict=False))
+        assert all(a.t <= b.t for a, b in itertools.pairwise(got))
         # not an Imu, no angular velocity, not finite: counted, never put
         pub.put(b"\x00\x01\x00\x00\xff\xff")
         pub.put(_imu_cdr(1.0, rate_cov0=-1.0))
