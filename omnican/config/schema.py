@@ -122,8 +122,9 @@ MAX_RT_PRIORITY = 99
 
 #: Values of chassis.pdo_mapping (what omnican.plan.pdo does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
-#: Values of imu.source: where an IMU's readings come from.
-IMU_SOURCES = ("can", "ros2", "zenoh")
+#: Values of imu.source: where an IMU's readings come from: the bus ("can"), or the
+#: front ends that read a sensor_msgs/Imu topic (by their registry's names).
+IMU_SOURCES = ("can", *(name for name, entry in FRONT_ENDS.items() if entry.imu_topic))
 #: Values of chassis.lifted_wheel (what the chassis checks do with a wheel off the ground).
 LIFTED_WHEEL = ("warn", "stop", "off")
 
