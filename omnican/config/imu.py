@@ -177,3 +177,21 @@ def _factor(given: str | None, signal: Any, known: Any, key: str, what: str) -> 
         said = f"its unit {unit!r} is not one omnican knows" if unit else "it has no unit"
         raise DbcError(f"the DBC's signal {signal.name}: {said}; give {key} ({what})", key)
     return factor
+
+
+def describe(imu: ImuSettings) -> str:
+    """One line of what an ``[imu]`` table reads (``omnican check-config``)."""
+    mount = (f"mounted {imu.mount_yaw_deg:g} deg"
+             + (", upside down" if imu.upside_down else "")
+             + f"; silent after {imu.stale_s:g} s")
+    if imu.source != "can":
+        return f"imu: sensor_msgs/Imu on {imu.topic} ({imu.source}), {mount}"
+    dbc = dbc_imu(imu)
+    msg = dbc.rate_message
+    bits = "29-bit" if msg.is_extended_frame else "11-bit"
+    unit = imu.yaw_rate_unit or msg.get_signal_by_name(imu.yaw_rate).unit
+    line = (f"imu: CAN message {msg.name} (0x{msg.frame_id:X}, {bits}) of "
+            f"{imu.dbc.name if imu.dbc else '?'}, yaw rate {imu.yaw_rate} in {unit}")
+    if dbc.accel_message is not None:
+        line += f", accelerations {imu.accel_x}, {imu.accel_y} of {dbc.accel_message.name}"
+    return f"{line}; {mount}"
