@@ -112,6 +112,7 @@ class SimulatedBase:
         self._last_tick = -math.inf
         #: the simulated IMU, with a CAN ``[imu]`` table (:mod:`omnican.sim.gyro`)
         self.gyro: SimulatedGyro | None = None
+        self._gyro_task: object | None = None
 
     @classmethod
     def from_config(
@@ -225,7 +226,10 @@ class SimulatedBase:
         spec = self.cfg.sim.gyro if self.cfg.sim is not None else None
         self.gyro = SimulatedGyro(imu, spec if spec is not None else SimGyro(), self.network,
                                   self.clock, lambda: self.true_pose, lambda: self.true_twist)
-        self.scheduler.add(self.gyro.tick)
+        if self.clock.lockstep:  # a task of its own: its rate, whatever the drives' tick
+            self._gyro_task = self.clock.every(self.gyro.period_s, self.gyro.tick)
+        else:  # on the drives' timer (the control loop's, when it runs them)
+            self.scheduler.add(self.gyro.tick)
 
     # ------------------------------------------------------------ truth
 
@@ -351,6 +355,8 @@ class SimulatedBase:
                 return
             self._closed = True
         self._truth.stop()
+        if self._gyro_task is not None:
+            self.clock.cancel(self._gyro_task)
         if self._channel is not None:
             stepped_io.withdraw(self._channel, self)
         self.scheduler.close()

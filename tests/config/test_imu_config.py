@@ -158,3 +158,18 @@ def test_the_dataclasses_default_as_the_schema() -> None:
             assert f.default == spec.default or (
                 isinstance(f.default, float) and math.isnan(f.default)), f.name
         assert {f.name for f in fields(cls)} == set(SCHEMA[section])
+
+
+def test_check_config_says_what_the_imu_reads(tmp_path: Path) -> None:
+    path = write(tmp_path, GOOD + FOUR_LINES + 'accel_message = "ACCS"\naccel_x = '
+                 '"AccelerationX"\naccel_y = "AccelerationY"\nupside_down = true\n')
+    code, out, err = run_main(["check-config", str(path)])
+    assert code == 0, err
+    assert ("  imu: CAN message ARI (0x18F02A80, 29-bit) of openimu300ri.dbc, yaw rate "
+            "AngularRateZ in deg/s, accelerations AccelerationX, AccelerationY of ACCS; "
+            "mounted 0 deg, upside down; silent after 0.5 s") in out.splitlines()
+    path = write(tmp_path, GOOD + '[imu]\nsource = "zenoh"\nmount_yaw_deg = 45\n')
+    code, out, err = run_main(["check-config", str(path)])
+    assert code == 0, err
+    assert ("  imu: sensor_msgs/Imu on /imu/data (zenoh), mounted 45 deg; silent after "
+            "0.5 s") in out.splitlines()
