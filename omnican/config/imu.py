@@ -96,7 +96,7 @@ def parse_sim_gyro(r: Reader, table: Any) -> SimGyro:
                    bias_deg_s=float(g["bias_deg_s"]), drift_deg_s=float(g["drift_deg_s"]),
                    noise_deg_s=float(g["noise_deg_s"]),
                    mount_yaw_deg=None if g["mount_yaw_deg"] is None
-                   else float(g["mount_yaw_deg"]), seed=g["seed"])
+                   else float(g["mount_yaw_deg"]), noise_stream=g["noise_stream"])
 
 
 @dataclass(frozen=True)

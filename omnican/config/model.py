@@ -171,7 +171,7 @@ class SimGyro:
     drift_deg_s: float = _GYRO["drift_deg_s"]
     noise_deg_s: float = _GYRO["noise_deg_s"]
     mount_yaw_deg: float | None = _GYRO["mount_yaw_deg"]
-    seed: int = _GYRO["seed"]
+    noise_stream: int = _GYRO["noise_stream"]
 
 
 @dataclass(frozen=True)

@@ -13,18 +13,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from omnican.config import imu_keys
+from omnican.config import key as key_spec
 from omnican.core.limits import MAX_ACCEL_SENSE, MAX_SPEED_SENSE
 from omnican.layers import FRONT_ENDS
+
+#: One key's spec, and the TOML types of a number (their home: :mod:`omnican.config.key`).
+Key = key_spec.Key
+NUMBER = key_spec.NUMBER
+#: Values of imu.source (:mod:`omnican.config.imu_keys`, the [imu] and [sim.gyro] keys).
+IMU_SOURCES = imu_keys.IMU_SOURCES
 
 #: The bundled generic wheel-drive EDS (inside the installed package).
 WHEEL_EDS: Path = Path(__file__).resolve().parents[1] / "eds" / "omnican_wheel.eds"
 
-#: The TOML types of a number.
-NUMBER = (int, float)
 
 #: Velocity units of a drive's target/actual velocity, as multiples of motor rev/s.
 VELOCITY_UNITS: dict[str, float] = {
@@ -40,60 +45,6 @@ SDO_TYPES: dict[str, tuple[int, bool]] = {"u8": (8, False), "u16": (16, False),
                                           "u32": (32, False), "i8": (8, True),
                                           "i16": (16, True), "i32": (32, True),
                                           "bool": (8, False)}
-
-
-@dataclass(frozen=True)
-class Key:
-    """One configuration key: its TOML type(s), default (None: none, or see ``required``
-    and ``scaled``) and meaning. The one place a default is written: the dataclasses the
-    tables parse into take theirs from here (:func:`schema_defaults`)."""
-
-    types: tuple[type, ...]
-    default: Any
-    doc: str
-    required: bool = False
-    #: (other key, factor): left out, the key is ``factor`` x the other key's value.
-    scaled: tuple[str, float] | None = None
-    #: (lowest, highest) a number may be, both allowed; None: any finite number. Beyond
-    #: it a value has no physical sense for a base (or overflows what it feeds): refused.
-    range: tuple[float, float] | None = None
-    #: inf is allowed too (no such limit).
-    inf_ok: bool = False
-    #: ``range`` bounds the magnitude; the sign is free (a polarity), zero is not.
-    signed: bool = False
-    #: The highest value of ``range`` is not allowed itself (a fraction below 1).
-    open_high: bool = False
-
-    def range_text(self) -> str:
-        """The range as an error message says it: "0.001-60", "-720 to 720"."""
-        if self.range is None:
-            return "a finite number"
-        lo, hi = (_bound_text(x) for x in self.range)
-        text = f"{lo}-{hi}" if self.range[0] >= 0 else f"{lo} to {hi}"
-        if self.signed:
-            text = f"{lo} to {hi} in magnitude (either sign)"
-        if self.open_high:
-            text = f"{lo} or more and below {hi}"
-        return text + (" or inf" if self.inf_ok else "")
-
-    def out_of_range(self, value: Any) -> str | None:
-        """What is wrong with a number beyond :attr:`range` ("must be 0.01-60, got 100"),
-        None for one within it (inf where the key allows it) or for no number."""
-        if self.range is None or isinstance(value, bool) or not isinstance(value, NUMBER):
-            return None
-        if math.isinf(value) and self.inf_ok and value > 0:
-            return None
-        lo, hi = self.range
-        v = abs(value) if self.signed else value
-        if lo <= v < hi or (v == hi and not self.open_high):
-            return None
-        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
-        return f"must be {self.range_text()}, got {shown}"
-
-
-def _bound_text(x: float) -> str:
-    """A range's bound as people write it: 1000000, not 1e+06; 1e+12 stays."""
-    return str(int(x)) if x == int(x) and abs(x) < 1e7 else f"{x:g}"
 
 
 def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float,
@@ -122,9 +73,6 @@ MAX_RT_PRIORITY = 99
 
 #: Values of chassis.pdo_mapping (what omnican.plan.pdo does with each).
 PDO_MAPPINGS = ("try", "eds", "sdo")
-#: Values of imu.source: where an IMU's readings come from: the bus ("can"), or the
-#: front ends that read a sensor_msgs/Imu topic (by their registry's names).
-IMU_SOURCES = ("can", *(name for name, entry in FRONT_ENDS.items() if entry.imu_topic))
 #: Values of chassis.lifted_wheel (what the chassis checks do with a wheel off the ground).
 LIFTED_WHEEL = ("warn", "stop", "off")
 
@@ -319,37 +267,7 @@ _OWN: dict[str, dict[str, Key]] = {
         "node_id": Key((int,), None, "the drive whose input it is; default every node",
                        range=(1, 127)),
     },
-    # An IMU whose yaw rate the base fuses with its wheels' (omnican.core.fusion): on this
-    # CAN bus, described by a DBC (omnican.io.imu), or a sensor_msgs/Imu someone else
-    # publishes on ROS 2 or Zenoh. A silent one is a status warning, never a stop.
-    "imu": {
-        "source": Key((str,), None, "where the IMU's readings come from: " + ", ".join(
-            f'"{s}"' for s in IMU_SOURCES) + " (a sensor_msgs/Imu topic)",
-                      required=True),
-        "dbc": Key((str,), None, "can: the DBC file describing the IMU's messages (relative to "
-                   "the config file); e.g. the bundled \"openimu300ri.dbc\""),
-        "message": Key((str,), None, "can: the DBC message carrying the yaw rate (its name)"),
-        "yaw_rate": Key((str,), None, "can: the signal of that message with the yaw rate "
-                        "(about the IMU's z axis)"),
-        "yaw_rate_unit": Key((str,), None, "can: \"deg/s\" or \"rad/s\"; default the DBC "
-                             "signal's unit"),
-        "accel_message": Key((str,), None, "can: the DBC message with the accelerations; "
-                             "default the yaw rate's"),
-        "accel_x": Key((str,), None, "can: the signal with the acceleration along the IMU's "
-                       "x axis (optional)"),
-        "accel_y": Key((str,), None, "can: the signal with the acceleration along the IMU's "
-                       "y axis (optional)"),
-        "accel_unit": Key((str,), None, "can: \"m/s^2\" or \"g\"; default the DBC "
-                          "signal's unit"),
-        "topic": Key((str,), "/imu/data", "ros2, zenoh: the sensor_msgs/Imu topic"),
-        "mount_yaw_deg": Key(NUMBER, 0.0, "the IMU's x axis turned this far counter-clockwise "
-                             "of the base's (turns its accelerations; the yaw rate stays)",
-                             range=(-360.0, 360.0)),
-        "upside_down": Key((bool,), False, "the IMU's z axis points down (mounted upside down, "
-                           "or a z-down frame): its yaw rate and y axis are negated"),
-        "stale_s": Key(NUMBER, 0.5, "no reading for this long: the IMU counts as silent (a "
-                       "status warning; the base falls back to its wheels)", range=_WAIT),
-    },
+    "imu": imu_keys.IMU_KEYS,
     # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
     # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.
     "sim": {
@@ -361,23 +279,7 @@ _OWN: dict[str, dict[str, Key]] = {
                               "wheel, or one per wheel; default the configured ones",
                               range=_SCALE),
     },
-    # The simulated base's gyro ([sim.gyro]): with a CAN [imu], `--sim` publishes the true
-    # yaw rate through the IMU's DBC message, as this gyro would measure it.
-    "sim.gyro": {
-        "enabled": Key((bool,), True, "publish the gyro (false: an IMU that stays silent)"),
-        "rate_hz": Key(NUMBER, 100.0, "how often the gyro's message is sent",
-                       range=(1.0, 1000.0)),
-        "bias_deg_s": Key(NUMBER, 0.0, "deg/s the gyro reads at rest (its bias at start)",
-                          range=(-100.0, 100.0)),
-        "drift_deg_s": Key(NUMBER, 0.0, "deg/s per square root of a second: how fast the "
-                           "bias wanders (a random walk)", range=(0.0, 10.0)),
-        "noise_deg_s": Key(NUMBER, 0.0, "deg/s: the white noise of each reading (standard "
-                           "deviation)", range=(0.0, 100.0)),
-        "mount_yaw_deg": Key(NUMBER, None, "how the simulated IMU really sits; default as "
-                             "[imu] says", range=(-360.0, 360.0)),
-        "seed": Key((int,), 0, "seed of the gyro's noise and drift (the same run twice)",
-                    range=(0, 2**32 - 1)),
-    },
+    "sim.gyro": imu_keys.SIM_GYRO_KEYS,
     # Read by `omnican teleop --gamepad` (omnican.command.gamepad). A key left out is the
     # preset's; every preset has the defaults below. evdev's sticks read + to the right
     # and + down, REP-103 wants + forward, + left and + counter-clockwise: hence the

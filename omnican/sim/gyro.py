@@ -4,9 +4,10 @@ the simulated bus through the configured IMU's DBC message.
 :class:`GyroModel` (pure) is the sensor: the true rate (the rate of the true pose's
 heading between two readings), plus a bias that starts at ``bias_deg_s`` and wanders as
 a random walk (``drift_deg_s`` per square root of a second), plus white noise
-(``noise_deg_s``), turned into the IMU's own frame by its mounting; seeded, so a run
-repeats. :class:`SimulatedGyro` samples the ground truth at ``rate_hz`` on the
-simulator's housekeeping timer and sends what the model reads, encoded by cantools
+(``noise_deg_s``), turned into the IMU's own frame by its mounting; its random numbers
+are the same run after run (``noise_stream``). :class:`SimulatedGyro` samples the ground
+truth at ``rate_hz`` (on the simulator's housekeeping timer, or a task of its own on a
+lock-step clock) and sends what the model reads, encoded by cantools
 into the ``[imu]`` table's message (and its acceleration message, from the true
 twist's change), in the DBC signal's own unit: what ``omnican.io.imu`` decodes on the
 host's side is what a real IMU of that DBC would send. The accelerations carry no
@@ -43,7 +44,7 @@ class GyroModel:
     def __init__(self, spec: SimGyro, mount: ImuMount) -> None:
         self.spec = spec
         self.mount = mount
-        self._rng = random.Random(spec.seed)
+        self._rng = random.Random(spec.noise_stream)
         self.bias = spec.bias_deg_s * _DEG  # rad/s, now
 
     def read(self, true_rate: float, dt: float) -> float:

@@ -138,7 +138,7 @@ bias_deg_s = 0.5
 drift_deg_s = 0.01
 noise_deg_s = 0.1
 mount_yaw_deg = 10
-seed = 7
+noise_stream = 7
 """
     cfg = load_config(write(tmp_path, text))
     assert cfg.sim is not None

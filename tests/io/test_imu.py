@@ -175,11 +175,11 @@ def test_a_base_without_imu_has_no_inbox_and_no_gyro(channel: str) -> None:
         assert base.imu is None and sim.gyro is None
 
 
-def test_a_noisy_drifting_gyro_repeats_with_its_seed(channel: str) -> None:
+def test_a_noisy_drifting_gyro_repeats_with_its_noise_stream(channel: str) -> None:
     runs = []
     for _ in range(2):
         cfg = _imu_config(channel, SimGyro(rate_hz=100.0, drift_deg_s=0.5, noise_deg_s=0.2,
-                                           seed=3))
+                                           noise_stream=3))
         with _lockstep(cfg) as (_clock, _sim, base):
             assert base.imu is not None
             drive_for(base, 0.5)
