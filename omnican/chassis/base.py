@@ -38,12 +38,14 @@ from omnican.chassis.state import ChassisStatus, WheelState
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, ChassisSettings, with_live_limits
+from omnican.core.imu import ImuInbox
 from omnican.core.kinematics import Twist
 from omnican.core.limits import command_problem, pose_problem
 from omnican.core.odometry import Pose2D
 from omnican.drive import DriveNode
 from omnican.errors import DriveError
 from omnican.io.bus import CanBus
+from omnican.io.imu import CanImu
 
 _open_chassis: weakref.WeakSet[Chassis] = weakref.WeakSet()
 
@@ -82,6 +84,14 @@ class Chassis:
         self._limits_lock = threading.Lock()
         self._configured = cfg.chassis  # what a live limit may only make safer
         self._arbiter = CommandArbiter(cfg.chassis.cmd_timeout_s)  # one source at a time
+        #: where the configured IMU's samples wait for the loop (None: no [imu]). A CAN
+        #: IMU feeds it from the bus (:mod:`omnican.io.imu`); a ROS 2 or Zenoh one, the
+        #: front end that subscribes to its topic.
+        self.imu: ImuInbox | None = None
+        if cfg.imu is not None:
+            loop.imu = self.imu = ImuInbox()
+            if cfg.imu.source == "can":
+                self.attachments.add("imu", CanImu(cfg.imu, self.imu, clock).attach(bus))
 
     def _call_soon(self, fn: Any) -> None:
         self._loop.call_soon(fn)

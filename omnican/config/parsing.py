@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from omnican.config.front_ends import read_tables
+from omnican.config.imu import parse_imu, parse_sim_gyro
 from omnican.config.model import (
     ChassisConfig,
     ChassisSettings,
@@ -145,8 +146,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     power = _parse_power(r, data["power"]) if "power" in data else None
     estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
     sim = _parse_sim(r, data["sim"], len(wheels)) if "sim" in data else None
+    imu = parse_imu(r, data["imu"], base_dir) if "imu" in data else None
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, power=power, estop=estop,
-                        sim=sim, gamepad=gamepad, front_ends=front_ends)
+                        sim=sim, gamepad=gamepad, front_ends=front_ends, imu=imu)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -158,6 +160,10 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
 
 
 def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
+    gyro = None
+    if isinstance(table, dict) and "gyro" in table:  # [sim.gyro]: omnican.config.imu's
+        table = dict(table)
+        gyro = parse_sim_gyro(r, table.pop("gyro"))
     t = r.table("sim", table, "sim")
     scale = t["position_scale"]
     if isinstance(scale, list):
@@ -175,7 +181,7 @@ def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
                        else "sim.position_scale", spec, v)
     radius = t["base_radius"]
     return SimTruth(None if radius is None else float(radius),
-                    None if values is None else tuple(float(v) for v in values))
+                    None if values is None else tuple(float(v) for v in values), gyro)
 
 
 def _parse_power(r: Reader, table: Any) -> PowerSettings:

@@ -13,18 +13,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from omnican.config import imu_keys
+from omnican.config import key as key_spec
 from omnican.core.limits import MAX_ACCEL_SENSE, MAX_SPEED_SENSE
 from omnican.layers import FRONT_ENDS
+
+#: One key's spec, and the TOML types of a number (their home: :mod:`omnican.config.key`).
+Key = key_spec.Key
+NUMBER = key_spec.NUMBER
+#: Values of imu.source (:mod:`omnican.config.imu_keys`, the [imu] and [sim.gyro] keys).
+IMU_SOURCES = imu_keys.IMU_SOURCES
 
 #: The bundled generic wheel-drive EDS (inside the installed package).
 WHEEL_EDS: Path = Path(__file__).resolve().parents[1] / "eds" / "omnican_wheel.eds"
 
-#: The TOML types of a number.
-NUMBER = (int, float)
 
 #: Velocity units of a drive's target/actual velocity, as multiples of motor rev/s.
 VELOCITY_UNITS: dict[str, float] = {
@@ -40,60 +45,6 @@ SDO_TYPES: dict[str, tuple[int, bool]] = {"u8": (8, False), "u16": (16, False),
                                           "u32": (32, False), "i8": (8, True),
                                           "i16": (16, True), "i32": (32, True),
                                           "bool": (8, False)}
-
-
-@dataclass(frozen=True)
-class Key:
-    """One configuration key: its TOML type(s), default (None: none, or see ``required``
-    and ``scaled``) and meaning. The one place a default is written: the dataclasses the
-    tables parse into take theirs from here (:func:`schema_defaults`)."""
-
-    types: tuple[type, ...]
-    default: Any
-    doc: str
-    required: bool = False
-    #: (other key, factor): left out, the key is ``factor`` x the other key's value.
-    scaled: tuple[str, float] | None = None
-    #: (lowest, highest) a number may be, both allowed; None: any finite number. Beyond
-    #: it a value has no physical sense for a base (or overflows what it feeds): refused.
-    range: tuple[float, float] | None = None
-    #: inf is allowed too (no such limit).
-    inf_ok: bool = False
-    #: ``range`` bounds the magnitude; the sign is free (a polarity), zero is not.
-    signed: bool = False
-    #: The highest value of ``range`` is not allowed itself (a fraction below 1).
-    open_high: bool = False
-
-    def range_text(self) -> str:
-        """The range as an error message says it: "0.001-60", "-720 to 720"."""
-        if self.range is None:
-            return "a finite number"
-        lo, hi = (_bound_text(x) for x in self.range)
-        text = f"{lo}-{hi}" if self.range[0] >= 0 else f"{lo} to {hi}"
-        if self.signed:
-            text = f"{lo} to {hi} in magnitude (either sign)"
-        if self.open_high:
-            text = f"{lo} or more and below {hi}"
-        return text + (" or inf" if self.inf_ok else "")
-
-    def out_of_range(self, value: Any) -> str | None:
-        """What is wrong with a number beyond :attr:`range` ("must be 0.01-60, got 100"),
-        None for one within it (inf where the key allows it) or for no number."""
-        if self.range is None or isinstance(value, bool) or not isinstance(value, NUMBER):
-            return None
-        if math.isinf(value) and self.inf_ok and value > 0:
-            return None
-        lo, hi = self.range
-        v = abs(value) if self.signed else value
-        if lo <= v < hi or (v == hi and not self.open_high):
-            return None
-        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
-        return f"must be {self.range_text()}, got {shown}"
-
-
-def _bound_text(x: float) -> str:
-    """A range's bound as people write it: 1000000, not 1e+06; 1e+12 stays."""
-    return str(int(x)) if x == int(x) and abs(x) < 1e7 else f"{x:g}"
 
 
 def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float,
@@ -316,6 +267,7 @@ _OWN: dict[str, dict[str, Key]] = {
         "node_id": Key((int,), None, "the drive whose input it is; default every node",
                        range=(1, 127)),
     },
+    "imu": imu_keys.IMU_KEYS,
     # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
     # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.
     "sim": {
@@ -327,6 +279,7 @@ _OWN: dict[str, dict[str, Key]] = {
                               "wheel, or one per wheel; default the configured ones",
                               range=_SCALE),
     },
+    "sim.gyro": imu_keys.SIM_GYRO_KEYS,
     # Read by `omnican teleop --gamepad` (omnican.command.gamepad). A key left out is the
     # preset's; every preset has the defaults below. evdev's sticks read + to the right
     # and + down, REP-103 wants + forward, + left and + counter-clockwise: hence the

@@ -33,7 +33,7 @@ import numpy.typing as npt
 
 from omnican.chassis.realtime import realtime_refusal
 from omnican.clock import REAL_TIME, Clock
-from omnican.config import ChassisConfig
+from omnican.config import ChassisConfig, SimGyro
 from omnican.core.kinematics import OmniKinematics, Twist
 from omnican.core.odometry import Pose2D
 from omnican.errors import BusError, ConfigError
@@ -42,6 +42,7 @@ from omnican.io.bus_watch import describe_open_error
 from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
 from omnican.sim.drive import SimulatedDrive
+from omnican.sim.gyro import SimulatedGyro
 from omnican.sim.scheduler import SimScheduler
 from omnican.sim.truth import GroundTruth
 from omnican.sim.wiring import health_wiring, make_drive
@@ -109,6 +110,9 @@ class SimulatedBase:
         self.stepping = False
         self._receive: Any = None
         self._last_tick = -math.inf
+        #: the simulated IMU, with a CAN ``[imu]`` table (:mod:`omnican.sim.gyro`)
+        self.gyro: SimulatedGyro | None = None
+        self._gyro_task: object | None = None
 
     @classmethod
     def from_config(
@@ -195,6 +199,7 @@ class SimulatedBase:
                                                                      strict=True)])
             base = cls(cfg, network, scheduler, drives, wheel_axes,
                        true_kinematics or cfg.kinematics(), counts, clock)
+            base._add_gyro()
         except BaseException:
             for d in drives:
                 d.close()
@@ -211,6 +216,20 @@ class SimulatedBase:
             stepped_io.offer(base._channel, base)
         logger.info("simulated base: nodes %s on %s", sorted(by_node), bus_kwargs)
         return base
+
+    def _add_gyro(self) -> None:
+        """A CAN ``[imu]``: its gyro on the bus, as ``[sim.gyro]`` says (default: a
+        perfect one at 100 Hz)."""
+        imu = self.cfg.imu
+        if imu is None or imu.source != "can":
+            return
+        spec = self.cfg.sim.gyro if self.cfg.sim is not None else None
+        self.gyro = SimulatedGyro(imu, spec if spec is not None else SimGyro(), self.network,
+                                  self.clock, lambda: self.true_pose, lambda: self.true_twist)
+        if self.clock.lockstep:  # a task of its own: its rate, whatever the drives' tick
+            self._gyro_task = self.clock.every(self.gyro.period_s, self.gyro.tick)
+        else:  # on the drives' timer (the control loop's, when it runs them)
+            self.scheduler.add(self.gyro.tick)
 
     # ------------------------------------------------------------ truth
 
@@ -336,6 +355,8 @@ class SimulatedBase:
                 return
             self._closed = True
         self._truth.stop()
+        if self._gyro_task is not None:
+            self.clock.cancel(self._gyro_task)
         if self._channel is not None:
             stepped_io.withdraw(self._channel, self)
         self.scheduler.close()
