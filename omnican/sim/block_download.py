@@ -54,6 +54,9 @@ _LAST_SEGMENT = 0x80
 MAX_BLKSIZE = 127
 #: seconds without a frame after which a block download in progress is abandoned
 DEFAULT_TIMEOUT_S = 1.0
+#: after a download broke off on the server's side (its abort, a reset), the client's
+#: segments still coming are its rest, not requests, until a gap this long (s)
+QUIET_S = 0.1
 
 
 class DomainSink(Protocol):
@@ -105,6 +108,7 @@ class BlockDownloadServer:
         self._ackseq = 0
         self._ending = False  # the last segment came: the end request is next
         self._last_frame = 0.0
+        self._draining = False  # the rest of a broken-off download still coming
 
     # ------------------------------------------------------------ frames
 
@@ -117,6 +121,12 @@ class BlockDownloadServer:
         now = self.now()
         if self.active and now - self._last_frame > self.timeout_s:
             self._fail(SDO_ABORT_TIMEOUT, answer=False)
+        if self._draining:
+            quiet = now - self._last_frame > QUIET_S
+            self._last_frame = now
+            if not quiet:
+                return True  # the rest of the broken-off download: no request
+            self._draining = False
         command = data[0]
         if not self.active:
             if command & _CCS_MASK == _REQUEST_BLOCK_DOWNLOAD and not command & _SUB_END:
@@ -128,6 +138,7 @@ class BlockDownloadServer:
         if command == _ABORT:  # the client gave up
             logger.info("block download to 0x%04X:%02X aborted by the client", *self._key)
             self._finish(whole=False)
+            self._draining = False  # the client knows: what comes next is a request
             return True
         if self._ending:
             self._end(bytes(data))
@@ -222,9 +233,11 @@ class BlockDownloadServer:
             self._fail(SDO_ABORT_TIMEOUT)
 
     def reset(self) -> None:
-        """The node reset: a download in progress is abandoned, unanswered."""
+        """The node reset: a download in progress is abandoned, unanswered (the rest of
+        it, still coming, is taken for nothing)."""
         if self.active:
             self._finish(whole=False)
+            self._last_frame = self.now()
 
     def _fail(self, code: int, answer: bool = True) -> None:
         self._finish(whole=False)
@@ -233,6 +246,7 @@ class BlockDownloadServer:
 
     def _finish(self, whole: bool) -> None:
         self.active, self._ending, self._data = False, False, bytearray()
+        self._draining = not whole
         sink = self.sinks.get(self._key)
         if not whole and sink is not None:
             sink.abandon()
