@@ -24,7 +24,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import canopen
@@ -181,7 +181,7 @@ def support(sdo: SdoClient) -> str | None:
     return None
 
 
-def driving(network: canopen.Network, statuswords: dict[int, Sequence[tuple[int, int]]],
+def driving(network: canopen.Network, statuswords: Mapping[int, Sequence[tuple[int, int]]],
             listen_s: float = DEFAULT_LISTEN_S, sdo_timeout_s: float = 0.5) -> str | None:
     """Why the base counts as driving now (None: it does not): a drive's power stage in
     OPERATION ENABLED (``statuswords``: node id -> its statusword objects), or SYNC and
@@ -285,8 +285,9 @@ def download(network: canopen.Network, node_id: int, image: bytes,
                 verdict(final.flash, final.identification, image) is not Verdict.VERIFIED:
             return result(Outcome.FAILED, "started, but the drive's answers since do not show "
                                           "the image running", final)
-        return result(Outcome.STARTED, f"program of {len(image)} bytes downloaded, verified "
-                                       f"(CRC-32 0x{crc:08X}) and started", final)
+        return result(Outcome.STARTED, f"program of {len(image)} bytes downloaded in "
+                                       f"{time.monotonic() - started:.1f} s, verified (CRC-32 "
+                                       f"0x{crc:08X}) and started", final)
     finally:
         del network[node_id]
 
