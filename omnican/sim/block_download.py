@@ -138,7 +138,6 @@ class BlockDownloadServer:
         if command == _ABORT:  # the client gave up
             logger.info("block download to 0x%04X:%02X aborted by the client", *self._key)
             self._finish(whole=False)
-            self._draining = False  # the client knows: what comes next is a request
             return True
         if self._ending:
             self._end(bytes(data))
@@ -173,14 +172,14 @@ class BlockDownloadServer:
     def _segment(self, frame: bytes) -> None:
         seqno, last = frame[0] & 0x7F, bool(frame[0] & _LAST_SEGMENT)
         if seqno == 0:
-            self._fail(SDO_ABORT_BLOCK_SIZE)
+            self._fail(SDO_ABORT_BLOCK_SIZE, drain=True)
             return
         in_sequence = seqno == self._ackseq + 1
         if in_sequence:
             self._ackseq = seqno
             self._data += frame[1:8].ljust(7, b"\x00")
             if self._size is not None and len(self._data) > self._size + 7:
-                self._fail(SDO_ABORT_TOO_LONG)
+                self._fail(SDO_ABORT_TOO_LONG, drain=True)
                 return
         # A sub-block ends at its last sequence number, or at the download's last segment
         # (a lost one before it: the acknowledgement says which came in sequence).
@@ -237,16 +236,17 @@ class BlockDownloadServer:
         it, still coming, is taken for nothing)."""
         if self.active:
             self._finish(whole=False)
+            self._draining = True
             self._last_frame = self.now()
 
-    def _fail(self, code: int, answer: bool = True) -> None:
+    def _fail(self, code: int, answer: bool = True, drain: bool = False) -> None:
         self._finish(whole=False)
+        self._draining = drain
         if answer:
             self._answer_abort(code)
 
     def _finish(self, whole: bool) -> None:
         self.active, self._ending, self._data = False, False, bytearray()
-        self._draining = not whole
         sink = self.sinks.get(self._key)
         if not whole and sink is not None:
             sink.abandon()
