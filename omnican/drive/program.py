@@ -242,7 +242,7 @@ def download(network: canopen.Network, node_id: int, image: bytes,
         if state is None:
             settle(sdo)
             state = read_state(sdo, attempts=3)
-        if outcome is not Outcome.STARTED and not state.answered:
+        if outcome not in (Outcome.STARTED, Outcome.LOST) and not state.answered:
             outcome, detail = Outcome.LOST, f"{detail} (no answer since)"
         return ProgramResult(node_id, outcome, detail, state, crc,
                              time.monotonic() - started)
