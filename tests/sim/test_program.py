@@ -4,6 +4,7 @@ with frames built here by hand."""
 
 from __future__ import annotations
 
+import io
 import struct
 import time
 import zlib
@@ -106,6 +107,7 @@ def test_a_reset_midway_leaves_no_valid_program_and_none_started(
         rig.control(1)  # nothing to start
     assert refused.value.code == 0x08000022
     assert program.abandoned == 1 and program.committed == 0
+    io.RawIOBase.close(stream)  # the client's side of it, without its end exchange
 
 
 def test_the_flash_keeps_a_program_across_a_power_cycle_and_starts_it(rig: Rig) -> None:
