@@ -116,8 +116,8 @@ class BlockDownloadServer:
         """Handle an SDO request if it is a block download's; False: not ours."""
         if self.lose is not None and self.lose(bytes(data)):
             return True
-        if not data:
-            return False
+        if not (self.active or self._draining):  # the usual case: one test, no clock
+            return self._idle(data)
         now = self.now()
         if self.active and now - self._last_frame > self.timeout_s:
             self._fail(SDO_ABORT_TIMEOUT, answer=False)
@@ -127,14 +127,12 @@ class BlockDownloadServer:
             if not quiet:
                 return True  # the rest of the broken-off download: no request
             self._draining = False
-        command = data[0]
         if not self.active:
-            if command & _CCS_MASK == _REQUEST_BLOCK_DOWNLOAD and not command & _SUB_END:
-                self._last_frame = now
-                self._initiate(bytes(data))
-                return True
-            return False
+            return self._idle(data)  # a request after the download
         self._last_frame = now
+        if not data:
+            return True
+        command = data[0]
         if command == _ABORT:  # the client gave up
             logger.info("block download to 0x%04X:%02X aborted by the client", *self._key)
             self._finish(whole=False)
@@ -144,6 +142,14 @@ class BlockDownloadServer:
         else:
             self._segment(bytes(data))
         return True
+
+    def _idle(self, data: bytes | bytearray) -> bool:
+        """No download runs: a block download's initiate starts one."""
+        if data and data[0] & (_CCS_MASK | _SUB_END) == _REQUEST_BLOCK_DOWNLOAD:
+            self._last_frame = self.now()
+            self._initiate(bytes(data))
+            return True
+        return False
 
     def _initiate(self, frame: bytes) -> None:
         command, index, subindex = struct.unpack_from("<BHB", frame)
