@@ -13,8 +13,10 @@
 - 1F56h program software identification: the CRC-32 of the stored image (0: none);
 - 1F57h flash status identification.
 
-The flash is non-volatile: a stored program survives a power cycle (the drive starts it
-at power-up), an incomplete one does not. The drive's EDS need not list these objects
+A drive leaves the factory running a program of its own (:data:`FACTORY_IMAGE`). The
+flash is non-volatile: a stored program survives a power cycle (the drive starts it at
+power-up), an incomplete one does not. Whether the program runs changes nothing else of
+the simulated drive (its CiA 402 side drives either way). The drive's EDS need not list these objects
 (real EDS files understate): they are added to the simulated drive's dictionary where
 it lacks them.
 
@@ -54,6 +56,8 @@ logger = logging.getLogger(__name__)
 
 #: The simulated drive's flash for programs (bytes): 1 MiB.
 DEFAULT_FLASH_BYTES = 1 << 20
+#: The program a simulated drive leaves the factory with (valid, started at power-up).
+FACTORY_IMAGE = b"omnican simulated CiA 402 drive, factory program 1.0\n"
 
 Key = tuple[int, int]
 _PROGRAM_DATA = (PROGRAM_DATA, PROGRAM_NUMBER)
@@ -71,11 +75,12 @@ class SimProgram:
         busy: whether the drive is driving now (a power stage OPERATION ENABLED): the
             program is not stopped then.
         flash_bytes: the largest image the flash takes.
-        image: a program stored at the start (None: a drive with an empty flash).
+        image: the program stored at the start (default: :data:`FACTORY_IMAGE`, running;
+            None: an empty flash).
     """
 
     def __init__(self, busy: Callable[[], bool], flash_bytes: int = DEFAULT_FLASH_BYTES,
-                 image: bytes | None = None) -> None:
+                 image: bytes | None = FACTORY_IMAGE) -> None:
         self.busy = busy
         self.flash_bytes = flash_bytes
         #: the stored image (None: none, or an incomplete one)

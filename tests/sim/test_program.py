@@ -21,6 +21,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 
 from omnican.protocol.program import flash_status
 from omnican.sim import SimulatedDrive
+from omnican.sim.program import FACTORY_IMAGE, SimProgram
 
 NODE = 4
 
@@ -61,7 +62,7 @@ def nets(channel: str) -> Iterator[tuple[canopen.Network, canopen.Network]]:
 @pytest.fixture
 def rig(nets: tuple[canopen.Network, canopen.Network]) -> Iterator[Rig]:
     sim_net, master = nets
-    drive = SimulatedDrive(sim_net, NODE)
+    drive = SimulatedDrive(sim_net, NODE, program=SimProgram(lambda: False, image=None))
     node = canopen.RemoteNode(NODE, od.ObjectDictionary())
     node.sdo.RESPONSE_TIMEOUT = 2.0  # the simulator's thread beside busy processes
     master.add_node(node)
@@ -72,6 +73,26 @@ def rig(nets: tuple[canopen.Network, canopen.Network]) -> Iterator[Rig]:
 
 
 IMAGE = bytes(range(256)) * 40 + b"tail"  # 10,244 bytes: not a multiple of 7
+
+
+def test_a_drive_leaves_the_factory_running_a_valid_program(
+        nets: tuple[canopen.Network, canopen.Network]) -> None:
+    sim_net, master = nets
+    with SimulatedDrive(sim_net, NODE):
+        node = canopen.RemoteNode(NODE, od.ObjectDictionary())
+        node.sdo.RESPONSE_TIMEOUT = 2.0
+        master.add_node(node)
+
+
+        def u32(index: int) -> int:
+            return int.from_bytes(node.sdo.upload(index, 1)[:4], "little")
+
+        assert u32(0x1F57) == 0  # valid
+        assert u32(0x1F56) == zlib.crc32(FACTORY_IMAGE)
+        assert u32(0x1F51) == 1  # started
+        for command in (0, 3):  # stop, clear
+            node.sdo.download(0x1F51, 1, bytes([command]))
+        assert u32(0x1F57) == 1 << 1 and u32(0x1F51) == 3  # cleared
 
 
 def test_a_block_download_is_stored_identified_and_started(rig: Rig) -> None:
