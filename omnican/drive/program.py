@@ -168,7 +168,8 @@ def read_state(sdo: SdoClient, attempts: int = 1) -> ProgramState:
 
 def support(sdo: SdoClient) -> str | None:
     """Why the drive cannot take a program over the bus (None: it can): each object is
-    asked for (1F50h is write only: any answer but "object does not exist" shows it)."""
+    asked for (1F50h is write only: any answer but "object does not exist" shows it).
+    Raises :class:`SdoCommunicationError` when the drive does not answer."""
     for index in (PROGRAM_DATA, PROGRAM_CONTROL, PROGRAM_IDENTIFICATION, FLASH_STATUS):
         try:
             sdo.upload(index, 0 if index == PROGRAM_DATA else PROGRAM_NUMBER)
@@ -176,8 +177,6 @@ def support(sdo: SdoClient) -> str | None:
             if exc.code in (SDO_ABORT_NOT_IN_OD, SDO_ABORT_SUBINDEX):
                 return (f"it has no {index:04X}h program {PROGRAM_NUMBER} (CiA 302-3 program "
                         "download): its firmware is loaded some other way")
-        except SdoCommunicationError:
-            return None  # no answer: said by what follows
     return None
 
 
@@ -248,7 +247,11 @@ def download(network: canopen.Network, node_id: int, image: bytes,
                              time.monotonic() - started)
 
     try:
-        why = support(sdo)
+        settle(sdo)  # answers still coming to an earlier client (a broken-off transfer)
+        try:
+            why = support(sdo)
+        except SdoCommunicationError:
+            return result(Outcome.LOST, "does not answer", ProgramState())
         if why is not None:
             return ProgramResult(node_id, Outcome.NOT_SUPPORTED, f"no program download: {why}",
                                  ProgramState(), crc)

@@ -16,9 +16,9 @@
 A drive leaves the factory running a program of its own (:data:`FACTORY_IMAGE`). The
 flash is non-volatile: a stored program survives a power cycle (the drive starts it at
 power-up), an incomplete one does not. Whether the program runs changes nothing else of
-the simulated drive (its CiA 402 side drives either way). The drive's EDS need not list these objects
-(real EDS files understate): they are added to the simulated drive's dictionary where
-it lacks them.
+the simulated drive (its CiA 402 side drives either way). The drive's EDS need not list
+these objects (real EDS files understate): they are added to the simulated drive's
+dictionary where it lacks them.
 
 Threads: every method runs under the drive's lock (SDO handlers, the drive's methods).
 """
