@@ -24,6 +24,10 @@ from omnican.cli.session import add_bus_arguments, session
 from omnican.config import ChassisConfig
 from omnican.protocol.cia301 import MAX_NODE_ID
 
+#: The wait for each SDO answer (s): omnican.drive.program's (not imported here: the
+#: command's help loads neither python-can nor canopen).
+DEFAULT_SDO_TIMEOUT_S = 5.0
+
 #: The largest image the command reads: far beyond a drive's flash (a larger file is
 #: the wrong file).
 MAX_IMAGE_BYTES = 16 << 20
@@ -54,8 +58,10 @@ def add_arguments(parser: argparse.ArgumentParser, image_flag: str = "--image",
     parser.add_argument("--listen", type=positive_float, default=0.3, metavar="S",
                         help="seconds to listen for another master's SYNC and RPDOs before "
                              "writing anything (default 0.3)")
-    parser.add_argument("--sdo-timeout", type=positive_float, default=2.0, metavar="S",
-                        help="the wait for each SDO answer during the download (default 2)")
+    parser.add_argument("--sdo-timeout", type=positive_float, default=DEFAULT_SDO_TIMEOUT_S,
+                        metavar="S", help="the wait for each SDO answer during the download "
+                        f"(default {DEFAULT_SDO_TIMEOUT_S:g}; a drive erasing its flash may "
+                        "take seconds)")
 
 
 def read_image(path: str) -> bytes:

@@ -27,12 +27,14 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+import can
 import canopen
 from canopen import objectdictionary as od
 from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from omnican.protocol.cia301 import (
+    SDO_ABORT_GENERAL,
     SDO_ABORT_NOT_IN_OD,
     SDO_ABORT_SUBINDEX,
     SYNC_COB_ID,
@@ -61,7 +63,7 @@ Progress = Callable[[int, int], None]
 #: Bytes handed to canopen's block stream at a time (a sub-block of 127 segments).
 CHUNK_BYTES = 7 * 127
 #: An SDO answer during a download may take this long (a drive erasing its flash).
-DEFAULT_SDO_TIMEOUT_S = 2.0
+DEFAULT_SDO_TIMEOUT_S = 5.0
 #: How long :func:`driving` listens for another master's SYNC and RPDOs.
 DEFAULT_LISTEN_S = 0.3
 _RPDO_COB_BASES = (0x200, 0x300, 0x400, 0x500)
@@ -339,6 +341,10 @@ def _block_download(sdo: SdoClient, image: bytes, progress: Progress | None) -> 
     except SdoCommunicationError as exc:
         return f"no answer after {sent} of {total} bytes ({exc})"
     except RuntimeError as exc:  # canopen's stream after a retransmission it cannot make
+        try:
+            sdo.abort(SDO_ABORT_GENERAL)  # the drive hears the transfer is over
+        except can.CanError:
+            pass
         return f"the transfer broke after {sent} of {total} bytes ({exc})"
     return None
 

@@ -53,7 +53,7 @@ _SUB_BLOCK_ACK = 0x02  # server subcommand of a sub-block's acknowledgement
 _LAST_SEGMENT = 0x80
 MAX_BLKSIZE = 127
 #: seconds without a frame after which a block download in progress is abandoned
-DEFAULT_TIMEOUT_S = 1.0
+DEFAULT_TIMEOUT_S = 5.0
 #: after a download broke off on the server's side (its abort, a reset), the client's
 #: segments still coming are its rest, not requests, until a gap this long (s)
 QUIET_S = 0.1

@@ -144,3 +144,10 @@ def test_a_lost_drive_is_named(capsys: pytest.CaptureFixture[str], image: Path, 
     assert code == 1 and "Traceback" not in err
     assert out == ("node 1: does not answer; the drive says: no answer (its state is "
                    "unknown: it may hold an incomplete program)\n")
+
+
+def test_the_commands_default_sdo_timeout_is_the_librarys() -> None:
+    from omnican.cli import firmware as command
+    from omnican.drive import program
+
+    assert command.DEFAULT_SDO_TIMEOUT_S == program.DEFAULT_SDO_TIMEOUT_S

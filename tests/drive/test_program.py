@@ -100,7 +100,7 @@ def test_a_reset_midway_leaves_a_drive_that_says_it_has_no_valid_program(rig: Ri
         if sent > total // 3 and drive.program is not None and drive.program.in_progress:
             drive.reboot()  # the power cut: boot-up, the download gone
 
-    result = download(rig.master, NODE, IMAGE, power_cut)
+    result = download(rig.master, NODE, IMAGE, power_cut, sdo_timeout_s=1.0)
     assert result.outcome is Outcome.FAILED, result.line()
     assert result.state.flash is not None and not result.state.flash.valid
     assert result.state.control != 1
@@ -199,3 +199,24 @@ def test_another_masters_cycle_counts_as_driving(rig: Rig, channel: str) -> None
             task.stop()
         other.shutdown()
     assert why is not None and why.startswith("another master drives the base: ")
+
+
+def test_a_segment_lost_in_the_last_sub_block_fails_and_the_drive_says_so(rig: Rig) -> None:
+    """canopen 2.4's block transfer cannot send a lost segment of the last sub-block again
+    (its stream counts itself done): the download fails, the drive is told (an abort), and
+    it says it holds no valid program; nothing is started."""
+    drive = rig.drive()
+    block, count = drive.comm.block, [0]
+
+    def lose(frame: bytes) -> bool:
+        if block.active:
+            count[0] += 1
+            return count[0] == 5650  # of 5,715 segments: the last sub-block's
+        return False
+
+    block.lose = lose
+    result = download(rig.master, NODE, IMAGE)
+    assert result.outcome is Outcome.FAILED, result.line()
+    assert result.state.flash is not None and not result.state.flash.valid
+    assert not block.active  # told at once, not left waiting for its timeout
+    assert drive.program is not None and not drive.program.running

@@ -41,7 +41,8 @@ def robot_toml(tmp_path: Path, port: int) -> Path:
 def firmware(toml: Path, image: Path, *more: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "omnican", "firmware", "--config", str(toml), "--image",
-         str(image), *more], check=False, capture_output=True, text=True, env=ENV, timeout=120)
+         str(image), "--sdo-timeout", "10", *more],  # generous: a loaded machine
+        check=False, capture_output=True, text=True, env=ENV, timeout=120)
 
 
 def identification(port: int, node_id: int) -> int:
@@ -63,7 +64,7 @@ def test_an_image_goes_into_another_processes_drives(port: int, tmp_path: Path) 
     image.write_bytes(bytes(range(256)) * 1024)  # 256 KiB
     SimProcess(port, "--config", str(toml))
     done = firmware(toml, image)
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 0, (done.stdout, done.stderr)
     crc = f"0x{zlib.crc32(image.read_bytes()):08X}"
     lines = done.stdout.splitlines()
     assert len(lines) == 4 and lines[3] == "3 of 3 drives run the image"
