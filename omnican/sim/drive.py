@@ -144,6 +144,8 @@ class SimulatedDrive(DriveFaults):
         #: the program download objects (None: the drive has none)
         self.program: SimProgram | None = None
         if program is not False:
+            if isinstance(program, SimProgram):  # another drive's flash: its power cycled
+                program.power_cycle()
             self.program = program if isinstance(program, SimProgram) else SimProgram(
                 self._driving)
             self.program.busy = self._driving

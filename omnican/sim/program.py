@@ -158,6 +158,13 @@ class SimProgram:
 
     # ------------------------------------------------------------- power
 
+    def power_cycle(self) -> None:
+        """The drive lost power (a simulator rebuilding its drives keeps their flash): an
+        incomplete download is gone, a valid program starts."""
+        if self.in_progress:
+            self.abandon()
+        self.booted(reset_node=True)
+
     def booted(self, reset_node: bool) -> None:
         """A power-up or NMT reset node: a valid program starts, none runs otherwise (an
         incomplete download was abandoned already: the flash says so)."""

@@ -139,6 +139,24 @@ def test_the_flash_keeps_a_program_across_a_power_cycle_and_starts_it(rig: Rig) 
     assert rig.u32(0x1F51) == 1  # a valid program starts at power-up
 
 
+def test_a_drive_made_again_keeps_its_flash_but_not_an_incomplete_download(
+        nets: tuple[canopen.Network, canopen.Network]) -> None:
+    """A simulator that rebuilds its drives for a power cycle hands each its flash."""
+    sim_net, _ = nets
+    with SimulatedDrive(sim_net, NODE + 2) as first:
+        flash = first.program
+        assert flash is not None
+    flash.control(0)
+    with SimulatedDrive(sim_net, NODE + 2, program=flash) as again:
+        assert again.program is flash and flash.running and flash.image == FACTORY_IMAGE
+        flash.control(0)
+        flash.control(3)
+        flash.begin(100)  # a download under way when the power goes
+    with SimulatedDrive(sim_net, NODE + 2, program=flash):
+        assert not flash.in_progress and flash.image is None and not flash.running
+        assert flash_status(flash.flash_status()).describe() == "no valid program"
+
+
 def test_a_segment_lost_midway_is_sent_again(rig: Rig) -> None:
     seen = [0]
 
