@@ -2,7 +2,8 @@
 
 :class:`SimProgram` is the drive's bootloader as the bus sees it:
 
-- 1F50h program data takes a block download (:mod:`omnican.sim.block_download`); a
+- 1F50h program data takes a block download (:mod:`omnican.sim.block_download`; an
+  expedited or segmented one is refused: "unsupported access"); a
   download begins only while the program is stopped and the flash cleared, and puts the
   flash "in progress" (1F57h bit 0) until it ends: whole (CRC checked), the image is
   stored and valid, the program stopped; otherwise (an abort, a timeout, an NMT reset or
@@ -36,6 +37,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 from omnican.protocol.cia301 import (
     SDO_ABORT_DEVICE_STATE,
     SDO_ABORT_TOO_LONG,
+    SDO_ABORT_UNSUPPORTED_ACCESS,
     SDO_ABORT_VALUE_RANGE,
 )
 from omnican.protocol.program import (
@@ -174,6 +176,12 @@ class SimProgram:
                 _STOPPED if self.image is not None else _CLEARED)
 
 
+def _not_segmented(value: int) -> None:
+    """1F50h written by an expedited or segmented download: the simulated drive takes
+    program data by block download only."""
+    raise SdoAbortedError(SDO_ABORT_UNSUPPORTED_ACCESS)
+
+
 def add_objects(dictionary: od.ObjectDictionary) -> None:
     """1F50h, 1F51h, 1F56h and 1F57h (program 1), where ``dictionary`` lacks them."""
     for index, name, data_type, access in (
@@ -202,4 +210,5 @@ def attach(local: canopen.LocalNode, readers: dict[Key, Callable[[], int]],
     add_objects(local.object_dictionary)
     readers.update(program.readers())
     writers[_CONTROL] = program.control
+    writers[_PROGRAM_DATA] = _not_segmented
     sinks[_PROGRAM_DATA] = program

@@ -198,6 +198,14 @@ def test_a_download_waits_for_a_stopped_and_cleared_program(rig: Rig) -> None:
     assert rig.u32(0x1F56) == zlib.crc32(IMAGE[:100])
 
 
+def test_program_data_goes_by_block_download_only(rig: Rig) -> None:
+    with pytest.raises(SdoAbortedError) as refused:
+        rig.sdo.download(0x1F50, 1, IMAGE[:100])  # segmented
+    assert refused.value.code == 0x06010000
+    assert rig.u32(0x1F57) == 1 << 1 and rig.drive.program is not None
+    assert rig.drive.program.begun == 0
+
+
 def test_a_drive_without_program_download_has_no_1f50h(
         nets: tuple[canopen.Network, canopen.Network]) -> None:
     sim_net, master = nets
