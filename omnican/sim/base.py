@@ -19,6 +19,7 @@ take the loop's real-time class instead (``rt_priority``).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -42,6 +43,7 @@ from omnican.io.bus_watch import describe_open_error
 from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
 from omnican.sim.drive import SimulatedDrive
+from omnican.sim.lss import SimLss
 from omnican.sim.scheduler import SimScheduler
 from omnican.sim.truth import GroundTruth
 from omnican.sim.wiring import health_wiring, make_drive
@@ -109,6 +111,8 @@ class SimulatedBase:
         self.stepping = False
         self._receive: Any = None
         self._last_tick = -math.inf
+        #: the drives' LSS slaves, non-volatile memory and power (:mod:`omnican.sim.lss`)
+        self.lss: SimLss | None = None
 
     @classmethod
     def from_config(
@@ -123,6 +127,9 @@ class SimulatedBase:
         clock: Clock | None = None,
         stepped: bool = False,
         rt_priority: int = 0,
+        serials: Mapping[int, int] | None = None,
+        unconfigured: bool = False,
+        refuse_store: frozenset[int] = frozenset(),
         **options: Any,
     ) -> SimulatedBase:
         """Start simulated drives for ``cfg``.
@@ -150,6 +157,12 @@ class SimulatedBase:
                 where the process may (:attr:`realtime_refused` says why not); 0: normal
                 priority. What ``omnican sim`` does, with the config's
                 ``chassis.rt_priority``, to keep up with a loop in another process.
+            serials: config node id -> the serial its drive reports (1018h sub 4) and
+                answers LSS with (default the config's ``[[wheel]] serial``); see
+                :class:`~omnican.sim.lss.SimLss`.
+            unconfigured: the drives start without a node id (FFh), silent until LSS
+                gives them one (``omnican commission``).
+            refuse_store: config node ids whose drives refuse LSS "store configuration".
             **options: :class:`SimulatedDrive` arguments for every drive
                 (``encoder_noise``, ``slip``, ``frame_loss``, ``tau_s``, ...).
         """
@@ -184,17 +197,24 @@ class SimulatedBase:
         try:
             by_node: dict[int, SimulatedDrive] = {}
             health = health_wiring(cfg, scales)
+            makers = {}
             for node_id, wheels in cfg.nodes().items():
+                opts = {**health[node_id], **options, **(drive_options or {}).get(node_id, {}),
+                        "clock": clock}
+                makers[node_id] = functools.partial(make_drive, network, wheels=wheels,
+                                                    scheduler=scheduler,
+                                                    options={**opts, "boot": False})
                 by_node[node_id] = make_drive(network, node_id, wheels, scheduler,
-                                              {**health[node_id], **options,
-                                               **(drive_options or {}).get(node_id, {}),
-                                               "clock": clock})
+                                              {**opts, "boot": not unconfigured})
                 drives.append(by_node[node_id])
             wheel_axes = [(by_node[w.node_id], w.axis) for w in cfg.wheels]
             counts = np.array([w.position_scale * s for w, s in zip(cfg.wheels, scales,
                                                                      strict=True)])
             base = cls(cfg, network, scheduler, drives, wheel_axes,
                        true_kinematics or cfg.kinematics(), counts, clock)
+            given = {w.node_id: w.serial for w in cfg.wheels if w.serial is not None}
+            base.lss = SimLss(base, makers, {**given, **(serials or {})}, unconfigured,
+                              refuse_store)
         except BaseException:
             for d in drives:
                 d.close()
@@ -242,6 +262,20 @@ class SimulatedBase:
         to their safe torque off (see :meth:`SimulatedDrive.estop`)."""
         for d in self.drives:
             d.estop(pressed)
+
+    def power_cycle(self) -> None:
+        """Every drive off and on again: what it stored (its LSS node id, the parameters
+        1010h saved) comes back, nothing else (:meth:`SimLss.power_cycle`)."""
+        if self.lss is not None:
+            self.lss.power_cycle()
+
+    def swap_drive(self, old: SimulatedDrive, new: SimulatedDrive) -> None:
+        """``new`` simulates what ``old`` did (a drive powered on again, or made anew with
+        another node id): its wheels, the same true pose."""
+        pose = self._truth.pose
+        self.drives[:] = [new if d is old else d for d in self.drives]
+        self.wheel_axes[:] = [(new if d is old else d, axis) for d, axis in self.wheel_axes]
+        self._truth.reset(pose)
 
     def wheel_drive(self, wheel: int) -> tuple[SimulatedDrive, int]:
         """(drive, axis) that simulates wheel number ``wheel`` of the config."""
@@ -336,6 +370,8 @@ class SimulatedBase:
                 return
             self._closed = True
         self._truth.stop()
+        if self.lss is not None:
+            self.lss.close()
         if self._channel is not None:
             stepped_io.withdraw(self._channel, self)
         self.scheduler.close()

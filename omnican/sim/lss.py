@@ -1,0 +1,438 @@
+"""What a simulated drive keeps when the power goes, and how it gets a node id: the LSS
+slave (CiA 305) and the store/restore objects 1010h/1011h (CiA 301).
+
+- :class:`LssSlave` is the slave's protocol, pure (frames in, frames out): switch state
+  global and selective, fast scan bit by bit, configure node id and bit timing, store,
+  inquire identity and node id, identify remote and non-configured slaves.
+- :class:`NonVolatile` is one drive's non-volatile memory: the node id and bit timing LSS
+  stored, the parameters 1010h saved.
+- :class:`ParameterStore` is 1010h ("save") and 1011h ("load": restore defaults) on a
+  simulated node, with the signature check.
+- :class:`SimLss` puts them together for a :class:`~omnican.sim.base.SimulatedBase`: one
+  slave per drive on the LSS COB-IDs (7E5h in, 7E4h out), drives that start
+  unconfigured (node id FFh: no NMT, SDO or heartbeat until they get one), a drive made
+  anew when it takes an id, and the power cycle (:meth:`SimLss.power_cycle`): what was
+  stored comes back, what was not is lost.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import struct
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from canopen.sdo.exceptions import SdoAbortedError
+
+from omnican.protocol.cia301 import (
+    COMMUNICATION_PROFILE,
+    IDENTITY,
+    LOAD_SIGNATURE,
+    RESTORE_DEFAULTS,
+    SAVE_SIGNATURE,
+    STORE_PARAMETERS,
+)
+
+if TYPE_CHECKING:
+    import canopen
+
+    from omnican.sim.base import SimulatedBase
+    from omnican.sim.drive import SimulatedDrive
+
+logger = logging.getLogger(__name__)
+
+LSS_MASTER_COB_ID = 0x7E5  # master -> slaves
+LSS_SLAVE_COB_ID = 0x7E4  # slaves -> master
+UNCONFIGURED = 0xFF  # the node id of a drive that has none
+
+CS_SWITCH_GLOBAL = 0x04
+CS_CONFIGURE_NODE_ID = 0x11
+CS_CONFIGURE_BIT_TIMING = 0x13
+CS_ACTIVATE_BIT_TIMING = 0x15
+CS_STORE = 0x17
+CS_SWITCH_SELECTIVE = range(0x40, 0x44)  # vendor, product, revision, serial
+CS_SWITCH_SELECTIVE_ANSWER = 0x44
+CS_IDENTIFY_REMOTE = range(0x46, 0x4C)  # vendor, product, revision low/high, serial low/high
+CS_IDENTIFY_NON_CONFIGURED = 0x4C
+CS_IDENTIFY_SLAVE = 0x4F
+CS_IDENTIFY_NON_CONFIGURED_SLAVE = 0x50
+CS_FAST_SCAN = 0x51
+CS_INQUIRE_IDENTITY = range(0x5A, 0x5E)  # vendor, product, revision, serial
+CS_INQUIRE_NODE_ID = 0x5E
+
+#: CiA 305 table 0 of bit timings: index -> bit/s (5 is reserved, 9 automatic).
+BIT_TIMINGS = {0: 1_000_000, 1: 800_000, 2: 500_000, 3: 250_000, 4: 125_000,
+               6: 50_000, 7: 20_000, 8: 10_000}
+
+#: 1010h/1011h sub-index -> the objects it stores or restores (CiA 301): 1 all,
+#: 2 communication, 3 application (the profile's), 4 manufacturer-specific.
+PARAMETER_GROUPS: dict[int, tuple[range, ...]] = {
+    1: (range(0x1000, 0xA000),),
+    2: (COMMUNICATION_PROFILE,),
+    3: (range(0x6000, 0xA000),),
+    4: (range(0x2000, 0x6000),),
+}
+SDO_ABORT_NOT_STORED = 0x08000020  # data cannot be transferred or stored
+#: Objects never stored: the store commands themselves, the identity (the device's own).
+_NEVER_STORED = (STORE_PARAMETERS, RESTORE_DEFAULTS, IDENTITY)
+
+Key = tuple[int, int]
+
+
+class LssState(enum.Enum):
+    WAITING = 0
+    CONFIGURATION = 1
+
+
+@dataclass
+class NonVolatile:
+    """One drive's non-volatile memory: what survives a power cycle."""
+
+    node_id: int = UNCONFIGURED  # what LSS stored (FFh: none)
+    bit_timing: int | None = None  # CiA 305 table 0 index LSS stored (None: as shipped)
+    params: dict[Key, bytes] = field(default_factory=dict)  # what 1010h saved
+
+
+@dataclass(frozen=True)
+class LssAnswer:
+    """What the slave does with one request: ``frame`` (data of a 7E4h frame) to send,
+    ``activate``: take the pending node id now (it had none: it boots with it)."""
+
+    frame: bytes | None = None
+    activate: bool = False
+
+
+def _answer(cs: int, *values: int, fmt: str = "") -> LssAnswer:
+    data = struct.pack("<B" + fmt, cs, *values)
+    return LssAnswer(data + bytes(8 - len(data)))
+
+
+class LssSlave:
+    """The LSS slave of one device (CiA 305), pure: :meth:`handle` takes the data of a
+    7E5h frame and says what to answer.
+
+    Args:
+        identity: vendor, product, revision, serial (its LSS address, 1018h sub 1-4).
+        memory: the device's non-volatile memory (LSS store writes the pending node id
+            and bit timing there).
+        active_id: the node id it runs with now (FFh: none).
+        refuse_store: answer "store configuration" with error 2 (storage media access
+            error), as a drive whose memory failed.
+    """
+
+    def __init__(self, identity: tuple[int, int, int, int], memory: NonVolatile,
+                 active_id: int = UNCONFIGURED, refuse_store: bool = False) -> None:
+        self.identity = identity
+        self.memory = memory
+        self.active_id = active_id
+        self.pending_id = active_id
+        self.pending_bit_timing: int | None = memory.bit_timing
+        self.refuse_store = refuse_store
+        self.state = LssState.WAITING
+        self._selective: list[int | None] = [None] * 4
+        self._remote: list[int | None] = [None] * 6
+        self._scan_position = 0
+
+    def reset(self, active_id: int) -> None:
+        """A power-on or NMT reset: waiting, running with ``active_id``."""
+        self.active_id = self.pending_id = active_id
+        self.state = LssState.WAITING
+        self._selective = [None] * 4
+        self._scan_position = 0
+
+    def handle(self, data: bytes) -> LssAnswer:
+        if len(data) < 8:
+            return LssAnswer()
+        cs = data[0]
+        configuring = self.state is LssState.CONFIGURATION
+        if cs == CS_SWITCH_GLOBAL:
+            return self._switch_global(data[1])
+        if cs in CS_SWITCH_SELECTIVE:
+            return self._switch_selective(cs - CS_SWITCH_SELECTIVE.start, data)
+        if cs in CS_IDENTIFY_REMOTE:
+            return self._identify_remote(cs - CS_IDENTIFY_REMOTE.start, data)
+        if cs == CS_IDENTIFY_NON_CONFIGURED:
+            return (_answer(CS_IDENTIFY_NON_CONFIGURED_SLAVE)
+                    if self.active_id == UNCONFIGURED else LssAnswer())
+        if cs == CS_FAST_SCAN:
+            return self._fast_scan(data)
+        if not configuring:
+            return LssAnswer()
+        if cs == CS_CONFIGURE_NODE_ID:
+            node_id = data[1]
+            if 1 <= node_id <= 127 or node_id == UNCONFIGURED:
+                self.pending_id = node_id
+                return _answer(cs, 0, fmt="B")
+            return _answer(cs, 1, fmt="B")  # node id out of range
+        if cs == CS_CONFIGURE_BIT_TIMING:
+            if data[1] != 0 or data[2] not in BIT_TIMINGS:
+                return _answer(cs, 1, fmt="B")  # bit timing not supported
+            self.pending_bit_timing = data[2]
+            return _answer(cs, 0, fmt="B")
+        if cs == CS_ACTIVATE_BIT_TIMING:
+            return LssAnswer()  # one bus for all: the rate is what the bus has
+        if cs == CS_STORE:
+            if self.refuse_store:
+                return _answer(cs, 2, fmt="B")  # storage media access error
+            self.memory.node_id = self.pending_id
+            self.memory.bit_timing = self.pending_bit_timing
+            return _answer(cs, 0, fmt="B")
+        if cs in CS_INQUIRE_IDENTITY:
+            return _answer(cs, self.identity[cs - CS_INQUIRE_IDENTITY.start], fmt="I")
+        if cs == CS_INQUIRE_NODE_ID:
+            return _answer(cs, self.active_id, fmt="B")
+        return LssAnswer()
+
+    def _switch_global(self, mode: int) -> LssAnswer:
+        if mode == 1:
+            self.state = LssState.CONFIGURATION
+        elif mode == 0:
+            self.state = LssState.WAITING
+            if self.active_id == UNCONFIGURED and self.pending_id != UNCONFIGURED:
+                # CiA 305: a device without a node id takes the configured one on leaving
+                # the configuration state (it boots with it); one with an id waits for
+                # an NMT reset communication.
+                self.active_id = self.pending_id
+                return LssAnswer(activate=True)
+        return LssAnswer()
+
+    def _switch_selective(self, part: int, data: bytes) -> LssAnswer:
+        if self.state is not LssState.WAITING:
+            return LssAnswer()
+        value = struct.unpack_from("<I", data, 1)[0]
+        if part == 0:
+            self._selective = [None] * 4
+        self._selective[part] = value
+        if part == 3:
+            hit = tuple(self._selective) == self.identity
+            self._selective = [None] * 4
+            if hit:
+                self.state = LssState.CONFIGURATION
+                return _answer(CS_SWITCH_SELECTIVE_ANSWER)
+        return LssAnswer()
+
+    def _identify_remote(self, part: int, data: bytes) -> LssAnswer:
+        if part == 0:
+            self._remote = [None] * 6
+        self._remote[part] = struct.unpack_from("<I", data, 1)[0]
+        if part != 5 or None in self._remote:
+            return LssAnswer()
+        vendor, product, rev_lo, rev_hi, ser_lo, ser_hi = self._remote
+        self._remote = [None] * 6
+        v, p, r, s = self.identity
+        assert rev_lo is not None and rev_hi is not None
+        assert ser_lo is not None and ser_hi is not None
+        if (vendor, product) == (v, p) and rev_lo <= r <= rev_hi and ser_lo <= s <= ser_hi:
+            return _answer(CS_IDENTIFY_SLAVE)
+        return LssAnswer()
+
+    def _fast_scan(self, data: bytes) -> LssAnswer:
+        """CiA 305 fast scan: only a slave without a node id, waiting, takes part. Bit
+        ``checked`` 80h restarts the scan; else the slave answers when the bits of its
+        address part ``sub`` from ``checked`` up equal the master's, and with every bit
+        checked (0) moves on to part ``next``; back to an earlier part after the last
+        (serial) one, the whole address matched: it is selected (configuration)."""
+        if self.active_id != UNCONFIGURED or self.state is not LssState.WAITING:
+            return LssAnswer()
+        number, checked, sub, nxt = struct.unpack_from("<IBBB", data, 1)
+        if checked == 0x80:
+            self._scan_position = 0
+            return _answer(CS_IDENTIFY_SLAVE)
+        if checked > 31 or sub > 3 or sub != self._scan_position:
+            return LssAnswer()
+        mask = (0xFFFFFFFF << checked) & 0xFFFFFFFF
+        if (self.identity[sub] ^ number) & mask:
+            return LssAnswer()
+        if checked == 0:
+            self._scan_position = nxt & 3
+            if nxt < sub:
+                self.state = LssState.CONFIGURATION
+        return _answer(CS_IDENTIFY_SLAVE)
+
+
+class ParameterStore:
+    """1010h (store parameters) and 1011h (restore default parameters) of one simulated
+    node (CiA 301): a write of "save" to 1010h sub n copies the objects of group n
+    (:data:`PARAMETER_GROUPS`) into the non-volatile memory, "load" to 1011h sub n
+    forgets them there (the defaults come back at the next reset or power-on); any
+    other value is refused (SDO abort 0800 0020h). Both read 1: the device stores on
+    command."""
+
+    def __init__(self, drive: SimulatedDrive, memory: NonVolatile) -> None:
+        self.drive = drive
+        self.memory = memory
+        objects = drive.comm.objects
+        _add_store_objects(drive.dictionary)
+        for index in (STORE_PARAMETERS, RESTORE_DEFAULTS):
+            objects.readers[(index, 0)] = lambda: 4
+            for sub in PARAMETER_GROUPS:
+                objects.readers[(index, sub)] = lambda: 1
+        objects.stored = memory.params
+        objects.store_command = self.command
+
+    def command(self, index: int, subindex: int, data: bytes) -> None:
+        """A write to 1010h or 1011h (the caller holds the drive's lock)."""
+        groups = PARAMETER_GROUPS.get(subindex)
+        signature = SAVE_SIGNATURE if index == STORE_PARAMETERS else LOAD_SIGNATURE
+        if groups is None or len(data) != 4 or struct.unpack("<I", data)[0] != signature:
+            raise SdoAbortedError(SDO_ABORT_NOT_STORED)
+        params = self.memory.params
+        if index == RESTORE_DEFAULTS:
+            for key in [k for k in params if any(k[0] in g for g in groups)]:
+                del params[key]
+            return
+        dictionary = self.drive.dictionary
+        for obj_index, subs in self.drive.node.data_store.items():
+            if obj_index in _NEVER_STORED or not any(obj_index in g for g in groups):
+                continue
+            for sub, value in subs.items():
+                try:
+                    var = dictionary.get_variable(obj_index, sub)
+                except KeyError:
+                    var = None
+                if var is not None and var.pdo_mappable:
+                    continue  # process data (a controlword, a target), no parameter
+                params[(obj_index, sub)] = bytes(value)
+
+
+def _add_store_objects(dictionary: canopen.ObjectDictionary) -> None:
+    """1010h and 1011h in the dictionary, as CiA 301 defines them, where the EDS has none."""
+    from canopen import objectdictionary as od
+
+    for index, name in ((STORE_PARAMETERS, "Store parameters"),
+                        (RESTORE_DEFAULTS, "Restore default parameters")):
+        if index in dictionary:
+            continue
+        array = od.ODArray(name, index)
+        count = od.ODVariable("Highest sub-index supported", index, 0)
+        count.data_type, count.access_type, count.default = od.UNSIGNED8, "ro", 4
+        array.add_member(count)
+        for sub, what in ((1, "all"), (2, "communication"), (3, "application"),
+                          (4, "manufacturer")):
+            var = od.ODVariable(f"{name}: {what}", index, sub)
+            var.data_type, var.access_type, var.default = od.UNSIGNED32, "rw", 1
+            array.add_member(var)
+        dictionary.add_object(array)
+
+
+@dataclass
+class _Slot:
+    """One simulated drive's place on the bus: its config node, memory and slave."""
+
+    config_id: int  # the node the config names (the drive is made with it while it has none)
+    memory: NonVolatile
+    slave: LssSlave
+    serial: int
+
+
+class SimLss:
+    """The LSS side and the power of a simulated base (see the module docstring).
+
+    Args:
+        base: the simulated base (its drives, one per config node, in node order).
+        make: config node id -> a function making that node's drive with a given node id
+            (not booted).
+        serials: config node id -> the serial its drive reports (1018h sub 4) and
+            answers LSS with; a node without one keeps its drive's own (and, unconfigured,
+            its config node id).
+        unconfigured: every drive starts without a node id (FFh).
+        refuse_store: config node ids whose drives refuse LSS "store configuration".
+    """
+
+    def __init__(self, base: SimulatedBase, make: Mapping[int, Callable[[int], SimulatedDrive]],
+                 serials: Mapping[int, int] | None = None, unconfigured: bool = False,
+                 refuse_store: frozenset[int] = frozenset()) -> None:
+        self.base = base
+        self._make = dict(make)
+        self._lock = threading.RLock()
+        self._slots: list[_Slot] = []
+        self._closed = False
+        for drive in base.drives:
+            own = struct.unpack("<I", drive.read(IDENTITY, 4))[0]
+            serial = (serials or {}).get(drive.node_id,
+                                         drive.node_id if unconfigured else own)
+            memory = NonVolatile(node_id=UNCONFIGURED if unconfigured else drive.node_id)
+            info = drive.dictionary.device_information
+            identity = (info.vendor_number or 0, info.product_number or 0,
+                        info.revision_number or 0, serial)
+            slave = LssSlave(identity, memory, memory.node_id,
+                             refuse_store=drive.node_id in refuse_store)
+            self._slots.append(_Slot(drive.node_id, memory, slave, serial))
+        for i, drive in enumerate(base.drives):
+            self._fit(i, drive, online=not unconfigured, boot=False)  # booted if online
+        base.network.subscribe(LSS_MASTER_COB_ID, self._on_request)
+
+    # ------------------------------------------------------------ what it tells
+
+    def node_ids(self) -> dict[int, int]:
+        """Serial -> the node id its drive runs with now (FFh: none)."""
+        return {s.serial: s.slave.active_id for s in self._slots}
+
+    def memory(self, serial: int) -> NonVolatile:
+        """The non-volatile memory of the drive with ``serial``."""
+        for slot in self._slots:
+            if slot.serial == serial:
+                return slot.memory
+        raise KeyError(f"no simulated drive has serial {serial}")
+
+    # ------------------------------------------------------------ the power
+
+    def power_cycle(self) -> None:
+        """Every drive off and on again: each comes back with what it stored (its LSS
+        node id, else none; the parameters 1010h saved) and nothing else."""
+        with self._lock:
+            for i, slot in enumerate(self._slots):
+                node_id = slot.memory.node_id
+                slot.slave.reset(node_id)
+                slot.slave.pending_bit_timing = slot.memory.bit_timing
+                self._replace(i, UNCONFIGURED if node_id == UNCONFIGURED else node_id)
+
+    # ------------------------------------------------------------ the bus
+
+    def _on_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            for i, slot in enumerate(self._slots):
+                answer = slot.slave.handle(bytes(data))
+                if answer.activate:
+                    logger.info("simulated drive serial %d takes node id %d", slot.serial,
+                                slot.slave.active_id)
+                    self._replace(i, slot.slave.active_id)
+                if answer.frame is not None:
+                    self.base.network.send_message(LSS_SLAVE_COB_ID, answer.frame)
+
+    def _replace(self, i: int, node_id: int) -> None:
+        """Drive ``i`` made anew (a power-on), running as ``node_id`` (FFh: none)."""
+        slot = self._slots[i]
+        old = self.base.drives[i]
+        old.close()
+        new = self._make[slot.config_id](slot.config_id if node_id == UNCONFIGURED
+                                         else node_id)
+        self.base.swap_drive(old, new)
+        self._fit(i, new, online=node_id != UNCONFIGURED)
+
+    def _fit(self, i: int, drive: SimulatedDrive, online: bool, boot: bool = True) -> None:
+        """``drive`` as slot ``i``'s: its serial, its stored parameters (with 1010h and
+        1011h), booted when it has a node id, else silent."""
+        slot = self._slots[i]
+        serial = slot.serial
+        with drive.lock:
+            drive.comm.readers[(IDENTITY, 4)] = lambda: serial
+            ParameterStore(drive, slot.memory)
+            if online:
+                drive.comm.frozen = False
+                if boot:
+                    drive.comm.boot(reset_node=True)  # the stored parameters over the defaults
+            else:
+                drive.comm.frozen = True  # no node id: no NMT, SDO, heartbeat or PDO
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+        network = self.base.network
+        if self._on_request in network.subscribers.get(LSS_MASTER_COB_ID, []):
+            network.unsubscribe(LSS_MASTER_COB_ID, self._on_request)
