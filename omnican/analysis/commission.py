@@ -1,0 +1,530 @@
+"""Commissioning: give the drives the node ids the config names for their serials (LSS,
+CiA 305), store them, and store the ``[[wheel.sdo]]`` settings (1010h) or restore the
+defaults (1011h).
+
+Built on python canopen's :class:`canopen.lss.LssMaster` (fast scan, switch state,
+configure node id and bit timing, store, inquire): nothing of LSS is written here but
+the order of the steps and what is checked between them.
+
+:func:`commission` finds the drives without a node id (FFh) by fast scan, and the drives
+that run with another node id than the config gives their serial by their identity
+(1018h, read by SDO), gives each its node id, stores it, resets it and checks that it
+came back as that node with that serial. What it found and did is a
+:class:`Commissioning`: a row per drive, whatever happened, and the problems, one line
+each. Another master on the bus (LSS requests or NMT commands this process did not
+send) stops it before it changes anything, or before the next drive. Nothing here
+prints; ``omnican commission`` does.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import canopen
+from canopen.lss import LssError
+from canopen.sdo.client import SdoClient
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from omnican.config import ChassisConfig
+from omnican.errors import ConfigError
+from omnican.io.bus import CanBus
+from omnican.plan.node import NodeLayout
+from omnican.protocol.cia301 import (
+    HEARTBEAT_BASE,
+    IDENTITY,
+    LOAD_SIGNATURE,
+    NMT_COB_ID,
+    RESTORE_DEFAULTS,
+    SAVE_SIGNATURE,
+    STORE_PARAMETERS,
+    NmtCommand,
+)
+
+logger = logging.getLogger(__name__)
+
+LSS_MASTER_COB_ID = 0x7E5
+LSS_SLAVE_COB_ID = 0x7E4
+UNCONFIGURED = 0xFF
+#: CiA 305 table 0: bit/s -> bit timing index.
+BIT_TIMING_INDEX = {1_000_000: 0, 800_000: 1, 500_000: 2, 250_000: 3, 125_000: 4,
+                    50_000: 6, 20_000: 7, 10_000: 8}
+LSS_TIMEOUT_S = 0.05  # one LSS answer's wait (python canopen's default: 0.5 s a bit)
+BOOT_WAIT_S = 3.0  # a reset drive's boot-up, at most
+QUIET_S = 0.2  # listening for another master before anything is sent
+
+Identity = tuple[int, int, int, int]  # vendor, product, revision, serial
+
+
+class CommissionError(Exception):
+    """Commissioning cannot start (the bus, another master): one line."""
+
+
+@dataclass(frozen=True)
+class DriveRow:
+    """One drive: its identity, the node id it had (None: unknown, FFh: none), the one it
+    has now (as it answered afterwards; None: not heard), and what was done."""
+
+    identity: Identity
+    before: int | None
+    after: int | None
+    wanted: int | None
+    note: str
+
+    @property
+    def serial(self) -> int:
+        return self.identity[3]
+
+
+@dataclass(frozen=True)
+class Commissioning:
+    """What :func:`commission` found and did."""
+
+    drives: tuple[DriveRow, ...]
+    problems: tuple[str, ...]
+    bit_timing: int | None = None  # bit/s stored where asked
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def wanted_ids(cfg: ChassisConfig) -> dict[int, int]:
+    """Serial -> node id, as the config's wheels give them."""
+    return {w.serial: w.node_id for w in cfg.wheels if w.serial is not None}
+
+
+def bit_timing_index(bitrate: int) -> int:
+    """The CiA 305 table-0 index of ``bitrate`` (bit/s); :class:`ConfigError` for a rate
+    the table does not have."""
+    try:
+        return BIT_TIMING_INDEX[bitrate]
+    except KeyError:
+        rates = ", ".join(str(r) for r in sorted(BIT_TIMING_INDEX))
+        raise ConfigError(f"LSS sets the bit rates {rates} (bit/s), not {bitrate}") from None
+
+
+def differences(written: Mapping[tuple[int, int], bytes],
+                read: Mapping[tuple[int, int], bytes | None]) -> list[tuple[int, int]]:
+    """The objects whose value read back is not the value written (None: not read)."""
+    return [key for key, data in written.items()
+            if read.get(key) is None or bytes(read[key] or b"")[:len(data)] != data]
+
+
+class _Watch:
+    """Counts the frames of another master (LSS requests, NMT commands: this process's
+    own sends are not received) and the LSS answers, on the Notifier thread."""
+
+    def __init__(self, network: canopen.Network) -> None:
+        self.network = network
+        self.foreign: list[int] = []
+        self.answers = 0
+        self.boots: dict[int, float] = {}
+        self._watched: set[int] = set()
+        self._lock = threading.Lock()
+        network.subscribe(LSS_MASTER_COB_ID, self._foreign)
+        network.subscribe(NMT_COB_ID, self._foreign)
+        network.subscribe(LSS_SLAVE_COB_ID, self._answer)
+
+    def _foreign(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            self.foreign.append(can_id)
+
+    def _answer(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            self.answers += 1
+
+    def _boot(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if data[:1] == b"\x00":
+            with self._lock:
+                self.boots[can_id - HEARTBEAT_BASE] = time.monotonic()
+
+    def watch_boot(self, node_id: int) -> None:
+        if node_id not in self._watched:
+            self._watched.add(node_id)
+            self.network.subscribe(HEARTBEAT_BASE + node_id, self._boot)
+
+    def another_master(self) -> str | None:
+        with self._lock:
+            seen = sorted(set(self.foreign))
+        if not seen:
+            return None
+        what = " and ".join("LSS requests (7E5h)" if c == LSS_MASTER_COB_ID else
+                            "NMT commands (000h)" for c in seen)
+        return (f"another master is on the bus ({what} this command did not send): "
+                "commission with the bus to yourself")
+
+    def close(self) -> None:
+        for cob, handler in [(LSS_MASTER_COB_ID, self._foreign), (NMT_COB_ID, self._foreign),
+                             (LSS_SLAVE_COB_ID, self._answer)] + [
+                (HEARTBEAT_BASE + n, self._boot) for n in sorted(self._watched)]:
+            if handler in self.network.subscribers.get(cob, []):
+                self.network.unsubscribe(cob, handler)
+
+
+Progress = Callable[[str], None]
+
+
+def commission(cfg: ChassisConfig, *, bitrate: int | None = None,
+               lss_timeout_s: float = LSS_TIMEOUT_S, sdo_timeout_s: float = 0.3,
+               progress: Progress | None = None) -> Commissioning:
+    """Give every drive the node id the config names for its serial (see the module
+    docstring). ``bitrate``: store this bit rate too (taken at the drives' next power-on).
+    ``progress``: told of each step, one short line. :class:`CommissionError` when it
+    cannot start (no bus; another master)."""
+    say = progress or (lambda text: None)
+    wanted = wanted_ids(cfg)
+    timing = None if bitrate is None else bit_timing_index(bitrate)
+    try:
+        can_bus = CanBus(cfg.bus)
+    except Exception as exc:
+        raise CommissionError(str(exc)) from None
+    with can_bus:
+        network = can_bus.network
+        lss = network.lss
+        lss.RESPONSE_TIMEOUT = lss_timeout_s
+        watch = _Watch(network)
+        try:
+            time.sleep(QUIET_S)
+            other = watch.another_master()
+            if other is not None:
+                raise CommissionError(other)
+            run = _Run(network, lss, watch, wanted, timing, sdo_timeout_s, say)
+            run.unconfigured()
+            run.misnumbered(cfg)
+            run.reset_and_check()
+            return Commissioning(tuple(run.rows), tuple(run.problems),
+                                 None if timing is None else bitrate)
+        finally:
+            watch.close()
+
+
+class _Run:
+    """One commissioning's steps and what they found (see :func:`commission`)."""
+
+    def __init__(self, network: canopen.Network, lss: canopen.lss.LssMaster, watch: _Watch,
+                 wanted: Mapping[int, int], timing: int | None, sdo_timeout_s: float,
+                 say: Progress) -> None:
+        self.network, self.lss, self.watch = network, lss, watch
+        self.wanted, self.timing, self.sdo_timeout_s, self.say = wanted, timing, sdo_timeout_s, say
+        self.rows: list[DriveRow] = []
+        self.problems: list[str] = []
+        self.assigned: dict[int, Identity] = {}  # node id -> the drive given it
+
+    def _problem(self, text: str) -> None:
+        logger.info("commissioning: %s", text)
+        self.problems.append(text)
+
+    def _stopped_by_master(self) -> bool:
+        other = self.watch.another_master()
+        if other is not None and other not in self.problems:
+            self._problem(other)
+        return other is not None
+
+    def unconfigured(self) -> None:
+        """Fast scan for drives without a node id, one at a time: each found is given its
+        node id, stored, and sent back to waiting (it takes the id and boots)."""
+        lss = self.lss
+        lss.send_switch_state_global(lss.WAITING_STATE)
+        count = 0
+        while not self._stopped_by_master():
+            self.say(f"fast scan for drives without a node id ({count} found)")
+            try:
+                found, ident = lss.fast_scan()
+            except LssError as exc:
+                self._problem(f"fast scan failed: {exc}")
+                return
+            if not found:
+                if count == 0:
+                    self.say("no drive without a node id answered the fast scan")
+                return
+            count += 1
+            identity: Identity = tuple(int(x) for x in ident)  # type: ignore[assignment]
+            serial = identity[3]
+            self.say(f"found serial {serial} ({_hex_identity(identity)})")
+            if self._answers(lss.inquire_node_id) > 1:
+                self._problem(f"two drives answer as serial {serial} ({_hex_identity(identity)})"
+                              ": LSS cannot tell them apart; give them their node ids one at "
+                              "a time (the other off the bus) or each its own serial")
+                self.rows.append(DriveRow(identity, UNCONFIGURED, None, self.wanted.get(serial),
+                                          "two drives with this serial: left without id"))
+                lss.send_switch_state_global(lss.WAITING_STATE)
+                return  # both would answer every scan from here on
+            node_id = self.wanted.get(serial)
+            if node_id is None:
+                self._problem(f"the drive with serial {serial} is in no [[wheel]] of the config "
+                              "(serial = ...): it was left without a node id")
+                self.rows.append(DriveRow(identity, UNCONFIGURED, None, None,
+                                          "serial not in the config: left without id"))
+                lss.send_switch_state_global(lss.WAITING_STATE)
+                return  # it would be the one found again
+            self._give(identity, UNCONFIGURED, node_id)
+
+    def _answers(self, request: Callable[[], object]) -> int:
+        """How many LSS answers ``request`` got (two drives selected at once answer
+        twice)."""
+        before = self.watch.answers
+        try:
+            request()
+        except LssError:
+            return 0
+        time.sleep(self.lss.RESPONSE_TIMEOUT)
+        return self.watch.answers - before
+
+    def _give(self, identity: Identity, before: int, node_id: int) -> None:
+        """Configure the selected drive's node id (and bit timing), store, back to waiting."""
+        lss = self.lss
+        serial = identity[3]
+        taken = self.assigned.get(node_id)
+        if taken is not None:
+            self._problem(f"node id {node_id} went to serial {taken[3]} already; serial {serial}"
+                          " was left as it was")
+            self.rows.append(DriveRow(identity, before, None, node_id, "id taken: left as it was"))
+            lss.send_switch_state_global(lss.WAITING_STATE)
+            return
+        self.say(f"serial {serial}: node id {node_id}")
+        note = "given its node id"
+        try:
+            lss.configure_node_id(node_id)
+            if self.timing is not None:
+                lss.configure_bit_timing(self.timing)
+        except LssError as exc:
+            self._problem(f"the drive with serial {serial} refused node id {node_id} ({exc})")
+            self.rows.append(DriveRow(identity, before, None, node_id, "refused its node id"))
+            lss.send_switch_state_global(lss.WAITING_STATE)
+            return
+        try:
+            lss.store_configuration()
+        except LssError as exc:
+            self._problem(f"the drive with serial {serial} refused to store node id {node_id} "
+                          f"({_lss_error(exc)}): it has it until its next power-on, no longer")
+            note = "NOT STORED: lost at the next power-on"
+        self.assigned[node_id] = identity
+        lss.send_switch_state_global(lss.WAITING_STATE)
+        if before not in (UNCONFIGURED, node_id):
+            # A drive with a node id takes a new one at a reset communication (CiA 305).
+            self.network.send_message(NMT_COB_ID,
+                                      bytes([NmtCommand.RESET_COMMUNICATION, before]))
+        self.rows.append(DriveRow(identity, before, None, node_id, note))
+
+    def misnumbered(self, cfg: ChassisConfig) -> None:
+        """The drives whose serial the config names that run with another node id (found
+        by their identity, 1018h, over SDO): selected by identity and given theirs."""
+        missing = {s for s in self.wanted if s not in {r.serial for r in self.rows}}
+        if not missing or self._stopped_by_master():
+            return
+        self.say("looking for drives with a node id that is not theirs")
+        seen: dict[int, int] = {}  # serial -> node id
+        for node_id, identity in _identities(self.network, self.sdo_timeout_s).items():
+            serial = identity[3]
+            if serial in seen and serial in self.wanted:
+                self._problem(f"two drives answer as serial {serial} (nodes {seen[serial]} and "
+                              f"{node_id}): LSS cannot tell them apart; node {node_id} was "
+                              "left as it was")
+                continue
+            seen[serial] = node_id
+            if serial not in missing:
+                continue
+            missing.discard(serial)
+            target = self.wanted[serial]
+            if node_id == target:
+                self.rows.append(DriveRow(identity, node_id, None, target, "had its node id"))
+                continue
+            self.say(f"serial {serial} runs as node {node_id}: selecting it")
+            try:
+                self.lss.send_switch_state_selective(*identity)
+            except LssError as exc:
+                self._problem(f"the drive with serial {serial} (node {node_id}) did not answer "
+                              f"LSS selection ({exc})")
+                self.rows.append(DriveRow(identity, node_id, None, target, "no LSS answer"))
+                continue
+            self._give(identity, node_id, target)
+        for serial in sorted(missing):
+            node = self.wanted[serial]
+            self._problem(f"no drive with serial {serial} (node {node} in the config) answered")
+
+    def reset_and_check(self) -> None:
+        """Reset every drive given an id (NMT reset node), wait for its boot-up, and read
+        back its serial: the row says the node id it answers with now."""
+        if not self.assigned:
+            if not self.rows and not self.problems:
+                self._problem("no drive found: none without a node id answered LSS, and none "
+                              "of the config's serials answered SDO")
+            return
+        for node_id in self.assigned:
+            self.watch.watch_boot(node_id)
+        sent = time.monotonic()
+        for node_id in self.assigned:
+            self.network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_NODE, node_id]))
+        self.say("resetting the drives")
+        deadline = sent + BOOT_WAIT_S
+        while time.monotonic() < deadline and not all(
+                self.watch.boots.get(n, 0) >= sent for n in self.assigned):
+            time.sleep(0.02)
+        found = _identities(self.network, self.sdo_timeout_s, list(self.assigned))
+        rows = []
+        for row in self.rows:
+            if row.wanted is None or self.assigned.get(row.wanted) != row.identity:
+                rows.append(row)
+                continue
+            ident = found.get(row.wanted)
+            if ident is None or ident[3] != row.serial:
+                self._problem(f"the drive with serial {row.serial} did not come back as node "
+                              f"{row.wanted} after its reset")
+                rows.append(replace(row, note=row.note + "; not back after reset"))
+            else:
+                rows.append(replace(row, after=row.wanted))
+        self.rows = rows
+
+
+def _identities(network: canopen.Network, sdo_timeout_s: float,
+                node_ids: Sequence[int] | None = None) -> dict[int, Identity]:
+    """Node id -> identity (1018h sub 1-4) of the nodes that answer SDO (all node ids
+    when ``node_ids`` is None: canopen's scanner asks each for 1000h)."""
+    if node_ids is None:
+        network.scanner.reset()
+        network.scanner.search()
+        time.sleep(max(0.3, sdo_timeout_s))
+        node_ids = sorted(network.scanner.nodes)
+    out: dict[int, Identity] = {}
+    for node_id in node_ids:
+        values = _read_identity(network, node_id, sdo_timeout_s)
+        if values is not None:
+            out[node_id] = values
+    return out
+
+
+def _read_identity(network: canopen.Network, node_id: int,
+                   sdo_timeout_s: float) -> Identity | None:
+    client = _sdo(network, node_id, sdo_timeout_s)
+    try:
+        values = [struct.unpack("<I", client.upload(IDENTITY, sub)[:4])[0] for sub in range(1, 5)]
+    except (SdoAbortedError, SdoCommunicationError, struct.error):
+        return None
+    finally:
+        network.unsubscribe(client.tx_cobid, client.on_response)
+    return (values[0], values[1], values[2], values[3])
+
+
+def _sdo(network: canopen.Network, node_id: int, timeout_s: float) -> SdoClient:
+    from canopen import objectdictionary as od
+
+    client = SdoClient(0x600 + node_id, 0x580 + node_id, od.ObjectDictionary())
+    client.network = network
+    client.RESPONSE_TIMEOUT = timeout_s
+    network.subscribe(client.tx_cobid, client.on_response)
+    return client
+
+
+def _hex_identity(identity: Identity) -> str:
+    v, p, r, s = identity
+    return f"vendor 0x{v:08X}, product 0x{p:08X}, revision 0x{r:08X}, serial 0x{s:08X}"
+
+
+def _lss_error(exc: LssError) -> str:
+    text = str(exc)
+    code = text.rsplit(" ", 1)[-1]
+    why = {"1": "store not supported", "2": "storage media access error"}.get(code)
+    return f"LSS error {code}: {why}" if why else text
+
+
+# ------------------------------------------------------------------ stored settings
+
+
+@dataclass(frozen=True)
+class StoredCheck:
+    """One node's ``[[wheel.sdo]]`` settings: stored (1010h), then read back after a
+    reset; ``differ``: what came back otherwise (address, written, read)."""
+
+    node_id: int
+    written: int
+    differ: tuple[tuple[str, str, str], ...] = field(default=())
+    problem: str | None = None
+
+
+def store_settings(cfg: ChassisConfig, layouts: Iterable[NodeLayout], *,
+                   sdo_timeout_s: float = 0.3, progress: Progress | None = None
+                   ) -> list[StoredCheck]:
+    """Write each node's ``[[wheel.sdo]]`` settings, store them (1010h sub 1, "save"),
+    reset the node and read them back."""
+    say = progress or (lambda text: None)
+    out = []
+    with CanBus(cfg.bus) as can_bus:
+        network = can_bus.network
+        watch = _Watch(network)
+        try:
+            for layout in layouts:
+                writes = layout.sdo_writes
+                node_id = layout.node_id
+                if not writes:
+                    continue
+                say(f"node {node_id}: writing and storing {len(writes)} setting(s)")
+                client = _sdo(network, node_id, sdo_timeout_s)
+                try:
+                    written = {}
+                    for w in writes:
+                        client.download(w.entry.index, w.entry.subindex, w.data)
+                        written[(w.entry.index, w.entry.subindex)] = w.data
+                    client.download(STORE_PARAMETERS, 1, struct.pack("<I", SAVE_SIGNATURE))
+                    watch.watch_boot(node_id)
+                    sent = time.monotonic()
+                    network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_NODE, node_id]))
+                    _wait_boot(watch, node_id, sent)
+                    read: dict[tuple[int, int], bytes | None] = {}
+                    for key in written:
+                        try:
+                            read[key] = bytes(client.upload(*key))
+                        except (SdoAbortedError, SdoCommunicationError):
+                            read[key] = None
+                    differ = tuple(
+                        (f"{k[0]:04X}h:{k[1]:02X}", written[k].hex(),
+                         "no answer" if read[k] is None else (read[k] or b"").hex())
+                        for k in differences(written, read))
+                    out.append(StoredCheck(node_id, len(written), differ))
+                except (SdoAbortedError, SdoCommunicationError) as exc:
+                    out.append(StoredCheck(node_id, 0, problem=f"node {node_id}: {exc}"))
+                finally:
+                    network.unsubscribe(client.tx_cobid, client.on_response)
+        finally:
+            watch.close()
+    return out
+
+
+def restore_defaults(cfg: ChassisConfig, node_ids: Iterable[int], *, sdo_timeout_s: float = 0.3
+                     ) -> dict[int, str | None]:
+    """1011h sub 1 ("load") on each node, then an NMT reset node: the drives' parameters
+    at their defaults. Node id -> None (done) or why not."""
+    out: dict[int, str | None] = {}
+    with CanBus(cfg.bus) as can_bus:
+        network = can_bus.network
+        watch = _Watch(network)
+        try:
+            for node_id in node_ids:
+                client = _sdo(network, node_id, sdo_timeout_s)
+                try:
+                    client.download(RESTORE_DEFAULTS, 1, struct.pack("<I", LOAD_SIGNATURE))
+                    watch.watch_boot(node_id)
+                    sent = time.monotonic()
+                    network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_NODE, node_id]))
+                    out[node_id] = None if _wait_boot(watch, node_id, sent) else \
+                        "restored, but no boot-up after the reset"
+                except (SdoAbortedError, SdoCommunicationError) as exc:
+                    out[node_id] = str(exc)
+                finally:
+                    network.unsubscribe(client.tx_cobid, client.on_response)
+        finally:
+            watch.close()
+    return out
+
+
+def _wait_boot(watch: _Watch, node_id: int, sent: float) -> bool:
+    deadline = sent + BOOT_WAIT_S
+    while time.monotonic() < deadline:
+        if watch.boots.get(node_id, 0) >= sent:
+            return True
+        time.sleep(0.02)
+    return False
