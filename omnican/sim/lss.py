@@ -367,9 +367,10 @@ class SimLss:
 
     # ------------------------------------------------------------ what it tells
 
-    def node_ids(self) -> dict[int, int]:
-        """Serial -> the node id its drive runs with now (FFh: none)."""
-        return {s.serial: s.slave.active_id for s in self._slots}
+    def node_ids(self) -> list[tuple[int, int]]:
+        """(serial, the node id its drive runs with now (FFh: none)) per drive, in the
+        config's node order."""
+        return [(s.serial, s.slave.active_id) for s in self._slots]
 
     def memory(self, serial: int) -> NonVolatile:
         """The non-volatile memory of the drive with ``serial``."""
