@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
             if args.unconfigured:
                 serials = ", ".join(str(serial) for serial, _ in sim.lss.node_ids()) \
                     if sim.lss is not None else ""
-                print(f"serving simulated drives without node ids (serials {serials}) on "
+                print(f"serving simulated nodes (no node ids yet: serials {serials}) on "
                       f"{where}", flush=True)
             else:
                 nodes = ", ".join(f"{d.node_id} ({d.eds.name})" for d in sim.drives)
