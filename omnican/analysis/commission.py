@@ -235,6 +235,12 @@ class _Run:
             self.say(f"fast scan for drives without a node id ({count} found)")
             try:
                 found, ident = lss.fast_scan()
+                if not found:  # once more, waiting longer, before none is taken for none
+                    timeout, lss.RESPONSE_TIMEOUT = lss.RESPONSE_TIMEOUT, 4 * lss.RESPONSE_TIMEOUT
+                    try:
+                        found, ident = lss.fast_scan()
+                    finally:
+                        lss.RESPONSE_TIMEOUT = timeout
             except LssError as exc:
                 self._problem(f"fast scan failed: {exc}")
                 return
@@ -332,7 +338,7 @@ class _Run:
             missing.discard(serial)
             target = self.wanted[serial]
             if node_id == target:
-                self.rows.append(DriveRow(identity, node_id, None, target, "had its node id"))
+                self.rows.append(DriveRow(identity, node_id, node_id, target, "had its node id"))
                 continue
             self.say(f"serial {serial} runs as node {node_id}: selecting it")
             try:

@@ -347,9 +347,11 @@ class SimLss:
                  refuse_store: frozenset[int] = frozenset()) -> None:
         self.base = base
         self._make = dict(make)
-        self._lock = threading.RLock()
+        self._lock = threading.RLock()  # the slaves (LSS requests)
+        self._power = threading.RLock()  # making drives anew (slow: not under _lock)
         self._slots: list[_Slot] = []
         self._closed = False
+        self._due: list[tuple[int, int]] = []  # (slot, node id): drives to boot with an id
         for drive in base.drives:
             own = struct.unpack("<I", drive.read(IDENTITY, 4))[0]
             serial = (serials or {}).get(drive.node_id,
@@ -364,6 +366,7 @@ class SimLss:
         for i, drive in enumerate(base.drives):
             self._fit(i, drive, online=not unconfigured, boot=False)  # booted if online
         base.network.subscribe(LSS_MASTER_COB_ID, self._on_request)
+        base.scheduler.add(self._boot_due)
 
     # ------------------------------------------------------------ what it tells
 
@@ -384,12 +387,14 @@ class SimLss:
     def power_cycle(self) -> None:
         """Every drive off and on again: each comes back with what it stored (its LSS
         node id, else none; the parameters 1010h saved) and nothing else."""
-        with self._lock:
+        with self._power:
+            with self._lock:
+                self._due.clear()
+                for slot in self._slots:
+                    slot.slave.reset(slot.memory.node_id)
+                    slot.slave.pending_bit_timing = slot.memory.bit_timing
             for i, slot in enumerate(self._slots):
-                node_id = slot.memory.node_id
-                slot.slave.reset(node_id)
-                slot.slave.pending_bit_timing = slot.memory.bit_timing
-                self._replace(i, UNCONFIGURED if node_id == UNCONFIGURED else node_id)
+                self._replace(i, slot.memory.node_id)
 
     # ------------------------------------------------------------ the bus
 
@@ -400,11 +405,25 @@ class SimLss:
             for i, slot in enumerate(self._slots):
                 answer = slot.slave.handle(bytes(data))
                 if answer.activate:
-                    logger.info("simulated drive serial %d takes node id %d", slot.serial,
-                                slot.slave.active_id)
-                    self._replace(i, slot.slave.active_id)
+                    # Made on the housekeeping thread: this one answers LSS meanwhile (a
+                    # master's next fast scan follows at once).
+                    self._due.append((i, slot.slave.active_id))
                 if answer.frame is not None:
                     self.base.network.send_message(LSS_SLAVE_COB_ID, answer.frame)
+
+    def _boot_due(self, now: float) -> None:
+        """The drives that took a node id boot with it (on the housekeeping thread)."""
+        if not self._due:
+            return
+        with self._power:
+            with self._lock:
+                due, self._due = self._due, []
+            for i, node_id in due:
+                if self._closed:
+                    return
+                logger.info("simulated drive serial %d takes node id %d",
+                            self._slots[i].serial, node_id)
+                self._replace(i, node_id)
 
     def _replace(self, i: int, node_id: int) -> None:
         """Drive ``i`` made anew (a power-on), running as ``node_id`` (FFh: none)."""
@@ -432,8 +451,9 @@ class SimLss:
                 drive.comm.frozen = True  # no node id: no NMT, SDO, heartbeat or PDO
 
     def close(self) -> None:
-        with self._lock:
+        with self._power, self._lock:  # after a drive being made anew is in its place
             self._closed = True
+        self.base.scheduler.remove(self._boot_due)
         network = self.base.network
         if self._on_request in network.subscribers.get(LSS_MASTER_COB_ID, []):
             network.unsubscribe(LSS_MASTER_COB_ID, self._on_request)
