@@ -24,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any, TypeVar
 
 import canopen
 from canopen.lss import LssError
@@ -58,6 +59,17 @@ BOOT_WAIT_S = 3.0  # a reset drive's boot-up, at most
 QUIET_S = 0.2  # listening for another master before anything is sent
 
 Identity = tuple[int, int, int, int]  # vendor, product, revision, serial
+#: An unanswered LSS request is sent again waiting this many times longer (the last: the
+#: answer is taken for none).
+PATIENCE = (1, 4, 10)
+_T = TypeVar("_T")
+
+
+def _found(result: tuple[bool, Any]) -> tuple[bool, Any]:
+    """A fast scan that found nothing, as an error: :meth:`_Run._patiently` tries again."""
+    if not result[0]:
+        raise LssError("no answer to the fast scan")
+    return result
 
 
 class CommissionError(Exception):
@@ -234,16 +246,11 @@ class _Run:
         while not self._stopped_by_master():
             self.say(f"fast scan for drives without a node id ({count} found)")
             try:
-                found, ident = lss.fast_scan()
-                if not found:  # once more, waiting longer, before none is taken for none
-                    timeout, lss.RESPONSE_TIMEOUT = lss.RESPONSE_TIMEOUT, 4 * lss.RESPONSE_TIMEOUT
-                    try:
-                        found, ident = lss.fast_scan()
-                    finally:
-                        lss.RESPONSE_TIMEOUT = timeout
-            except LssError as exc:
-                self._problem(f"fast scan failed: {exc}")
-                return
+                # A scan that found nothing, or whose last step failed (an answer that came
+                # after the timeout reads as a bit of 1), again, waiting longer.
+                found, ident = self._patiently(lambda: _found(lss.fast_scan()))
+            except LssError:
+                found, ident = False, None
             if not found:
                 if count == 0:
                     self.say("no drive without a node id answered the fast scan")
@@ -251,24 +258,42 @@ class _Run:
             count += 1
             identity: Identity = tuple(int(x) for x in ident)  # type: ignore[assignment]
             serial = identity[3]
-            self.say(f"found serial {serial} ({_hex_identity(identity)})")
+            self.say(f"found serial 0x{serial:08X} ({_hex_identity(identity)})")
             if self._answers(lss.inquire_node_id) > 1:
-                self._problem(f"two drives answer as serial {serial} ({_hex_identity(identity)})"
-                              ": LSS cannot tell them apart; give them their node ids one at "
-                              "a time (the other off the bus) or each its own serial")
+                self._problem(f"two drives answer as serial 0x{serial:08X} "
+                              f"({_hex_identity(identity)}): LSS cannot tell them apart; "
+                              "give them their node ids one at a time (the other off the "
+                              "bus) or each its own serial")
                 self.rows.append(DriveRow(identity, UNCONFIGURED, None, self.wanted.get(serial),
                                           "two drives with this serial: left without id"))
                 lss.send_switch_state_global(lss.WAITING_STATE)
                 return  # both would answer every scan from here on
             node_id = self.wanted.get(serial)
             if node_id is None:
-                self._problem(f"the drive with serial {serial} is in no [[wheel]] of the config "
-                              "(serial = ...): it was left without a node id")
+                self._problem(f"the drive with serial 0x{serial:08X} is in no [[wheel]] of the "
+                              "config (serial = ...): it was left without a node id")
                 self.rows.append(DriveRow(identity, UNCONFIGURED, None, None,
                                           "serial not in the config: left without id"))
                 lss.send_switch_state_global(lss.WAITING_STATE)
                 return  # it would be the one found again
             self._give(identity, UNCONFIGURED, node_id)
+
+    def _patiently(self, call: Callable[[], _T]) -> _T:
+        """``call()``, again with longer LSS timeouts (:data:`PATIENCE`) while it raises
+        :class:`LssError`: a slave's answer may come late on a loaded bus or host."""
+        lss = self.lss
+        timeout = lss.RESPONSE_TIMEOUT
+        try:
+            for factor in PATIENCE[:-1]:
+                lss.RESPONSE_TIMEOUT = timeout * factor
+                try:
+                    return call()
+                except LssError:
+                    logger.debug("LSS: no answer within %.2f s: again", lss.RESPONSE_TIMEOUT)
+            lss.RESPONSE_TIMEOUT = timeout * PATIENCE[-1]
+            return call()
+        finally:
+            lss.RESPONSE_TIMEOUT = timeout
 
     def _answers(self, request: Callable[[], object]) -> int:
         """How many LSS answers ``request`` got (two drives selected at once answer
@@ -287,27 +312,29 @@ class _Run:
         serial = identity[3]
         taken = self.assigned.get(node_id)
         if taken is not None:
-            self._problem(f"node id {node_id} went to serial {taken[3]} already; serial {serial}"
-                          " was left as it was")
+            self._problem(f"node id {node_id} went to serial 0x{taken[3]:08X} already; "
+                          f"serial 0x{serial:08X} was left as it was")
             self.rows.append(DriveRow(identity, before, None, node_id, "id taken: left as it was"))
             lss.send_switch_state_global(lss.WAITING_STATE)
             return
-        self.say(f"serial {serial}: node id {node_id}")
+        self.say(f"serial 0x{serial:08X}: node id {node_id}")
         note = "given its node id"
         try:
-            lss.configure_node_id(node_id)
+            self._patiently(lambda: lss.configure_node_id(node_id))
             if self.timing is not None:
-                lss.configure_bit_timing(self.timing)
+                timing = self.timing
+                self._patiently(lambda: lss.configure_bit_timing(timing))
         except LssError as exc:
-            self._problem(f"the drive with serial {serial} refused node id {node_id} ({exc})")
+            self._problem(f"the drive with serial 0x{serial:08X} refused node id {node_id} ({exc})")
             self.rows.append(DriveRow(identity, before, None, node_id, "refused its node id"))
             lss.send_switch_state_global(lss.WAITING_STATE)
             return
         try:
-            lss.store_configuration()
+            self._patiently(lss.store_configuration)
         except LssError as exc:
-            self._problem(f"the drive with serial {serial} refused to store node id {node_id} "
-                          f"({_lss_error(exc)}): it has it until its next power-on, no longer")
+            self._problem(f"the drive with serial 0x{serial:08X} refused to store node id "
+                          f"{node_id} ({_lss_error(exc)}): it has it until its next "
+                          "power-on, no longer")
             note = "NOT STORED: lost at the next power-on"
         self.assigned[node_id] = identity
         lss.send_switch_state_global(lss.WAITING_STATE)
@@ -328,9 +355,9 @@ class _Run:
         for node_id, identity in _identities(self.network, self.sdo_timeout_s).items():
             serial = identity[3]
             if serial in seen and serial in self.wanted:
-                self._problem(f"two drives answer as serial {serial} (nodes {seen[serial]} and "
-                              f"{node_id}): LSS cannot tell them apart; node {node_id} was "
-                              "left as it was")
+                self._problem(f"two drives answer as serial 0x{serial:08X} (nodes "
+                              f"{seen[serial]} and {node_id}): LSS cannot tell them apart; "
+                              f"node {node_id} was left as it was")
                 continue
             seen[serial] = node_id
             if serial not in missing:
@@ -340,18 +367,19 @@ class _Run:
             if node_id == target:
                 self.rows.append(DriveRow(identity, node_id, node_id, target, "had its node id"))
                 continue
-            self.say(f"serial {serial} runs as node {node_id}: selecting it")
+            self.say(f"serial 0x{serial:08X} runs as node {node_id}: selecting it")
             try:
-                self.lss.send_switch_state_selective(*identity)
+                self._patiently(lambda i=identity: self.lss.send_switch_state_selective(*i))
             except LssError as exc:
-                self._problem(f"the drive with serial {serial} (node {node_id}) did not answer "
-                              f"LSS selection ({exc})")
+                self._problem(f"the drive with serial 0x{serial:08X} (node {node_id}) did not "
+                              f"answer LSS selection ({exc})")
                 self.rows.append(DriveRow(identity, node_id, None, target, "no LSS answer"))
                 continue
             self._give(identity, node_id, target)
         for serial in sorted(missing):
             node = self.wanted[serial]
-            self._problem(f"no drive with serial {serial} (node {node} in the config) answered")
+            self._problem(f"no drive with serial 0x{serial:08X} (node {node} in the config) "
+                          "answered")
 
     def reset_and_check(self) -> None:
         """Reset every drive given an id (NMT reset node), wait for its boot-up, and read
@@ -379,7 +407,7 @@ class _Run:
                 continue
             ident = found.get(row.wanted)
             if ident is None or ident[3] != row.serial:
-                self._problem(f"the drive with serial {row.serial} did not come back as node "
+                self._problem(f"the drive with serial 0x{row.serial:08X} did not come back as node "
                               f"{row.wanted} after its reset")
                 rows.append(replace(row, note=row.note + "; not back after reset"))
             else:

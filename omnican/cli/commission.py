@@ -146,14 +146,14 @@ def _table(result: Any, cfg: Any) -> None:
         table.add_column(col, no_wrap=col != "what was done")
     for row in sorted(result.drives, key=lambda r: r.serial):
         ok = row.after is not None and row.after == row.wanted
-        table.add_row(str(row.serial), f"0x{row.identity[1]:X}", _node(row.before),
+        table.add_row(f"0x{row.serial:08X}", f"0x{row.identity[1]:X}", _node(row.before),
                       _node(row.after), "-" if row.wanted is None else str(row.wanted),
                       row.note, style=None if ok else "red")
     seen = {row.serial for row in result.drives}
     for w in cfg.wheels:
         if w.serial is not None and w.serial not in seen:
             seen.add(w.serial)
-            table.add_row(str(w.serial), "-", "-", "-", str(w.node_id), "not found",
+            table.add_row(f"0x{w.serial:08X}", "-", "-", "-", str(w.node_id), "not found",
                           style="bold red")
     Console().print(table)
 

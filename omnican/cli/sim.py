@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
         with SimulatedBase.from_config(cfg, rt_priority=cfg.chassis.rt_priority,
                                        **options) as sim:
             if args.unconfigured:
-                serials = ", ".join(str(serial) for serial, _ in sim.lss.node_ids()) \
+                serials = ", ".join(f"0x{serial:08X}" for serial, _ in sim.lss.node_ids()) \
                     if sim.lss is not None else ""
                 print(f"serving simulated nodes (no node ids yet: serials {serials}) on "
                       f"{where}", flush=True)

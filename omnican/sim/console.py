@@ -243,7 +243,7 @@ def _power_state(sim: SimulatedBase) -> str:
     """Which serial runs as which node now."""
     if sim.lss is None:
         return _nodes(sim)
-    return ", ".join(f"serial {serial} " + ("without node id" if node == 0xFF else
+    return ", ".join(f"serial 0x{serial:08X} " + ("without node id" if node == 0xFF else
                                            f"node {node}")
                      for serial, node in sim.lss.node_ids())
 

@@ -58,8 +58,8 @@ def table_rows(out: str) -> dict[str, list[str]]:
     rows = {}
     for line in out.splitlines():
         cells = [c.strip() for c in line.strip("│ ").split("│")]
-        if len(cells) == 6 and cells[0].isdigit():
-            rows[cells[0]] = cells
+        if len(cells) == 6 and cells[0].startswith("0x"):
+            rows[str(int(cells[0], 16))] = cells
     return rows
 
 
@@ -94,7 +94,7 @@ def test_two_drives_with_one_serial_are_named_and_left_without_ids(tmp_path: Pat
     with drives(toml, channel, serials={1: 11, 2: 12, 3: 12}) as sim:
         code, out, err = commission(toml, channel)
         assert code == 1
-        assert "omnican: error: two drives answer as serial 12" in err
+        assert "omnican: error: two drives answer as serial 0x0000000C" in err
         assert "Traceback" not in err
         rows = table_rows(out)
         assert rows["11"][3] == "1"
@@ -111,7 +111,7 @@ def test_a_drive_that_refuses_to_store_is_named_and_loses_its_id_at_power_off(
         code, out, err = commission(toml, channel)
         assert code == 1
         lines = [line for line in err.splitlines() if line.startswith("omnican: error")]
-        assert lines == ["omnican: error: the drive with serial 22 refused to store node id 2 "
+        assert lines == ["omnican: error: the drive with serial 0x00000016 refused to store node id 2 "
                          "(LSS error 2: storage media access error): it has it until its next "
                          "power-on, no longer"]
         assert "NOT STORED" in table_rows(out)["22"][5]
@@ -154,7 +154,7 @@ def test_no_drive_found_is_one_line_and_the_table_lists_the_configs_serials(
     with can.Bus(interface="virtual", channel=channel):  # an empty bus
         code, out, err = commission(toml, channel)
     assert code == 1
-    assert "omnican: error: no drive with serial 41 (node 1 in the config) answered" in err
+    assert "omnican: error: no drive with serial 0x00000029 (node 1 in the config) answered" in err
     assert {s: r[5] for s, r in table_rows(out).items()} == {
         "41": "not found", "42": "not found", "43": "not found"}
 

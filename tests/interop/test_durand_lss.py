@@ -96,8 +96,8 @@ def test_three_durand_nodes_without_ids_get_the_configs_ids_and_bit_rate(
         assert [stored for _, stored in nodes] == [[(250_000, 2)], [(250_000, 3)],
                                                    [(250_000, 1)]]
         assert "bit rate 250000 bit/s stored" in out
-        for serial, node_id in (("9001", "2"), ("9002", "3"), ("9003", "1")):
-            assert any(line.split("│")[1].strip() == serial
+        for serial, node_id in ((9001, "2"), (9002, "3"), (9003, "1")):
+            assert any(line.split("│")[1].strip() == f"0x{serial:08X}"
                        and line.split("│")[4].strip() == node_id
                        for line in out.splitlines() if line.count("│") == 7), out
 
@@ -107,8 +107,8 @@ def test_a_durand_node_that_cannot_store_is_named(tmp_path: Path, channel: str) 
     with durand_nodes(channel, [9101], store=False) as nodes:
         code, out, err = commission(toml, channel)
     assert code == 1
-    assert ("omnican: error: the drive with serial 9101 refused to store node id 1 (LSS error "
+    assert ("omnican: error: the drive with serial 0x0000238D refused to store node id 1 (LSS error "
             "1: store not supported)") in err
     assert nodes[0][0].node_id == 1  # it runs with it until its power goes
     assert "NOT STORED" in out
-    assert "no drive with serial 9102 (node 2 in the config) answered" in err
+    assert "no drive with serial 0x0000238E (node 2 in the config) answered" in err

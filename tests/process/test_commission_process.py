@@ -58,11 +58,11 @@ def test_unconfigured_drives_in_another_process_are_commissioned_and_then_drive(
     assert "Traceback" not in done.stderr
     rows = {line.split("│")[1].strip(): line.split("│")[4].strip()
             for line in done.stdout.splitlines() if line.count("│") == 7}
-    assert rows == {str(s): str(n) for n, s in SERIALS.items()}
+    assert rows == {f"0x{s:08X}": str(n) for n, s in SERIALS.items()}
 
     reply = sim.command("power")
     assert reply.strip() == ("power cycled: " + ", ".join(
-        f"serial {s} node {n}" for n, s in sorted(SERIALS.items())))
+        f"serial 0x{s:08X} node {n}" for n, s in sorted(SERIALS.items())))
 
     scan = omnican("scan", "--config", str(toml), *bus)
     assert scan.returncode == 0, scan.stdout + scan.stderr
