@@ -18,6 +18,7 @@ prints; ``omnican commission`` does.
 
 from __future__ import annotations
 
+import functools
 import logging
 import struct
 import threading
@@ -369,7 +370,8 @@ class _Run:
                 continue
             self.say(f"serial 0x{serial:08X} runs as node {node_id}: selecting it")
             try:
-                self._patiently(lambda i=identity: self.lss.send_switch_state_selective(*i))
+                self._patiently(functools.partial(self.lss.send_switch_state_selective,
+                                                  *identity))
             except LssError as exc:
                 self._problem(f"the drive with serial 0x{serial:08X} (node {node_id}) did not "
                               f"answer LSS selection ({exc})")
