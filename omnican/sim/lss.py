@@ -31,9 +31,11 @@ from omnican.protocol.cia301 import (
     COMMUNICATION_PROFILE,
     IDENTITY,
     LOAD_SIGNATURE,
+    NMT_COB_ID,
     RESTORE_DEFAULTS,
     SAVE_SIGNATURE,
     STORE_PARAMETERS,
+    NmtCommand,
 )
 
 if TYPE_CHECKING:
@@ -366,6 +368,7 @@ class SimLss:
         for i, drive in enumerate(base.drives):
             self._fit(i, drive, online=not unconfigured, boot=False)  # booted if online
         base.network.subscribe(LSS_MASTER_COB_ID, self._on_request)
+        base.network.subscribe(NMT_COB_ID, self._on_nmt)
         base.scheduler.add(self._boot_due)
 
     # ------------------------------------------------------------ what it tells
@@ -411,6 +414,22 @@ class SimLss:
                 if answer.frame is not None:
                     self.base.network.send_message(LSS_SLAVE_COB_ID, answer.frame)
 
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """A drive with a node id takes the one LSS configured at its next NMT reset
+        (communication or node), CiA 305."""
+        if len(data) < 2 or data[0] not in (NmtCommand.RESET_NODE,
+                                            NmtCommand.RESET_COMMUNICATION):
+            return
+        with self._lock:
+            if self._closed:
+                return
+            for i, slot in enumerate(self._slots):
+                slave = slot.slave
+                if data[1] in (0, slave.active_id) and slave.active_id != UNCONFIGURED \
+                        and slave.pending_id not in (slave.active_id, UNCONFIGURED):
+                    slave.active_id = slave.pending_id
+                    self._due.append((i, slave.active_id))
+
     def _boot_due(self, now: float) -> None:
         """The drives that took a node id boot with it (on the housekeeping thread)."""
         if not self._due:
@@ -455,5 +474,7 @@ class SimLss:
             self._closed = True
         self.base.scheduler.remove(self._boot_due)
         network = self.base.network
-        if self._on_request in network.subscribers.get(LSS_MASTER_COB_ID, []):
-            network.unsubscribe(LSS_MASTER_COB_ID, self._on_request)
+        for cob, handler in ((LSS_MASTER_COB_ID, self._on_request),
+                             (NMT_COB_ID, self._on_nmt)):
+            if handler in network.subscribers.get(cob, []):
+                network.unsubscribe(cob, handler)

@@ -88,6 +88,28 @@ def test_three_drives_without_ids_get_the_configs_and_keep_them_across_a_power_c
         assert {r[3] for r in table_rows(out).values()} == {"1", "2", "3"}
 
 
+def test_drives_running_with_anothers_node_id_are_given_their_own(tmp_path: Path,
+                                                                   channel: str) -> None:
+    """Drives that have node ids, but not those the config gives their serials (found by
+    their identity over SDO, selected by it over LSS, reset): two swapped, one right."""
+    toml = robot_toml(tmp_path, {1: 82, 2: 81, 3: 83})
+    cfg = load_config(toml).with_bus(interface="virtual", channel=channel)
+    with SimulatedBase.from_config(cfg, serials={1: 81, 2: 82, 3: 83}) as sim:
+        code, out, err = commission(toml, channel)
+        assert code == 0, err
+        rows = table_rows(out)
+        assert {s: (r[2], r[3]) for s, r in rows.items()} == {
+            "81": ("1", "2"), "82": ("2", "1"), "83": ("3", "3")}
+        assert rows["83"][5] == "had its node id"
+        assert sim.lss is not None
+        sim.power_cycle()
+        assert sorted(sim.lss.node_ids()) == [(81, 2), (82, 1), (83, 3)]
+        code, out, err = run_main(["scan", "--config", str(toml), "-i", "virtual",
+                                   "-c", channel])
+        assert code == 0, out + err
+        assert "0x00000052" in out  # serial 82, now node 1
+
+
 def test_two_drives_with_one_serial_are_named_and_left_without_ids(tmp_path: Path,
                                                                   channel: str) -> None:
     toml = robot_toml(tmp_path, {1: 11, 2: 12, 3: 13})
