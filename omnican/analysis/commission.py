@@ -1,6 +1,6 @@
 """Commissioning: give the drives the node ids the config names for their serials (LSS,
-CiA 305), store them, and store the ``[[wheel.sdo]]`` settings (1010h) or restore the
-defaults (1011h).
+CiA 305), store them, reset them and read them back (the settings they keep:
+:mod:`omnican.analysis.parameters`).
 
 Built on python canopen's :class:`canopen.lss.LssMaster` (fast scan, switch state,
 configure node id and bit timing, store, inquire): nothing of LSS is written here but
@@ -20,46 +20,37 @@ from __future__ import annotations
 
 import functools
 import logging
-import struct
-import threading
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from typing import Any, TypeVar
 
 import canopen
 from canopen.lss import LssError
-from canopen.sdo.client import SdoClient
-from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
+from omnican.analysis.master import (
+    BOOT_WAIT_S,
+    Identity,
+    MasterWatch,
+    identities,
+)
 from omnican.config import ChassisConfig
 from omnican.errors import ConfigError
 from omnican.io.bus import CanBus
-from omnican.plan.node import NodeLayout
 from omnican.protocol.cia301 import (
-    HEARTBEAT_BASE,
-    IDENTITY,
-    LOAD_SIGNATURE,
     NMT_COB_ID,
-    RESTORE_DEFAULTS,
-    SAVE_SIGNATURE,
-    STORE_PARAMETERS,
     NmtCommand,
 )
 
 logger = logging.getLogger(__name__)
 
-LSS_MASTER_COB_ID = 0x7E5
-LSS_SLAVE_COB_ID = 0x7E4
 UNCONFIGURED = 0xFF
 #: CiA 305 table 0: bit/s -> bit timing index.
 BIT_TIMING_INDEX = {1_000_000: 0, 800_000: 1, 500_000: 2, 250_000: 3, 125_000: 4,
                     50_000: 6, 20_000: 7, 10_000: 8}
 LSS_TIMEOUT_S = 0.05  # one LSS answer's wait (python canopen's default: 0.5 s a bit)
-BOOT_WAIT_S = 3.0  # a reset drive's boot-up, at most
 QUIET_S = 0.2  # listening for another master before anything is sent
 
-Identity = tuple[int, int, int, int]  # vendor, product, revision, serial
 #: An unanswered LSS request is sent again waiting this many times longer (the last: the
 #: answer is taken for none).
 PATIENCE = (1, 4, 10)
@@ -121,64 +112,6 @@ def bit_timing_index(bitrate: int) -> int:
         raise ConfigError(f"LSS sets the bit rates {rates} (bit/s), not {bitrate}") from None
 
 
-def differences(written: Mapping[tuple[int, int], bytes],
-                read: Mapping[tuple[int, int], bytes | None]) -> list[tuple[int, int]]:
-    """The objects whose value read back is not the value written (None: not read)."""
-    return [key for key, data in written.items()
-            if read.get(key) is None or bytes(read[key] or b"")[:len(data)] != data]
-
-
-class _Watch:
-    """Counts the frames of another master (LSS requests, NMT commands: this process's
-    own sends are not received) and the LSS answers, on the Notifier thread."""
-
-    def __init__(self, network: canopen.Network) -> None:
-        self.network = network
-        self.foreign: list[int] = []
-        self.answers = 0
-        self.boots: dict[int, float] = {}
-        self._watched: set[int] = set()
-        self._lock = threading.Lock()
-        network.subscribe(LSS_MASTER_COB_ID, self._foreign)
-        network.subscribe(NMT_COB_ID, self._foreign)
-        network.subscribe(LSS_SLAVE_COB_ID, self._answer)
-
-    def _foreign(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        with self._lock:
-            self.foreign.append(can_id)
-
-    def _answer(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        with self._lock:
-            self.answers += 1
-
-    def _boot(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if data[:1] == b"\x00":
-            with self._lock:
-                self.boots[can_id - HEARTBEAT_BASE] = time.monotonic()
-
-    def watch_boot(self, node_id: int) -> None:
-        if node_id not in self._watched:
-            self._watched.add(node_id)
-            self.network.subscribe(HEARTBEAT_BASE + node_id, self._boot)
-
-    def another_master(self) -> str | None:
-        with self._lock:
-            seen = sorted(set(self.foreign))
-        if not seen:
-            return None
-        what = " and ".join("LSS requests (7E5h)" if c == LSS_MASTER_COB_ID else
-                            "NMT commands (000h)" for c in seen)
-        return (f"another master is on the bus ({what} this command did not send): "
-                "commission with the bus to yourself")
-
-    def close(self) -> None:
-        for cob, handler in [(LSS_MASTER_COB_ID, self._foreign), (NMT_COB_ID, self._foreign),
-                             (LSS_SLAVE_COB_ID, self._answer)] + [
-                (HEARTBEAT_BASE + n, self._boot) for n in sorted(self._watched)]:
-            if handler in self.network.subscribers.get(cob, []):
-                self.network.unsubscribe(cob, handler)
-
-
 Progress = Callable[[str], None]
 
 
@@ -200,7 +133,7 @@ def commission(cfg: ChassisConfig, *, bitrate: int | None = None,
         network = can_bus.network
         lss = network.lss
         lss.RESPONSE_TIMEOUT = lss_timeout_s
-        watch = _Watch(network)
+        watch = MasterWatch(network)
         try:
             time.sleep(QUIET_S)
             other = watch.another_master()
@@ -219,7 +152,7 @@ def commission(cfg: ChassisConfig, *, bitrate: int | None = None,
 class _Run:
     """One commissioning's steps and what they found (see :func:`commission`)."""
 
-    def __init__(self, network: canopen.Network, lss: canopen.lss.LssMaster, watch: _Watch,
+    def __init__(self, network: canopen.Network, lss: canopen.lss.LssMaster, watch: MasterWatch,
                  wanted: Mapping[int, int], timing: int | None, sdo_timeout_s: float,
                  say: Progress) -> None:
         self.network, self.lss, self.watch = network, lss, watch
@@ -353,7 +286,7 @@ class _Run:
             return
         self.say("looking for drives with a node id that is not theirs")
         seen: dict[int, int] = {}  # serial -> node id
-        for node_id, identity in _identities(self.network, self.sdo_timeout_s).items():
+        for node_id, identity in identities(self.network, self.sdo_timeout_s).items():
             serial = identity[3]
             if serial in seen and serial in self.wanted:
                 self._problem(f"two drives answer as serial 0x{serial:08X} (nodes "
@@ -401,7 +334,14 @@ class _Run:
         while time.monotonic() < deadline and not all(
                 self.watch.boots.get(n, 0) >= sent for n in self.assigned):
             time.sleep(0.02)
-        found = _identities(self.network, self.sdo_timeout_s, list(self.assigned))
+        found: dict[int, Identity] = {}
+        while True:  # a drive slow to boot (or to answer) is asked again, a while
+            left = [n for n, ident in self.assigned.items() if found.get(n) != ident]
+            found.update(identities(self.network, self.sdo_timeout_s, left))
+            if all(found.get(n) == i for n, i in self.assigned.items()) or \
+                    time.monotonic() > deadline + BOOT_WAIT_S:
+                break
+            time.sleep(0.1)
         rows = []
         for row in self.rows:
             if row.wanted is None or self.assigned.get(row.wanted) != row.identity:
@@ -417,45 +357,6 @@ class _Run:
         self.rows = rows
 
 
-def _identities(network: canopen.Network, sdo_timeout_s: float,
-                node_ids: Sequence[int] | None = None) -> dict[int, Identity]:
-    """Node id -> identity (1018h sub 1-4) of the nodes that answer SDO (all node ids
-    when ``node_ids`` is None: canopen's scanner asks each for 1000h)."""
-    if node_ids is None:
-        network.scanner.reset()
-        network.scanner.search()
-        time.sleep(max(0.3, sdo_timeout_s))
-        node_ids = sorted(network.scanner.nodes)
-    out: dict[int, Identity] = {}
-    for node_id in node_ids:
-        values = _read_identity(network, node_id, sdo_timeout_s)
-        if values is not None:
-            out[node_id] = values
-    return out
-
-
-def _read_identity(network: canopen.Network, node_id: int,
-                   sdo_timeout_s: float) -> Identity | None:
-    client = _sdo(network, node_id, sdo_timeout_s)
-    try:
-        values = [struct.unpack("<I", client.upload(IDENTITY, sub)[:4])[0] for sub in range(1, 5)]
-    except (SdoAbortedError, SdoCommunicationError, struct.error):
-        return None
-    finally:
-        network.unsubscribe(client.tx_cobid, client.on_response)
-    return (values[0], values[1], values[2], values[3])
-
-
-def _sdo(network: canopen.Network, node_id: int, timeout_s: float) -> SdoClient:
-    from canopen import objectdictionary as od
-
-    client = SdoClient(0x600 + node_id, 0x580 + node_id, od.ObjectDictionary())
-    client.network = network
-    client.RESPONSE_TIMEOUT = timeout_s
-    network.subscribe(client.tx_cobid, client.on_response)
-    return client
-
-
 def _hex_identity(identity: Identity) -> str:
     v, p, r, s = identity
     return f"vendor 0x{v:08X}, product 0x{p:08X}, revision 0x{r:08X}, serial 0x{s:08X}"
@@ -466,101 +367,3 @@ def _lss_error(exc: LssError) -> str:
     code = text.rsplit(" ", 1)[-1]
     why = {"1": "store not supported", "2": "storage media access error"}.get(code)
     return f"LSS error {code}: {why}" if why else text
-
-
-# ------------------------------------------------------------------ stored settings
-
-
-@dataclass(frozen=True)
-class StoredCheck:
-    """One node's ``[[wheel.sdo]]`` settings: stored (1010h), then read back after a
-    reset; ``differ``: what came back otherwise (address, written, read)."""
-
-    node_id: int
-    written: int
-    differ: tuple[tuple[str, str, str], ...] = field(default=())
-    problem: str | None = None
-
-
-def store_settings(cfg: ChassisConfig, layouts: Iterable[NodeLayout], *,
-                   sdo_timeout_s: float = 0.3, progress: Progress | None = None
-                   ) -> list[StoredCheck]:
-    """Write each node's ``[[wheel.sdo]]`` settings, store them (1010h sub 1, "save"),
-    reset the node and read them back."""
-    say = progress or (lambda text: None)
-    out = []
-    with CanBus(cfg.bus) as can_bus:
-        network = can_bus.network
-        watch = _Watch(network)
-        try:
-            for layout in layouts:
-                writes = layout.sdo_writes
-                node_id = layout.node_id
-                if not writes:
-                    continue
-                say(f"node {node_id}: writing and storing {len(writes)} setting(s)")
-                client = _sdo(network, node_id, sdo_timeout_s)
-                try:
-                    written = {}
-                    for w in writes:
-                        client.download(w.entry.index, w.entry.subindex, w.data)
-                        written[(w.entry.index, w.entry.subindex)] = w.data
-                    client.download(STORE_PARAMETERS, 1, struct.pack("<I", SAVE_SIGNATURE))
-                    watch.watch_boot(node_id)
-                    sent = time.monotonic()
-                    network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_NODE, node_id]))
-                    _wait_boot(watch, node_id, sent)
-                    read: dict[tuple[int, int], bytes | None] = {}
-                    for key in written:
-                        try:
-                            read[key] = bytes(client.upload(*key))
-                        except (SdoAbortedError, SdoCommunicationError):
-                            read[key] = None
-                    differ = tuple(
-                        (f"{k[0]:04X}h:{k[1]:02X}", written[k].hex(),
-                         "no answer" if read[k] is None else (read[k] or b"").hex())
-                        for k in differences(written, read))
-                    out.append(StoredCheck(node_id, len(written), differ))
-                except (SdoAbortedError, SdoCommunicationError) as exc:
-                    out.append(StoredCheck(node_id, 0, problem=f"node {node_id}: {exc}"))
-                finally:
-                    network.unsubscribe(client.tx_cobid, client.on_response)
-        finally:
-            watch.close()
-    return out
-
-
-def restore_defaults(cfg: ChassisConfig, node_ids: Iterable[int], *, sdo_timeout_s: float = 0.3
-                     ) -> dict[int, str | None]:
-    """1011h sub 1 ("load") on each node, then an NMT reset node: the drives' parameters
-    at their defaults. Node id -> None (done) or why not."""
-    out: dict[int, str | None] = {}
-    with CanBus(cfg.bus) as can_bus:
-        network = can_bus.network
-        watch = _Watch(network)
-        try:
-            for node_id in node_ids:
-                client = _sdo(network, node_id, sdo_timeout_s)
-                try:
-                    client.download(RESTORE_DEFAULTS, 1, struct.pack("<I", LOAD_SIGNATURE))
-                    watch.watch_boot(node_id)
-                    sent = time.monotonic()
-                    network.send_message(NMT_COB_ID, bytes([NmtCommand.RESET_NODE, node_id]))
-                    out[node_id] = None if _wait_boot(watch, node_id, sent) else \
-                        "restored, but no boot-up after the reset"
-                except (SdoAbortedError, SdoCommunicationError) as exc:
-                    out[node_id] = str(exc)
-                finally:
-                    network.unsubscribe(client.tx_cobid, client.on_response)
-        finally:
-            watch.close()
-    return out
-
-
-def _wait_boot(watch: _Watch, node_id: int, sent: float) -> bool:
-    deadline = sent + BOOT_WAIT_S
-    while time.monotonic() < deadline:
-        if watch.boots.get(node_id, 0) >= sent:
-            return True
-        time.sleep(0.02)
-    return False

@@ -101,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _commission(args: argparse.Namespace, cfg: Any) -> int:
-    from omnican.analysis.commission import CommissionError, commission, store_settings
+    from omnican.analysis.commission import CommissionError, commission
+    from omnican.analysis.parameters import store_settings
     from omnican.plan.node import node_layouts
 
     layouts = node_layouts(cfg) if args.store else []  # a bad [[wheel.sdo]]: exit 2 first
@@ -165,7 +166,7 @@ def _node(node_id: int | None) -> str:
 
 
 def _restore(args: argparse.Namespace, cfg: Any) -> int:
-    from omnican.analysis.commission import restore_defaults
+    from omnican.analysis.parameters import restore_defaults
 
     nodes = sorted(cfg.nodes())
     listed = ", ".join(str(n) for n in nodes)

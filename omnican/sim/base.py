@@ -19,7 +19,6 @@ take the loop's real-time class instead (``rt_priority``).
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 import threading
@@ -111,8 +110,7 @@ class SimulatedBase:
         self.stepping = False
         self._receive: Any = None
         self._last_tick = -math.inf
-        #: the drives' LSS slaves, non-volatile memory and power (:mod:`omnican.sim.lss`)
-        self.lss: SimLss | None = None
+        self.lss: SimLss | None = None  # LSS, memory and power (:mod:`omnican.sim.lss`)
 
     @classmethod
     def from_config(
@@ -157,12 +155,8 @@ class SimulatedBase:
                 where the process may (:attr:`realtime_refused` says why not); 0: normal
                 priority. What ``omnican sim`` does, with the config's
                 ``chassis.rt_priority``, to keep up with a loop in another process.
-            serials: config node id -> the serial its drive reports (1018h sub 4) and
-                answers LSS with (default the config's ``[[wheel]] serial``); see
-                :class:`~omnican.sim.lss.SimLss`.
-            unconfigured: the drives start without a node id (FFh), silent until LSS
-                gives them one (``omnican commission``).
-            refuse_store: config node ids whose drives refuse LSS "store configuration".
+            serials, unconfigured, refuse_store: the drives' LSS and memory, see
+                :class:`~omnican.sim.lss.SimLss` (``omnican commission``).
             **options: :class:`SimulatedDrive` arguments for every drive
                 (``encoder_noise``, ``slip``, ``frame_loss``, ``tau_s``, ...).
         """
@@ -197,24 +191,21 @@ class SimulatedBase:
         try:
             by_node: dict[int, SimulatedDrive] = {}
             health = health_wiring(cfg, scales)
-            makers = {}
+            opts: dict[int, dict[str, Any]] = {}
             for node_id, wheels in cfg.nodes().items():
-                opts = {**health[node_id], **options, **(drive_options or {}).get(node_id, {}),
-                        "clock": clock}
-                makers[node_id] = functools.partial(make_drive, network, wheels=wheels,
-                                                    scheduler=scheduler,
-                                                    options={**opts, "boot": False})
+                opts[node_id] = {**health[node_id], **options,
+                                 **(drive_options or {}).get(node_id, {}), "clock": clock}
                 by_node[node_id] = make_drive(network, node_id, wheels, scheduler,
-                                              {**opts, "boot": not unconfigured})
+                                              {**opts[node_id], "boot": not unconfigured})
                 drives.append(by_node[node_id])
             wheel_axes = [(by_node[w.node_id], w.axis) for w in cfg.wheels]
             counts = np.array([w.position_scale * s for w, s in zip(cfg.wheels, scales,
                                                                      strict=True)])
             base = cls(cfg, network, scheduler, drives, wheel_axes,
                        true_kinematics or cfg.kinematics(), counts, clock)
-            given = {w.node_id: w.serial for w in cfg.wheels if w.serial is not None}
-            base.lss = SimLss(base, makers, {**given, **(serials or {})}, unconfigured,
-                              refuse_store)
+            base.lss = SimLss(base, base._truth, lambda config_id, node_id: make_drive(
+                network, node_id, cfg.nodes()[config_id], scheduler,
+                {**opts[config_id], "boot": False}), serials, unconfigured, refuse_store)
         except BaseException:
             for d in drives:
                 d.close()
@@ -264,18 +255,9 @@ class SimulatedBase:
             d.estop(pressed)
 
     def power_cycle(self) -> None:
-        """Every drive off and on again: what it stored (its LSS node id, the parameters
-        1010h saved) comes back, nothing else (:meth:`SimLss.power_cycle`)."""
+        """Every drive off and on: what it stored comes back (:meth:`SimLss.power_cycle`)."""
         if self.lss is not None:
             self.lss.power_cycle()
-
-    def swap_drive(self, old: SimulatedDrive, new: SimulatedDrive) -> None:
-        """``new`` simulates what ``old`` did (a drive powered on again, or made anew with
-        another node id): its wheels, the same true pose."""
-        pose = self._truth.pose
-        self.drives[:] = [new if d is old else d for d in self.drives]
-        self.wheel_axes[:] = [(new if d is old else d, axis) for d, axis in self.wheel_axes]
-        self._truth.reset(pose)
 
     def wheel_drive(self, wheel: int) -> tuple[SimulatedDrive, int]:
         """(drive, axis) that simulates wheel number ``wheel`` of the config."""

@@ -1,18 +1,17 @@
-"""What a simulated drive keeps when the power goes, and how it gets a node id: the LSS
-slave (CiA 305) and the store/restore objects 1010h/1011h (CiA 301).
+"""How a simulated drive gets a node id: the LSS slave (CiA 305), and the drives of a
+simulated base that answer LSS, start without a node id when asked, and keep what they
+stored across a power cycle.
 
 - :class:`LssSlave` is the slave's protocol, pure (frames in, frames out): switch state
   global and selective, fast scan bit by bit, configure node id and bit timing, store,
   inquire identity and node id, identify remote and non-configured slaves.
-- :class:`NonVolatile` is one drive's non-volatile memory: the node id and bit timing LSS
-  stored, the parameters 1010h saved.
-- :class:`ParameterStore` is 1010h ("save") and 1011h ("load": restore defaults) on a
-  simulated node, with the signature check.
-- :class:`SimLss` puts them together for a :class:`~omnican.sim.base.SimulatedBase`: one
-  slave per drive on the LSS COB-IDs (7E5h in, 7E4h out), drives that start
-  unconfigured (node id FFh: no NMT, SDO or heartbeat until they get one), a drive made
-  anew when it takes an id, and the power cycle (:meth:`SimLss.power_cycle`): what was
-  stored comes back, what was not is lost.
+- :class:`SimLss` puts them on a :class:`~omnican.sim.base.SimulatedBase`: one slave per
+  drive on the LSS COB-IDs (7E5h in, 7E4h out), drives that start unconfigured (node id
+  FFh: no NMT, SDO or heartbeat until they get one), a drive made anew when it takes an
+  id (on leaving the LSS configuration state without one, else at its next NMT reset),
+  and the power cycle (:meth:`SimLss.power_cycle`): what was stored in the drive's
+  memory (:mod:`omnican.sim.memory`: the LSS node id and bit timing, what 1010h saved)
+  comes back, the rest is lost.
 """
 
 from __future__ import annotations
@@ -22,33 +21,22 @@ import logging
 import struct
 import threading
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
 
-from canopen.sdo.exceptions import SdoAbortedError
-
-from omnican.protocol.cia301 import (
-    COMMUNICATION_PROFILE,
-    IDENTITY,
-    LOAD_SIGNATURE,
-    NMT_COB_ID,
-    RESTORE_DEFAULTS,
-    SAVE_SIGNATURE,
-    STORE_PARAMETERS,
-    NmtCommand,
-)
+from omnican.protocol.cia301 import IDENTITY, NMT_COB_ID, NmtCommand
+from omnican.sim.memory import UNCONFIGURED, NonVolatile, ParameterStore
 
 if TYPE_CHECKING:
     import canopen
 
-    from omnican.sim.base import SimulatedBase
     from omnican.sim.drive import SimulatedDrive
+    from omnican.sim.truth import GroundTruth
 
 logger = logging.getLogger(__name__)
 
 LSS_MASTER_COB_ID = 0x7E5  # master -> slaves
 LSS_SLAVE_COB_ID = 0x7E4  # slaves -> master
-UNCONFIGURED = 0xFF  # the node id of a drive that has none
 
 CS_SWITCH_GLOBAL = 0x04
 CS_CONFIGURE_NODE_ID = 0x11
@@ -69,33 +57,10 @@ CS_INQUIRE_NODE_ID = 0x5E
 BIT_TIMINGS = {0: 1_000_000, 1: 800_000, 2: 500_000, 3: 250_000, 4: 125_000,
                6: 50_000, 7: 20_000, 8: 10_000}
 
-#: 1010h/1011h sub-index -> the objects it stores or restores (CiA 301): 1 all,
-#: 2 communication, 3 application (the profile's), 4 manufacturer-specific.
-PARAMETER_GROUPS: dict[int, tuple[range, ...]] = {
-    1: (range(0x1000, 0xA000),),
-    2: (COMMUNICATION_PROFILE,),
-    3: (range(0x6000, 0xA000),),
-    4: (range(0x2000, 0x6000),),
-}
-SDO_ABORT_NOT_STORED = 0x08000020  # data cannot be transferred or stored
-#: Objects never stored: the store commands themselves, the identity (the device's own).
-_NEVER_STORED = (STORE_PARAMETERS, RESTORE_DEFAULTS, IDENTITY)
-
-Key = tuple[int, int]
-
 
 class LssState(enum.Enum):
     WAITING = 0
     CONFIGURATION = 1
-
-
-@dataclass
-class NonVolatile:
-    """One drive's non-volatile memory: what survives a power cycle."""
-
-    node_id: int = UNCONFIGURED  # what LSS stored (FFh: none)
-    bit_timing: int | None = None  # CiA 305 table 0 index LSS stored (None: as shipped)
-    params: dict[Key, bytes] = field(default_factory=dict)  # what 1010h saved
 
 
 @dataclass(frozen=True)
@@ -255,71 +220,6 @@ class LssSlave:
         return _answer(CS_IDENTIFY_SLAVE)
 
 
-class ParameterStore:
-    """1010h (store parameters) and 1011h (restore default parameters) of one simulated
-    node (CiA 301): a write of "save" to 1010h sub n copies the objects of group n
-    (:data:`PARAMETER_GROUPS`) into the non-volatile memory, "load" to 1011h sub n
-    forgets them there (the defaults come back at the next reset or power-on); any
-    other value is refused (SDO abort 0800 0020h). Both read 1: the device stores on
-    command."""
-
-    def __init__(self, drive: SimulatedDrive, memory: NonVolatile) -> None:
-        self.drive = drive
-        self.memory = memory
-        objects = drive.comm.objects
-        _add_store_objects(drive.dictionary)
-        for index in (STORE_PARAMETERS, RESTORE_DEFAULTS):
-            objects.readers[(index, 0)] = lambda: 4
-            for sub in PARAMETER_GROUPS:
-                objects.readers[(index, sub)] = lambda: 1
-        objects.stored = memory.params
-        objects.store_command = self.command
-
-    def command(self, index: int, subindex: int, data: bytes) -> None:
-        """A write to 1010h or 1011h (the caller holds the drive's lock)."""
-        groups = PARAMETER_GROUPS.get(subindex)
-        signature = SAVE_SIGNATURE if index == STORE_PARAMETERS else LOAD_SIGNATURE
-        if groups is None or len(data) != 4 or struct.unpack("<I", data)[0] != signature:
-            raise SdoAbortedError(SDO_ABORT_NOT_STORED)
-        params = self.memory.params
-        if index == RESTORE_DEFAULTS:
-            for key in [k for k in params if any(k[0] in g for g in groups)]:
-                del params[key]
-            return
-        dictionary = self.drive.dictionary
-        for obj_index, subs in self.drive.node.data_store.items():
-            if obj_index in _NEVER_STORED or not any(obj_index in g for g in groups):
-                continue
-            for sub, value in subs.items():
-                try:
-                    var = dictionary.get_variable(obj_index, sub)
-                except KeyError:
-                    var = None
-                if var is not None and var.pdo_mappable:
-                    continue  # process data (a controlword, a target), no parameter
-                params[(obj_index, sub)] = bytes(value)
-
-
-def _add_store_objects(dictionary: canopen.ObjectDictionary) -> None:
-    """1010h and 1011h in the dictionary, as CiA 301 defines them, where the EDS has none."""
-    from canopen import objectdictionary as od
-
-    for index, name in ((STORE_PARAMETERS, "Store parameters"),
-                        (RESTORE_DEFAULTS, "Restore default parameters")):
-        if index in dictionary:
-            continue
-        array = od.ODArray(name, index)
-        count = od.ODVariable("Highest sub-index supported", index, 0)
-        count.data_type, count.access_type, count.default = od.UNSIGNED8, "ro", 4
-        array.add_member(count)
-        for sub, what in ((1, "all"), (2, "communication"), (3, "application"),
-                          (4, "manufacturer")):
-            var = od.ODVariable(f"{name}: {what}", index, sub)
-            var.data_type, var.access_type, var.default = od.UNSIGNED32, "rw", 1
-            array.add_member(var)
-        dictionary.add_object(array)
-
-
 @dataclass
 class _Slot:
     """One simulated drive's place on the bus: its config node, memory and slave."""
@@ -330,34 +230,48 @@ class _Slot:
     serial: int
 
 
+class _Base(Protocol):
+    """What :class:`SimLss` uses of a :class:`~omnican.sim.base.SimulatedBase`."""
+
+    cfg: Any
+    network: canopen.Network
+    scheduler: Any
+    drives: list[SimulatedDrive]
+    wheel_axes: list[tuple[SimulatedDrive, int]]
+
+
 class SimLss:
     """The LSS side and the power of a simulated base (see the module docstring).
 
     Args:
         base: the simulated base (its drives, one per config node, in node order).
-        make: config node id -> a function making that node's drive with a given node id
-            (not booted).
+        truth: its ground truth (kept where it was when a drive is made anew).
+        make: (config node id, node id) -> that config node's drive made with that node
+            id, not booted.
         serials: config node id -> the serial its drive reports (1018h sub 4) and
-            answers LSS with; a node without one keeps its drive's own (and, unconfigured,
-            its config node id).
+            answers LSS with; default the config's ``[[wheel]] serial``, else the
+            drive's own (unconfigured: its config node id).
         unconfigured: every drive starts without a node id (FFh).
         refuse_store: config node ids whose drives refuse LSS "store configuration".
     """
 
-    def __init__(self, base: SimulatedBase, make: Mapping[int, Callable[[int], SimulatedDrive]],
+    def __init__(self, base: _Base, truth: GroundTruth,
+                 make: Callable[[int, int], SimulatedDrive],
                  serials: Mapping[int, int] | None = None, unconfigured: bool = False,
                  refuse_store: frozenset[int] = frozenset()) -> None:
         self.base = base
-        self._make = dict(make)
+        self._truth = truth
+        self._make = make
         self._lock = threading.RLock()  # the slaves (LSS requests)
         self._power = threading.RLock()  # making drives anew (slow: not under _lock)
         self._slots: list[_Slot] = []
         self._closed = False
         self._due: list[tuple[int, int]] = []  # (slot, node id): drives to boot with an id
+        given = {w.node_id: w.serial for w in base.cfg.wheels if w.serial is not None}
+        given.update(serials or {})
         for drive in base.drives:
             own = struct.unpack("<I", drive.read(IDENTITY, 4))[0]
-            serial = (serials or {}).get(drive.node_id,
-                                         drive.node_id if unconfigured else own)
+            serial = given.get(drive.node_id, drive.node_id if unconfigured else own)
             memory = NonVolatile(node_id=UNCONFIGURED if unconfigured else drive.node_id)
             info = drive.dictionary.device_information
             identity = (info.vendor_number or 0, info.product_number or 0,
@@ -446,12 +360,14 @@ class SimLss:
 
     def _replace(self, i: int, node_id: int) -> None:
         """Drive ``i`` made anew (a power-on), running as ``node_id`` (FFh: none)."""
-        slot = self._slots[i]
-        old = self.base.drives[i]
+        slot, base = self._slots[i], self.base
+        old = base.drives[i]
         old.close()
-        new = self._make[slot.config_id](slot.config_id if node_id == UNCONFIGURED
-                                         else node_id)
-        self.base.swap_drive(old, new)
+        new = self._make(slot.config_id, slot.config_id if node_id == UNCONFIGURED else node_id)
+        pose = self._truth.pose  # the same true pose, the new drive's wheels
+        base.drives[:] = [new if d is old else d for d in base.drives]
+        base.wheel_axes[:] = [(new if d is old else d, axis) for d, axis in base.wheel_axes]
+        self._truth.reset(pose)
         self._fit(i, new, online=node_id != UNCONFIGURED)
 
     def _fit(self, i: int, drive: SimulatedDrive, online: bool, boot: bool = True) -> None:

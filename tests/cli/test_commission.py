@@ -19,7 +19,7 @@ import pytest
 from omnican.cli import main
 from omnican.config import load_config
 from omnican.sim import SimulatedBase
-from omnican.sim.lss import UNCONFIGURED
+from omnican.sim.memory import UNCONFIGURED
 
 SDO = '[[wheel.sdo]]\nobject = "0x607F"\nvalue = {value}\n'
 

@@ -18,14 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from omnican.sim import SimulatedBase
-from omnican.sim.lss import (
-    CS_FAST_SCAN,
-    CS_IDENTIFY_SLAVE,
-    UNCONFIGURED,
-    LssSlave,
-    LssState,
-    NonVolatile,
-)
+from omnican.sim.lss import CS_FAST_SCAN, CS_IDENTIFY_SLAVE, LssSlave, LssState
+from omnican.sim.memory import UNCONFIGURED, NonVolatile
 from tests.support.helpers import sim_config, wait_for
 
 u32 = st.integers(0, 0xFFFFFFFF)
@@ -136,11 +130,21 @@ def unconfigured(channel: str) -> Iterator[tuple[SimulatedBase, canopen.Network]
     network = canopen.Network()
     with SimulatedBase.from_config(cfg, unconfigured=True) as sim:
         network.connect(interface="virtual", channel=channel)
-        network.lss.RESPONSE_TIMEOUT = 0.2
+        network.lss.RESPONSE_TIMEOUT = 0.3
         try:
             yield sim, network
         finally:
             network.disconnect()
+
+
+def scan(lss: canopen.lss.LssMaster) -> tuple[bool, list[int] | None]:
+    """canopen's fast scan, again when it found nothing (an answer late on a loaded
+    machine reads as a bit of 1, and the scan's last step fails)."""
+    for _ in range(3):
+        found = lss.fast_scan()
+        if found[0]:
+            break
+    return found
 
 
 def _heard(network: canopen.Network, cob_ids: set[int]) -> list[int]:
@@ -162,7 +166,7 @@ def test_unconfigured_drives_are_silent_until_lss_gives_them_their_ids(
     found: list[int] = []
     for node_id in (11, 12, 13):
         assert set(heard) <= {0x700 + n for n in range(11, node_id)}  # only those given ids
-        ok, ident = lss.fast_scan()
+        ok, ident = scan(lss)
         assert ok
         found.append(ident[3])
         lss.configure_node_id(node_id)
@@ -182,7 +186,7 @@ def test_power_cycle_keeps_what_was_stored_and_loses_the_rest(
     lss = network.lss
     lss.send_switch_state_global(lss.WAITING_STATE)
     for node_id in (21, 22, 23):
-        assert lss.fast_scan()[0]
+        assert scan(lss)[0]
         lss.configure_node_id(node_id)
         if node_id != 23:  # the third is given its id but not told to store it
             lss.store_configuration()
