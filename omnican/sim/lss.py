@@ -24,6 +24,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
+from canopen.sdo.exceptions import SdoAbortedError
+
 from omnican.protocol.cia301 import IDENTITY, NMT_COB_ID, NmtCommand
 from omnican.sim.memory import UNCONFIGURED, NonVolatile, ParameterStore
 
@@ -270,7 +272,10 @@ class SimLss:
         given = {w.node_id: w.serial for w in base.cfg.wheels if w.serial is not None}
         given.update(serials or {})
         for drive in base.drives:
-            own = struct.unpack("<I", drive.read(IDENTITY, 4))[0]
+            try:
+                own = struct.unpack("<I", drive.read(IDENTITY, 4)[:4])[0]
+            except (SdoAbortedError, struct.error):  # an EDS without the serial (ZLAC8015D)
+                own = 0
             serial = given.get(drive.node_id, drive.node_id if unconfigured else own)
             memory = NonVolatile(node_id=UNCONFIGURED if unconfigured else drive.node_id)
             info = drive.dictionary.device_information
