@@ -13,33 +13,38 @@ import canopen
 from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from omnican.protocol.cia301 import HEARTBEAT_BASE, IDENTITY, NMT_COB_ID
+from omnican.protocol.cia301 import HEARTBEAT_BASE, IDENTITY, NMT_COB_ID, SYNC_COB_ID
 
 LSS_MASTER_COB_ID = 0x7E5
 LSS_SLAVE_COB_ID = 0x7E4
 BOOT_WAIT_S = 3.0  # a reset drive's boot-up, at most
 
 Identity = tuple[int, int, int, int]  # vendor, product, revision, serial
+#: Frames only a master sends, and what they are called in the one line that names them.
+_FOREIGN = {NMT_COB_ID: "NMT commands (000h)", SYNC_COB_ID: "SYNC (080h: a base running)",
+            LSS_MASTER_COB_ID: "LSS requests (7E5h)"}
 
 
 class MasterWatch:
-    """Counts the frames of another master (LSS requests, NMT commands: this process's
-    own sends are not received) and the LSS answers, on the Notifier thread."""
+    """Notes the frames of another master (LSS requests, NMT commands, SYNC: a base
+    running; this process's own sends are not received) and counts the LSS answers, on
+    the Notifier thread."""
 
     def __init__(self, network: canopen.Network) -> None:
         self.network = network
-        self.foreign: list[int] = []
+        self.foreign: set[int] = set()  # the COB-IDs of another master's frames seen
         self.answers = 0
         self.boots: dict[int, float] = {}
         self._watched: set[int] = set()
         self._lock = threading.Lock()
         network.subscribe(LSS_MASTER_COB_ID, self._foreign)
         network.subscribe(NMT_COB_ID, self._foreign)
+        network.subscribe(SYNC_COB_ID, self._foreign)
         network.subscribe(LSS_SLAVE_COB_ID, self._answer)
 
     def _foreign(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
-            self.foreign.append(can_id)
+            self.foreign.add(can_id)
 
     def _answer(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
@@ -60,14 +65,13 @@ class MasterWatch:
             seen = sorted(set(self.foreign))
         if not seen:
             return None
-        what = " and ".join("LSS requests (7E5h)" if c == LSS_MASTER_COB_ID else
-                            "NMT commands (000h)" for c in seen)
+        what = " and ".join(_FOREIGN[c] for c in seen)
         return (f"another master is on the bus ({what} this command did not send): "
                 "commission with the bus to yourself")
 
     def close(self) -> None:
-        for cob, handler in [(LSS_MASTER_COB_ID, self._foreign), (NMT_COB_ID, self._foreign),
-                             (LSS_SLAVE_COB_ID, self._answer)] + [
+        for cob, handler in [(c, self._foreign) for c in _FOREIGN] + [
+                (LSS_SLAVE_COB_ID, self._answer)] + [
                 (HEARTBEAT_BASE + n, self._boot) for n in sorted(self._watched)]:
             if handler in self.network.subscribers.get(cob, []):
                 self.network.unsubscribe(cob, handler)

@@ -143,16 +143,19 @@ def test_a_drive_that_refuses_to_store_is_named_and_loses_its_id_at_power_off(
         assert sorted(sim.lss.node_ids()) == [(21, 1), (22, UNCONFIGURED), (23, 3)]
 
 
-def test_another_master_on_the_bus_stops_it_before_anything_changes(tmp_path: Path,
-                                                                    channel: str) -> None:
+@pytest.mark.parametrize(("cob_id", "data", "named"), [
+    (0x7E5, bytes([0x5E]) + bytes(7), "LSS requests (7E5h)"),  # another tool's inquiries
+    (0x080, b"", "SYNC (080h: a base running)"),  # a base driving
+])
+def test_another_master_on_the_bus_stops_it_before_anything_changes(
+        tmp_path: Path, channel: str, cob_id: int, data: bytes, named: str) -> None:
     toml = robot_toml(tmp_path, {1: 31, 2: 32, 3: 33})
     stop = threading.Event()
 
     def other_master() -> None:
         with can.Bus(interface="virtual", channel=channel) as bus:
-            while not stop.is_set():  # another tool's LSS inquiries
-                bus.send(can.Message(arbitration_id=0x7E5, data=bytes([0x5E]) + bytes(7),
-                                     is_extended_id=False))
+            while not stop.is_set():
+                bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
                 stop.wait(0.02)
 
     with drives(toml, channel) as sim:
@@ -164,8 +167,9 @@ def test_another_master_on_the_bus_stops_it_before_anything_changes(tmp_path: Pa
             stop.set()
             thread.join()
         assert code == 1
-        assert err.strip().splitlines()[-1].startswith(
-            "omnican: error: another master is on the bus (LSS requests (7E5h)")
+        assert err.strip().splitlines()[-1] == (
+            f"omnican: error: another master is on the bus ({named} this command did not "
+            "send): commission with the bus to yourself")
         assert sim.lss is not None
         assert [n for _, n in sim.lss.node_ids()] == [UNCONFIGURED] * 3
 
