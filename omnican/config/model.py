@@ -69,6 +69,8 @@ class WheelConfig:
     temperature: str | None = _WHEEL["temperature"]
     temperature_scale: float = _WHEEL["temperature_scale"]
     sdo_writes: tuple[SdoWrite, ...] = ()  # [[wheel.sdo]]
+    # The drive's serial number (1018h sub 4): what `omnican commission` finds it by.
+    serial: int | None = _WHEEL["serial"]
 
     @property
     def name(self) -> str:

@@ -198,6 +198,9 @@ _OWN: dict[str, dict[str, Key]] = {
     "wheel": {
         "node_id": Key((int,), None, "CANopen node id 1-127", required=True, range=(1, 127)),
         "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)", range=(0, 7)),
+        "serial": Key((int,), None, "the drive's serial number (1018h sub 4): 'omnican "
+                      "commission' gives the drive with it this node_id by LSS",
+                      range=(0, 0xFFFFFFFF)),
         "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
         "velocity_scale": Key(NUMBER, None, "drive velocity units per m/s at the rim; sign = "
                               "polarity", range=_SCALE, signed=True),

@@ -127,6 +127,10 @@ EMCY_COB_ID_OBJECT = 0x1014
 CONSUMER_HEARTBEAT_TIME = 0x1016  # sub n: (producer node id << 16) | timeout ms
 PRODUCER_HEARTBEAT_TIME = 0x1017  # ms, 0 = no heartbeat
 IDENTITY = 0x1018  # sub 1 vendor, 2 product, 3 revision, 4 serial
+STORE_PARAMETERS = 0x1010  # sub 1 all, 2 communication, 3 application, 4 manufacturer
+RESTORE_DEFAULTS = 0x1011  # the same sub-indices
+SAVE_SIGNATURE = 0x65766173  # "save" (little-endian): written to 1010h sub n, stores
+LOAD_SIGNATURE = 0x64616F6C  # "load" (little-endian): written to 1011h sub n, restores defaults
 
 # Error register (1001h) bits.
 ERROR_REGISTER_GENERIC = 0x01

@@ -26,7 +26,7 @@ from typing import Any
 import can
 
 from omnican.clock import Clock
-from omnican.config import ImuSettings, SimGyro
+from omnican.config import ChassisConfig, ImuSettings, SimGyro
 from omnican.config.imu import dbc_imu
 from omnican.core.imu import ImuMount
 from omnican.core.kinematics import Twist
@@ -168,3 +168,21 @@ def _frame(message: Any, given: dict[str | None, float]) -> can.Message:
     data = message.encode(values, scaling=True, padding=True, strict=False)
     return can.Message(arbitration_id=message.frame_id,
                        is_extended_id=bool(message.is_extended_frame), data=data)
+
+
+def attach_gyro(cfg: ChassisConfig, network: Any, scheduler: Any, clock: Clock,
+                pose: Callable[[], Pose2D], twist: Callable[[], Twist],
+                ) -> tuple[SimulatedGyro | None, object | None]:
+    """A CAN ``[imu]``'s gyro on the simulated bus, as ``[sim.gyro]`` says (default: a
+    perfect one at 100 Hz), and its clock task (None: it runs on the drives' timer);
+    (None, None) without a CAN ``[imu]``."""
+    imu = cfg.imu
+    if imu is None or imu.source != "can":
+        return None, None
+    spec = cfg.sim.gyro if cfg.sim is not None else None
+    gyro = SimulatedGyro(imu, spec if spec is not None else SimGyro(), network, clock,
+                         pose, twist)
+    if clock.lockstep:  # a task of its own: its rate, whatever the drives' tick
+        return gyro, clock.every(gyro.period_s, gyro.tick)
+    scheduler.add(gyro.tick)  # on the drives' timer (the control loop's, when it runs them)
+    return gyro, None
