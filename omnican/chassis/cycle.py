@@ -56,6 +56,7 @@ class ControlCycle:
         self.odometry = Odometry(self.kinematics)
         self.limiter = VelocityLimiter(cfg.limits(), self.kinematics)
         self.period_s = period = 1.0 / c.rate_hz
+        self._dt_cap = 5 * period  # the longest step the limiter is given (a late cycle)
         # Above HEALTH_CHECK_HZ the latches (fault, heartbeat, reboot, SDO aborts) are
         # checked every few cycles: a drive leaving OPERATION ENABLED still zeroes every
         # target in the cycle that sees it (``all_enabled`` below), the latch only makes
@@ -176,7 +177,8 @@ class ControlCycle:
         if not all_enabled:
             limiter.reset()
         dt = now - self._last_sync_time if self._last_sync_time else self.period_s
-        limited = limiter.step_xyz(vx, vy, wz, min(dt, 5 * self.period_s))
+        cap = self._dt_cap
+        limited = limiter.step_xyz(vx, vy, wz, cap if dt > cap else dt)  # min(dt, cap)
         if limited is self._limited:  # the limiter held its output: the same targets
             speeds = self._targets
         else:
@@ -188,10 +190,11 @@ class ControlCycle:
         # State machines, then the cycle's RPDOs, then SYNC.
         send = bus.send_prepared
         configuring, offline = self._configuring, self._offline
+        every_node = not configuring and not offline  # (the usual cycle: no look per node)
         for node in self.nodes:
-            if node.node_id in configuring:
+            if not every_node and node.node_id in configuring:
                 continue
-            if node.node_id not in offline:  # a silent node's statusword is stale
+            if every_node or node.node_id not in offline:  # a silent node's statusword is stale
                 for stage in node.stages:
                     if stage.step(now) is not None:
                         frame = node.controlword_frame(stage)
