@@ -28,8 +28,9 @@ from omnican.core.limits import VelocityLimiter
 from omnican.core.odometry import Odometry
 from omnican.core.wheel_odometry import EncoderCounters, WheelOdometry
 from omnican.drive import AxisIO, DriveNode
-from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
+from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus, prepared_message
 from omnican.plan.node import cycle_bits
+from omnican.plan.pdo import frame_bits
 from omnican.protocol.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.protocol.cia402 import ENABLED_BITS as _ENABLED_BITS
 from omnican.protocol.cia402 import ENABLED_MASK as _ENABLED_MASK
@@ -55,14 +56,16 @@ class ControlCycle:
         self.odometry = Odometry(self.kinematics)
         self.limiter = VelocityLimiter(cfg.limits(), self.kinematics)
         self.period_s = period = 1.0 / c.rate_hz
+        self._dt_cap = 5 * period  # the longest step the limiter is given (a late cycle)
         # Above HEALTH_CHECK_HZ the latches (fault, heartbeat, reboot, SDO aborts) are
         # checked every few cycles: a drive leaving OPERATION ENABLED still zeroes every
         # target in the cycle that sees it (``all_enabled`` below), the latch only makes
         # that stop stick, a few ms later (4 ms at 1 kHz, 8 ms at most).
         self._health_every = max(1, math.ceil(c.rate_hz / HEALTH_CHECK_HZ))
         self._heartbeat = HeartbeatSchedule(c.heartbeat_ms / 1000.0, period)
-        self._heartbeat_cob = HEARTBEAT_BASE + c.host_node_id
-        self._heartbeat_data = bytes([NmtState.OPERATIONAL])
+        # The host's heartbeat: one frame made once, sent as it is (as the RPDOs are).
+        self._heartbeat_frame = (prepared_message(HEARTBEAT_BASE + c.host_node_id,
+                                                  bytes([NmtState.OPERATIONAL])), frame_bits(1))
         self._cmd_timeout = c.cmd_timeout_s
         self._max_wheel_speed = c.max_wheel_speed
         self.watch = BusWatch(bus)
@@ -147,13 +150,23 @@ class ControlCycle:
         requests = self._requests
         while not requests.empty():
             requests.get_nowait()()
-        all_enabled = self._every_stage_enabled()
+        all_enabled = True  # _every_stage_enabled, written out (each cycle)
+        for stage in self._stages:
+            sw = stage.statusword_value
+            if sw is None or sw & _ENABLED_MASK != _ENABLED_BITS:
+                all_enabled = False
+                break
         if not self.cycles % self._health_every:
             sup.check(now, all_enabled)
             if all_enabled and sup.latched is not None:
                 all_enabled = self._every_stage_enabled()  # a latch may have forgotten one
         self._all_enabled = all_enabled
-        self._integrate_samples()
+        # The encoder samples of the last SYNC (_integrate_samples, written out).
+        epoch = bus.sync_epoch
+        if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
+            self._mark_stale(epoch)
+        elif self._stale:
+            self._stale = ()
         # Command -> limits -> wheel speeds.
         cmd, t_cmd = self.command
         if sup.latched or not all_enabled or now - t_cmd > self._cmd_timeout:
@@ -164,7 +177,8 @@ class ControlCycle:
         if not all_enabled:
             limiter.reset()
         dt = now - self._last_sync_time if self._last_sync_time else self.period_s
-        limited = limiter.step_xyz(vx, vy, wz, min(dt, 5 * self.period_s))
+        cap = self._dt_cap
+        limited = limiter.step_xyz(vx, vy, wz, cap if dt > cap else dt)  # min(dt, cap)
         if limited is self._limited:  # the limiter held its output: the same targets
             speeds = self._targets
         else:
@@ -176,10 +190,11 @@ class ControlCycle:
         # State machines, then the cycle's RPDOs, then SYNC.
         send = bus.send_prepared
         configuring, offline = self._configuring, self._offline
+        every_node = not configuring and not offline  # (the usual cycle: no look per node)
         for node in self.nodes:
-            if node.node_id in configuring:
+            if not every_node and node.node_id in configuring:
                 continue
-            if node.node_id not in offline:  # a silent node's statusword is stale
+            if every_node or node.node_id not in offline:  # a silent node's statusword is stale
                 for stage in node.stages:
                     if stage.step(now) is not None:
                         frame = node.controlword_frame(stage)
@@ -193,7 +208,7 @@ class ControlCycle:
         heartbeat = self._heartbeat
         if now >= heartbeat.send_at:  # on a fixed schedule: never a cycle late per period
             heartbeat.sent(now)
-            bus.send(self._heartbeat_cob, self._heartbeat_data)
+            send(*self._heartbeat_frame)
         change = self.watch.check(now)
         if change is not None:
             if change is WENT_DOWN:

@@ -266,7 +266,8 @@ class SimNode:
             if (self.frozen or self.nmt != _OPERATIONAL
                     or (self.frame_loss and self._lost())):
                 return
-            now = self._frame_time(timestamp)
+            clock = self.clock  # _frame_time, its lock-step case written out (each SYNC)
+            now = clock.now() if clock.lockstep else self._frame_time(timestamp)
             self.app.advance(now)
             self.pdos.sync(now)
 

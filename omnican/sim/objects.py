@@ -149,7 +149,9 @@ class NodeObjects:
         heartbeat = index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME)
 
         def write(data: bytes) -> None:
-            store = store_of.setdefault(index, {})
+            store = store_of.get(index)
+            if store is None:  # (setdefault would make an empty dict with every write)
+                store = store_of[index] = {}
             changed = store.get(subindex) != data
             if hook is not None:
                 hook(data, changed)
