@@ -137,6 +137,13 @@ BUS_KEYS: dict[str, Key] = {
     "bitrate": Key((int,), None, "bit/s of the bus (nominal)", range=(1000, 1_000_000)),
     "data_bitrate": Key((int,), None, "bit/s of a CAN FD data phase",
                         range=(1000, 12_000_000)),
+    "sync": Key((str,), "auto", "who sends SYNC: \"kernel\" (SocketCAN's broadcast manager, "
+                "on its own timer; the loop wakes on each SYNC and re-arms it every cycle), "
+                "\"loop\" (the control loop, after its RPDOs), \"auto\" (the kernel on "
+                "SocketCAN, the loop elsewhere)"),
+    "sync_counter": Key((int,), 0, "the SYNC counter's overflow value (CiA 301 1019h): 0 no "
+                        "counter, 2-240 SYNCs carry a counter 1..N; set the drives' 1019h "
+                        "to the same (a [[wheel.sdo]] line)", range=(0, 240)),
 }
 
 # The [gamepad] table's words: Linux input event codes (linux/input-event-codes.h, the
