@@ -289,8 +289,9 @@ def omnican_run(kernel: bool, channel: str, period: float, seconds: float,
                     came = bus.wait_sync(period * NO_SYNC_PERIODS)
                     now = time.monotonic()
                     if not came:
-                        restarts += 1
-                        bus.restart_kernel_sync()
+                        if bus.kernel_sync_ran_out(now):
+                            restarts += 1
+                            bus.restart_kernel_sync()
                     elif now - bus.seen_sync_time > period * LATE_FRACTION_OF_PERIOD:
                         late += 1
                     bus.poll()
@@ -299,7 +300,10 @@ def omnican_run(kernel: bool, channel: str, period: float, seconds: float,
                         m.data = tag  # type: ignore[assignment]
                         bus.send_prepared(m, 135)
                     bus.sync()
-                restarts += bus.kernel_sync.restarts if bus.kernel_sync else 0
+                total = bus.kernel_sync.restarts if bus.kernel_sync else 0
+                info["restarts_after_no_sync"] = restarts
+                restarts = total  # and those of bus.sync(): the count ran out
+                info["syncs_seen"] = bus.syncs_seen
                 bus.stop_kernel_sync()
             else:
                 next_t = time.monotonic()
@@ -349,10 +353,14 @@ def measure(scheme: str, rate_hz: float, seconds: float, channel: str, rt: int =
     cap = Capture(channel)
     try:
         with hogs(n_hogs):
-            if scheme == "omnican_loop":
-                info = omnican_run(False, channel, period, seconds, rt)
-            elif scheme == "omnican_kernel":
-                info = omnican_run(True, channel, period, seconds, rt)
+            if scheme.startswith("omnican_"):
+                # In a process of its own, as the chassis runs: this one's capture thread
+                # must not hold the GIL the loop waits for.
+                child = subprocess.run(
+                    [sys.executable, __file__, "--child", scheme, "--channel", channel,
+                     "--rates", str(rate_hz), "--seconds", str(seconds), "--rt", str(rt)],
+                    capture_output=True, text=True, check=True)
+                info = json.loads(child.stdout.strip().splitlines()[-1])
             else:
                 with can.Bus(interface="socketcan", channel=channel) as bus:
                     if scheme == "loop":
@@ -392,7 +400,13 @@ def main() -> None:
                              "each twice")
     parser.add_argument("--rt", type=int, default=50,
                         help="SCHED_FIFO priority of the omnican schemes' loop (0: none)")
+    parser.add_argument("--child", help=argparse.SUPPRESS)  # an omnican scheme's loop
     args = parser.parse_args()
+    if args.child:
+        info = omnican_run(args.child == "omnican_kernel", args.channel,
+                           1.0 / float(args.rates), args.seconds, args.rt)
+        print(json.dumps(info), flush=True)
+        return
     for rate in (float(r) for r in args.rates.split(",")):
         seconds = (args.cycles / rate if args.cycles else
                    args.seconds if rate < 500 else args.fast_seconds)

@@ -25,9 +25,10 @@ from omnican.io.stepped import Stepped
 logger = logging.getLogger("omnican.chassis")
 
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
-#: A kernel-timed loop that sees no SYNC for this many periods starts the kernel's timer
-#: anew (it ran out while the loop was stalled, or the interface went away) and runs the
-#: cycle anyway: the checks (heartbeats, the bus) never wait for SYNC.
+#: A kernel-timed loop that sees no SYNC for this many periods runs the cycle anyway (the
+#: checks, heartbeats and the bus, never wait for SYNC), and starts the kernel's timer
+#: anew once no SYNC came for longer than it was armed for (it ran out while the loop
+#: was stalled, or the interface went away): not before, which would move its phase.
 NO_SYNC_PERIODS = 2.0
 
 Cycle = Callable[[float], None]
@@ -189,7 +190,8 @@ class SyncRunner(ThreadRunner):
             now = time.monotonic()
             if not came:
                 self.late += 1
-                bus.restart_kernel_sync()
+                if bus.kernel_sync_ran_out(now):
+                    bus.restart_kernel_sync()
             elif now - bus.seen_sync_time > late_after:
                 self.late += 1
             try:

@@ -202,13 +202,8 @@ class CanBus:
         if bus is None:
             return 0
         cached_bus, recv, internal = self._poll_bus
-        if bus is not cached_bus:  # a new bus (opened, reopened): look at it once
-            recv, internal = bus.recv, None
-            if bus.filters is None and type(bus)._recv_internal is not can.BusABC._recv_internal:
-                # No filters to apply: BusABC.recv would only add its timeout and filter
-                # bookkeeping around the interface's own receive, for every frame.
-                internal = bus._recv_internal
-            self._poll_bus = (bus, recv, internal)
+        if bus is not cached_bus:
+            recv, internal = self._receivers(bus)
         dispatch = self._dispatch
         n = 0
         while n < limit:
@@ -224,6 +219,17 @@ class CanBus:
         if n and self.rx_error is not None:
             self.rx_error = None
         return n
+
+    def _receivers(self, bus: Any) -> tuple[Any, Any]:
+        """A new bus (opened, reopened): looked at once, for :meth:`poll` and
+        :meth:`wait_sync`: its ``recv`` and, where no filters apply, the interface's own
+        receive (BusABC.recv would only add its timeout and filter bookkeeping around it,
+        for every frame), else None."""
+        recv, internal = bus.recv, None
+        if bus.filters is None and type(bus)._recv_internal is not can.BusABC._recv_internal:
+            internal = bus._recv_internal
+        self._poll_bus = (bus, recv, internal)
+        return recv, internal
 
     def _dispatch(self, msg: can.Message) -> None:
         """One received frame, as the Notifier would hand it on: counted, to the
@@ -381,6 +387,7 @@ class CanBus:
                             [bytes(m.data) for m in self._sync_msgs], hold_count(period_s))
         self.network.subscribe(SYNC_COB_ID, self._on_sync)
         self._seen_at_arm = self.syncs_seen
+        self.seen_sync_time = self.clock.now()
         if not kernel.start():
             self.network.unsubscribe(SYNC_COB_ID, self._on_sync)
             kernel.stop()
@@ -400,6 +407,14 @@ class CanBus:
             with contextlib.suppress(KeyError, ValueError):
                 self.network.unsubscribe(SYNC_COB_ID, self._on_sync)
 
+    def kernel_sync_ran_out(self, now: float) -> bool:
+        """Whether the kernel's task has surely stopped: no SYNC came for longer than it
+        was armed for (its hold, and a period more), as of ``now`` (the clock's time)."""
+        kernel = self.kernel_sync
+        if kernel is None:
+            return False
+        return now - self.seen_sync_time > (kernel.hold + 1) * kernel.period_s
+
     def restart_kernel_sync(self) -> bool:
         """Start the kernel's timer anew (none came back for a while: it ran out, or the
         interface went away and came back)."""
@@ -407,6 +422,7 @@ class CanBus:
         if kernel is None:
             return False
         self._seen_at_arm = self.syncs_seen
+        self.seen_sync_time = self.clock.now()  # one goes now; the next wait counts from it
         return kernel.restart()
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -434,8 +450,11 @@ class CanBus:
             if bus is None:  # being reopened
                 time.sleep(left)
                 return False
+            cached_bus, recv, internal = self._poll_bus
+            if bus is not cached_bus:
+                recv, internal = self._receivers(bus)
             try:
-                msg = bus.recv(left)
+                msg = internal(left)[0] if internal is not None else recv(left)
             except Exception as exc:  # an interface gone down: as poll() says
                 self.rx_error = describe_receive_error(self.bus_kwargs, exc)
                 time.sleep(max(0.0, deadline - time.monotonic()))
