@@ -134,6 +134,7 @@ class CanBus:
         #: the kernel's SYNC, while it runs (see start_kernel_sync)
         self.kernel_sync: KernelSync | None = None
         self.syncs_seen = 0  # SYNCs read from the bus while the kernel sends them
+        self._held: list[can.Message] = []  # read after the newest SYNC: for the next wait
         self._seen_at_arm = 0
         self.seen_sync_time = 0.0  # when the last of them came (the clock's time)
         self.last_error: str | None = None
@@ -198,6 +199,8 @@ class CanBus:
     def poll(self, limit: int = 256) -> int:
         """Read and dispatch the frames that arrived (at most ``limit``); the control
         loop's receive. Returns how many were read."""
+        if self.kernel_sync is not None:
+            return 0  # wait_sync read up to the SYNC that woke the loop: the rest waits
         bus = self.network.bus
         if bus is None:
             return 0
@@ -404,6 +407,9 @@ class CanBus:
         kernel, self.kernel_sync = self.kernel_sync, None
         if kernel is not None:
             kernel.stop()
+            held, self._held = self._held, []
+            for msg in held:  # what the loop read past its last SYNC, as poll() would
+                self._dispatch(msg)
             with contextlib.suppress(KeyError, ValueError):
                 self.network.unsubscribe(SYNC_COB_ID, self._on_sync)
 
@@ -436,36 +442,50 @@ class CanBus:
         self.seen_sync_time = now - age if 0.0 <= age < 1.0 else now
 
     def wait_sync(self, timeout_s: float) -> bool:
-        """Read and dispatch what arrives until a SYNC comes (True) or ``timeout_s``
-        passes (False): the kernel-timed loop's wait. A bus that fails to read waits out
-        the time (the loop's checks then say it is down)."""
-        seen = self.syncs_seen
+        """The kernel-timed loop's receive: wait up to ``timeout_s`` for a SYNC, then read
+        everything that arrived and dispatch it up to and including the newest SYNC among
+        it (True); what came after that SYNC (its first answers) is held for the next
+        call. So when the cycle runs, every sample it has is of a SYNC before the one that
+        woke it, and each wheel's newest is of the one just before (``settled_epoch``),
+        also after the loop fell behind by several SYNCs: it catches up at once. No SYNC
+        within ``timeout_s``: everything read is dispatched, False. A bus that fails to
+        read waits out the time (the loop's checks then say it is down)."""
         deadline = time.monotonic() + timeout_s
-        dispatch = self._dispatch
-        while True:
+        got = self._held
+        self._held = []
+        last = _last_sync(got)
+        while last < 0:
             left = deadline - time.monotonic()
             if left <= 0:
-                return False
+                break
             bus = self.network.bus
             if bus is None:  # being reopened
                 time.sleep(left)
-                return False
+                break
             cached_bus, recv, internal = self._poll_bus
             if bus is not cached_bus:
                 recv, internal = self._receivers(bus)
             try:
                 msg = internal(left)[0] if internal is not None else recv(left)
+                while msg is not None:  # and what else is there now
+                    got.append(msg)
+                    if len(got) > 4096:
+                        break  # never more than a socket's worth at once
+                    msg = internal(0)[0] if internal is not None else recv(0)
             except Exception as exc:  # an interface gone down: as poll() says
                 self.rx_error = describe_receive_error(self.bus_kwargs, exc)
                 time.sleep(max(0.0, deadline - time.monotonic()))
-                return False
-            if msg is None:
-                continue
-            if self.rx_error is not None:
+                break
+            if got and self.rx_error is not None:
                 self.rx_error = None
+            last = _last_sync(got)
+        if last >= 0:
+            self._held = got[last + 1:]
+            del got[last + 1:]
+        dispatch = self._dispatch
+        for msg in got:
             dispatch(msg)
-            if self.syncs_seen != seen:
-                return True
+        return last >= 0
 
     # ------------------------------------------------------------ reconnecting, closing
 
@@ -494,6 +514,16 @@ class CanBus:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _last_sync(frames: list[can.Message]) -> int:
+    """The index of the newest SYNC among ``frames`` (-1: none)."""
+    for i in range(len(frames) - 1, -1, -1):
+        msg = frames[i]
+        if (msg.arbitration_id == SYNC_COB_ID and not msg.is_extended_id and
+                not msg.is_error_frame and not msg.is_remote_frame):
+            return i
+    return -1
 
 
 def prepared_message(can_id: int, data: bytes) -> can.Message:

@@ -21,10 +21,10 @@ SYNC_COUNTER_OVERFLOW_OBJECT = 0x1019
 COUNTER_MIN, COUNTER_MAX = 2, 240  # 1019h: 0 (no counter) or 2-240; 1 and 241-255 reserved
 
 #: How long the kernel goes on sending SYNC after the loop last re-armed it (s): long
-#: enough that a loop a few cycles late (a collection, a busy CPU) keeps SYNC on time,
-#: short beside the drives' heartbeat-consumer time (350 ms by default), which is what
-#: stops a base whose host hangs.
-HOLD_S = 0.05
+#: enough that a loop several cycles late (a collection, a busy CPU, another thread
+#: holding the GIL) keeps SYNC on time, short beside the drives' heartbeat-consumer time
+#: (350 ms by default), which is what stops a base whose host hangs.
+HOLD_S = 0.1
 HOLD_MIN = 2  # SYNCs: the next one on time even when the loop runs a cycle late
 
 #: ``[bus] sync``'s values: the kernel where the bus is SocketCAN (auto), or the loop.

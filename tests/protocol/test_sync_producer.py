@@ -52,7 +52,7 @@ def test_the_hold_covers_hold_s_and_never_less_than_two(period_s: float) -> None
 
 
 def test_the_hold_at_the_usual_rates() -> None:
-    assert [hold_count(1 / hz) for hz in (50, 100, 250, 1000)] == [3, 5, 13, 50]
+    assert [hold_count(1 / hz) for hz in (50, 100, 250, 1000)] == [5, 10, 25, 100]
 
 
 @given(st.floats(max_value=0.0, allow_nan=False) | st.just(math.nan))
