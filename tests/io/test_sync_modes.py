@@ -110,3 +110,38 @@ def test_good_sync_settings_load(tmp_path: Path) -> None:
     path.write_text(GOOD.format(extra='sync = "loop"\nsync_counter = 240\n'))
     assert load_config(path).bus == {"interface": "virtual", "channel": "x", "sync": "loop",
                                      "sync_counter": 240}
+
+
+def _frame(can_id: int, data: bytes = b"") -> can.Message:
+    return can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
+
+
+def test_the_kernel_timed_wait_hands_on_frames_up_to_the_newest_sync(channel: str) -> None:
+    """What the loop woken by the kernel's SYNC reads: after falling two SYNCs behind, it
+    is handed everything up to the newest SYNC (the settled SYNC's answers complete, none
+    of the newest's), and the frames after it on the next wait."""
+    seen: list[int] = []
+    with CanBus({"interface": "virtual", "channel": channel}) as bus, \
+            can.Bus(interface="virtual", channel=channel) as peer:
+        bus.start_polling()
+        bus.network.subscribe(SYNC_COB_ID, bus._on_sync)  # what start_kernel_sync does
+        bus.add_listener(_Ids(seen))
+        for msg in (_frame(0x181, b"\x01"), _frame(SYNC_COB_ID), _frame(0x181, b"\x02"),
+                    _frame(SYNC_COB_ID), _frame(0x181, b"\x03"), _frame(0x701, b"\x05")):
+            peer.send(msg)
+        assert bus.wait_sync(10.0)  # the frames are queued already (virtual bus)
+        assert seen == [0x181, SYNC_COB_ID, 0x181, SYNC_COB_ID]
+        assert (bus.sync_epoch, bus.settled_epoch) == (2, 1)
+        peer.send(_frame(SYNC_COB_ID))
+        assert bus.wait_sync(10.0)  # the frames are queued already (virtual bus)
+        assert seen[4:] == [0x181, 0x701, SYNC_COB_ID]
+        assert (bus.sync_epoch, bus.settled_epoch) == (3, 2)
+        assert not bus.wait_sync(0.05)  # no SYNC: nothing, and it says so
+
+
+class _Ids(can.Listener):
+    def __init__(self, out: list[int]) -> None:
+        self.out = out
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.out.append(msg.arbitration_id)
