@@ -31,7 +31,7 @@ from omnican.chassis.checks import ChassisChecks
 from omnican.chassis.cycle import ControlCycle
 from omnican.chassis.lifecycle import Lifecycle
 from omnican.chassis.opening import make_base
-from omnican.chassis.runner import LockstepRunner, ThreadRunner
+from omnican.chassis.runner import LockstepRunner, SyncRunner, ThreadRunner
 from omnican.chassis.signals import guard
 from omnican.chassis.sink import Attachments, Recording, SnapshotSink
 from omnican.chassis.state import ChassisStatus, WheelState
@@ -72,10 +72,15 @@ class Chassis:
                                                 ChassisChecks(cfg, nodes, bus))
         self._loop = loop = ControlCycle(cfg, bus, nodes, sup, clock)
         sup.checks.speeds = loop.wheel_speeds
-        self._runner: ThreadRunner | LockstepRunner = (
-            LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
-            if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed,
-                                                cfg.chassis.rt_priority))
+        self._runner: ThreadRunner | LockstepRunner
+        if self._lockstep:
+            self._runner = LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
+        elif bus.sync_mode == "kernel":  # SocketCAN: woken by the kernel's SYNC
+            self._runner = SyncRunner(self._period, loop.run, self._cycle_failed, bus,
+                                      cfg.chassis.rt_priority)
+        else:
+            self._runner = ThreadRunner(self._period, loop.run, self._cycle_failed,
+                                        cfg.chassis.rt_priority)
         loop.runner = self._runner
         #: what layers above attached (the telemetry feed, a recording): closed with the base
         self.attachments = Attachments()

@@ -230,7 +230,7 @@ class ControlCycle:
         return True
 
     def _integrate_samples(self) -> None:
-        epoch = self._bus.sync_epoch
+        epoch = self._bus.settled_epoch  # the last SYNC whose answers had a period to come
         if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
             # Not every wheel has answered the last SYNC: wait for a complete set. A
             # wheel silent for STALE_AFTER_S has no known speed: report none rather

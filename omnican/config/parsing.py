@@ -44,6 +44,7 @@ from omnican.core.kinematics import LAYOUTS
 from omnican.core.limits import MAX_STOP_S, stop_decel_floor, top_speeds
 from omnican.errors import ConfigError
 from omnican.protocol import heartbeat
+from omnican.protocol.sync_producer import SYNC_MODES
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -214,16 +215,25 @@ def _parse_estop(r: Reader, table: Any, wheels: tuple[WheelConfig, ...]) -> Esto
 
 
 def _check_bus_numbers(r: Reader, bus: Mapping[str, Any]) -> None:
-    """The [bus] keys of :data:`BUS_KEYS`, when given: integers within their range (the
-    rest of the table is python-can's to check)."""
+    """The [bus] keys of :data:`BUS_KEYS`, when given: the bitrates integers within their
+    range, ``sync`` one of its words, ``sync_counter`` 0 or 2-240 (the rest of the table is
+    python-can's to check)."""
     for key, spec in BUS_KEYS.items():
         if key not in bus:
             continue
         value = bus[key]
+        if key == "sync":
+            if value not in SYNC_MODES:
+                raise r.fail("bus.sync", f"must be one of {', '.join(map(repr, SYNC_MODES))}, "
+                             f"got {short(value)}")
+            continue
         if isinstance(value, bool) or not isinstance(value, spec.types):
-            raise r.fail(f"bus.{key}", f"must be an integer number of bit/s, e.g. 500000, "
-                         f"got {short(value)}")
+            what = ("an integer, 0 or 2-240" if key == "sync_counter" else
+                    "an integer number of bit/s, e.g. 500000")
+            raise r.fail(f"bus.{key}", f"must be {what}, got {short(value)}")
         r.in_range(f"bus.{key}", spec, value)
+        if key == "sync_counter" and value == 1:
+            raise r.fail("bus.sync_counter", "must be 0 (no counter) or 2-240, got 1")
 
 
 def _check_limit(r: Reader, key: str, value: Any) -> float:

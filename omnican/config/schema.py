@@ -81,13 +81,22 @@ LIFTED_WHEEL = ("warn", "stop", "off")
 LIVE_LIMITS = ("max_speed", "max_angular_speed", "max_accel", "max_angular_accel",
                "stop_decel", "stop_angular_decel", "max_wheel_speed")
 
-#: The keys of the free-form [bus] table that omnican reads itself (the bus load): their
-#: type and range (CAN's nominal bitrates run from 10 kbit/s down to what some
-#: controllers allow, 1 kbit/s, up to 1 Mbit/s; a CAN FD data phase up to 12 Mbit/s).
+#: The keys of the free-form [bus] table that omnican reads itself: their type and range.
+#: The bitrates (the bus load; CAN's nominal bitrates run from 10 kbit/s down to what some
+#: controllers allow, 1 kbit/s, up to 1 Mbit/s; a CAN FD data phase up to 12 Mbit/s) go
+#: on to ``can.Bus`` too; ``sync`` and ``sync_counter`` (who sends SYNC: issue 41,
+#: :mod:`omnican.protocol.sync_producer`) are omnican's alone.
 BUS_KEYS: dict[str, Key] = {
     "bitrate": Key((int,), None, "bit/s of the bus (nominal)", range=(1000, 1_000_000)),
     "data_bitrate": Key((int,), None, "bit/s of a CAN FD data phase",
                         range=(1000, 12_000_000)),
+    "sync": Key((str,), "auto", "who sends SYNC: \"kernel\" (SocketCAN's broadcast manager, "
+                "on its own timer; the loop wakes on each SYNC and re-arms it every cycle), "
+                "\"loop\" (the control loop, after its RPDOs), \"auto\" (the kernel on "
+                "SocketCAN, the loop elsewhere)"),
+    "sync_counter": Key((int,), 0, "the SYNC counter's overflow value (CiA 301 1019h): 0 no "
+                        "counter, 2-240 SYNCs carry a counter 1..N; set the drives' 1019h "
+                        "to the same (a [[wheel.sdo]] line)", range=(0, 240)),
 }
 
 # The [gamepad] table's words: Linux input event codes (linux/input-event-codes.h, the
