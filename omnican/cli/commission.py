@@ -48,6 +48,9 @@ def add_subparser(sub: Any) -> None:
                    help="only this: the configured drives forget what they stored (1011h) "
                         "and are reset; asks first unless --yes")
     p.add_argument("--yes", action="store_true", help="do not ask before --restore-defaults")
+    p.add_argument("--firmware", metavar="FILE",
+                   help="then download this program image to every configured drive (CiA "
+                        "302-3, as `omnican firmware --image FILE` does), verify and start it")
     p.add_argument("--lss-timeout", type=positive_float, default=0.05, metavar="S",
                    help="wait for each LSS answer (default 0.05; a fast scan waits once per "
                         "1 bit of each identity)")
@@ -88,9 +91,13 @@ def run(args: argparse.Namespace) -> int:
         args.config = args.config_file
     if args.new_bitrate is not None:
         bit_timing_index(args.new_bitrate)  # a rate LSS cannot set: one line, exit 2
-    if args.restore_defaults and (args.store or args.new_bitrate is not None):
+    if args.restore_defaults and (args.store or args.new_bitrate is not None or
+                                  args.firmware is not None):
         raise UsageError("--restore-defaults is an action of its own: give it without "
-                         "--store and --new-bitrate")
+                         "--store, --new-bitrate and --firmware")
+    if args.firmware is not None:
+        from omnican.cli.firmware import read_image
+        args.image_bytes = read_image(args.firmware)  # a bad image: one line, exit 2
     with session(args, unconfigured=not args.restore_defaults) as s:
         if args.restore_defaults:
             return _restore(args, s.cfg)
@@ -137,7 +144,23 @@ def _commission(args: argparse.Namespace, cfg: Any) -> int:
                   "back the same after a reset")
     if args.store and not checks and not result.problems:
         print("no [[wheel.sdo]] settings to store")
+    if args.firmware is not None:
+        if code != EXIT_OK or result.problems:
+            return fail("firmware not downloaded: commission the drives first")
+        code = _firmware(args, cfg)
     return code if code == EXIT_OK else EXIT_FAILURE
+
+
+def _firmware(args: argparse.Namespace, cfg: Any) -> int:
+    """The image to every configured drive, now that each has its node id."""
+    from omnican.cli.firmware import download_all
+    from omnican.drive.program import DEFAULT_SDO_TIMEOUT_S
+    from omnican.io.bus import CanBus
+
+    which = argparse.Namespace(wheel=None, node=None, listen=0.3,
+                               sdo_timeout=max(args.sdo_timeout, DEFAULT_SDO_TIMEOUT_S))
+    with CanBus(cfg.bus) as can_bus:
+        return download_all(which, cfg, can_bus.network, args.image_bytes)
 
 
 def _table(result: Any, cfg: Any) -> None:

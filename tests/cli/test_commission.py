@@ -8,6 +8,7 @@ import contextlib
 import io
 import struct
 import threading
+import zlib
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -236,3 +237,39 @@ def test_sim_commissions_drives_of_its_own(tmp_path: Path) -> None:
     code, out, err = run_main(["commission", str(toml), "--sim"])
     assert code == 0, err
     assert {s: r[3] for s, r in table_rows(out).items()} == {"71": "1", "72": "2", "73": "3"}
+
+
+def test_firmware_after_the_ids_goes_to_every_drive_and_is_verified(tmp_path: Path) -> None:
+    """`commission --firmware FILE`: the drives get their ids, then the image, each
+    verified against the drive's own CRC-32 and flash status and started."""
+    toml = robot_toml(tmp_path, {1: 81, 2: 82, 3: 83})
+    image = tmp_path / "drive.bin"
+    image.write_bytes(bytes(range(256)) * 64)  # 16 KiB
+    code, out, err = run_main(["commission", str(toml), "--sim", "--firmware", str(image)])
+    assert code == 0, err
+    assert {s: r[3] for s, r in table_rows(out).items()} == {"81": "1", "82": "2", "83": "3"}
+    crc = f"0x{zlib.crc32(image.read_bytes()):08X}"
+    for node in (1, 2, 3):
+        line = next(x for x in out.splitlines() if x.startswith(f"node {node}: program"))
+        assert "verified" in line and crc in line and "started" in line, line
+    assert "3 of 3 drives run the image" in out
+
+
+def test_firmware_is_not_downloaded_to_drives_left_without_ids(tmp_path: Path,
+                                                               channel: str) -> None:
+    toml = robot_toml(tmp_path, {1: 91, 2: 92, 3: 93})
+    image = tmp_path / "drive.bin"
+    image.write_bytes(b"\x01" * 1024)
+    with drives(toml, channel, serials={1: 91, 2: 92, 3: 92}):
+        code, out, err = commission(toml, channel, "--firmware", str(image))
+    assert code == 1
+    assert "firmware not downloaded: commission the drives first" in err
+    assert "program" not in out
+
+
+def test_a_missing_firmware_image_is_one_line_before_anything_changes(tmp_path: Path,
+                                                                     channel: str) -> None:
+    toml = robot_toml(tmp_path, {1: 1, 2: 2, 3: 3})
+    code, _, err = commission(toml, channel, "--firmware", str(tmp_path / "none.bin"))
+    assert code == 2
+    assert err.count("\n") == 1 and "none.bin" in err, err
