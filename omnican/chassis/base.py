@@ -222,11 +222,11 @@ class Chassis:
         if problem is not None:
             raise ValueError(f"odometry reset refused: {problem}")
         loop = self._loop
-        loop.call_soon(lambda: loop.odometry.reset(target))
+        loop.call_soon(lambda: loop.reset_pose(target))
         deadline = self.clock.now() + 1.0
         while loop.snapshot.pose != target and self.clock.now() < deadline:
             if not self._runner.running:
-                loop.odometry.reset(target)
+                loop.reset_pose(target)
                 break
             self.clock.sleep(self._period if self._lockstep else self._period / 2)
 

@@ -22,10 +22,11 @@ from omnican.chassis.state import Snapshot
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import Clock
 from omnican.config import ChassisConfig
+from omnican.core.fusion import FusedOdometry, FusionParams
 from omnican.core.imu import ImuInbox
 from omnican.core.kinematics import Twist
 from omnican.core.limits import VelocityLimiter
-from omnican.core.odometry import Odometry
+from omnican.core.odometry import Odometry, Pose2D
 from omnican.core.wheel_odometry import EncoderCounters, WheelOdometry
 from omnican.drive import AxisIO, DriveNode
 from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
@@ -109,6 +110,10 @@ class ControlCycle:
         #: where a configured IMU's samples wait for the cycle (None: no IMU; set by
         #: whoever attaches the IMU source before the loop starts)
         self.imu: ImuInbox | None = None
+        #: the gyro fused with the wheels (made when an IMU is attached; see _fuse)
+        self.fusion: FusedOdometry | None = None
+        self._fusion_settings = cfg.fusion
+        self._quantum = max(1.0 / abs(a.wheel.position_scale) for a in self.axes)
         self.snapshot = self._make_snapshot(clock.now())
 
     def call_soon(self, fn: Callable[[], None]) -> None:
@@ -154,6 +159,10 @@ class ControlCycle:
                 all_enabled = self._every_stage_enabled()  # a latch may have forgotten one
         self._all_enabled = all_enabled
         self._integrate_samples()
+        # ---- IMU fusion (issue 40): a base without an IMU pays this one test.
+        if self.imu is not None:
+            self._fuse(now)
+        # ---- end of IMU fusion
         # Command -> limits -> wheel speeds.
         cmd, t_cmd = self.command
         if sup.latched or not all_enabled or now - t_cmd > self._cmd_timeout:
@@ -235,6 +244,31 @@ class ControlCycle:
             # The other wheels keep their last speeds, a stale one reads 0 (the snapshot).
             self.wheel_odometry.forget_speeds(stale)
 
+    def reset_pose(self, pose: Pose2D) -> None:
+        """The pose is ``pose`` from now on: the wheels' and the fused (loop thread)."""
+        self.odometry.reset(pose)
+        if self.fusion is not None:
+            self.fusion.reset((pose.x, pose.y, pose.theta))
+
+    def _fuse(self, now: float) -> None:
+        """The IMU's samples since the last cycle fused with the wheels' step
+        (:mod:`omnican.core.fusion`); a slip or a silent IMU warns, or stops the base if
+        the config says so."""
+        fusion = self.fusion
+        if fusion is None:
+            f = self._fusion_settings
+            fusion = self.fusion = FusedOdometry(
+                self.kinematics, FusionParams(gyro_noise=f.gyro_noise, bias_walk=f.bias_walk,
+                                              wheel_slip=f.wheel_slip, stale_s=f.stale_s,
+                                              wheel_quantum=self._quantum),
+                self.odometry, self.wheel_odometry, f.slip_warn_s, f.stop_on_slip,
+                f.stop_on_imu_stale)
+        imu = self.imu
+        assert imu is not None
+        stop = fusion.step(now, imu.drain(), self.limiter.output.is_zero())
+        if stop is not None and not self._sup.latched:
+            self._sup.latch(stop)
+
     @property
     def speeds_settled(self) -> bool:
         """The limiter's output is zero and every wheel below 5 mm/s."""
@@ -276,6 +310,9 @@ class ControlCycle:
         cycles = self.cycles
         if sup.warnings != self._warnings_list:
             self._warnings_list, self._warnings = list(sup.warnings), tuple(sup.warnings)
+        fusion = self.fusion
+        warnings = self._warnings if fusion is None or not fusion.warnings \
+            else self._warnings + fusion.warnings
         unknown = offline or configuring or bus_down
         # Field by field into a bare snapshot (see Snapshot: cheaper than a constructor).
         snap = _bare(Snapshot)
@@ -295,8 +332,9 @@ class ControlCycle:
         snap.bus_load = self._bus_bits_per_s / bitrate if bitrate else None
         snap.bus_bits_per_s = self._bus_bits_per_s
         snap.bus_error = watch.failing or (self._bus.reconnect_error if bus_down else None)
-        snap.warnings = self._warnings
+        snap.warnings = warnings
         snap.bus_up = not bus_down
+        snap.fused = None if fusion is None else fusion.values
         return snap
 
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:

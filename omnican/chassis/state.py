@@ -105,7 +105,7 @@ class Snapshot:
 
     __slots__ = ("_command", "_pose", "_status", "_twist", "_wheels", "applied",
                  "bus_bits_per_s", "bus_error", "bus_load", "bus_up", "checked", "command_age_s",
-                 "cycles", "enabled", "info", "late_fraction", "loop_hz", "measured",
+                 "cycles", "enabled", "fused", "info", "late_fraction", "loop_hz", "measured",
                  "stopped_reason", "warnings", "wheel_values", "xyt")
 
     xyt: tuple[float, float, float]  # the pose: x, y (m), theta (rad)
@@ -128,6 +128,11 @@ class Snapshot:
     bus_error: str | None
     warnings: tuple[str, ...]
     bus_up: bool
+    #: the odometry fused with an IMU's gyro (None: no IMU attached): x, y (m), theta
+    #: (rad), theta's variance (rad^2), the gyro's bias (rad/s) and its variance, the fused
+    #: yaw rate (rad/s), the IMU live (False: the wheels alone), the wheels slipping
+    #: (:class:`omnican.core.fusion.FusedOdometry`); :attr:`xyt` stays the wheels' own
+    fused: tuple[float, float, float, float, float, float, float, bool, bool] | None
     # Made on first read (unset until then).
     _pose: Pose2D
     _twist: Twist
@@ -142,6 +147,12 @@ class Snapshot:
         except AttributeError:  # the first read
             self._pose = pose = Pose2D(*self.xyt)
             return pose
+
+    @property
+    def fused_pose(self) -> Pose2D | None:
+        """The pose fused with the IMU's gyro (None: no IMU); :attr:`pose` is the wheels'."""
+        fused = self.fused
+        return None if fused is None else Pose2D(fused[0], fused[1], fused[2])
 
     @property
     def twist(self) -> Twist:

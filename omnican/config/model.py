@@ -138,6 +138,23 @@ class EstopSettings:
     node_id: int | None = _ESTOP["node_id"]
 
 
+_FUSION = schema_defaults("fusion")
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """The ``[fusion]`` table: how an attached IMU's gyro is fused with the wheels
+    (:mod:`omnican.core.fusion`) and what a slip or a silent IMU does."""
+
+    gyro_noise: float = _FUSION["gyro_noise"]
+    bias_walk: float = _FUSION["bias_walk"]
+    wheel_slip: float = _FUSION["wheel_slip"]
+    stale_s: float = _FUSION["stale_s"]
+    slip_warn_s: float = _FUSION["slip_warn_s"]
+    stop_on_slip: bool = _FUSION["stop_on_slip"]
+    stop_on_imu_stale: bool = _FUSION["stop_on_imu_stale"]
+
+
 @dataclass(frozen=True)
 class SimTruth:
     """The ``[sim]`` table: the true geometry of the simulated base ``omnican calibrate
@@ -217,6 +234,7 @@ class ChassisConfig:
     source: Path | None = field(default=None, compare=False)
     power: PowerSettings | None = None  # the [power] table
     estop: EstopSettings | None = None  # the [estop] table
+    fusion: FusionSettings = field(default_factory=FusionSettings)  # the [fusion] table
     # The [sim] table: not the robot's description, so not part of equality.
     sim: SimTruth | None = field(default=None, compare=False)
     # The [gamepad] table as given, checked (omnican.command.gamepad maps a pad with it).
@@ -227,7 +245,8 @@ class ChassisConfig:
                  bus: Mapping[str, Any] | None = None, source: Path | None = None,
                  power: PowerSettings | None = None, estop: EstopSettings | None = None,
                  sim: SimTruth | None = None, gamepad: Mapping[str, Any] | None = None,
-                 front_ends: Mapping[str, Any] | None = None, **moved: Any) -> None:
+                 front_ends: Mapping[str, Any] | None = None,
+                 fusion: FusionSettings | None = None, **moved: Any) -> None:
         tables = {name: table if isinstance(table, FrontEndTable) else read_table(name, table)
                   for name, table in (front_ends or {}).items()}
         for name, given in moved.items():  # ros2=, zenoh=...: the tables' old names
@@ -241,6 +260,7 @@ class ChassisConfig:
         for name, value in (("chassis", chassis), ("wheels", wheels), ("bus", bus),
                             ("source", source), ("power", power), ("estop", estop),
                             ("sim", sim), ("gamepad", gamepad),
+                            ("fusion", fusion if fusion is not None else FusionSettings()),
                             ("front_ends", FrontEndTables(tables))):
             object.__setattr__(self, name, value)
 

@@ -47,7 +47,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from omnican.core.imu import ImuSample
-from omnican.core.slip import SlipDetector
+from omnican.core.kinematics import OmniKinematics
+from omnican.core.odometry import Odometry
+from omnican.core.slip import SlipDetector, slipping_wheel
+from omnican.core.wheel_odometry import WheelOdometry
 
 #: chi-square(1) at 99.9 %: a yaw-rate disagreement beyond this many variances is an outlier
 GATE_D2 = 10.83
@@ -299,3 +302,78 @@ class HeadingFusion:
         self.x += c * lx - s * ly
         self.y += s * lx + c * ly
         self.theta = th + dw
+
+
+class FusedOdometry:
+    """The control loop's side of the fusion: a :class:`HeadingFusion` fed with the steps
+    of the wheels' odometry (``odometry``, the one pose the wheels own, and
+    ``wheel_odometry``, its speed window), and what a slip or a silent IMU does.
+
+    :meth:`step` once a cycle (only on a base with an IMU); :attr:`values` is what the
+    snapshot carries, :attr:`warnings` what the status adds. ``slip_warn_s``: a slip this
+    long warns; ``stop_on_slip`` / ``stop_on_imu_stale``: and :meth:`step` returns a reason
+    to stop the base."""
+
+    __slots__ = ("_seen", "_since", "_stale_warned", "fusion", "odometry", "stop_on_imu_stale",
+                 "stop_on_slip", "values", "warnings", "wheel_odometry")
+
+    def __init__(self, kinematics: OmniKinematics, params: FusionParams, odometry: Odometry,
+                 wheel_odometry: WheelOdometry, slip_warn_s: float = 0.5,
+                 stop_on_slip: bool = False, stop_on_imu_stale: bool = False) -> None:
+        self.fusion = fusion = HeadingFusion(kinematics.rows, kinematics.forward_rows[2], params,
+                                             odometry.xyt)
+        fusion.slip.warn_s = slip_warn_s
+        if kinematics.num_wheels > 3:
+            matrix = kinematics.matrix
+            fusion.wheel_speeds = wheel_odometry.speeds
+            fusion.isolate = lambda speeds: slipping_wheel(matrix, speeds)
+        self.odometry = odometry
+        self.wheel_odometry = wheel_odometry
+        self.stop_on_slip = stop_on_slip
+        self.stop_on_imu_stale = stop_on_imu_stale
+        self._seen = odometry.last_step  # the wheels' step fused last (by identity)
+        self._since: float | None = None  # the first step's time
+        self._stale_warned = False
+        #: (x, y, theta, var_theta, bias, var_bias, yaw_rate, imu_live, slipping)
+        self.values: tuple[float, float, float, float, float, float, float, bool, bool] = (
+            *odometry.xyt, 0.0, 0.0, params.bias0 ** 2, 0.0, False, False)
+        self.warnings: tuple[str, ...] = ()
+
+    def reset(self, pose: tuple[float, float, float]) -> None:
+        """The pose is ``pose`` from now on (the wheels' odometry was reset to it too)."""
+        self.fusion.reset(pose)
+
+    def step(self, now: float, samples: Sequence[ImuSample], commanded_zero: bool) -> str | None:
+        """Fuse this cycle's IMU ``samples`` with the wheels' newest step (if one came);
+        ``commanded_zero``: the limited command is zero. Returns a reason to stop the base
+        (configured), else None."""
+        fusion = self.fusion
+        step = self.odometry.last_step
+        wheel_step = None
+        if step is not self._seen:
+            self._seen = wheel_step = step
+        still = commanded_zero and self.wheel_odometry.settled(0.005)
+        fusion.step(now, samples, wheel_step, still)
+        if self._since is None:
+            self._since = now
+        slip = fusion.slip
+        live = now - max(fusion._imu_t, self._since) <= fusion.params.stale_s
+        self.values = (fusion.x, fusion.y, fusion.theta, fusion._ptt, fusion.b, fusion._pbb,
+                       fusion.rate, live, slip.active is not None)
+        stop = None
+        warnings: tuple[str, ...] = ()
+        if not live:
+            silent = now - max(fusion._imu_t, self._since)
+            warnings = (f"IMU silent for {silent:.1f} s: the odometry is the wheels' alone",)
+            if not self._stale_warned:
+                self._stale_warned = True
+                if self.stop_on_imu_stale:
+                    stop = f"the IMU went silent ({silent:.1f} s without a sample)"
+        else:
+            self._stale_warned = False
+        if slip.warning is not None:
+            warnings = (*warnings, slip.warning)
+            if self.stop_on_slip and slip.active is not None and stop is None:
+                stop = slip.warning
+        self.warnings = warnings
+        return stop
