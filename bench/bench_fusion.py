@@ -1,0 +1,218 @@
+"""The gyro fused with the wheels, on the simulator: heading through slip, slip seen, cost.
+
+All on a lock-step simulated base (one thread, a simulated clock: no waits, the same
+figures on a loaded machine), the demo config at ``--rate`` (100 Hz default), the
+limits of bench_chassis (2 m/s^2, 6 rad/s^2: the base's full acceleration):
+
+* squares: ten 1 m squares (drive 1 m at 0.5 m/s, stop, turn 90 deg, stop: the base's
+  heading turns with it), wheel 1's ground taking 90 % of its motion (10 % slip) and a
+  gyro with a 0.5 deg/s bias and 0.005 rad/s noise per sample, one sample a cycle from
+  the simulator's true yaw rate. Final heading error against the truth: the wheels'
+  odometry alone and the fused, side by side;
+* onset: the base drives straight at 0.5 m/s, and the slip begins at a known time
+  (sim.set_slip): how long until the first slip event, and its size;
+* clean: the ten squares with no slip, as fast as the limits allow (1 m/s, 3 rad/s):
+  slip events counted (should be none);
+* cost: the fusion's own CPU per cycle (FusedOdometry.step, timed around the call in
+  the loop) at 100 Hz and 1 kHz.
+
+Run: ``python bench/bench_fusion.py`` (about a minute); ``--quick`` (two squares).
+Prints one JSON object per line, then a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import random
+import statistics
+import time
+from typing import Any
+
+from bench_chassis import config
+
+from omnican import Chassis
+from omnican.clock import SimClock
+from omnican.core.imu import ImuInbox, ImuSample
+from omnican.sim import SimulatedBase
+from omnican.sim.slip import SimSlip
+
+BIAS = math.radians(0.5)
+NOISE = 0.005
+ROWS: list[dict[str, Any]] = []
+
+
+def emit(**fields: Any) -> None:
+    ROWS.append(fields)
+    print(json.dumps(fields), flush=True)
+
+
+class Rig:
+    """A lock-step simulated base with a bench-side gyro: each cycle one sample of the
+    truth's yaw rate plus ``bias`` and noise goes into the loop's IMU inbox, and the
+    fusion's step is timed."""
+
+    def __init__(self, rate_hz: float, bias: float = BIAS, seed: int = 1) -> None:
+        cfg = config(rate_hz)
+        self.clock = SimClock()
+        self.sim = SimulatedBase.from_config(cfg, clock=self.clock)
+        self.base = Chassis.open(cfg, clock=self.clock)
+        self.loop = self.base._loop
+        self.loop.imu = self.inbox = ImuInbox()
+        self.rng = random.Random(seed)
+        self.bias = bias
+        self.fuse_s: list[float] = []
+        cycle = self.base._runner.cycle
+        fuse = self.loop._fuse
+        sim, inbox, rng = self.sim, self.inbox, self.rng
+
+        def timed_fuse(now: float) -> None:
+            t0 = time.perf_counter()
+            fuse(now)
+            self.fuse_s.append(time.perf_counter() - t0)
+
+        def with_gyro(now: float) -> None:
+            wz = sim.true_twist.wz
+            inbox.put(ImuSample(now, wz + self.bias + rng.gauss(0.0, NOISE)))
+            cycle(now)
+
+        self.loop._fuse = timed_fuse  # type: ignore[method-assign]
+        self.base._runner.cycle = with_gyro
+
+    def __enter__(self) -> Rig:
+        self.wait_enabled()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.base.close()
+        self.sim.close()
+
+    def wait_enabled(self) -> None:
+        deadline = self.clock.now() + 10.0
+        while not self.base.status.enabled and self.clock.now() < deadline:
+            self.clock.sleep(0.01)
+        if not self.base.status.enabled:
+            raise SystemExit("the simulated base did not enable")
+
+    def hold(self, vx: float, vy: float, wz: float, seconds: float) -> None:
+        end = self.clock.now() + seconds
+        while self.clock.now() < end:
+            self.base.set_velocity(vx, vy, wz)
+            self.clock.sleep(0.01)
+
+    def square(self, speed: float, turn_rate: float) -> None:
+        for _ in range(4):
+            self.hold(speed, 0.0, 0.0, 1.0 / speed)
+            self.hold(0.0, 0.0, 0.0, 0.4)
+            self.hold(0.0, 0.0, turn_rate, (math.pi / 2) / turn_rate)
+            self.hold(0.0, 0.0, 0.0, 0.4)
+
+    def heading_errors_deg(self) -> tuple[float, float]:
+        snap = self.loop.snapshot
+        true = self.sim.true_pose.theta
+        assert snap.fused is not None
+        return (math.degrees(snap.xyt[2] - true), math.degrees(snap.fused[2] - true))
+
+    @property
+    def slip(self) -> Any:
+        fusion = self.loop.fusion
+        assert fusion is not None
+        return fusion.fusion.slip
+
+
+def squares(rate_hz: float, n: int) -> None:
+    with Rig(rate_hz) as rig:
+        rig.sim.set_slip(SimSlip(ratios=(0.0, 0.1, 0.0)))
+        rig.hold(0.0, 0.0, 0.0, 2.0)  # standing still: the bias is learnt
+        for _ in range(n):
+            rig.square(0.5, 1.0)
+        wheels, fused = rig.heading_errors_deg()
+        fusion = rig.loop.fusion
+        assert fusion is not None
+        emit(bench="squares", rate_hz=rate_hz, squares=n, slip="10% wheel 1",
+             gyro_bias_deg_s=0.5, wheels_heading_err_deg=round(wheels, 2),
+             fused_heading_err_deg=round(fused, 2),
+             fused_sigma_deg=round(math.degrees(math.sqrt(fusion.values[3])), 2),
+             bias_learnt_deg_s=round(math.degrees(fusion.values[4]), 3),
+             slip_events=rig.slip.started)
+
+
+def onset(rate_hz: float) -> None:
+    with Rig(rate_hz) as rig:
+        rig.hold(0.0, 0.0, 0.0, 2.0)
+        rig.hold(0.5, 0.0, 0.0, 1.0)
+        before = rig.slip.started
+        t_slip = rig.clock.now()
+        rig.sim.set_slip(SimSlip(ratios=(0.0, 0.1, 0.0)))
+        rig.hold(0.5, 0.0, 0.0, 1.0)
+        events = list(rig.slip.events)[-(rig.slip.started - before):] \
+            if rig.slip.started > before else []
+        first = events[0] if events else None
+        emit(bench="onset", rate_hz=rate_hz, slip="10% wheel 1 from t0",
+             false_before=before,
+             began_after_ms=None if first is None else round((first.t - t_slip) * 1e3, 1),
+             flagged_after_ms=None if first is None else round(
+                 (first.t + rig.slip.confirm_s - t_slip) * 1e3, 1),
+             size_rad_s=None if first is None else round(first.size, 4))
+
+
+def clean(rate_hz: float, n: int) -> None:
+    with Rig(rate_hz) as rig:
+        rig.hold(0.0, 0.0, 0.0, 2.0)
+        for _ in range(n):
+            rig.square(1.0, 3.0)
+        wheels, fused = rig.heading_errors_deg()
+        emit(bench="clean", rate_hz=rate_hz, squares=n, speed_m_s=1.0, turn_rad_s=3.0,
+             slip_events=rig.slip.started, wheels_heading_err_deg=round(wheels, 2),
+             fused_heading_err_deg=round(fused, 2))
+
+
+def cost(rate_hz: float, seconds: float) -> None:
+    with Rig(rate_hz) as rig:
+        rig.hold(0.0, 0.0, 0.0, 1.0)
+        rig.fuse_s.clear()
+        end = rig.clock.now() + seconds
+        k = 0
+        while rig.clock.now() < end:
+            rig.base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.5)
+            rig.clock.sleep(0.01)
+            k += 1
+        per = sorted(rig.fuse_s)
+        emit(bench="cost", rate_hz=rate_hz, cycles=len(per),
+             fusion_us_per_cycle_p50=round(statistics.median(per) * 1e6, 1),
+             fusion_us_per_cycle_mean=round(statistics.fmean(per) * 1e6, 1))
+
+
+def table() -> None:
+    print()
+    for r in ROWS:
+        if r["bench"] in ("squares", "clean"):
+            print(f"{r['bench']:<8} {r['rate_hz']:>5.0f} Hz  {r['squares']} squares: heading error "
+                  f"wheels {r['wheels_heading_err_deg']:+8.2f} deg, fused "
+                  f"{r['fused_heading_err_deg']:+6.2f} deg, slip events {r['slip_events']}")
+        elif r["bench"] == "onset":
+            print(f"onset    {r['rate_hz']:>5.0f} Hz  slip flagged {r['flagged_after_ms']} ms "
+                  f"after it began (size {r['size_rad_s']} rad/s), false before: "
+                  f"{r['false_before']}")
+        elif r["bench"] == "cost":
+            print(f"cost     {r['rate_hz']:>5.0f} Hz  fusion {r['fusion_us_per_cycle_p50']} us per "
+                  f"cycle (median; mean {r['fusion_us_per_cycle_mean']})")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="two squares, short cost runs")
+    ap.add_argument("--rate", type=float, default=100.0, help="control rate of the squares")
+    args = ap.parse_args()
+    n = 2 if args.quick else 10
+    squares(args.rate, n)
+    onset(args.rate)
+    clean(args.rate, n)
+    for rate in (100.0, 1000.0):
+        cost(rate, 2.0 if args.quick else 5.0)
+    table()
+
+
+if __name__ == "__main__":
+    main()
