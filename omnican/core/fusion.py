@@ -153,6 +153,11 @@ class HeadingFusion:
     # ------------------------------------------------------------ reading
 
     @property
+    def gyro_rate(self) -> float:
+        """The gyro's newest yaw rate, its bias removed (rad/s)."""
+        return self._rate - self.b
+
+    @property
     def var_theta(self) -> float:
         return self._ptt
 
@@ -326,7 +331,7 @@ class FusedOdometry:
         if kinematics.num_wheels > 3:
             matrix = kinematics.matrix
             fusion.wheel_speeds = wheel_odometry.speeds
-            fusion.isolate = lambda speeds: slipping_wheel(matrix, speeds)
+            fusion.isolate = lambda speeds: slipping_wheel(matrix, speeds, fusion.gyro_rate)
         self.odometry = odometry
         self.wheel_odometry = wheel_odometry
         self.stop_on_slip = stop_on_slip

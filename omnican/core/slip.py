@@ -3,16 +3,17 @@
 :class:`~omnican.core.fusion.HeadingFusion` low-passes the difference of the wheels' yaw
 rate and the gyro's (bias removed) and gates it by its variance (Mahalanobis d^2); each
 step it tells :class:`SlipDetector` the difference and whether it was beyond the gate.
-Beyond it for ``confirm_s`` is a slip event (:class:`SlipEvent`: when it began, how big:
+Beyond it for ``confirm_s`` without a break is a slip event (:class:`SlipEvent`: when it began, how big:
 the mean disagreement in rad/s, and for how long); beyond it for ``warn_s`` is a warning
 (:attr:`SlipDetector.warning`), held ``hold_s`` after the slip ended, which the chassis
 shows on ``/status`` and the dashboard and may stop the base for (``[fusion]``).
 
 Which wheel: with three wheels the kinematics has no redundancy (three speeds, three
-unknowns: every set of speeds is a motion) and the gyro sees only the yaw rate, to which
-each wheel of a symmetric base contributes alike; so the event names none. With more than
-three, the wheel speeds' least-squares residual against the kinematics
-(:func:`slipping_wheel`) points at the wheel whose speed does not fit the others'.
+unknowns: every set of speeds is a motion) and the gyro adds one equation, which shows a
+slip but not where (each wheel of a symmetric base adds alike to the yaw rate); so the
+event names none. With more than three, the least-squares residual of the wheel speeds
+and the gyro's rate against the kinematics (:func:`slipping_wheel`) points at the wheel
+whose speed does not fit the others'.
 
 How this agrees with the current-based lift detection (:mod:`omnican.core.lift`): a wheel
 off the ground (or without its roller) turns freely, its encoder counts motion the base
@@ -88,8 +89,8 @@ class SlipDetector:
                wheel_speeds: Callable[[], Sequence[float]] | None = None,
                isolate: Callable[[Sequence[float]], int | None] | None = None) -> None:
         """One step at ``now``: the disagreement ``diff`` (rad/s) and whether it was beyond
-        the gate. ``wheel_speeds`` and ``isolate`` (a base with more than three wheels):
-        read when an event starts, to name the wheel."""
+        the gate. ``wheel_speeds`` and ``isolate`` (a base with more than three wheels;
+        :func:`slipping_wheel`): read when an event starts, to name the wheel."""
         if over:
             self._under_since = None
             if self._over_since is None:
@@ -100,7 +101,7 @@ class SlipDetector:
             if abs(diff) > abs(self._peak):
                 self._peak = diff
             begun = self._over_since
-            if self.active is None and now - begun >= self.confirm_s:
+            if self.active is None and now - begun >= self.confirm_s - 1e-9:
                 wheel = None
                 if wheel_speeds is not None and isolate is not None:
                     wheel = isolate(wheel_speeds())
@@ -112,13 +113,16 @@ class SlipDetector:
                 active = self.active = SlipEvent(active.t, self._sum / self._n, self._peak,
                                                  now - active.t, active.wheel)
                 self.events[-1] = active
-                if active.duration_s >= self.warn_s:
+                if active.duration_s >= self.warn_s - 1e-9:
                     self.warning = active.describe()
                     self._warn_until = now + self.hold_s
         else:
             if self._under_since is None:
                 self._under_since = now
-            if self._over_since is not None and now - self._under_since >= self.release_s:
+            # Not yet an event: it had to hold for confirm_s without a break. An event
+            # ends once within the gate for release_s.
+            if self._over_since is not None and (
+                    self.active is None or now - self._under_since >= self.release_s - 1e-9):
                 self._over_since = None
                 self.active = None
             if self._over_since is None and self._n:
@@ -133,25 +137,35 @@ class SlipDetector:
         self._n = 0
 
 
-def slipping_wheel(matrix: np.ndarray, speeds: Sequence[float],
+def slipping_wheel(matrix: np.ndarray, speeds: Sequence[float], yaw_rate: float | None = None,
                    min_ratio: float = 2.0) -> int | None:
-    """The wheel whose measured speed fits the others' least (more than three wheels).
+    """The wheel whose measured speed fits the others' (and the gyro's) least.
 
     ``matrix``: the kinematics' N x 3 map (wheel speeds = matrix @ twist); ``speeds``: the
-    measured rim speeds. The least-squares residual ``r = (I - M M+) v`` is what no motion
-    explains; a slip ``s`` of wheel ``i`` alone leaves ``r = s p_i`` with ``p_i`` the
-    projector's column ``i``, so the wheel explaining the most of ``r``,
-    ``(r . p_i)^2 / (p_i . p_i)``, is the one, if it explains ``min_ratio`` times more than
-    the next. None with three wheels (no residual) or no clear one."""
+    measured rim speeds; ``yaw_rate``: the gyro's (bias removed; None: no gyro), one more
+    equation, scaled to a rim speed by the wheels' mean lever. The least-squares residual
+    ``r = (I - M M+) v`` is what no motion explains; a slip ``s`` of wheel ``i`` alone
+    leaves ``r = s p_i`` with ``p_i`` the projector's column ``i``, so the wheel explaining
+    the most of ``r``, ``(r . p_i)^2 / (p_i . p_i)``, is the one, if it explains
+    ``min_ratio`` times more than the next. Naming one takes two redundant equations (one
+    shows a slip but not where) and a geometry that tells the wheels' signatures apart:
+    five wheels and more; four and a gyro leave pairs of wheels alike (opposite wheels
+    drive one line). None without them, or with no clear one."""
     m = np.asarray(matrix, dtype=np.float64)
     n = m.shape[0]
-    if n <= 3:
-        return None
     v = np.asarray(speeds, dtype=np.float64)
-    proj = np.eye(n) - m @ np.linalg.pinv(m)
+    if yaw_rate is not None:
+        lever = float(np.mean(np.abs(m[:, 2])))
+        m = np.vstack([m, [0.0, 0.0, lever]])
+        v = np.append(v, lever * yaw_rate)
+    rows = m.shape[0]
+    if rows - np.linalg.matrix_rank(m) < 2:
+        return None
+    proj = np.eye(rows) - m @ np.linalg.pinv(m)
     r = proj @ v
-    norms = np.einsum("ij,ij->j", proj, proj)
-    explained = np.where(norms > 1e-12, (r @ proj) ** 2 / np.maximum(norms, 1e-12), 0.0)
+    cols = proj[:, :n]
+    norms = np.einsum("ij,ij->j", cols, cols)
+    explained = np.where(norms > 1e-12, (r @ cols) ** 2 / np.maximum(norms, 1e-12), 0.0)
     order = np.argsort(explained)[::-1]
     best, second = float(explained[order[0]]), float(explained[order[1]])
     if best <= 1e-12 or best < min_ratio * second:
