@@ -5,7 +5,7 @@ figures on a loaded machine), the demo config at ``--rate`` (100 Hz default), th
 limits of bench_chassis (2 m/s^2, 6 rad/s^2: the base's full acceleration):
 
 * squares: ten 1 m squares (drive 1 m at 0.5 m/s, stop, turn 90 deg, stop: the base's
-  heading turns with it), wheel 1's ground taking 90 % of its motion (10 % slip) and a
+  heading turns with it; each stop 0.4 s standing still after braking), wheel 1's ground taking 90 % of its motion (10 % slip) and a
   gyro with a 0.5 deg/s bias and 0.005 rad/s noise per sample, one sample a cycle from
   the simulator's true yaw rate. Final heading error against the truth: the wheels'
   odometry alone and the fused, side by side;
@@ -102,11 +102,13 @@ class Rig:
             self.clock.sleep(0.01)
 
     def square(self, speed: float, turn_rate: float) -> None:
+        """A 1 m square; each stop: the time to brake at the limits, then 0.4 s still."""
+        limits = self.base.cfg.chassis
         for _ in range(4):
             self.hold(speed, 0.0, 0.0, 1.0 / speed)
-            self.hold(0.0, 0.0, 0.0, 0.4)
+            self.hold(0.0, 0.0, 0.0, 0.4 + speed / limits.max_accel)
             self.hold(0.0, 0.0, turn_rate, (math.pi / 2) / turn_rate)
-            self.hold(0.0, 0.0, 0.0, 0.4)
+            self.hold(0.0, 0.0, 0.0, 0.4 + turn_rate / limits.max_angular_accel)
 
     def heading_errors_deg(self) -> tuple[float, float]:
         snap = self.loop.snapshot

@@ -321,7 +321,7 @@ _OWN: dict[str, dict[str, Key]] = {
     "fusion": {
         "gyro_noise": Key(NUMBER, 0.005, "rad/s: 1-sigma of one gyro sample",
                           range=(1e-6, 1.0)),
-        "bias_walk": Key(NUMBER, 0.0005, "rad/s per sqrt(s): the gyro bias's random walk",
+        "bias_walk": Key(NUMBER, 0.0001, "rad/s per sqrt(s): the gyro bias's random walk",
                          range=(1e-9, 0.1)),
         "wheel_slip": Key(NUMBER, 0.01, "1-sigma slip of a wheel, a fraction of its rim "
                           "speed: more than this is a slip", range=(1e-4, 0.5)),

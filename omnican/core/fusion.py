@@ -52,6 +52,8 @@ from omnican.core.odometry import Odometry
 from omnican.core.slip import SlipDetector, slipping_wheel
 from omnican.core.wheel_odometry import WheelOdometry
 
+STILL_M_S = 0.001  # every wheel slower than this (m/s, over the speed window) ...
+STILL_S = 0.1  # ... for this long, the command zero: standing still (zero-velocity update)
 #: chi-square(1) at 99.9 %: a yaw-rate disagreement beyond this many variances is an outlier
 GATE_D2 = 10.83
 
@@ -75,7 +77,7 @@ class FusionParams:
     times its one-step variance."""
 
     gyro_noise: float = 0.005
-    bias_walk: float = 0.0005
+    bias_walk: float = 0.0001
     bias0: float = 0.02
     wheel_rate_floor: float = 0.005
     wheel_slip: float = 0.01
@@ -120,9 +122,9 @@ class HeadingFusion:
 
     :meth:`step` once a cycle. Not thread-safe: the loop's."""
 
-    __slots__ = ("_diff", "_imu_t", "_last_w", "_pbb", "_ptb", "_ptt", "_rate", "_rows",
-                 "_share2", "_t", "_wz_of", "b", "isolate", "params", "rate", "rejected",
-                 "samples", "slip", "theta", "wheel_speeds", "x", "y")
+    __slots__ = ("_diff", "_imu_t", "_last_w", "_lasting", "_n", "_pbb", "_ptb", "_ptt", "_rate",
+                 "_rows", "_share2", "_step_t", "_sum", "_t", "_wz_of", "b", "isolate", "params",
+                 "rate", "rejected", "samples", "slip", "theta", "wheel_speeds", "x", "y")
 
     def __init__(self, rows: Sequence[Sequence[float]], wz_of: Sequence[float],
                  params: FusionParams | None = None,
@@ -135,7 +137,9 @@ class HeadingFusion:
         self.x, self.y, self.theta = pose
         self.b = 0.0
         self._ptt, self._ptb, self._pbb = 0.0, 0.0, p.bias0 * p.bias0
-        self._t: float | None = None
+        self._t: float | None = None  # the last step's time
+        self._step_t: float | None = None  # the last wheel step's time
+        self._sum, self._n = 0.0, 0  # the gyro's samples since then: their sum and number
         self._imu_t = -math.inf  # the newest IMU sample's time
         self._rate = 0.0  # the newest gyro rate (mean of the last samples), bias not removed
         self.rate = 0.0  # the fused yaw rate of the last step
@@ -144,6 +148,7 @@ class HeadingFusion:
         self._share2 = sum(c * c for c in self._wz_of)
         self._diff = 0.0  # the wheels' yaw rate less the gyro's, low-passed
         self._last_w = 0.0  # the wheels' yaw rate of the last step
+        self._lasting = 0.0  # the disagreement's lasting variance, low-passed as it is
         self.slip = SlipDetector()
         #: more than three wheels: the measured rim speeds, and slip.slipping_wheel on the
         #: kinematics, read when a slip starts to name the wheel (None: not named)
@@ -192,9 +197,6 @@ class HeadingFusion:
         still (wheels at rest, command zero)."""
         last_t = self._t
         self._t = now
-        dt = now - last_t if last_t is not None else 0.0
-        if not 0.0 < dt < 1.0:
-            dt = 0.0
         p = self.params
         n = 0
         total = 0.0
@@ -210,13 +212,24 @@ class HeadingFusion:
             self._rate = total / n
             self._imu_t = newest
             self.samples += n
+            self._sum += total
+            self._n += n
         live = now - self._imu_t <= p.stale_s
-        if dt > 0.0:
-            self._pbb += p.bias_walk * p.bias_walk * dt
+        if last_t is not None and 0.0 < now - last_t < 1.0:
+            self._pbb += p.bias_walk * p.bias_walk * (now - last_t)
         if still and live and n:
             self._zero_velocity_update(self._rate, p.gyro_noise * p.gyro_noise / n)
         if wheel_step is None:
             return
+        # The wheels' step spans the time since their last one: so does the gyro's mean.
+        last_step = self._step_t
+        self._step_t = now
+        dt = now - last_step if last_step is not None else 0.0
+        if not 0.0 < dt < 1.0:
+            dt = 0.0
+        n = self._n
+        gyro = self._sum / n if n else self._rate
+        self._sum, self._n = 0.0, 0
         dx, dy, dw = wheel_step
         if not live or dt == 0.0:
             # The wheels alone (fall back): their step, their variance.
@@ -224,17 +237,17 @@ class HeadingFusion:
             self.rejected = False
             self._ptt += self._wheel_var(dx, dy, dw, dt or 1.0) * (dt * dt)
             self.rate = dw / dt if dt else 0.0
-            self._diff = self._last_w = 0.0
+            self._diff = self._last_w = self._lasting = 0.0
             self.slip.update(now, 0.0, False)
         elif still:
             dth = dw  # standing still: the wheels' step (about zero), nothing to weigh
             self.rate = 0.0
             self.rejected = False
-            self._diff = self._last_w = 0.0
+            self._diff = self._last_w = self._lasting = 0.0
             self.slip.update(now, 0.0, False)
         else:
             w_w = dw / dt
-            w_g = self._rate - self.b
+            w_g = gyro - self.b
             # White parts: the gyro's noise and the encoders' counts over this step; what
             # persists: the unknown bias, the wheels' slip, and the rate's change over a
             # step (the gyro's samples and the wheels' SYNC are not taken at one instant).
@@ -248,7 +261,10 @@ class HeadingFusion:
             # The disagreement, low-passed over tau_s (a slip lasts, noise does not).
             alpha = dt / (p.tau_s + dt)
             e = self._diff = self._diff + alpha * (w_w - w_g - self._diff)
-            var_e = alpha / (2.0 - alpha) * (noise_g + noise_w) + self._pbb + var_w
+            # Its variance: the white parts shrink by the low-pass; the lasting ones pass
+            # it as the difference does (a spike of acceleration fades from both alike).
+            lasting = self._lasting = self._lasting + alpha * (self._pbb + var_w - self._lasting)
+            var_e = alpha / (2.0 - alpha) * (noise_g + noise_w) + lasting
             d2 = e * e / var_e
             self.slip.update(now, e, d2 > p.gate, self.wheel_speeds, self.isolate)
             if d2 > p.gate:  # the wheels slip: the gyro alone
@@ -319,8 +335,8 @@ class FusedOdometry:
     long warns; ``stop_on_slip`` / ``stop_on_imu_stale``: and :meth:`step` returns a reason
     to stop the base."""
 
-    __slots__ = ("_seen", "_since", "_stale_warned", "fusion", "odometry", "stop_on_imu_stale",
-                 "stop_on_slip", "values", "warnings", "wheel_odometry")
+    __slots__ = ("_seen", "_since", "_stale_warned", "_still_since", "fusion", "odometry",
+                 "stop_on_imu_stale", "stop_on_slip", "values", "warnings", "wheel_odometry")
 
     def __init__(self, kinematics: OmniKinematics, params: FusionParams, odometry: Odometry,
                  wheel_odometry: WheelOdometry, slip_warn_s: float = 0.5,
@@ -339,6 +355,7 @@ class FusedOdometry:
         self._seen = odometry.last_step  # the wheels' step fused last (by identity)
         self._since: float | None = None  # the first step's time
         self._stale_warned = False
+        self._still_since: float | None = None  # standing still since (None: moving)
         #: (x, y, theta, var_theta, bias, var_bias, yaw_rate, imu_live, slipping)
         self.values: tuple[float, float, float, float, float, float, float, bool, bool] = (
             *odometry.xyt, 0.0, 0.0, params.bias0 ** 2, 0.0, False, False)
@@ -357,7 +374,15 @@ class FusedOdometry:
         wheel_step = None
         if step is not self._seen:
             self._seen = wheel_step = step
-        still = commanded_zero and self.wheel_odometry.settled(0.005)
+        # Standing still: commanded zero, every wheel below STILL_M_S, for STILL_S (the
+        # motors' last creep after braking would read as the gyro's bias).
+        if commanded_zero and self.wheel_odometry.settled(STILL_M_S):
+            if self._still_since is None:
+                self._still_since = now
+            still = now - self._still_since >= STILL_S
+        else:
+            self._still_since = None
+            still = False
         fusion.step(now, samples, wheel_step, still)
         if self._since is None:
             self._since = now

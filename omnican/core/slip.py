@@ -3,10 +3,11 @@
 :class:`~omnican.core.fusion.HeadingFusion` low-passes the difference of the wheels' yaw
 rate and the gyro's (bias removed) and gates it by its variance (Mahalanobis d^2); each
 step it tells :class:`SlipDetector` the difference and whether it was beyond the gate.
-Beyond it for ``confirm_s`` without a break is a slip event (:class:`SlipEvent`: when it began, how big:
-the mean disagreement in rad/s, and for how long); beyond it for ``warn_s`` is a warning
-(:attr:`SlipDetector.warning`), held ``hold_s`` after the slip ended, which the chassis
-shows on ``/status`` and the dashboard and may stop the base for (``[fusion]``).
+Beyond it for ``confirm_s`` without a break is a slip event (:class:`SlipEvent`: when it
+began, how big: the mean disagreement in rad/s, and for how long); beyond it for
+``warn_s`` is a warning (:attr:`SlipDetector.warning`), held ``hold_s`` after the slip
+ended, which the chassis shows on ``/status`` and the dashboard and may stop the base
+for (``[fusion]``).
 
 Which wheel: with three wheels the kinematics has no redundancy (three speeds, three
 unknowns: every set of speeds is a motion) and the gyro adds one equation, which shows a

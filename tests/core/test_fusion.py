@@ -126,7 +126,7 @@ def test_a_silent_imu_falls_back_to_the_wheels_and_comes_back() -> None:
     drive(f, odo, [(0.0, 0.0, 0.0, 1.0)], bias=0.01)
     theta0 = f.theta - odo.xyt[2]
     # The IMU goes silent for 2 s while the base turns with a slipping wheel.
-    truth, t = drive(f, odo, [(0.0, 0.0, 1.0, 2.0)], slip=(0.0, 0.1, 0.0), imu=False, t0=3.0)
+    _, t = drive(f, odo, [(0.0, 0.0, 1.0, 2.0)], slip=(0.0, 0.1, 0.0), imu=False, t0=3.0)
     assert not f.imu_live(t)
     # After stale_s the fused heading moved with the wheels: the difference stays put
     # but for the first 0.2 s
