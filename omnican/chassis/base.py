@@ -235,6 +235,12 @@ class Chassis:
         return self._loop.snapshot.pose
 
     @property
+    def fused_pose(self) -> Pose2D | None:
+        """The pose fused with an attached IMU's gyro (:mod:`omnican.core.fusion`); None
+        without an IMU. :attr:`pose` stays the wheels' own."""
+        return self._loop.snapshot.fused_pose
+
+    @property
     def twist(self) -> Twist:
         """Measured body velocity from the encoders, averaged over the last 0.1 s."""
         return self._loop.snapshot.twist

@@ -358,7 +358,7 @@ def status(s: TelemetrySample) -> dict[str, Any]:
         "late_fraction": st.late_fraction, "cycles": st.cycles,
         "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
         "bus_up": st.bus_up, "command_age_s": min(st.command_age_s, 1e9),
-        "can_state": st.can_state or "", "estop": st.estop},
+        "can_state": st.can_state or "", "estop": st.estop, "warnings": list(st.warnings)},
         bus_load=st.bus_load, can_tx_errors=st.can_tx_errors, can_rx_errors=st.can_rx_errors,
         battery_v=st.battery_v)
 
@@ -413,7 +413,10 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL, command_age_s=_NUM,
         can_state=_STR, can_tx_errors=_maybe(_INT, "the CAN controller does not say"),
         can_rx_errors=_maybe(_INT, "the CAN controller does not say"), estop=_BOOL,
-        battery_v=_maybe(_NUM, "no drive measures its DC link")),
+        battery_v=_maybe(_NUM, "no drive measures its DC link"),
+        warnings={"type": "array", "items": _STR,
+                  "description": "what needs attention but does not stop the base (a "
+                  "wheel slipping, a silent IMU, a wheel off the ground, the battery)"}),
     "omnican.Fusion": _object(
         "omnican.Fusion", imu=_BOOL, heading_deg=_NUM, wheels_heading_deg=_NUM,
         heading_sigma_deg=_maybe(_NUM, "no IMU is fused"),
