@@ -10,9 +10,9 @@ on a real base: only a gyro (or a camera) sees the difference.
   grips, 0.1: 10 % lost): the rim transmits ``1 - ratio`` of its travel.
 - ``surfaces``: patches of floor (:class:`Surface`, a rectangle in the world frame) with
   their own ratio per wheel, taken while the base's centre is on them (carpet, a wet tile).
-- ``roller``: per wheel, a fraction of its rim speed by which its contact point moves
-  along its roller's axis too (a roller that gives way): the base moves so the other
-  wheels keep their drive directions (least squares over them), which turns it.
+- ``roller``: per wheel, a fraction of its rim speed by which its contact point slides
+  along its roller's axis too (a roller that gives way, a lateral slip): the base moves
+  the least that does it (the other wheels drag along), which turns it too.
 - ``ramp_grade_deg``, ``ramp_downhill_deg``: a ramp of that grade, falling towards that
   direction (world frame, degrees); the base creeps downhill at ``ramp_creep`` (m/s per
   m/s^2 of gravity along the ramp) while its wheels turn (free rollers give way to the
@@ -84,24 +84,23 @@ class SimSlip:
     def lateral(self, kinematics: OmniKinematics,
                 rim_steps: Sequence[float]) -> tuple[float, float, float]:
         """The body displacement (dx, dy, dtheta; body frame) the rollers that give way add
-        over a step in which each wheel's rim moved ``rim_steps`` (m)."""
+        over a step in which each wheel's rim moved ``rim_steps`` (m): each such wheel's
+        contact point slides ``give * |rim step|`` along its roller's axis (the other wheels
+        drag along: they slip too), by the least body motion that does it (least squares:
+        the rollers' rows and their slides)."""
         if not self.roller:
             return 0.0, 0.0, 0.0
         rows, target = [], []
-        betas = np.radians(kinematics.drive_angles_deg)
-        phis = np.radians(kinematics.angles_deg)
-        for i, (beta, phi, radius, row) in enumerate(zip(
-                betas, phis, kinematics.base_radius, kinematics.rows, strict=True)):
-            give = self.roller.get(i, 0.0)
-            if give:
-                x, y = radius * math.cos(phi), radius * math.sin(phi)
-                rows.append((-math.sin(beta), math.cos(beta),
-                             math.sin(beta) * y + math.cos(beta) * x))
-                target.append(give * abs(rim_steps[i]))
-            else:
-                rows.append(row)  # this wheel's drive direction holds
-                target.append(0.0)
-        d, *_ = np.linalg.lstsq(np.asarray(rows), np.asarray(target), rcond=None)
+        for i, give in sorted(self.roller.items()):
+            beta = math.radians(kinematics.drive_angles_deg[i])
+            phi = math.radians(kinematics.angles_deg[i])
+            radius = kinematics.base_radius[i]
+            x, y = radius * math.cos(phi), radius * math.sin(phi)
+            # the contact point's velocity (vx - wz y, vy + wz x) along the roller's axis
+            rows.append((-math.sin(beta), math.cos(beta),
+                         math.sin(beta) * y + math.cos(beta) * x))
+            target.append(give * abs(rim_steps[i]))
+        d = np.linalg.pinv(np.asarray(rows)) @ np.asarray(target)
         return float(d[0]), float(d[1]), float(d[2])
 
     def creep(self, theta: float, dt: float) -> tuple[float, float]:

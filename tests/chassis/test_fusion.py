@@ -86,7 +86,7 @@ def test_the_fused_heading_holds_through_slip_and_the_wheels_odometry_stays(
         settings = TelemetrySettings.from_config(base.cfg)
         sample = TelemetrySample(1, snap.pose, snap.twist, snap.command, snap.wheels,
                                  snap.status, fused=snap.fused)
-        msgs = {m.topic: m.data for m in Telemetry(settings, base.cfg.kinematics())
+        msgs = {m.topic: m.decoded() for m in Telemetry(settings, base.cfg.kinematics())
                 .messages(sample)}
         yaw = msgs["/odom"]["pose"]["pose"]["orientation"]
         assert abs(math.remainder(math.atan2(yaw["z"], yaw["w"]) * 2 - fused.theta,
@@ -95,7 +95,8 @@ def test_the_fused_heading_holds_through_slip_and_the_wheels_odometry_stays(
         wheels_yaw = msgs["/odom/wheels"]["pose"]["pose"]["orientation"]
         assert abs(math.remainder(math.atan2(wheels_yaw["z"], wheels_yaw["w"]) * 2
                                   - base.pose.theta, math.tau)) < 1e-9
-        assert msgs["/odom"]["pose"]["covariance"][35] == snap.fused[3]  # type: ignore[index]
+        assert snap.fused is not None
+        assert msgs["/odom"]["pose"]["covariance"][35] == snap.fused[3]
 
 
 def test_a_lasting_slip_stops_the_base_when_configured(channel: str) -> None:

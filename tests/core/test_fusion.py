@@ -176,7 +176,8 @@ def test_fused_odometry_warns_of_a_silent_imu_and_stops_only_if_asked() -> None:
         assert fused.step(0.0, [ImuSample(0.0, 0.0)], True) is None
         assert fused.warnings == ()
         stops = [fused.step(0.01 * k, [], True) for k in range(1, 40)]
-        assert any("IMU silent" in w for w in fused.warnings)
+        warned: tuple[str, ...] = fused.warnings
+        assert any("IMU silent" in text for text in warned)
         reasons = [s for s in stops if s is not None]
         if expect is None:
             assert reasons == []
