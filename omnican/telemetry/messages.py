@@ -432,11 +432,10 @@ def fusion(s: TelemetrySample) -> dict[str, Any]:
     assert s.pose is not None
     wheels = math.degrees(s.pose.theta)
     f = s.fused
-    if f is None:
-        return {"imu": False, "heading_deg": wheels, "wheels_heading_deg": wheels,
-                "heading_sigma_deg": None, "gyro_bias_deg_s": None, "yaw_rate": None,
-                "slipping": False}
-    return {"imu": bool(f[7]), "heading_deg": math.degrees(f[2]), "wheels_heading_deg": wheels,
+    out = {"timestamp": json_time(s.stamp_ns), "wheels_heading_deg": wheels}
+    if f is None:  # the filter's figures absent (no null in the app's JSON schemas)
+        return {**out, "imu": False, "heading_deg": wheels, "slipping": False}
+    return {**out, "imu": bool(f[7]), "heading_deg": math.degrees(f[2]),
             "heading_sigma_deg": math.degrees(math.sqrt(max(f[3], 0.0))),
             "gyro_bias_deg_s": math.degrees(f[4]), "yaw_rate": f[6], "slipping": bool(f[8])}
 
