@@ -112,6 +112,7 @@ class ControlCycle:
         self.imu: ImuInbox | None = None
         #: the gyro fused with the wheels (made when an IMU is attached; see _fuse)
         self.fusion: FusedOdometry | None = None
+        self._fused: tuple[Any, tuple[str, ...]] | None = None  # (its values, its warnings)
         self._fusion_settings = cfg.fusion
         self._quantum = max(1.0 / abs(a.wheel.position_scale) for a in self.axes)
         self.snapshot = self._make_snapshot(clock.now())
@@ -266,6 +267,7 @@ class ControlCycle:
         imu = self.imu
         assert imu is not None
         stop = fusion.step(now, imu.drain(), self.limiter.output.is_zero())
+        self._fused = (fusion.values, fusion.warnings)
         if stop is not None and not self._sup.latched:
             self._sup.latch(stop)
 
@@ -310,9 +312,6 @@ class ControlCycle:
         cycles = self.cycles
         if sup.warnings != self._warnings_list:
             self._warnings_list, self._warnings = list(sup.warnings), tuple(sup.warnings)
-        fusion = self.fusion
-        warnings = self._warnings if fusion is None or not fusion.warnings \
-            else self._warnings + fusion.warnings
         unknown = offline or configuring or bus_down
         # Field by field into a bare snapshot (see Snapshot: cheaper than a constructor).
         snap = _bare(Snapshot)
@@ -332,9 +331,9 @@ class ControlCycle:
         snap.bus_load = self._bus_bits_per_s / bitrate if bitrate else None
         snap.bus_bits_per_s = self._bus_bits_per_s
         snap.bus_error = watch.failing or (self._bus.reconnect_error if bus_down else None)
-        snap.warnings = warnings
+        snap.warnings = self._warnings
         snap.bus_up = not bus_down
-        snap.fused = None if fusion is None else fusion.values
+        snap.fusion = self._fused  # None without an IMU
         return snap
 
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
