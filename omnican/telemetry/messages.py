@@ -29,6 +29,7 @@ from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
 from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.protocol.cia402 import State
+from omnican.telemetry.fused import FUSED_TOPICS, FUSION_SCHEMA
 from omnican.telemetry.settings import TelemetrySettings
 
 # diagnostic_msgs/msg/DiagnosticStatus levels
@@ -55,15 +56,7 @@ class TelemetrySample:
     status: ChassisStatus | None
     true_pose: Pose2D | None = None  # the simulator's ground truth
     true_twist: Twist | None = None
-    #: the odometry fused with an IMU (:attr:`omnican.chassis.state.Snapshot.fused`; None:
-    #: no IMU, the wheels' odometry is the base's)
-    fused: tuple[float, float, float, float, float, float, float, bool, bool] | None = None
-
-    @property
-    def fused_pose(self) -> Pose2D | None:
-        """The pose fused with the IMU's gyro; the wheels' (:attr:`pose`) without an IMU."""
-        f = self.fused
-        return self.pose if f is None else Pose2D(f[0], f[1], f[2])
+    fused: tuple[float, float, float, float, float, float, float, bool, bool] | None = None  # IMU
 
 
 # ------------------------------------------------------------------ pieces
@@ -106,28 +99,24 @@ def _pose(p: Pose2D) -> dict[str, Any]:
 
 
 def odometry(s: TelemetrySample, settings: TelemetrySettings, pose_covariance: Sequence[float],
-             twist_covariance: Sequence[float], pose: Pose2D | None = None,
-             twist: Twist | None = None) -> dict[str, Any]:
+             twist_covariance: Sequence[float]) -> dict[str, Any]:
     """nav_msgs/msg/Odometry: pose in the odom frame, twist in the body frame, with the
-    dead-reckoning covariances (:mod:`omnican.telemetry.covariance`); ``pose`` and
-    ``twist``: other than the sample's (the fused odometry's)."""
-    pose = pose if pose is not None else s.pose
-    t = twist if twist is not None else s.twist
-    assert pose is not None and t is not None
+    dead-reckoning covariances (:mod:`omnican.telemetry.covariance`)."""
+    assert s.pose is not None and s.twist is not None
+    t = s.twist
     return {
         "header": _header(s.stamp_ns, settings.odom_frame),
         "child_frame_id": settings.base_frame,
-        "pose": {"pose": _pose(pose), "covariance": list(pose_covariance)},
+        "pose": {"pose": _pose(s.pose), "covariance": list(pose_covariance)},
         "twist": {"twist": {"linear": _vector(t.vx, t.vy), "angular": _vector(z=t.wz)},
                   "covariance": list(twist_covariance)},
     }
 
 
 def transforms(s: TelemetrySample, settings: TelemetrySettings) -> dict[str, Any]:
-    """tf2_msgs/msg/TFMessage: the one transform odom -> base_link (the fused pose where an
-    IMU is fused, as ``/odom``)."""
-    p = s.fused_pose
-    assert p is not None
+    """tf2_msgs/msg/TFMessage: the one transform odom -> base_link (/odom's pose)."""
+    assert s.pose is not None
+    p = s.pose if s.fused is None else Pose2D(*s.fused[:3])
     return {"transforms": [{
         "header": _header(s.stamp_ns, settings.odom_frame),
         "child_frame_id": settings.base_frame,
@@ -414,30 +403,9 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         can_state=_STR, can_tx_errors=_maybe(_INT, "the CAN controller does not say"),
         can_rx_errors=_maybe(_INT, "the CAN controller does not say"), estop=_BOOL,
         battery_v=_maybe(_NUM, "no drive measures its DC link"),
-        warnings={"type": "array", "items": _STR,
-                  "description": "what needs attention but does not stop the base (a "
-                  "wheel slipping, a silent IMU, a wheel off the ground, the battery)"}),
-    "omnican.Fusion": _object(
-        "omnican.Fusion", imu=_BOOL, heading_deg=_NUM, wheels_heading_deg=_NUM,
-        heading_sigma_deg=_maybe(_NUM, "no IMU is fused"),
-        gyro_bias_deg_s=_maybe(_NUM, "no IMU is fused"),
-        yaw_rate=_maybe(_NUM, "no IMU is fused"), slipping=_BOOL),
+        warnings={"type": "array", "items": _STR}),
+    "omnican.Fusion": FUSION_SCHEMA,
 }
-
-
-def fusion(s: TelemetrySample) -> dict[str, Any]:
-    """omnican.Fusion: the fused heading beside the wheels' (degrees, for plots), its
-    1-sigma, the gyro's bias, the IMU live, the wheels slipping. Without an IMU: the
-    wheels' alone, ``imu`` false."""
-    assert s.pose is not None
-    wheels = math.degrees(s.pose.theta)
-    f = s.fused
-    out = {"timestamp": json_time(s.stamp_ns), "wheels_heading_deg": wheels}
-    if f is None:  # the filter's figures absent (no null in the app's JSON schemas)
-        return {**out, "imu": False, "heading_deg": wheels, "slipping": False}
-    return {**out, "imu": bool(f[7]), "heading_deg": math.degrees(f[2]),
-            "heading_sigma_deg": math.degrees(math.sqrt(max(f[3], 0.0))),
-            "gyro_bias_deg_s": math.degrees(f[4]), "yaw_rate": f[6], "slipping": bool(f[8])}
 
 
 # ------------------------------------------------------------------ the topics
@@ -446,14 +414,8 @@ ROS2, JSON = "ros2", "json"
 
 #: topic -> (schema name, kind): the state topics every front end may carry.
 TOPICS: dict[str, tuple[str, str]] = {
-    # The base's odometry: fused with the IMU's gyro where one is attached, else the
-    # wheels'. /odometry/filtered is the same, by robot_localization's name; /odom/wheels
-    # the wheels' alone, always.
-    "/odom": ("nav_msgs/msg/Odometry", ROS2),
-    "/odometry/filtered": ("nav_msgs/msg/Odometry", ROS2),
-    "/odom/wheels": ("nav_msgs/msg/Odometry", ROS2),
-    "/odom/wheels/pose": ("geometry_msgs/msg/PoseStamped", ROS2),
-    "/fusion": ("omnican.Fusion", JSON),
+    "/odom": ("nav_msgs/msg/Odometry", ROS2),  # fused with an IMU where one is attached
+    **FUSED_TOPICS,  # /odometry/filtered, /odom/wheels...: telemetry/fused.py
     # The odometry's pose and the path so far, as Foxglove's 3D panel draws them (it does
     # not draw nav_msgs/msg/Odometry).
     "/odom/pose": ("geometry_msgs/msg/PoseStamped", ROS2),

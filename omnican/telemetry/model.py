@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from omnican.core.kinematics import OmniKinematics, Twist
 from omnican.core.odometry import Pose2D
 from omnican.telemetry import messages as m
 from omnican.telemetry.covariance import OdomCovariance
+from omnican.telemetry.fused import fused_pose, fusion
 from omnican.telemetry.settings import TelemetrySettings
 from omnican.telemetry.trail import PERIOD_S as TRAIL_PERIOD_S
 from omnican.telemetry.trail import Trail
@@ -86,8 +87,8 @@ def fused_odometry(s: m.TelemetrySample, settings: TelemetrySettings,
     pose_cov[35] = f[3]
     twist_cov[35] = f[5] + FUSED_RATE_VAR
     t = s.twist
-    return m.odometry(s, settings, pose_cov, twist_cov, pose=Pose2D(f[0], f[1], f[2]),
-                      twist=Twist(t.vx, t.vy, f[6]))
+    fused = replace(s, pose=Pose2D(f[0], f[1], f[2]), twist=Twist(t.vx, t.vy, f[6]))
+    return m.odometry(fused, settings, pose_cov, twist_cov)
 
 
 class Telemetry:
@@ -113,7 +114,8 @@ class Telemetry:
         if s.pose is not None:
             cov = self.covariance
             cov.update(s.pose)  # every sample: the covariance follows the distance rolled
-            pose = s.fused_pose or s.pose  # the base's: fused where an IMU is, else the wheels'
+            pose = fused_pose(s)  # the base's: fused where an IMU is, else the wheels'
+            assert pose is not None
             wants_odom, wants_filtered = wants("/odom"), wants("/odometry/filtered")
             wants_wheels = wants("/odom/wheels")
             if wants_odom or wants_filtered or wants_wheels:
@@ -136,7 +138,7 @@ class Telemetry:
                 out.append(state_message("/odom/wheels/pose", ns, m.pose_stamped(
                     ns, s.pose, settings.odom_frame)))
             if wants("/fusion"):
-                out.append(state_message("/fusion", ns, m.fusion(s)))
+                out.append(state_message("/fusion", ns, fusion(s)))
             if wants("/odom/path") and (last or self._trail_ns is None
                                         or ns - self._trail_ns >= self._trail_period_ns):
                 self._trail_ns = ns
