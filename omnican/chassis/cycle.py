@@ -114,6 +114,7 @@ class ControlCycle:
         self.fusion: FusedOdometry | None = None
         self._fused: tuple[Any, tuple[str, ...]] | None = None  # (its values, its warnings)
         self._fusion_settings = cfg.fusion
+        self._imu_settings = getattr(cfg, "imu", None)  # an [imu] table, where there is one
         self._quantum = max(1.0 / abs(a.wheel.position_scale) for a in self.axes)
         self.snapshot = self._make_snapshot(clock.now())
 
@@ -258,9 +259,12 @@ class ControlCycle:
         fusion = self.fusion
         if fusion is None:
             f = self._fusion_settings
+            # An [imu] table's stale_s (the IMU's own, where its source says how often it
+            # sends) wins over [fusion]'s.
+            stale_s = getattr(self._imu_settings, "stale_s", None) or f.stale_s
             fusion = self.fusion = FusedOdometry(
                 self.kinematics, FusionParams(gyro_noise=f.gyro_noise, bias_walk=f.bias_walk,
-                                              wheel_slip=f.wheel_slip, stale_s=f.stale_s,
+                                              wheel_slip=f.wheel_slip, stale_s=stale_s,
                                               wheel_quantum=self._quantum),
                 self.odometry, self.wheel_odometry, f.slip_warn_s, f.stop_on_slip,
                 f.stop_on_imu_stale)
