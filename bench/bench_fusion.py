@@ -13,6 +13,10 @@ limits of bench_chassis (2 m/s^2, 6 rad/s^2: the base's full acceleration):
   (sim.set_slip): how long until the first slip event, and its size;
 * clean: the ten squares with no slip, as fast as the limits allow (1 m/s, 3 rad/s):
   slip events counted (should be none);
+* compare: the ten slipping squares' filter inputs (what the loop handed the filter each
+  cycle) replayed through first-order complementary filters (time constant 1, 10, 100 s,
+  the bias learnt standing still alike) and through the Kalman filter again: the final
+  heading error of each and its time per step, the measurement the choice rests on;
 * cost: the fusion's own time per cycle (the cycle's IMU block, ControlCycle._fuse, timed
   around the call: wall time on the loop's one thread, so a preemption of the shared
   machine lands in the mean and the tail; the median is the figure) at 100 Hz and 1 kHz.
@@ -35,6 +39,7 @@ from bench_chassis import config
 
 from omnican import Chassis
 from omnican.clock import SimClock
+from omnican.core.fusion import HeadingFusion
 from omnican.core.imu import ImuInbox, ImuSample
 from omnican.sim import SimulatedBase
 from omnican.sim.slip import SimSlip
@@ -141,6 +146,76 @@ def squares(rate_hz: float, n: int) -> None:
              slip_events=rig.slip.started)
 
 
+class Recorded(HeadingFusion):
+    """The loop's filter, keeping what each step was given (to replay it through others)."""
+
+    __slots__ = ("steps",)
+
+    def step(self, now: float, samples: Any, wheel_step: Any, still: bool) -> None:
+        self.steps.append((now, list(samples), wheel_step, still))
+        super().step(now, samples, wheel_step, still)
+
+
+class Complementary:
+    """The alternative: a first-order complementary filter, the gyro high-passed and the
+    wheels' heading low-passed with time constant ``tau_s``, the bias the mean gyro
+    reading standing still (the same zero-velocity information as the Kalman filter's)."""
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = tau_s
+        self.theta = self.wheels = self.b = 0.0
+        self.t: float | None = None
+        self.rate = 0.0
+
+    def step(self, now: float, samples: Any, wheel_step: Any, still: bool) -> None:
+        if samples:
+            self.rate = sum(s.yaw_rate for s in samples) / len(samples)
+            if still:
+                self.b += 0.02 * (self.rate - self.b)
+        dt = now - self.t if self.t is not None else 0.0
+        self.t = now
+        if wheel_step is not None:
+            self.wheels += wheel_step[2]
+        gyro = 0.0 if still else self.rate - self.b
+        self.theta += gyro * dt + min(1.0, dt / self.tau_s) * (self.wheels - self.theta)
+
+
+def compare(rate_hz: float, n: int) -> None:
+    """The ten slipping squares' inputs, replayed through complementary filters."""
+    with Rig(rate_hz) as rig:
+        rig.sim.set_slip(SimSlip(ratios=(0.0, 0.1, 0.0)))
+        rig.hold(0.0, 0.0, 0.0, 0.05)
+        fused = rig.loop.fusion
+        assert fused is not None
+        old = fused.fusion
+        rec = Recorded(rig.loop.kinematics.rows, rig.loop.kinematics.forward_rows[2],
+                       old.params, fused.odometry.xyt)
+        rec.steps = []
+        fused.fusion = rec
+        start = rig.sim.true_pose.theta - rec.theta
+        rig.hold(0.0, 0.0, 0.0, 2.0)
+        for _ in range(n):
+            rig.square(0.5, 1.0)
+        true = rig.sim.true_pose.theta - start
+        steps = rec.steps
+    for tau in (1.0, 10.0, 100.0):
+        cf = Complementary(tau)
+        t0 = time.perf_counter()
+        for args in steps:
+            cf.step(*args)
+        us = (time.perf_counter() - t0) / len(steps) * 1e6
+        emit(bench="compare", rate_hz=rate_hz, filter=f"complementary tau {tau:g} s",
+             heading_err_deg=round(math.degrees(cf.theta - true), 2),
+             us_per_step=round(us, 2))
+    kf = HeadingFusion(rec._rows, rec._wz_of, rec.params)
+    t0 = time.perf_counter()
+    for args in steps:
+        kf.step(*args)
+    us = (time.perf_counter() - t0) / len(steps) * 1e6
+    emit(bench="compare", rate_hz=rate_hz, filter="kalman (omnican.core.fusion)",
+         heading_err_deg=round(math.degrees(kf.theta - true), 2), us_per_step=round(us, 2))
+
+
 def onset(rate_hz: float) -> None:
     with Rig(rate_hz) as rig:
         rig.hold(0.0, 0.0, 0.0, 2.0)
@@ -199,6 +274,9 @@ def table() -> None:
             print(f"onset    {r['rate_hz']:>5.0f} Hz  slip flagged {r['flagged_after_ms']} ms "
                   f"after it began (size {r['size_rad_s']} rad/s), false before: "
                   f"{r['false_before']}")
+        elif r["bench"] == "compare":
+            print(f"compare  {r['rate_hz']:>5.0f} Hz  {r['filter']:<30} heading error "
+                  f"{r['heading_err_deg']:+7.2f} deg, {r['us_per_step']} us a step")
         elif r["bench"] == "cost":
             print(f"cost     {r['rate_hz']:>5.0f} Hz  fusion {r['fusion_us_per_cycle_p50']} us per "
                   f"cycle (median; p99 {r['fusion_us_per_cycle_p99']}, mean "
@@ -212,6 +290,7 @@ def main() -> None:
     args = ap.parse_args()
     n = 2 if args.quick else 10
     squares(args.rate, n)
+    compare(args.rate, n)
     onset(args.rate)
     clean(args.rate, n)
     for rate in (100.0, 1000.0):
