@@ -25,13 +25,17 @@ its own. :class:`HeadingFusion` fuses the two once per control cycle:
 - **Fall back**: no IMU sample for ``stale_s`` (none configured, or one gone silent): the
   heading follows the wheels' step exactly, the heading's variance grows by the wheels'.
 
-Why a Kalman filter rather than a complementary filter: the complementary filter's fixed
-crossover has to be chosen once for every speed, and a slip that lasts longer than its time
-constant leaks into the heading in full; it learns a bias only from the long-run
-disagreement, which slip biases too. The filter here weighs the two by their variances
-each step (the wheels count for less the faster they turn), learns the bias only where it
-is observable cleanly (standing still), and costs the same: the 2 x 2 algebra is written
-out in plain floats (no numpy call per cycle; see bench/bench_fusion.py for the figures).
+Why a Kalman filter rather than a complementary filter, by measurement
+(``bench/bench_fusion.py``: the inputs of ten 1 m squares with a wheel slipping 10 % and
+a gyro biased 0.5 deg/s replayed through both, the bias learnt standing still alike): a
+complementary filter's one crossover lets a slip that lasts longer than its time
+constant into the heading in full, and on an omni base slip lasts as long as the base
+moves; it ended 469, 447 and 263 deg off with time constants of 1, 10 and 100 s, this
+filter 0.4 deg. It weighs the two by their variances each step (the wheels count for
+less the faster they turn), gates the wheels out where they disagree, and learns the
+bias only where it is observable cleanly (standing still). It costs a few microseconds
+more a step than the complementary filter (about 9 us a cycle in the loop, at 100 Hz and
+1 kHz alike): the 2 x 2 algebra written out in plain floats, no numpy call per cycle.
 
 The position integrates each wheel step's body displacement ``(dx, dy)`` with the fused
 heading, through the same SE(2) exponential as :class:`~omnican.core.odometry.Odometry`,
