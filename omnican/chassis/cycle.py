@@ -22,7 +22,7 @@ from omnican.chassis.state import Snapshot
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import Clock
 from omnican.config import ChassisConfig
-from omnican.core.fusion import FusedOdometry, FusionParams
+from omnican.core.fusion import FusedOdometry
 from omnican.core.imu import ImuInbox
 from omnican.core.kinematics import Twist
 from omnican.core.limits import VelocityLimiter
@@ -113,9 +113,7 @@ class ControlCycle:
         #: the gyro fused with the wheels (made when an IMU is attached; see _fuse)
         self.fusion: FusedOdometry | None = None
         self._fused: tuple[Any, tuple[str, ...]] | None = None  # (its values, its warnings)
-        self._fusion_settings = cfg.fusion
-        self._imu_settings = getattr(cfg, "imu", None)  # an [imu] table, where there is one
-        self._quantum = max(1.0 / abs(a.wheel.position_scale) for a in self.axes)
+        self._fusion_settings = (cfg.fusion, getattr(cfg, "imu", None))  # [fusion], [imu]
         self.snapshot = self._make_snapshot(clock.now())
 
     def call_soon(self, fn: Callable[[], None]) -> None:
@@ -257,17 +255,9 @@ class ControlCycle:
         (:mod:`omnican.core.fusion`); a slip or a silent IMU warns, or stops the base if
         the config says so."""
         fusion = self.fusion
-        if fusion is None:
-            f = self._fusion_settings
-            # An [imu] table's stale_s (the IMU's own, where its source says how often it
-            # sends) wins over [fusion]'s.
-            stale_s = getattr(self._imu_settings, "stale_s", None) or f.stale_s
-            fusion = self.fusion = FusedOdometry(
-                self.kinematics, FusionParams(gyro_noise=f.gyro_noise, bias_walk=f.bias_walk,
-                                              wheel_slip=f.wheel_slip, stale_s=stale_s,
-                                              wheel_quantum=self._quantum),
-                self.odometry, self.wheel_odometry, f.slip_warn_s, f.stop_on_slip,
-                f.stop_on_imu_stale)
+        if fusion is None:  # the first cycle with an IMU
+            fusion = self.fusion = FusedOdometry.configured(
+                self.kinematics, self.odometry, self.wheel_odometry, *self._fusion_settings)
         imu = self.imu
         assert imu is not None
         stop = fusion.step(now, imu.drain(), self.limiter.output.is_zero())

@@ -49,6 +49,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 from omnican.core.imu import ImuSample
 from omnican.core.kinematics import OmniKinematics
@@ -329,6 +330,24 @@ class HeadingFusion:
         self.theta = th + dw
 
 
+class FusionConfig(Protocol):
+    """What :meth:`FusedOdometry.configured` reads of the ``[fusion]`` table
+    (:class:`omnican.config.FusionSettings`)."""
+
+    @property
+    def gyro_noise(self) -> float: ...
+    @property
+    def bias_walk(self) -> float: ...
+    @property
+    def wheel_slip(self) -> float: ...
+    @property
+    def slip_warn_s(self) -> float: ...
+    @property
+    def stop_on_slip(self) -> bool: ...
+    @property
+    def stop_on_imu_stale(self) -> bool: ...
+
+
 class FusedOdometry:
     """The control loop's side of the fusion: a :class:`HeadingFusion` fed with the steps
     of the wheels' odometry (``odometry``, the one pose the wheels own, and
@@ -364,6 +383,23 @@ class FusedOdometry:
         self.values: tuple[float, float, float, float, float, float, float, bool, bool] = (
             *odometry.xyt, 0.0, 0.0, params.bias0 ** 2, 0.0, False, False)
         self.warnings: tuple[str, ...] = ()
+
+    @classmethod
+    def configured(cls, kinematics: OmniKinematics, odometry: Odometry,
+                   wheel_odometry: WheelOdometry, settings: FusionConfig,
+                   imu: object = None) -> FusedOdometry:
+        """As the ``[fusion]`` table ``settings`` says; ``imu``: the ``[imu]`` table, whose
+        ``stale_s`` wins (an IMU attached in code, without one: ``FusionParams``'). The
+        encoders' resolution (the coarsest wheel's count) is the wheels' quantum."""
+        given = getattr(imu, "stale_s", None)
+        stale_s = float(given if given is not None else
+                        getattr(settings, "stale_s", FusionParams.stale_s))
+        quantum = max(1.0 / abs(w.counts_per_m) for w in wheel_odometry.counters.wheels)
+        params = FusionParams(gyro_noise=settings.gyro_noise, bias_walk=settings.bias_walk,
+                              wheel_slip=settings.wheel_slip, stale_s=stale_s,
+                              wheel_quantum=quantum)
+        return cls(kinematics, params, odometry, wheel_odometry, settings.slip_warn_s,
+                   settings.stop_on_slip, settings.stop_on_imu_stale)
 
     def reset(self, pose: tuple[float, float, float]) -> None:
         """The pose is ``pose`` from now on (the wheels' odometry was reset to it too)."""

@@ -228,8 +228,7 @@ class SimulatedBase:
         return self._truth.twist
 
     def set_slip(self, slip: SimSlip | None) -> None:
-        """The ground slips as ``slip`` says from now on (None: it grips; the drives' own
-        ``slip`` stays): :mod:`omnican.sim.slip`. The encoders count as before."""
+        """The ground slips as ``slip`` says from now on (None: grips): omnican.sim.slip."""
         self._truth.slip = slip
 
     def reset_truth(self, pose: Pose2D | None = None) -> None:

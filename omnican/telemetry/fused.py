@@ -30,11 +30,12 @@ class FusedSample(Protocol):
 
 #: The topics of the fused odometry beside /odom (in messages.TOPICS): the same by
 #: robot_localization's name, the wheels' own, its pose for the 3D panel, the headings.
+ROS2, JSON = "ros2", "json"  # the message kinds, as messages.ROS2 and messages.JSON
 FUSED_TOPICS: dict[str, tuple[str, str]] = {
-    "/odometry/filtered": ("nav_msgs/msg/Odometry", "ros2"),
-    "/odom/wheels": ("nav_msgs/msg/Odometry", "ros2"),
-    "/odom/wheels/pose": ("geometry_msgs/msg/PoseStamped", "ros2"),
-    "/fusion": ("omnican.Fusion", "json"),
+    "/odometry/filtered": ("nav_msgs/msg/Odometry", ROS2),
+    "/odom/wheels": ("nav_msgs/msg/Odometry", ROS2),
+    "/odom/wheels/pose": ("geometry_msgs/msg/PoseStamped", ROS2),
+    "/fusion": ("omnican.Fusion", JSON),
 }
 
 _NUM = {"type": "number"}

@@ -65,8 +65,7 @@ TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 #: The telemetry this front end publishes (tf with odom, joint states with wheel radii).
 PUBLISHED = ("/odom", "/tf", "/joint_states", "/diagnostics", "/battery_state",
              "/status", "/wheels", "/odometry/filtered", "/odom/wheels")
-#: What goes out with the odometry of its sample (at /odom's rate): the transform, the
-#: simulator's truth, the odometry by robot_localization's name and the wheels' own.
+#: What goes out with its sample's /odom (besides the simulator's truth).
 WITH_ODOM = ("/tf", "/odometry/filtered", "/odom/wheels")
 STRING = "std_msgs/msg/String"  # what the JSON topics travel as (the JSON its text)
 #: The fleet's view of the base (:mod:`omnican.zenoh.summary`).
