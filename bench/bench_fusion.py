@@ -10,7 +10,7 @@ limits of bench_chassis (2 m/s^2, 6 rad/s^2: the base's full acceleration):
   the simulator's true yaw rate. Final heading error against the truth: the wheels'
   odometry alone and the fused, side by side;
 * onset: the base drives straight at 0.5 m/s, and the slip begins at a known time
-  (sim.set_slip): how long until the first slip event, and its size;
+  (omnican.sim.slip.set_slip): how long until the first slip event, and its size;
 * clean: the ten squares with no slip, as fast as the limits allow (1 m/s, 3 rad/s):
   slip events counted (should be none);
 * compare: the ten slipping squares' filter inputs (what the loop handed the filter each
@@ -42,7 +42,7 @@ from omnican.clock import SimClock
 from omnican.core.fusion import HeadingFusion
 from omnican.core.imu import ImuInbox, ImuSample
 from omnican.sim import SimulatedBase
-from omnican.sim.slip import SimSlip
+from omnican.sim.slip import SimSlip, set_slip
 
 BIAS = math.radians(0.5)
 NOISE = 0.005
@@ -131,7 +131,7 @@ class Rig:
 
 def squares(rate_hz: float, n: int) -> None:
     with Rig(rate_hz) as rig:
-        rig.sim.set_slip(SimSlip(ratios=(0.0, 0.1, 0.0)))
+        set_slip(rig.sim, SimSlip(ratios=(0.0, 0.1, 0.0)))
         rig.hold(0.0, 0.0, 0.0, 2.0)  # standing still: the bias is learnt
         for _ in range(n):
             rig.square(0.5, 1.0)
@@ -183,7 +183,7 @@ class Complementary:
 def compare(rate_hz: float, n: int) -> None:
     """The ten slipping squares' inputs, replayed through complementary filters."""
     with Rig(rate_hz) as rig:
-        rig.sim.set_slip(SimSlip(ratios=(0.0, 0.1, 0.0)))
+        set_slip(rig.sim, SimSlip(ratios=(0.0, 0.1, 0.0)))
         rig.hold(0.0, 0.0, 0.0, 0.05)
         fused = rig.loop.fusion
         assert fused is not None
@@ -222,7 +222,7 @@ def onset(rate_hz: float) -> None:
         rig.hold(0.5, 0.0, 0.0, 1.0)
         before = rig.slip.started
         t_slip = rig.clock.now()
-        rig.sim.set_slip(SimSlip(ratios=(0.0, 0.1, 0.0)))
+        set_slip(rig.sim, SimSlip(ratios=(0.0, 0.1, 0.0)))
         rig.hold(0.5, 0.0, 0.0, 1.0)
         events = list(rig.slip.events)[-(rig.slip.started - before):] \
             if rig.slip.started > before else []

@@ -43,7 +43,6 @@ from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.scheduler import SimScheduler
-from omnican.sim.slip import SimSlip
 from omnican.sim.truth import GroundTruth
 from omnican.sim.wiring import health_wiring, make_drive
 
@@ -226,10 +225,6 @@ class SimulatedBase:
     def true_twist(self) -> Twist:
         """Ground-truth body velocity now (m/s, m/s, rad/s); see :attr:`true_pose`."""
         return self._truth.twist
-
-    def set_slip(self, slip: SimSlip | None) -> None:
-        """The ground slips as ``slip`` says from now on (None: grips): omnican.sim.slip."""
-        self._truth.slip = slip
 
     def reset_truth(self, pose: Pose2D | None = None) -> None:
         self._truth.reset(pose)

@@ -18,7 +18,7 @@ on a real base: only a gyro (or a camera) sees the difference.
   m/s^2 of gravity along the ramp) while its wheels turn (free rollers give way to the
   pull; a base at rest is held by its drives' position).
 
-Pure module: no I/O.
+:func:`set_slip` gives a simulated base its ground's slip. Pure module: no I/O.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -110,3 +111,15 @@ class SimSlip:
         speed = self.ramp_creep * G * math.sin(math.radians(self.ramp_grade_deg))
         a = math.radians(self.ramp_downhill_deg)
         return speed * math.cos(a) * dt, speed * math.sin(a) * dt
+
+
+class _Simulated(Protocol):
+    """A simulated base (:class:`omnican.sim.SimulatedBase`): its ground truth."""
+
+    _truth: Any
+
+
+def set_slip(sim: _Simulated, slip: SimSlip | None) -> None:
+    """The ground under ``sim`` slips as ``slip`` says from now on (None: it grips; the
+    drives' own ``slip`` stays). The encoders count as before: only the truth changes."""
+    sim._truth.slip = slip

@@ -16,7 +16,7 @@ from omnican.clock import SimClock
 from omnican.config import FusionSettings, parse_config
 from omnican.core.imu import ImuInbox, ImuSample
 from omnican.sim import SimulatedBase
-from omnican.sim.slip import SimSlip
+from omnican.sim.slip import SimSlip, set_slip
 from omnican.telemetry import Telemetry
 from omnican.telemetry.messages import TelemetrySample
 from omnican.telemetry.settings import TelemetrySettings
@@ -65,7 +65,7 @@ def hold(clock: SimClock, base: Chassis, vx: float, vy: float, wz: float, second
 def test_the_fused_heading_holds_through_slip_and_the_wheels_odometry_stays(
         channel: str) -> None:
     with rig(channel) as (clock, sim, base, _):
-        sim.set_slip(SimSlip(ratios=(0.0, 0.1, 0.0)))
+        set_slip(sim, SimSlip(ratios=(0.0, 0.1, 0.0)))
         hold(clock, base, 0.0, 0.0, 0.0, 2.0)  # the bias, learnt standing still
         for _ in range(4):
             hold(clock, base, 0.5, 0.0, 0.0, 2.0)
@@ -105,7 +105,7 @@ def test_a_lasting_slip_stops_the_base_when_configured(channel: str) -> None:
         hold(clock, base, 0.0, 0.0, 0.0, 1.0)
         hold(clock, base, 0.5, 0.0, 0.0, 0.5)
         assert base.status.stopped_reason is None
-        sim.set_slip(SimSlip(ratios=(0.0, 0.2, 0.0)))
+        set_slip(sim, SimSlip(ratios=(0.0, 0.2, 0.0)))
         end = clock.now() + 3.0
         while base.status.stopped_reason is None and clock.now() < end:
             base.set_velocity(0.5, 0.0, 0.0)

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from omnican.sim import SimulatedBase
-from omnican.sim.slip import SimSlip
+from omnican.sim.slip import SimSlip, set_slip
 from tests.support.helpers import still, wait_for
 
 HOST = Path(__file__).resolve().parents[1] / "support" / "imu_host_process.py"
@@ -108,7 +108,7 @@ def test_a_slipping_wheel_stops_the_base_of_another_process(
     with host(served, "stop_on_slip = true\nslip_warn_s = 0.3") as (sim, h):
         time.sleep(0.5)
         assert not h.seen("stopped")
-        sim.set_slip(SimSlip(ratios=(0.0, 0.2, 0.0)))
+        set_slip(sim, SimSlip(ratios=(0.0, 0.2, 0.0)))
         assert "slipping" in h.expect("stopped: ")
         assert wait_for(lambda: still(sim), TIMEOUT_S)
 

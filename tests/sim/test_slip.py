@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from omnican import Chassis
 from omnican.clock import SimClock
 from omnican.core.kinematics import OmniKinematics
-from omnican.sim.slip import SimSlip, Surface
+from omnican.sim.slip import SimSlip, Surface, set_slip
 from tests.support.helpers import lockstep_rig
 
 KIN = OmniKinematics.from_layout("b21", 0.19)
@@ -40,7 +40,7 @@ def test_a_slipping_wheel_turns_the_truth_not_the_encoders(channel: str) -> None
         drive(clock, base, 0.4, 0.0, 0.0, 1.0)
         before_true, before_odo = sim.true_pose, base.pose
         assert abs(before_true.theta) < 1e-3  # no slip yet: a straight line
-        sim.set_slip(SimSlip(ratios=(0.0, 0.2, 0.0)))
+        set_slip(sim, SimSlip(ratios=(0.0, 0.2, 0.0)))
         after_set = sim.true_pose
         assert after_set.distance_to(before_true) < 0.01  # no jump when it starts
         drive(clock, base, 0.4, 0.0, 0.0, 1.0)
@@ -84,7 +84,7 @@ def test_a_ramp_creeps_downhill() -> None:
 def test_a_ramp_and_a_roller_move_the_simulated_base(channel: str) -> None:
     with lockstep_rig(channel) as (clock, sim, base):
         enabled(clock, base)
-        sim.set_slip(SimSlip(ramp_grade_deg=10.0, ramp_downhill_deg=90.0, roller={0: 0.3}))
+        set_slip(sim, SimSlip(ramp_grade_deg=10.0, ramp_downhill_deg=90.0, roller={0: 0.3}))
         drive(clock, base, 0.4, 0.0, 0.0, 1.0)
         drive(clock, base, 0.0, 0.0, 0.0, 0.5)
         true, odo = sim.true_pose, base.pose
