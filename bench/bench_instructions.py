@@ -263,7 +263,8 @@ def measure(rate_hz: float, cycles: int, toggle_dir: Path, out_dir: Path, kind: 
         raise SystemExit(f"bench_instructions: the run under valgrind failed:\n{done.stderr[-2000:]}")
     n = json.loads(done.stdout.strip().splitlines()[-1])["cycles"]
     # The client request's dump (suffix .1) holds exactly the measured cycles.
-    dumps = sorted(out_dir.glob(f"{prefix.name}.*.1"))
+    dumps = sorted(out_dir.glob(f"{prefix.name}.*.1"), key=lambda p: p.stat().st_mtime,
+                   reverse=True)  # this run's (a kept directory may hold older ones)
     total = 0
     for line in dumps[0].read_text().splitlines():
         if line.startswith("summary:"):
@@ -280,6 +281,9 @@ def main() -> None:
     parser.add_argument("--loops", default="omnican,minimal,canopen",
                         help="which loops to count: omnican, minimal, canopen")
     parser.add_argument("--wheels", default="3", help="comma-separated wheel counts (3,6,12)")
+    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                        help="keep callgrind's output files in DIR (read them with "
+                             "callgrind_annotate: the top functions per cycle)")
     parser.add_argument("--child", nargs=4, metavar=("RATE", "CYCLES", "LOOP", "WHEELS"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -291,17 +295,21 @@ def main() -> None:
         if why is not None:
             print(f"bench_instructions: cannot count instructions here: {why}", file=sys.stderr)
             raise SystemExit(2)
+        out = Path(tmp)
+        if args.keep is not None:
+            args.keep.mkdir(parents=True, exist_ok=True)
+            out = args.keep
         counts: dict[tuple[str, int, float], int] = {}
         for wheels in (int(w) for w in args.wheels.split(",")):
             for rate in (float(r) for r in args.rates.split(",")):
                 for kind in args.loops.split(","):
-                    row = measure(rate, args.cycles, Path(tmp), Path(tmp), kind, wheels)
+                    row = measure(rate, args.cycles, Path(tmp), out, kind, wheels)
                     counts[(kind, wheels, rate)] = row["instructions_per_cycle"]
                     print(json.dumps(row), flush=True)
         _summary(counts)
         if "omnican" in args.loops.split(","):  # what the simulated drives cost per cycle
             for rate in (float(r) for r in args.rates.split(",")):
-                row = measure(rate, args.cycles, Path(tmp), Path(tmp), "omnican", 3, "sim")
+                row = measure(rate, args.cycles, Path(tmp), out, "omnican", 3, "sim")
                 row["host"] = counts.get(("omnican", 3, rate))
                 print(json.dumps(row), flush=True)
 

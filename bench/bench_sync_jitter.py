@@ -17,6 +17,18 @@ Schemes, each at 100 Hz and 1 kHz:
   tick) and at once sends the RPDOs for the *next* SYNC, a whole period ahead.
 * ``bcm_free``: BCM sends SYNC; the host loop keeps its own timer (what simply moving
   SYNC to ``send_periodic`` without changing the loop would give).
+* ``omnican_loop``: omnican's own code, ``[bus] sync = "loop"``: a :class:`CanBus`, paced
+  as :class:`~omnican.chassis.runner.ThreadRunner` paces the cycle (``time.sleep`` to
+  the next period), three RPDOs then ``bus.sync()``.
+* ``omnican_kernel``: omnican's own code, ``[bus] sync = "kernel"`` (the default on
+  SocketCAN): ``bus.start_kernel_sync`` (the BCM, armed for a bounded count), and the
+  loop of :class:`~omnican.chassis.runner.SyncRunner`: ``bus.wait_sync``, three RPDOs,
+  ``bus.sync()`` (the re-arm).
+
+The omnican schemes run their loop thread at SCHED_FIFO ``--rt`` (the chassis's default
+``rt_priority``, 50; 0: normal priority) where the process may, as the chassis does.
+``--hogs N`` runs N busy processes beside the measurement (a loaded robot computer);
+``--cycles N`` sets how many cycles each run lasts (at both rates).
 
 Printed per scheme and rate (one JSON object a line): SYNC frames seen, |period -
 nominal| p50/p99/max (ms) and the mean slip (mean period - nominal, ms and %), and
@@ -28,13 +40,16 @@ cycle's RPDOs), with the host's reaction time for ``bcm_tick``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import socket
 import struct
+import subprocess
+import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import can
@@ -243,29 +258,131 @@ def free_late(frames: list[tuple[float, int, bytes]]) -> dict[str, float]:
             "periods_with_two_or_more": sum(c >= 2 for c in counts)}
 
 
-def measure(scheme: str, rate_hz: float, seconds: float, channel: str) -> dict[str, object]:
+def omnican_run(kernel: bool, channel: str, period: float, seconds: float,
+                rt: int) -> dict[str, object]:
+    """omnican's CanBus on SocketCAN, its loop as the chassis's runner runs it (on a
+    thread of its own, SCHED_FIFO ``rt`` where allowed): each cycle three RPDOs, then
+    ``bus.sync()``. Kernel: the cycle is woken by each SYNC and tags its RPDOs with that
+    SYNC's kernel timestamp (``tick_late`` matches them); loop: with the cycle number."""
+    from omnican.chassis.realtime import make_realtime
+    from omnican.chassis.runner import LATE_FRACTION_OF_PERIOD, NO_SYNC_PERIODS
+    from omnican.io.bus import CanBus, prepared_message
+
+    info: dict[str, object] = {}
+    stamp = [0.0]
+
+    def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
+        stamp[0] = timestamp
+
+    def run() -> None:
+        info["realtime"] = make_realtime(rt) if rt else False
+        msgs = [prepared_message(cob, bytes(8)) for cob in RPDOS]
+        with CanBus({"interface": "socketcan", "channel": channel,
+                     "sync": "kernel" if kernel else "loop"}) as bus:
+            bus.start_polling()
+            bus.network.subscribe(SYNC, on_sync)
+            late = restarts = 0
+            end = time.monotonic() + seconds
+            if kernel:
+                assert bus.start_kernel_sync(period), "no broadcast manager"
+                while time.monotonic() < end:
+                    came = bus.wait_sync(period * NO_SYNC_PERIODS)
+                    now = time.monotonic()
+                    if not came:
+                        if bus.kernel_sync_ran_out(now):
+                            restarts += 1
+                            bus.restart_kernel_sync()
+                    elif now - bus.seen_sync_time > period * LATE_FRACTION_OF_PERIOD:
+                        late += 1
+                    bus.poll()
+                    tag = struct.pack("<Q", round(stamp[0] * 1e6))
+                    for m in msgs:
+                        m.data = tag  # type: ignore[assignment]
+                        bus.send_prepared(m, 135)
+                    bus.sync()
+                total = bus.kernel_sync.restarts if bus.kernel_sync else 0
+                info["restarts_after_no_sync"] = restarts
+                restarts = total  # and those of bus.sync(): the count ran out
+                info["syncs_seen"] = bus.syncs_seen
+                bus.stop_kernel_sync()
+            else:
+                next_t = time.monotonic()
+                k = 0
+                while next_t < end:
+                    k += 1
+                    bus.poll()
+                    tag = struct.pack("<Q", k)
+                    for m in msgs:
+                        m.data = tag  # type: ignore[assignment]
+                        bus.send_prepared(m, 135)
+                    bus.sync()
+                    next_t += period
+                    delay = next_t - time.monotonic()
+                    if delay < -period:
+                        next_t = time.monotonic()
+                        delay = 0.0
+                    if delay > 0:
+                        time.sleep(delay)
+                    elif delay < -period * LATE_FRACTION_OF_PERIOD:
+                        late += 1
+            info["late_starts"] = late
+            info["kernel_restarts"] = restarts
+
+    thread = threading.Thread(target=run, name="omnican-loop")
+    thread.start()
+    thread.join()
+    return info
+
+
+@contextlib.contextmanager
+def hogs(n: int) -> Iterator[None]:
+    """``n`` processes that spin on the CPU for as long as the block runs."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
+def measure(scheme: str, rate_hz: float, seconds: float, channel: str, rt: int = 50,
+            n_hogs: int = 0) -> dict[str, object]:
     period = 1.0 / rate_hz
+    info: dict[str, object] = {}
     cap = Capture(channel)
     try:
-        with can.Bus(interface="socketcan", channel=channel) as bus:
-            if scheme == "loop":
-                run_loop(bus, period, seconds)
-            elif scheme == "bcm":
-                run_bcm(bus, period, seconds)
-            elif scheme == "bcm_tick":
-                run_bcm(bus, period, seconds, tick_host(channel, period))
+        with hogs(n_hogs):
+            if scheme.startswith("omnican_"):
+                # In a process of its own, as the chassis runs: this one's capture thread
+                # must not hold the GIL the loop waits for.
+                child = subprocess.run(
+                    [sys.executable, __file__, "--child", scheme, "--channel", channel,
+                     "--rates", str(rate_hz), "--seconds", str(seconds), "--rt", str(rt)],
+                    capture_output=True, text=True, check=True)
+                info = json.loads(child.stdout.strip().splitlines()[-1])
             else:
-                run_bcm(bus, period, seconds, free_host(channel, period))
+                with can.Bus(interface="socketcan", channel=channel) as bus:
+                    if scheme == "loop":
+                        run_loop(bus, period, seconds)
+                    elif scheme == "bcm":
+                        run_bcm(bus, period, seconds)
+                    elif scheme == "bcm_tick":
+                        run_bcm(bus, period, seconds, tick_host(channel, period))
+                    else:
+                        run_bcm(bus, period, seconds, free_host(channel, period))
     finally:
         frames = cap.close()
-    out: dict[str, object] = {"scheme": scheme, "rate_hz": rate_hz, "seconds": seconds}
+    out: dict[str, object] = {"scheme": scheme, "rate_hz": rate_hz, "seconds": seconds,
+                              "hogs": n_hogs}
     out.update(period_stats(frames, period))
-    if scheme == "loop":
+    if scheme in ("loop", "omnican_loop"):
         out.update(loop_late(frames))
-    elif scheme == "bcm_tick":
+    elif scheme in ("bcm_tick", "omnican_kernel"):
         out.update(tick_late(frames, period))
     elif scheme == "bcm_free":
         out.update(free_late(frames))
+    out.update(info)
     return out
 
 
@@ -275,10 +392,28 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=10.0, help="per run at 100 Hz")
     parser.add_argument("--fast-seconds", type=float, default=4.0, help="per run at 1 kHz")
     parser.add_argument("--schemes", default="loop,bcm,bcm_tick,bcm_free")
+    parser.add_argument("--rates", default="100,1000", help="Hz, comma-separated")
+    parser.add_argument("--cycles", type=int, default=0,
+                        help="cycles per run at every rate (instead of the seconds)")
+    parser.add_argument("--hogs", default="0",
+                        help="busy processes beside each run, comma-separated: 0,2 runs "
+                             "each twice")
+    parser.add_argument("--rt", type=int, default=50,
+                        help="SCHED_FIFO priority of the omnican schemes' loop (0: none)")
+    parser.add_argument("--child", help=argparse.SUPPRESS)  # an omnican scheme's loop
     args = parser.parse_args()
-    for rate, seconds in ((100.0, args.seconds), (1000.0, args.fast_seconds)):
-        for scheme in args.schemes.split(","):
-            print(json.dumps(measure(scheme, rate, seconds, args.channel)), flush=True)
+    if args.child:
+        info = omnican_run(args.child == "omnican_kernel", args.channel,
+                           1.0 / float(args.rates), args.seconds, args.rt)
+        print(json.dumps(info), flush=True)
+        return
+    for rate in (float(r) for r in args.rates.split(",")):
+        seconds = (args.cycles / rate if args.cycles else
+                   args.seconds if rate < 500 else args.fast_seconds)
+        for n in (int(h) for h in args.hogs.split(",")):
+            for scheme in args.schemes.split(","):
+                print(json.dumps(measure(scheme, rate, seconds, args.channel, args.rt, n)),
+                      flush=True)
 
 
 if __name__ == "__main__":

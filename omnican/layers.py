@@ -27,12 +27,15 @@ class FrontEndEntry(NamedTuple):
     command's module is ``omnican.cli.<command>``), which ``omnican --help`` lists
     without importing anything of it. ``foreign_threads``: the modules of its libraries
     that call into Python from threads of their own; a process that imported one ends
-    past the interpreter's finalization (:func:`omnican.cli.main`)."""
+    past the interpreter's finalization (:func:`omnican.cli.main`). ``imu_topic``: it
+    reads an IMU's ``sensor_msgs/Imu`` topic into the base when the config's ``[imu]``
+    names it as the ``source``."""
 
     plugin: str
     extra: str | None = None
     commands: tuple[tuple[str, str], ...] = ()
     foreign_threads: tuple[str, ...] = ()
+    imu_topic: bool = False
 
     @property
     def folder(self) -> str:
@@ -44,12 +47,12 @@ class FrontEndEntry(NamedTuple):
 #: command offers them. A new front end is its folder and one line here.
 FRONT_ENDS: dict[str, FrontEndEntry] = {
     "ros2": FrontEndEntry("omnican.ros2.front_end:Ros2FrontEnd", "ros2", (
-        ("ros2", "run the base as a ROS 2 node (DDS; no ROS install)"),)),
+        ("ros2", "run the base as a ROS 2 node (DDS; no ROS install)"),), imu_topic=True),
     "foxglove": FrontEndEntry("omnican.live.front_end:FoxgloveFrontEnd", "foxglove"),
     "zenoh": FrontEndEntry("omnican.zenoh.front_end:ZenohFrontEnd", "zenoh", (
         ("zenoh", "run the base on Zenoh (rmw_zenoh's format)"),
         ("fleet", "every base on the Zenoh network: view, stop, recover")),
-        foreign_threads=("zenoh",)),
+        foreign_threads=("zenoh",), imu_topic=True),
 }
 
 #: Lowest first. A set is one layer of siblings.

@@ -103,7 +103,10 @@ def bus_reference(examples: dict[str, Any]) -> list[str]:
            "(`~/.canrc`, `CAN_INTERFACE`). The command line's bus arguments (`-i`, `-c`, "
            "`-b`, `--bus-kwargs`) override it. omnican reads the bitrates itself (the bus "
            "load) and checks them; under `--sim` the simulated bus has the nominal "
-           "`bitrate` given here (500 kbit/s without one).", "",
+           "`bitrate` given here (500 kbit/s without one). `sync` and `sync_counter` are "
+           "omnican's alone (who sends SYNC, and its counter: "
+           "[how SYNC is timed](../architecture.md#how-sync-is-timed)) and never reach "
+           "`can.Bus`.", "",
            "| key | default | meaning |", "|---|---|---|"]
     shown: list[str] = []
     for name, (kind, doc) in BUS_PASSED.items():
@@ -112,7 +115,8 @@ def bus_reference(examples: dict[str, Any]) -> list[str]:
         what = _type_text(key.types)
         if key.range is not None:
             what += ", " + key.range_text()
-        out.append(f"| `{name}` | - | {_cell(key.doc)} *({_cell(what)})* |")
+        default = "-" if key.default is None else f"`{_toml(key.default)}`"
+        out.append(f"| `{name}` | {default} | {_cell(key.doc)} *({_cell(what)})* |")
     for name in (*BUS_PASSED, *BUS_KEYS):
         example = examples.get(f"bus.{name}")
         if example is not None:

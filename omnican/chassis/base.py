@@ -28,22 +28,24 @@ from typing import Any
 
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.chassis.checks import ChassisChecks
-from omnican.chassis.cycle import ControlCycle
+from omnican.chassis.cycle import ControlCycle, reset_pose
 from omnican.chassis.lifecycle import Lifecycle
 from omnican.chassis.opening import make_base
-from omnican.chassis.runner import LockstepRunner, ThreadRunner
+from omnican.chassis.runner import LockstepRunner, SyncRunner, ThreadRunner
 from omnican.chassis.signals import guard
 from omnican.chassis.sink import Attachments, Recording, SnapshotSink
 from omnican.chassis.state import ChassisStatus, WheelState
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import ChassisConfig, ChassisSettings, with_live_limits
+from omnican.core.imu import ImuInbox
 from omnican.core.kinematics import Twist
 from omnican.core.limits import command_problem, pose_problem
 from omnican.core.odometry import Pose2D
 from omnican.drive import DriveNode
 from omnican.errors import DriveError
 from omnican.io.bus import CanBus
+from omnican.io.imu import CanImu
 
 _open_chassis: weakref.WeakSet[Chassis] = weakref.WeakSet()
 
@@ -70,10 +72,15 @@ class Chassis:
                                                 ChassisChecks(cfg, nodes, bus))
         self._loop = loop = ControlCycle(cfg, bus, nodes, sup, clock)
         sup.checks.speeds = loop.wheel_speeds
-        self._runner: ThreadRunner | LockstepRunner = (
-            LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
-            if self._lockstep else ThreadRunner(self._period, loop.run, self._cycle_failed,
-                                                cfg.chassis.rt_priority))
+        self._runner: ThreadRunner | LockstepRunner
+        if self._lockstep:
+            self._runner = LockstepRunner(clock, self._period, loop.run, self._cycle_failed)
+        elif bus.sync_mode == "kernel":  # SocketCAN: woken by the kernel's SYNC
+            self._runner = SyncRunner(self._period, loop.run, self._cycle_failed, bus,
+                                      cfg.chassis.rt_priority)
+        else:
+            self._runner = ThreadRunner(self._period, loop.run, self._cycle_failed,
+                                        cfg.chassis.rt_priority)
         loop.runner = self._runner
         #: what layers above attached (the telemetry feed, a recording): closed with the base
         self.attachments = Attachments()
@@ -82,6 +89,14 @@ class Chassis:
         self._limits_lock = threading.Lock()
         self._configured = cfg.chassis  # what a live limit may only make safer
         self._arbiter = CommandArbiter(cfg.chassis.cmd_timeout_s)  # one source at a time
+        #: where the configured IMU's samples wait for the loop (None: no [imu]). A CAN
+        #: IMU feeds it from the bus (:mod:`omnican.io.imu`); a ROS 2 or Zenoh one, the
+        #: front end that subscribes to its topic.
+        self.imu: ImuInbox | None = None
+        if cfg.imu is not None:
+            loop.imu = self.imu = ImuInbox()
+            if cfg.imu.source == "can":
+                self.attachments.add("imu", CanImu(cfg.imu, self.imu, clock).attach(bus))
 
     def _call_soon(self, fn: Any) -> None:
         self._loop.call_soon(fn)
@@ -222,11 +237,11 @@ class Chassis:
         if problem is not None:
             raise ValueError(f"odometry reset refused: {problem}")
         loop = self._loop
-        loop.call_soon(lambda: loop.reset_pose(target))
+        loop.call_soon(lambda: reset_pose(loop, target))
         deadline = self.clock.now() + 1.0
         while loop.snapshot.pose != target and self.clock.now() < deadline:
             if not self._runner.running:
-                loop.reset_pose(target)
+                reset_pose(loop, target)
                 break
             self.clock.sleep(self._period if self._lockstep else self._period / 2)
 

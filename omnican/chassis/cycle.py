@@ -29,8 +29,9 @@ from omnican.core.limits import VelocityLimiter
 from omnican.core.odometry import Odometry, Pose2D
 from omnican.core.wheel_odometry import EncoderCounters, WheelOdometry
 from omnican.drive import AxisIO, DriveNode
-from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus
+from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus, prepared_message
 from omnican.plan.node import cycle_bits
+from omnican.plan.pdo import frame_bits
 from omnican.protocol.cia301 import HEARTBEAT_BASE, NmtState
 from omnican.protocol.cia402 import ENABLED_BITS as _ENABLED_BITS
 from omnican.protocol.cia402 import ENABLED_MASK as _ENABLED_MASK
@@ -56,14 +57,16 @@ class ControlCycle:
         self.odometry = Odometry(self.kinematics)
         self.limiter = VelocityLimiter(cfg.limits(), self.kinematics)
         self.period_s = period = 1.0 / c.rate_hz
+        self._dt_cap = 5 * period  # the longest step the limiter is given (a late cycle)
         # Above HEALTH_CHECK_HZ the latches (fault, heartbeat, reboot, SDO aborts) are
         # checked every few cycles: a drive leaving OPERATION ENABLED still zeroes every
         # target in the cycle that sees it (``all_enabled`` below), the latch only makes
         # that stop stick, a few ms later (4 ms at 1 kHz, 8 ms at most).
         self._health_every = max(1, math.ceil(c.rate_hz / HEALTH_CHECK_HZ))
         self._heartbeat = HeartbeatSchedule(c.heartbeat_ms / 1000.0, period)
-        self._heartbeat_cob = HEARTBEAT_BASE + c.host_node_id
-        self._heartbeat_data = bytes([NmtState.OPERATIONAL])
+        # The host's heartbeat: one frame made once, sent as it is (as the RPDOs are).
+        self._heartbeat_frame = (prepared_message(HEARTBEAT_BASE + c.host_node_id,
+                                                  bytes([NmtState.OPERATIONAL])), frame_bits(1))
         self._cmd_timeout = c.cmd_timeout_s
         self._max_wheel_speed = c.max_wheel_speed
         self.watch = BusWatch(bus)
@@ -110,8 +113,7 @@ class ControlCycle:
         #: where a configured IMU's samples wait for the cycle (None: no IMU; set by
         #: whoever attaches the IMU source before the loop starts)
         self.imu: ImuInbox | None = None
-        #: the gyro fused with the wheels (made when an IMU is attached; see _fuse)
-        self.fusion: FusedOdometry | None = None
+        self.fusion: FusedOdometry | None = None  # the gyro and the wheels (see _fuse)
         self._fused: tuple[Any, tuple[str, ...]] | None = None  # (its values, its warnings)
         self._fusion_settings = (cfg.fusion, getattr(cfg, "imu", None))  # [fusion], [imu]
         self.snapshot = self._make_snapshot(clock.now())
@@ -152,17 +154,27 @@ class ControlCycle:
         requests = self._requests
         while not requests.empty():
             requests.get_nowait()()
-        all_enabled = self._every_stage_enabled()
+        all_enabled = True  # _every_stage_enabled, written out (each cycle)
+        for stage in self._stages:
+            sw = stage.statusword_value
+            if sw is None or sw & _ENABLED_MASK != _ENABLED_BITS:
+                all_enabled = False
+                break
         if not self.cycles % self._health_every:
             sup.check(now, all_enabled)
             if all_enabled and sup.latched is not None:
                 all_enabled = self._every_stage_enabled()  # a latch may have forgotten one
         self._all_enabled = all_enabled
-        self._integrate_samples()
+        # The encoder samples of the last SYNC (_integrate_samples, written out).
+        epoch = bus.sync_epoch
+        if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
+            self._mark_stale(epoch)
+        elif self._stale:
+            self._stale = ()
         # ---- IMU fusion (issue 40): a base without an IMU pays this one test.
-        if self.imu is not None:
-            self._fuse(now)
-        # ---- end of IMU fusion
+        imu = self.imu
+        if imu is not None:
+            self._fuse(now, imu)
         # Command -> limits -> wheel speeds.
         cmd, t_cmd = self.command
         if sup.latched or not all_enabled or now - t_cmd > self._cmd_timeout:
@@ -173,7 +185,8 @@ class ControlCycle:
         if not all_enabled:
             limiter.reset()
         dt = now - self._last_sync_time if self._last_sync_time else self.period_s
-        limited = limiter.step_xyz(vx, vy, wz, min(dt, 5 * self.period_s))
+        cap = self._dt_cap
+        limited = limiter.step_xyz(vx, vy, wz, cap if dt > cap else dt)  # min(dt, cap)
         if limited is self._limited:  # the limiter held its output: the same targets
             speeds = self._targets
         else:
@@ -185,10 +198,11 @@ class ControlCycle:
         # State machines, then the cycle's RPDOs, then SYNC.
         send = bus.send_prepared
         configuring, offline = self._configuring, self._offline
+        every_node = not configuring and not offline  # (the usual cycle: no look per node)
         for node in self.nodes:
-            if node.node_id in configuring:
+            if not every_node and node.node_id in configuring:
                 continue
-            if node.node_id not in offline:  # a silent node's statusword is stale
+            if every_node or node.node_id not in offline:  # a silent node's statusword is stale
                 for stage in node.stages:
                     if stage.step(now) is not None:
                         frame = node.controlword_frame(stage)
@@ -202,7 +216,7 @@ class ControlCycle:
         heartbeat = self._heartbeat
         if now >= heartbeat.send_at:  # on a fixed schedule: never a cycle late per period
             heartbeat.sent(now)
-            bus.send(self._heartbeat_cob, self._heartbeat_data)
+            send(*self._heartbeat_frame)
         change = self.watch.check(now)
         if change is not None:
             if change is WENT_DOWN:
@@ -224,7 +238,7 @@ class ControlCycle:
         return True
 
     def _integrate_samples(self) -> None:
-        epoch = self._bus.sync_epoch
+        epoch = self._bus.settled_epoch  # the last SYNC whose answers had a period to come
         if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
             # Not every wheel has answered the last SYNC: wait for a complete set. A
             # wheel silent for STALE_AFTER_S has no known speed: report none rather
@@ -244,22 +258,12 @@ class ControlCycle:
             # The other wheels keep their last speeds, a stale one reads 0 (the snapshot).
             self.wheel_odometry.forget_speeds(stale)
 
-    def reset_pose(self, pose: Pose2D) -> None:
-        """The pose is ``pose`` from now on: the wheels' and the fused (loop thread)."""
-        self.odometry.reset(pose)
-        if self.fusion is not None:
-            self.fusion.reset((pose.x, pose.y, pose.theta))
-
-    def _fuse(self, now: float) -> None:
-        """The IMU's samples since the last cycle fused with the wheels' step
-        (:mod:`omnican.core.fusion`); a slip or a silent IMU warns, or stops the base if
-        the config says so."""
+    def _fuse(self, now: float, imu: ImuInbox) -> None:
+        """The IMU's samples fused with the wheels' step (a slip may stop the base)."""
         fusion = self.fusion
         if fusion is None:  # the first cycle with an IMU
             fusion = self.fusion = FusedOdometry.configured(
                 self.kinematics, self.odometry, self.wheel_odometry, *self._fusion_settings)
-        imu = self.imu
-        assert imu is not None
         stop = fusion.step(now, imu.drain(), self.limiter.output.is_zero())
         self._fused = (fusion.values, fusion.warnings)
         if stop is not None and not self._sup.latched:
@@ -334,6 +338,14 @@ class ControlCycle:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
         every drive enabled) as of the last cycle: what the chassis checks compare."""
         return self._targets, self.wheel_odometry.speeds(), self._stale, self._all_enabled
+
+
+def reset_pose(cycle: ControlCycle, pose: Pose2D) -> None:
+    """The pose of ``cycle``'s base is ``pose`` from now on: the wheels' and the fused (on
+    the loop thread, or with the loop stopped)."""
+    cycle.odometry.reset(pose)
+    if cycle.fusion is not None:
+        cycle.fusion.reset((pose.x, pose.y, pose.theta))
 
 
 def _no_sink(snapshot: Snapshot) -> None:

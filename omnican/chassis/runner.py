@@ -2,7 +2,9 @@
 
 :class:`ThreadRunner` calls the cycle every period on a thread, sleeping between cycles
 and counting the cycles that start late (at real-time priority where the process may:
-:mod:`omnican.chassis.realtime`); :class:`LockstepRunner` registers it with a
+:mod:`omnican.chassis.realtime`); :class:`SyncRunner` is that thread woken by each SYNC
+the kernel sends instead of by its own clock (SocketCAN: :mod:`omnican.io.kernel_sync`);
+:class:`LockstepRunner` registers it with a
 :class:`~omnican.clock.SimClock`, whose ``sleep`` calls it on the caller's thread. Both
 keep the base stopping whatever a cycle raised: ``on_error`` is told, the next cycle
 runs.
@@ -17,11 +19,17 @@ from collections.abc import Callable
 
 from omnican.chassis.realtime import make_realtime
 from omnican.clock import Clock
+from omnican.io.bus import CanBus
 from omnican.io.stepped import Stepped
 
 logger = logging.getLogger("omnican.chassis")
 
 LATE_FRACTION_OF_PERIOD = 0.2  # a cycle starting later than this is late
+#: A kernel-timed loop that sees no SYNC for this many periods runs the cycle anyway (the
+#: checks, heartbeats and the bus, never wait for SYNC), and starts the kernel's timer
+#: anew once no SYNC came for longer than it was armed for (it ran out while the loop
+#: was stalled, or the interface went away): not before, which would move its phase.
+NO_SYNC_PERIODS = 2.0
 
 Cycle = Callable[[float], None]
 
@@ -135,6 +143,62 @@ class ThreadRunner:
             except OSError:  # it ended meanwhile
                 pass
         return self._cpu_at_end
+
+
+class SyncRunner(ThreadRunner):
+    """:class:`ThreadRunner` woken by SYNC: the kernel's broadcast manager sends SYNC on
+    its own timer (:meth:`omnican.io.bus.CanBus.start_kernel_sync`), the thread waits for
+    each one to come back on the bus and runs the cycle at once, so that the cycle's
+    RPDOs reach the bus before the next SYNC; the cycle's ``bus.sync()`` re-arms the
+    kernel for a bounded count of SYNCs (a hung loop stops SYNC). Where the kernel cannot
+    send SYNC (no broadcast manager), it is a :class:`ThreadRunner` as before. Stopping
+    it stops SYNC.
+
+    A cycle is late when it starts more than a fifth of a period after its SYNC came, or
+    when no SYNC came for :data:`NO_SYNC_PERIODS`."""
+
+    def __init__(self, period_s: float, cycle: Cycle, on_error: Callable[[], None],
+                 bus: CanBus, rt_priority: int = 0) -> None:
+        super().__init__(period_s, cycle, on_error, rt_priority)
+        self.bus = bus
+        self.kernel = False  # whether the kernel sends SYNC (known once the thread runs)
+
+    def _run(self) -> None:
+        bus = self.bus
+        if self.companion is not None or not bus.start_kernel_sync(self.period_s):
+            super()._run()  # simulated drives on the loop, or no broadcast manager
+            return
+        self.kernel = True
+        try:
+            self._run_on_sync(bus)
+        finally:
+            bus.stop_kernel_sync()
+            self._cpu_at_end = time.thread_time()
+
+    def _run_on_sync(self, bus: CanBus) -> None:
+        if self.rt_priority:
+            self.realtime = make_realtime(self.rt_priority)
+        period = self.period_s
+        late_after = period * LATE_FRACTION_OF_PERIOD
+        wait_s = period * NO_SYNC_PERIODS
+        on_error = self._on_error
+        stop = self._stop
+        while not stop.is_set():
+            came = bus.wait_sync(wait_s)
+            if stop.is_set():
+                break
+            now = time.monotonic()
+            if not came:
+                self.late += 1
+                if bus.kernel_sync_ran_out(now):
+                    bus.restart_kernel_sync()
+            elif now - bus.seen_sync_time > late_after:
+                self.late += 1
+            try:
+                self.cycle(now)
+            except Exception:  # keep stopping the base whatever went wrong
+                logger.exception("control cycle failed")
+                on_error()
 
 
 class LockstepRunner:

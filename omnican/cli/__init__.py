@@ -39,8 +39,11 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "scan": ("scan", "find nodes on the bus and check them against the config", None),
     "monitor": ("monitor", "live decode of the bus: per-id rates, signals, bus load", None),
     "calibrate": ("calibrate", "calibrate the wheel scales and the base radius", None),
+    "commission": ("commission", "give the drives their node ids (LSS) and store their "
+                   "settings", None),
     "plot": ("plot", "plot a recording: trajectory, wheel speeds, drive states", "plot"),
     "check-config": ("check_config", "validate config files and their EDS files offline", None),
+    "firmware": ("firmware", "download a program image to the drives (CiA 302-3)", None),
     **{command: (command.replace("-", "_"), help_text, entry.extra)
        for entry in FRONT_ENDS.values() for command, help_text in entry.commands},
 }

@@ -101,6 +101,10 @@ def check_file(path: str, bitrate_arg: int | None) -> int:
           f"watchdog {c.cmd_timeout_s:g} s")
     for line in scale_lines(cfg):
         print(line)
+    if cfg.imu is not None:
+        from omnican.config.imu import describe
+
+        print(f"  {describe(cfg.imu)}")
     for layout in layouts:
         wheels = ", ".join(f"wheel {a.wheel_index} (axis {a.wheel.axis})" for a in layout.axes)
         print(f"  node {layout.node_id}: {layout.eds.name}, mode {layout.mode.short}, {wheels}")

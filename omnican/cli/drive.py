@@ -94,8 +94,9 @@ def add_subparser(sub: Any) -> None:
                         "--square); with --foxglove-control and no motion, seconds to take "
                         "commands from Foxglove (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true",
-                   help='print {"pose", "twist", "duration_s", "wheels"} (+ "true_pose" under '
-                        '--sim); a run-time failure prints {"error", "pose", ...} and exits 1')
+                   help='print {"pose", "twist", "duration_s", "wheels"} (+ "imu" with an '
+                        '[imu] table, "true_pose" under --sim); a run-time failure prints '
+                        '{"error", "pose", ...} and exits 1')
     add_record_argument(p)
     front_ends.add_arguments(p, "base")
     add_bus_arguments(p)
@@ -237,6 +238,17 @@ def _fail_json(error: str, seen: dict[str, Any]) -> None:
                       **({"true_pose": seen["true_pose"]} if "true_pose" in seen else {})}))
 
 
+def imu_json(base: Any) -> dict[str, Any] | None:
+    """The configured IMU as --json shows it: its source, the samples it gave, and how
+    long it had been silent at the end (null: it never spoke); None: no [imu]."""
+    inbox, imu = base.imu, base.cfg.imu
+    if inbox is None or imu is None:
+        return None
+    last = inbox.last_t
+    return {"source": imu.source, "samples": inbox.received,
+            "silent_s": None if last is None else round(max(0.0, base.clock.now() - last), 3)}
+
+
 #: What --json gives of what each drive reports (omnican.plan.health_fields).
 JSON_HEALTH = tuple(f.name for f in HEALTH_FIELDS if f.in_drive_json)
 
@@ -342,6 +354,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
             seen["pose"] = pose_dict(pose)
             seen["duration_s"] = round(result.elapsed_s, 3)
             seen["wheels"] = wheels_json(base.wheels)
+            imu = imu_json(base)
         out: dict[str, Any] = {
             "pose": pose_dict(pose),
             "twist": {k: rounded(v) for k, v in asdict(result.twist).items()},
@@ -350,6 +363,8 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
         }
         if s.sim is not None:
             out["true_pose"] = pose_dict(s.sim.true_pose)
+        if imu is not None:
+            out["imu"] = imu
         # The motion ran, but a drive the close could not confirm disabled (the error
         # logged names it) is a failure at run time.
         if base.not_disabled:

@@ -49,9 +49,30 @@ def add_subparser(sub: Any) -> None:
                    help="standard deviation added to reported positions (default 0)")
     p.add_argument("--frame-loss", type=finite_float, default=0.0, metavar="P",
                    help="probability 0-1 of losing each PDO/heartbeat frame (default 0)")
+    p.add_argument("--unconfigured", action="store_true",
+                   help="the drives start without node ids (FFh): silent but for LSS until "
+                        "'omnican commission' gives them theirs")
+    p.add_argument("--serials", type=_serials, metavar="N,N,...",
+                   help="the drives' serial numbers (1018h sub 4), one per node in node "
+                        "order (default: the config's [[wheel]] serial, else the node id)")
+    p.add_argument("--refuse-store", type=_serials, metavar="NODE,...",
+                   help="these nodes' drives refuse LSS 'store configuration' (a failed "
+                        "memory)")
     front_ends.add_arguments(p, "sim")
     add_python_can_arguments(p, "bus arguments (serve on this bus instead of a hub)")
     p.set_defaults(func=run)
+
+
+def _serials(text: str) -> list[int]:
+    """argparse type: numbers separated by commas (0x... too)."""
+    try:
+        values = [int(word, 0) for word in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"want numbers separated by commas, got {text!r}"
+                                         ) from None
+    if any(not 0 <= v <= 0xFFFFFFFF for v in values):
+        raise argparse.ArgumentTypeError(f"a serial number is 0-0xFFFFFFFF, got {text!r}")
+    return values
 
 
 def parse_serve(text: str | None) -> tuple[str, int]:
@@ -87,7 +108,21 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--encoder-noise must be 0 or more, got {args.encoder_noise:g}")
     if not 0 <= args.frame_loss <= 1:
         raise UsageError(f"--frame-loss must be 0-1, got {args.frame_loss:g}")
-    options = {"encoder_noise": args.encoder_noise, "frame_loss": args.frame_loss}
+    options: dict[str, Any] = {"encoder_noise": args.encoder_noise,
+                               "frame_loss": args.frame_loss}
+    node_ids = sorted(cfg.nodes())
+    if args.serials is not None:
+        if len(args.serials) != len(node_ids):
+            raise UsageError(f"--serials gives {len(args.serials)} serial(s) for "
+                             f"{len(node_ids)} node(s) ({', '.join(map(str, node_ids))})")
+        # Two drives with one serial are allowed: a maker's mistake 'commission' must name.
+        options["serials"] = dict(zip(node_ids, args.serials, strict=True))
+    if args.refuse_store is not None:
+        unknown = sorted(set(args.refuse_store) - set(node_ids))
+        if unknown:
+            raise UsageError(f"--refuse-store: no node {unknown[0]} in the config")
+        options["refuse_store"] = frozenset(args.refuse_store)
+    options["unconfigured"] = args.unconfigured
     running = front_ends.from_args(args, cfg, "sim")
     hub = None
     if on_bus:
@@ -109,10 +144,20 @@ def run(args: argparse.Namespace) -> int:
         # real-time priority where this process may, else a note on how to get it.
         with SimulatedBase.from_config(cfg, rt_priority=cfg.chassis.rt_priority,
                                        **options) as sim:
-            nodes = ", ".join(f"{d.node_id} ({d.eds.name})" for d in sim.drives)
-            print(f"serving simulated nodes {nodes} on {where}", flush=True)
+            if args.unconfigured:
+                serials = ", ".join(f"0x{serial:08X}" for serial, _ in sim.lss.node_ids()) \
+                    if sim.lss is not None else ""
+                print(f"serving simulated nodes (no node ids yet: serials {serials}) on "
+                      f"{where}", flush=True)
+            else:
+                nodes = ", ".join(f"{d.node_id} ({d.eds.name})" for d in sim.drives)
+                print(f"serving simulated nodes {nodes} on {where}", flush=True)
             if sim.realtime_refused is not None:
                 print(steadiness_hint(sim.realtime_refused), flush=True)
+            if args.unconfigured:
+                print("give them their node ids with: "
+                      + connect.replace("omnican teleop", "omnican commission CONFIG"),
+                      flush=True)
             print(f"connect with: {connect}", flush=True)
             if args.config:
                 print(f"  (add --config {args.config} to use the same config)", flush=True)

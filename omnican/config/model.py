@@ -69,6 +69,8 @@ class WheelConfig:
     temperature: str | None = _WHEEL["temperature"]
     temperature_scale: float = _WHEEL["temperature_scale"]
     sdo_writes: tuple[SdoWrite, ...] = ()  # [[wheel.sdo]]
+    # The drive's serial number (1018h sub 4): what `omnican commission` finds it by.
+    serial: int | None = _WHEEL["serial"]
 
     @property
     def name(self) -> str:
@@ -115,6 +117,8 @@ class SdoWrite:
 
 _POWER = schema_defaults("power")
 _ESTOP = schema_defaults("estop")
+_IMU = schema_defaults("imu")
+_GYRO = schema_defaults("sim.gyro")
 
 
 @dataclass(frozen=True)
@@ -149,19 +153,53 @@ class FusionSettings:
     gyro_noise: float = _FUSION["gyro_noise"]
     bias_walk: float = _FUSION["bias_walk"]
     wheel_slip: float = _FUSION["wheel_slip"]
-    stale_s: float = _FUSION["stale_s"]
     slip_warn_s: float = _FUSION["slip_warn_s"]
     stop_on_slip: bool = _FUSION["stop_on_slip"]
     stop_on_imu_stale: bool = _FUSION["stop_on_imu_stale"]
 
 
 @dataclass(frozen=True)
+class ImuSettings:
+    """The ``[imu]`` table: where the IMU's readings come from (``source``: "can", "ros2"
+    or "zenoh"), how to read them, how the IMU sits on the base, and after how long
+    without a reading it counts as silent (``stale_s``). ``dbc`` is a whole path."""
+
+    source: str
+    dbc: Path | None = None
+    message: str | None = _IMU["message"]
+    yaw_rate: str | None = _IMU["yaw_rate"]
+    yaw_rate_unit: str | None = _IMU["yaw_rate_unit"]
+    accel_message: str | None = _IMU["accel_message"]
+    accel_x: str | None = _IMU["accel_x"]
+    accel_y: str | None = _IMU["accel_y"]
+    accel_unit: str | None = _IMU["accel_unit"]
+    topic: str = _IMU["topic"]
+    mount_yaw_deg: float = _IMU["mount_yaw_deg"]
+    upside_down: bool = _IMU["upside_down"]
+    stale_s: float = _IMU["stale_s"]
+
+
+@dataclass(frozen=True)
+class SimGyro:
+    """The ``[sim.gyro]`` table: the simulated base's gyro (deg/s, Hz)."""
+
+    enabled: bool = _GYRO["enabled"]
+    rate_hz: float = _GYRO["rate_hz"]
+    bias_deg_s: float = _GYRO["bias_deg_s"]
+    drift_deg_s: float = _GYRO["drift_deg_s"]
+    noise_deg_s: float = _GYRO["noise_deg_s"]
+    mount_yaw_deg: float | None = _GYRO["mount_yaw_deg"]
+    noise_stream: int = _GYRO["noise_stream"]
+
+
+@dataclass(frozen=True)
 class SimTruth:
     """The ``[sim]`` table: the true geometry of the simulated base ``omnican calibrate
-    --sim`` drives; None: as configured."""
+    --sim`` drives; None: as configured. ``gyro``: its ``[sim.gyro]`` table."""
 
     base_radius: float | None = None
     position_scale: tuple[float, ...] | None = None  # one per wheel, counts per m
+    gyro: SimGyro | None = None
 
 
 #: What a ``[chassis]`` table must give (or may leave to the wheels' angle_deg), for a
@@ -240,12 +278,13 @@ class ChassisConfig:
     # The [gamepad] table as given, checked (omnican.command.gamepad maps a pad with it).
     gamepad: Mapping[str, Any] | None = None
     front_ends: FrontEndTables = field(default_factory=FrontEndTables)
+    imu: ImuSettings | None = None  # the [imu] table
 
     def __init__(self, chassis: ChassisSettings, wheels: tuple[WheelConfig, ...],
                  bus: Mapping[str, Any] | None = None, source: Path | None = None,
                  power: PowerSettings | None = None, estop: EstopSettings | None = None,
                  sim: SimTruth | None = None, gamepad: Mapping[str, Any] | None = None,
-                 front_ends: Mapping[str, Any] | None = None,
+                 front_ends: Mapping[str, Any] | None = None, imu: ImuSettings | None = None,
                  fusion: FusionSettings | None = None, **moved: Any) -> None:
         tables = {name: table if isinstance(table, FrontEndTable) else read_table(name, table)
                   for name, table in (front_ends or {}).items()}
@@ -261,7 +300,7 @@ class ChassisConfig:
                             ("source", source), ("power", power), ("estop", estop),
                             ("sim", sim), ("gamepad", gamepad),
                             ("fusion", fusion if fusion is not None else FusionSettings()),
-                            ("front_ends", FrontEndTables(tables))):
+                            ("front_ends", FrontEndTables(tables)), ("imu", imu)):
             object.__setattr__(self, name, value)
 
     def __getattr__(self, name: str) -> Any:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from omnican.config.front_ends import read_tables
+from omnican.config.imu import parse_imu, parse_sim_gyro
 from omnican.config.model import (
     ChassisConfig,
     ChassisSettings,
@@ -44,6 +45,7 @@ from omnican.core.kinematics import LAYOUTS
 from omnican.core.limits import MAX_STOP_S, stop_decel_floor, top_speeds
 from omnican.errors import ConfigError
 from omnican.protocol import heartbeat
+from omnican.protocol.sync_producer import SYNC_MODES
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -146,9 +148,10 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     power = _parse_power(r, data["power"]) if "power" in data else None
     estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
     sim = _parse_sim(r, data["sim"], len(wheels)) if "sim" in data else None
+    imu = parse_imu(r, data["imu"], base_dir) if "imu" in data else None
     fusion = _parse_fusion(r, data["fusion"]) if "fusion" in data else None
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, power=power, estop=estop,
-                        sim=sim, gamepad=gamepad, front_ends=front_ends, fusion=fusion)
+                        sim=sim, gamepad=gamepad, front_ends=front_ends, imu=imu, fusion=fusion)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -160,6 +163,10 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
 
 
 def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
+    gyro = None
+    if isinstance(table, dict) and "gyro" in table:  # [sim.gyro]: omnican.config.imu's
+        table = dict(table)
+        gyro = parse_sim_gyro(r, table.pop("gyro"))
     t = r.table("sim", table, "sim")
     scale = t["position_scale"]
     if isinstance(scale, list):
@@ -177,18 +184,17 @@ def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
                        else "sim.position_scale", spec, v)
     radius = t["base_radius"]
     return SimTruth(None if radius is None else float(radius),
-                    None if values is None else tuple(float(v) for v in values))
+                    None if values is None else tuple(float(v) for v in values), gyro)
 
 
 def _parse_fusion(r: Reader, table: Any) -> FusionSettings:
     f = r.table("fusion", table, "fusion")
-    for key in ("gyro_noise", "bias_walk", "wheel_slip", "stale_s", "slip_warn_s"):
+    for key in ("gyro_noise", "bias_walk", "wheel_slip", "slip_warn_s"):
         r.positive(f"fusion.{key}", f[key])
     return FusionSettings(
         gyro_noise=float(f["gyro_noise"]), bias_walk=float(f["bias_walk"]),
-        wheel_slip=float(f["wheel_slip"]), stale_s=float(f["stale_s"]),
-        slip_warn_s=float(f["slip_warn_s"]), stop_on_slip=bool(f["stop_on_slip"]),
-        stop_on_imu_stale=bool(f["stop_on_imu_stale"]))
+        wheel_slip=float(f["wheel_slip"]), slip_warn_s=float(f["slip_warn_s"]),
+        stop_on_slip=bool(f["stop_on_slip"]), stop_on_imu_stale=bool(f["stop_on_imu_stale"]))
 
 
 def _parse_power(r: Reader, table: Any) -> PowerSettings:
@@ -221,16 +227,25 @@ def _parse_estop(r: Reader, table: Any, wheels: tuple[WheelConfig, ...]) -> Esto
 
 
 def _check_bus_numbers(r: Reader, bus: Mapping[str, Any]) -> None:
-    """The [bus] keys of :data:`BUS_KEYS`, when given: integers within their range (the
-    rest of the table is python-can's to check)."""
+    """The [bus] keys of :data:`BUS_KEYS`, when given: the bitrates integers within their
+    range, ``sync`` one of its words, ``sync_counter`` 0 or 2-240 (the rest of the table is
+    python-can's to check)."""
     for key, spec in BUS_KEYS.items():
         if key not in bus:
             continue
         value = bus[key]
+        if key == "sync":
+            if value not in SYNC_MODES:
+                raise r.fail("bus.sync", f"must be one of {', '.join(map(repr, SYNC_MODES))}, "
+                             f"got {short(value)}")
+            continue
         if isinstance(value, bool) or not isinstance(value, spec.types):
-            raise r.fail(f"bus.{key}", f"must be an integer number of bit/s, e.g. 500000, "
-                         f"got {short(value)}")
+            what = ("an integer, 0 or 2-240" if key == "sync_counter" else
+                    "an integer number of bit/s, e.g. 500000")
+            raise r.fail(f"bus.{key}", f"must be {what}, got {short(value)}")
         r.in_range(f"bus.{key}", spec, value)
+        if key == "sync_counter" and value == 1:
+            raise r.fail("bus.sync_counter", "must be 0 (no counter) or 2-240, got 1")
 
 
 def _check_limit(r: Reader, key: str, value: Any) -> float:

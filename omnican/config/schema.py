@@ -13,18 +13,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from omnican.config import imu_keys
+from omnican.config import key as key_spec
 from omnican.core.limits import MAX_ACCEL_SENSE, MAX_SPEED_SENSE
 from omnican.layers import FRONT_ENDS
+
+#: One key's spec, and the TOML types of a number (their home: :mod:`omnican.config.key`).
+Key = key_spec.Key
+NUMBER = key_spec.NUMBER
+#: Values of imu.source (:mod:`omnican.config.imu_keys`, the [imu] and [sim.gyro] keys).
+IMU_SOURCES = imu_keys.IMU_SOURCES
 
 #: The bundled generic wheel-drive EDS (inside the installed package).
 WHEEL_EDS: Path = Path(__file__).resolve().parents[1] / "eds" / "omnican_wheel.eds"
 
-#: The TOML types of a number.
-NUMBER = (int, float)
 
 #: Velocity units of a drive's target/actual velocity, as multiples of motor rev/s.
 VELOCITY_UNITS: dict[str, float] = {
@@ -40,60 +45,6 @@ SDO_TYPES: dict[str, tuple[int, bool]] = {"u8": (8, False), "u16": (16, False),
                                           "u32": (32, False), "i8": (8, True),
                                           "i16": (16, True), "i32": (32, True),
                                           "bool": (8, False)}
-
-
-@dataclass(frozen=True)
-class Key:
-    """One configuration key: its TOML type(s), default (None: none, or see ``required``
-    and ``scaled``) and meaning. The one place a default is written: the dataclasses the
-    tables parse into take theirs from here (:func:`schema_defaults`)."""
-
-    types: tuple[type, ...]
-    default: Any
-    doc: str
-    required: bool = False
-    #: (other key, factor): left out, the key is ``factor`` x the other key's value.
-    scaled: tuple[str, float] | None = None
-    #: (lowest, highest) a number may be, both allowed; None: any finite number. Beyond
-    #: it a value has no physical sense for a base (or overflows what it feeds): refused.
-    range: tuple[float, float] | None = None
-    #: inf is allowed too (no such limit).
-    inf_ok: bool = False
-    #: ``range`` bounds the magnitude; the sign is free (a polarity), zero is not.
-    signed: bool = False
-    #: The highest value of ``range`` is not allowed itself (a fraction below 1).
-    open_high: bool = False
-
-    def range_text(self) -> str:
-        """The range as an error message says it: "0.001-60", "-720 to 720"."""
-        if self.range is None:
-            return "a finite number"
-        lo, hi = (_bound_text(x) for x in self.range)
-        text = f"{lo}-{hi}" if self.range[0] >= 0 else f"{lo} to {hi}"
-        if self.signed:
-            text = f"{lo} to {hi} in magnitude (either sign)"
-        if self.open_high:
-            text = f"{lo} or more and below {hi}"
-        return text + (" or inf" if self.inf_ok else "")
-
-    def out_of_range(self, value: Any) -> str | None:
-        """What is wrong with a number beyond :attr:`range` ("must be 0.01-60, got 100"),
-        None for one within it (inf where the key allows it) or for no number."""
-        if self.range is None or isinstance(value, bool) or not isinstance(value, NUMBER):
-            return None
-        if math.isinf(value) and self.inf_ok and value > 0:
-            return None
-        lo, hi = self.range
-        v = abs(value) if self.signed else value
-        if lo <= v < hi or (v == hi and not self.open_high):
-            return None
-        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
-        return f"must be {self.range_text()}, got {shown}"
-
-
-def _bound_text(x: float) -> str:
-    """A range's bound as people write it: 1000000, not 1e+06; 1e+12 stays."""
-    return str(int(x)) if x == int(x) and abs(x) < 1e7 else f"{x:g}"
 
 
 def _scaled(types: tuple[type, ...], doc: str, of: str, factor: float,
@@ -130,13 +81,22 @@ LIFTED_WHEEL = ("warn", "stop", "off")
 LIVE_LIMITS = ("max_speed", "max_angular_speed", "max_accel", "max_angular_accel",
                "stop_decel", "stop_angular_decel", "max_wheel_speed")
 
-#: The keys of the free-form [bus] table that omnican reads itself (the bus load): their
-#: type and range (CAN's nominal bitrates run from 10 kbit/s down to what some
-#: controllers allow, 1 kbit/s, up to 1 Mbit/s; a CAN FD data phase up to 12 Mbit/s).
+#: The keys of the free-form [bus] table that omnican reads itself: their type and range.
+#: The bitrates (the bus load; CAN's nominal bitrates run from 10 kbit/s down to what some
+#: controllers allow, 1 kbit/s, up to 1 Mbit/s; a CAN FD data phase up to 12 Mbit/s) go
+#: on to ``can.Bus`` too; ``sync`` and ``sync_counter`` (who sends SYNC: issue 41,
+#: :mod:`omnican.protocol.sync_producer`) are omnican's alone.
 BUS_KEYS: dict[str, Key] = {
     "bitrate": Key((int,), None, "bit/s of the bus (nominal)", range=(1000, 1_000_000)),
     "data_bitrate": Key((int,), None, "bit/s of a CAN FD data phase",
                         range=(1000, 12_000_000)),
+    "sync": Key((str,), "auto", "who sends SYNC: \"kernel\" (SocketCAN's broadcast manager, "
+                "on its own timer; the loop wakes on each SYNC and re-arms it every cycle), "
+                "\"loop\" (the control loop, after its RPDOs), \"auto\" (the kernel on "
+                "SocketCAN, the loop elsewhere)"),
+    "sync_counter": Key((int,), 0, "the SYNC counter's overflow value (CiA 301 1019h): 0 no "
+                        "counter, 2-240 SYNCs carry a counter 1..N; set the drives' 1019h "
+                        "to the same (a [[wheel.sdo]] line)", range=(0, 240)),
 }
 
 # The [gamepad] table's words: Linux input event codes (linux/input-event-codes.h, the
@@ -247,6 +207,9 @@ _OWN: dict[str, dict[str, Key]] = {
     "wheel": {
         "node_id": Key((int,), None, "CANopen node id 1-127", required=True, range=(1, 127)),
         "axis": Key((int,), 0, "axis on a multi-axis drive (0-based)", range=(0, 7)),
+        "serial": Key((int,), None, "the drive's serial number (1018h sub 4): 'omnican "
+                      "commission' gives the drive with it this node_id by LSS",
+                      range=(0, 0xFFFFFFFF)),
         "eds": Key((str,), None, "EDS file (relative to the config file); default: bundled EDS"),
         "velocity_scale": Key(NUMBER, None, "drive velocity units per m/s at the rim; sign = "
                               "polarity", range=_SCALE, signed=True),
@@ -325,8 +288,6 @@ _OWN: dict[str, dict[str, Key]] = {
                          range=(1e-9, 0.1)),
         "wheel_slip": Key(NUMBER, 0.01, "1-sigma slip of a wheel, a fraction of its rim "
                           "speed: more than this is a slip", range=(1e-4, 0.5)),
-        "stale_s": Key(NUMBER, 0.2, "s without an IMU sample: the IMU is silent (warned; the "
-                       "odometry falls back to the wheels)", range=(0.005, 10.0)),
         "slip_warn_s": Key(NUMBER, 0.5, "s of slip before a warning (status, dashboard)",
                            range=(0.01, 60.0)),
         "stop_on_slip": Key((bool,), False, "a slip warning also stops the base (recover() "
@@ -334,6 +295,7 @@ _OWN: dict[str, dict[str, Key]] = {
         "stop_on_imu_stale": Key((bool,), False, "a silent IMU stops the base (default: a "
                                  "warning, and the wheels alone)"),
     },
+    "imu": imu_keys.IMU_KEYS,
     # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
     # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.
     "sim": {
@@ -345,6 +307,7 @@ _OWN: dict[str, dict[str, Key]] = {
                               "wheel, or one per wheel; default the configured ones",
                               range=_SCALE),
     },
+    "sim.gyro": imu_keys.SIM_GYRO_KEYS,
     # Read by `omnican teleop --gamepad` (omnican.command.gamepad). A key left out is the
     # preset's; every preset has the defaults below. evdev's sticks read + to the right
     # and + down, REP-103 wants + forward, + left and + counter-clockwise: hence the

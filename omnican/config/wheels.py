@@ -93,6 +93,7 @@ def parse_wheel(r: Reader, i: int, data: Any, settings: ChassisSettings,
         temperature=w["temperature"],
         temperature_scale=float(w["temperature_scale"]),
         sdo_writes=_parse_sdo_writes(r, where, w["sdo"]),
+        serial=w["serial"],
     )
 
 
@@ -102,7 +103,13 @@ def check_wheels(r: Reader, s: ChassisSettings, wheels: tuple[WheelConfig, ...])
     if len(wheels) < 3:
         raise r.fail("wheel", f"an omni base needs at least 3 wheels, got {len(wheels)}")
     seen: dict[tuple[int, int], int] = {}
+    serials: dict[int, tuple[int, int]] = {}  # serial -> (node id, wheel)
     for i, w in enumerate(wheels):
+        if w.serial is not None:
+            node, first = serials.setdefault(w.serial, (w.node_id, i))
+            if node != w.node_id:
+                raise r.fail(f"wheel[{i}].serial", f"{w.serial} is already wheel[{first}]'s "
+                             f"(node {node}): one drive cannot be two nodes")
         key = (w.node_id, w.axis)
         if key in seen:
             raise r.fail(f"wheel[{i}]",

@@ -9,7 +9,10 @@ comparison is fair whatever the motors are like:
 
 - holding speed (every compared wheel within ``STEADY_M_S2``, speeds within a factor
   ``SIMILAR_SPEED``: dry friction and rolling resistance hardly change with speed): the
-  load current, the current in the direction of motion;
+  load current, the current in the direction of motion. The wheels compared also
+  accelerate alike, within ``STEADY_SPREAD_M_S2``: a motor's inertia can carry as much
+  current per m/s^2 as thirty times its load current, so one wheel easing off at
+  0.09 m/s^2 beside one holding its speed could read as half loaded;
 - speeding up (``ACCEL_M_S2`` or more in the direction of motion, accelerations within a
   factor ``SIMILAR_ACCEL`` of each other): the load current per m/s^2.
 
@@ -37,12 +40,14 @@ LIFT_TIME_S = 1.0  # ... every time it was compared, over at least this long
 LIFT_CHECKS = 4  # ... and this many times
 MIN_SPEED_M_S = 0.1  # slower wheels are not compared (friction's sign, standing still)
 STEADY_M_S2 = 0.1  # holding speed
+STEADY_SPREAD_M_S2 = 0.01  # ... and compared only with wheels whose acceleration is this close
 ACCEL_M_S2 = 0.3  # speeding up
 SIMILAR_ACCEL = 1.25  # accelerations compared (speeding up) within this factor
 SIMILAR_SPEED = 3.0  # speeds compared (holding) within this factor
 MIN_LOAD = 0.05  # A (A per m/s^2): siblings' figure below this says nothing
 MAX_GAP_S = 1.0  # speeds further apart in time give no acceleration
-Figure = tuple[str, float, float]  # (phase, the figure compared, what similarity is judged on)
+#: (phase, the figure compared, what similarity is judged on, acceleration along the motion)
+Figure = tuple[str, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -124,9 +129,9 @@ class LiftDetector:
             if current is None or not phases[i] or phases[i] != before[i]:
                 continue
             if phases[i] == "steady":
-                made[i] = ("steady", along * current, v)
+                made[i] = ("steady", along * current, v, along * a)
             else:
-                made[i] = ("accel", along * current / abs(a), a)
+                made[i] = ("accel", along * current / abs(a), a, along * a)
         return [f if f is not None and phases[i] == f[0] else None
                 for i, f in enumerate(pending)]
 
@@ -141,10 +146,12 @@ class LiftDetector:
         for i, mine in enumerate(figures):
             if mine is None:
                 continue
-            phase, figure, basis = mine
+            phase, figure, basis, accel = mine
+            steady = phase == "steady"
             others = [f[1] for j, f in enumerate(figures)
                       if j != i and f is not None and f[0] == phase and
-                      _similar(basis, f[2], SIMILAR_SPEED if phase == "steady" else SIMILAR_ACCEL)]
+                      _similar(basis, f[2], SIMILAR_SPEED if steady else SIMILAR_ACCEL) and
+                      (not steady or abs(accel - f[3]) <= STEADY_SPREAD_M_S2)]
             if not others:
                 continue
             ref = _median(others)

@@ -170,9 +170,24 @@ class WheelOdometry:
     def integrate(self, epoch: int, t: float) -> bool:
         """Fold the samples of SYNC ``epoch``, sent at ``t`` (s), and integrate them if
         every wheel has one; False (nothing integrated) if not. Each cycle."""
-        travel = self.counters.fold(epoch)
-        if travel is None:
-            return False
+        # EncoderCounters.fold, written out (each cycle: no call, no second loop).
+        travel: list[float] = []
+        for w in self.counters.wheels:
+            sample = w.sample
+            raw = sample.raw
+            if raw is None or sample.epoch != epoch:
+                return False
+            last = w.last_raw
+            restarts = sample.restarts
+            if restarts != w.restarts:  # the counter restarted: this sample only seeds
+                w.restarts = restarts
+                last = None
+            if raw != last:
+                w.last_raw = raw
+                if last is not None:
+                    half = w.half_span
+                    w.counts += (raw - last + half) % (half << 1) - half
+            travel.append(w.counts / w.counts_per_m)
         moved = self.odometry.step(travel)
         history = self._history
         if moved is None:  # seeded (the first set, or the first after a reseed)

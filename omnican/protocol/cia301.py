@@ -127,6 +127,10 @@ EMCY_COB_ID_OBJECT = 0x1014
 CONSUMER_HEARTBEAT_TIME = 0x1016  # sub n: (producer node id << 16) | timeout ms
 PRODUCER_HEARTBEAT_TIME = 0x1017  # ms, 0 = no heartbeat
 IDENTITY = 0x1018  # sub 1 vendor, 2 product, 3 revision, 4 serial
+STORE_PARAMETERS = 0x1010  # sub 1 all, 2 communication, 3 application, 4 manufacturer
+RESTORE_DEFAULTS = 0x1011  # the same sub-indices
+SAVE_SIGNATURE = 0x65766173  # "save" (little-endian): written to 1010h sub n, stores
+LOAD_SIGNATURE = 0x64616F6C  # "load" (little-endian): written to 1011h sub n, restores defaults
 
 # Error register (1001h) bits.
 ERROR_REGISTER_GENERIC = 0x01
@@ -160,6 +164,10 @@ TRANS_EVENT = 255  # event-driven (device profile)
 SDO_ABORT_TOGGLE = 0x05030000
 SDO_ABORT_TIMEOUT = 0x05040000
 SDO_ABORT_COMMAND = 0x05040001
+SDO_ABORT_BLOCK_SIZE = 0x05040002
+SDO_ABORT_SEQUENCE = 0x05040003
+SDO_ABORT_CRC = 0x05040004
+SDO_ABORT_OUT_OF_MEMORY = 0x05040005
 SDO_ABORT_UNSUPPORTED_ACCESS = 0x06010000
 SDO_ABORT_WRITE_ONLY = 0x06010001
 SDO_ABORT_READ_ONLY = 0x06010002
@@ -170,6 +178,8 @@ SDO_ABORT_GENERAL_INCOMPATIBLE = 0x06040043
 SDO_ABORT_INTERNAL_INCOMPATIBLE = 0x06040047
 SDO_ABORT_HARDWARE = 0x06060000
 SDO_ABORT_LENGTH = 0x06070010
+SDO_ABORT_TOO_LONG = 0x06070012
+SDO_ABORT_TOO_SHORT = 0x06070013
 SDO_ABORT_SUBINDEX = 0x06090011
 SDO_ABORT_VALUE_RANGE = 0x06090030
 SDO_ABORT_VALUE_TOO_HIGH = 0x06090031
@@ -183,6 +193,10 @@ SDO_ABORT_TEXT: dict[int, str] = {
     SDO_ABORT_TOGGLE: "toggle bit not alternated",
     SDO_ABORT_TIMEOUT: "SDO protocol timed out",
     SDO_ABORT_COMMAND: "command specifier not valid",
+    SDO_ABORT_BLOCK_SIZE: "invalid block size",
+    SDO_ABORT_SEQUENCE: "invalid sequence number",
+    SDO_ABORT_CRC: "CRC error",
+    SDO_ABORT_OUT_OF_MEMORY: "out of memory",
     SDO_ABORT_UNSUPPORTED_ACCESS: "unsupported access to an object",
     SDO_ABORT_WRITE_ONLY: "attempt to read a write-only object",
     SDO_ABORT_READ_ONLY: "attempt to write a read-only object",
@@ -194,6 +208,8 @@ SDO_ABORT_TEXT: dict[int, str] = {
     SDO_ABORT_INTERNAL_INCOMPATIBLE: "general internal incompatibility in the device",
     SDO_ABORT_HARDWARE: "access failed due to a hardware error",
     SDO_ABORT_LENGTH: "data type does not match, length of service parameter does not match",
+    SDO_ABORT_TOO_LONG: "data type does not match, length of service parameter too high",
+    SDO_ABORT_TOO_SHORT: "data type does not match, length of service parameter too low",
     SDO_ABORT_SUBINDEX: "sub-index does not exist",
     SDO_ABORT_VALUE_RANGE: "invalid value for parameter",
     SDO_ABORT_VALUE_TOO_HIGH: "value of parameter written too high",

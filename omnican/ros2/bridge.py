@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 from omnican.clock import PollThread
 from omnican.log_throttle import Throttle
 from omnican.ros2.cmd_vel import CmdVel
+from omnican.ros2.imu import ImuReader
 from omnican.ros2.settings import Ros2Settings, resolve_name
 from omnican.ros2.transport import M, TopicQos, Transport
 from omnican.telemetry import Message
@@ -161,6 +162,11 @@ class Bridge:
                            if sim is not None else None)
         self.transport = transport
         self.cmd_vel = CmdVel(base, settings, transport)
+        imu = base.cfg.imu
+        #: the configured IMU's topic into the base's inbox ([imu] source = "ros2")
+        self.imu = (ImuReader(base.imu, imu, transport)
+                    if imu is not None and imu.source == "ros2" and base.imu is not None
+                    else None)
         self._recover_topic = settings.topic("recover")
         self._take_recover = transport.reader(self._recover_topic, msgs.Empty,
                                               TopicQos(depth=1))
@@ -195,6 +201,8 @@ class Bridge:
         with self._poll_lock:
             self._polls += 1
             self.cmd_vel.take(check_publications=self._polls % 10 == 1)
+            if self.imu is not None:
+                self.imu.take()
             asked = self._take_recover()
             if asked:
                 self._on_recover(self._recover_source(asked[-1].writer))
@@ -297,6 +305,14 @@ class Bridge:
                    {"key": "cmd_vel_ignored", "value": str(c.refused)},
                    {"key": "cmd_vel_last_driver", "value": c.driver or ""},
                    {"key": "last_recover", "value": self.recover_note or ""}]
+        if self.imu is not None:
+            last = self.imu.last
+            values += [{"key": "imu_received", "value": str(self.imu.received)},
+                       {"key": "imu_rejected", "value": str(self.imu.rejected)},
+                       {"key": "imu_yaw_rate", "value": "" if last is None
+                        else f"{last.yaw_rate:.6f}"},
+                       {"key": "imu_silent_s", "value": "" if last is None
+                        else f"{max(0.0, mono - last.t):.3f}"}]
         return {"level": 0, "name": f"{self._prefix}: ros2 bridge", "message": "running",
                 "hardware_id": "", "values": values}
 
@@ -321,6 +337,8 @@ class Bridge:
             self._poller.stop()
         self._throttle.flush()
         self.cmd_vel.flush()
+        if self.imu is not None:
+            self.imu.flush()
         worker = self._recover_thread
         if worker is not None:
             cfg = self.base.cfg.chassis

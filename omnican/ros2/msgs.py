@@ -20,8 +20,15 @@ from cyclonedds.idl.types import array, byte, float32, float64, int32, sequence,
 Covariance = Annotated[Sequence[float], array(float64, 36)]
 
 
+Covariance3 = Annotated[Sequence[float], array(float64, 9)]
+
+
 def _zeros36() -> list[float]:
     return [0.0] * 36
+
+
+def _zeros9() -> list[float]:
+    return [0.0] * 9
 
 
 @dataclass
@@ -138,6 +145,17 @@ class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
 
 
 @dataclass
+class Imu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
+    header: Header = field(default_factory=Header)
+    orientation: Quaternion = field(default_factory=Quaternion)
+    orientation_covariance: Covariance3 = field(default_factory=_zeros9)
+    angular_velocity: Vector3 = field(default_factory=Vector3)
+    angular_velocity_covariance: Covariance3 = field(default_factory=_zeros9)
+    linear_acceleration: Vector3 = field(default_factory=Vector3)
+    linear_acceleration_covariance: Covariance3 = field(default_factory=_zeros9)
+
+
+@dataclass
 class BatteryState(IdlStruct, typename="sensor_msgs::msg::dds_::BatteryState_"):
     header: Header = field(default_factory=Header)
     voltage: float32 = 0.0
@@ -199,6 +217,7 @@ ROS_TYPES: dict[str, type[IdlStruct]] = {
     "nav_msgs/msg/Odometry": Odometry,
     "sensor_msgs/msg/JointState": JointState,
     "sensor_msgs/msg/BatteryState": BatteryState,
+    "sensor_msgs/msg/Imu": Imu,
     "diagnostic_msgs/msg/KeyValue": KeyValue,
     "diagnostic_msgs/msg/DiagnosticStatus": DiagnosticStatus,
     "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray,

@@ -42,6 +42,8 @@ from omnican.io.bus_watch import describe_open_error
 from omnican.io.lockstep import LockstepBus, listeners_receiver
 from omnican.io.network import Network
 from omnican.sim.drive import SimulatedDrive
+from omnican.sim.gyro import SimulatedGyro, attach_gyro
+from omnican.sim.lss import SimLss
 from omnican.sim.scheduler import SimScheduler
 from omnican.sim.truth import GroundTruth
 from omnican.sim.wiring import health_wiring, make_drive
@@ -109,6 +111,10 @@ class SimulatedBase:
         self.stepping = False
         self._receive: Any = None
         self._last_tick = -math.inf
+        #: the simulated IMU, with a CAN ``[imu]`` table (:mod:`omnican.sim.gyro`)
+        self.gyro: SimulatedGyro | None = None
+        self._gyro_task: object | None = None
+        self.lss: SimLss | None = None  # LSS, memory and power (:mod:`omnican.sim.lss`)
 
     @classmethod
     def from_config(
@@ -123,6 +129,9 @@ class SimulatedBase:
         clock: Clock | None = None,
         stepped: bool = False,
         rt_priority: int = 0,
+        serials: Mapping[int, int] | None = None,
+        unconfigured: bool = False,
+        refuse_store: frozenset[int] = frozenset(),
         **options: Any,
     ) -> SimulatedBase:
         """Start simulated drives for ``cfg``.
@@ -150,6 +159,8 @@ class SimulatedBase:
                 where the process may (:attr:`realtime_refused` says why not); 0: normal
                 priority. What ``omnican sim`` does, with the config's
                 ``chassis.rt_priority``, to keep up with a loop in another process.
+            serials, unconfigured, refuse_store: the drives' LSS and memory, see
+                :class:`~omnican.sim.lss.SimLss` (``omnican commission``).
             **options: :class:`SimulatedDrive` arguments for every drive
                 (``encoder_noise``, ``slip``, ``frame_loss``, ``tau_s``, ...).
         """
@@ -184,17 +195,23 @@ class SimulatedBase:
         try:
             by_node: dict[int, SimulatedDrive] = {}
             health = health_wiring(cfg, scales)
+            opts: dict[int, dict[str, Any]] = {}
             for node_id, wheels in cfg.nodes().items():
+                opts[node_id] = {**health[node_id], **options,
+                                 **(drive_options or {}).get(node_id, {}), "clock": clock}
                 by_node[node_id] = make_drive(network, node_id, wheels, scheduler,
-                                              {**health[node_id], **options,
-                                               **(drive_options or {}).get(node_id, {}),
-                                               "clock": clock})
+                                              {**opts[node_id], "boot": not unconfigured})
                 drives.append(by_node[node_id])
             wheel_axes = [(by_node[w.node_id], w.axis) for w in cfg.wheels]
             counts = np.array([w.position_scale * s for w, s in zip(cfg.wheels, scales,
                                                                      strict=True)])
             base = cls(cfg, network, scheduler, drives, wheel_axes,
                        true_kinematics or cfg.kinematics(), counts, clock)
+            base.gyro, base._gyro_task = attach_gyro(
+                cfg, network, scheduler, clock, lambda: base.true_pose, lambda: base.true_twist)
+            base.lss = SimLss(base, base._truth, lambda config_id, node_id: make_drive(
+                network, node_id, cfg.nodes()[config_id], scheduler,
+                {**opts[config_id], "boot": False}), serials, unconfigured, refuse_store)
         except BaseException:
             for d in drives:
                 d.close()
@@ -242,6 +259,11 @@ class SimulatedBase:
         to their safe torque off (see :meth:`SimulatedDrive.estop`)."""
         for d in self.drives:
             d.estop(pressed)
+
+    def power_cycle(self) -> None:
+        """Every drive off and on: what it stored comes back (:meth:`SimLss.power_cycle`)."""
+        if self.lss is not None:
+            self.lss.power_cycle()
 
     def wheel_drive(self, wheel: int) -> tuple[SimulatedDrive, int]:
         """(drive, axis) that simulates wheel number ``wheel`` of the config."""
@@ -336,6 +358,10 @@ class SimulatedBase:
                 return
             self._closed = True
         self._truth.stop()
+        if self._gyro_task is not None:
+            self.clock.cancel(self._gyro_task)
+        if self.lss is not None:
+            self.lss.close()
         if self._channel is not None:
             stepped_io.withdraw(self._channel, self)
         self.scheduler.close()

@@ -33,6 +33,8 @@ COMMANDS = (
     ("slowsdo NODE SECONDS", "answer each SDO request that much later (0: at once)"),
     ("battery VOLTS", "the battery feeding every drive (nominal 24 V)"),
     ("estop on|off", "press or release the e-stop (every drive's input and safe torque off)"),
+    ("power", "switch every drive off and on: what it stored (LSS node id, 1010h) comes back, "
+     "the rest is lost"),
     ("pose", "print the ground-truth pose"),
     ("help", "list the commands"),
     ("quit", "stop the simulator"),
@@ -169,6 +171,11 @@ def command(sim: SimulatedBase, line: str,
             return more[verb]()
         if verb == "help":
             return commands_help()
+        if verb == "power":
+            if rest:
+                raise ValueError("power takes nothing: it cycles every drive")
+            sim.power_cycle()
+            return "power cycled: " + _power_state(sim)
         if verb == "pose":
             p = sim.true_pose
             return f"true pose x={_fixed(p.x)} y={_fixed(p.y)} theta={_fixed(p.theta)}"
@@ -230,6 +237,15 @@ def command(sim: SimulatedBase, line: str,
         return f"node {drive.node_id}: thawed"
     except ValueError as exc:
         return f"error: {exc}"
+
+
+def _power_state(sim: SimulatedBase) -> str:
+    """Which serial runs as which node now."""
+    if sim.lss is None:
+        return _nodes(sim)
+    return ", ".join(f"serial 0x{serial:08X} " + ("without node id" if node == 0xFF else
+                                           f"node {node}")
+                     for serial, node in sim.lss.node_ids())
 
 
 def _fixed(value: float) -> str:

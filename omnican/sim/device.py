@@ -52,6 +52,7 @@ _ERROR_REGISTER_BITS = {0x2: ERROR_REGISTER_CURRENT, 0x3: ERROR_REGISTER_VOLTAGE
                         0x4: ERROR_REGISTER_TEMPERATURE, 0x8: ERROR_REGISTER_COMMUNICATION}
 
 Key = tuple[int, int]
+_RATED_CURRENT = int(Obj.RATED_CURRENT)  # 6075h: the drive health reads it once until written
 _NO_REACTION = Reaction.NONE  # a plain name: Reaction.X is a descriptor call on Python 3.11
 
 
@@ -171,9 +172,12 @@ class Device:
 
     def written(self, index: int, subindex: int) -> None:
         self.motion.written(index, subindex)
+        if index == _RATED_CURRENT:
+            self.health.forget_rated()
 
     def booted(self, reset_node: bool) -> None:
         self.motion.invalidate()
+        self.health.forget_rated()  # its dictionary restored
         if reset_node:  # the power stages drop out: the wheels coast, the counters restart
             self.motion.power_up()
             for stage in self.stages:

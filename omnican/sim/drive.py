@@ -39,6 +39,8 @@ from omnican.sim.device import CIA402_SERVO_DRIVE, Device
 from omnican.sim.faults import DriveFaults
 from omnican.sim.health import DEFAULT_COUNTS_PER_M, EstopInput
 from omnican.sim.node import SimNode
+from omnican.sim.program import SimProgram
+from omnican.sim.program import attach as attach_program
 from omnican.sim.scheduler import SimScheduler
 
 __all__ = ["CIA402_SERVO_DRIVE", "SimulatedDrive"]
@@ -77,6 +79,10 @@ class SimulatedDrive(DriveFaults):
         scheduler: share a housekeeping thread; default one of its own.
         boot: send the boot-up frame and enter PRE-OPERATIONAL now.
         seed: random seed for noise and frame loss.
+        program: the drive takes programs over the bus (CiA 302-3: 1F50h, 1F51h, 1F56h,
+            1F57h; :mod:`omnican.sim.program`), added to its dictionary where its EDS
+            lacks them; a :class:`~omnican.sim.program.SimProgram` to share one flash
+            across drives made again (a power cycle that rebuilds them); False: none.
         clock: :data:`~omnican.clock.REAL_TIME`, or the
             :class:`~omnican.clock.SimClock` of a lock-step simulation (then the
             scheduler is stepped by that clock, not by a thread).
@@ -104,6 +110,7 @@ class SimulatedDrive(DriveFaults):
         boot: bool = True,
         seed: int | None = None,
         clock: Clock = REAL_TIME,
+        program: bool | SimProgram = True,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node_id must be 1-127, got {node_id}")
@@ -134,6 +141,17 @@ class SimulatedDrive(DriveFaults):
             max_mapping_entries=max_mapping_entries, remappable=remappable,
             accept_unmappable=accept_unmappable)
         device.attach(self.comm)
+        #: the program download objects (None: the drive has none)
+        self.program: SimProgram | None = None
+        if program is not False:
+            if isinstance(program, SimProgram):  # another drive's flash: its power cycled
+                program.power_cycle()
+            self.program = program if isinstance(program, SimProgram) else SimProgram(
+                self._driving)
+            self.program.busy = self._driving
+            attach_program(self.node, self.comm.readers, self._writers, self.comm.block.sinks,
+                           self.program)
+            self.comm.on_boot.append(self.program.booted)
 
         self._own_scheduler = scheduler is None
         self.scheduler = scheduler if scheduler is not None else SimScheduler(clock=clock)
@@ -153,6 +171,10 @@ class SimulatedDrive(DriveFaults):
 
     def state(self, axis: int = 0) -> State:
         return self.axes[axis].group.stage.state
+
+    def _driving(self) -> bool:
+        """A power stage is OPERATION ENABLED (the program is not stopped then)."""
+        return any(stage.state is State.OPERATION_ENABLED for stage in self.stages)
 
     @property
     def frozen(self) -> bool:

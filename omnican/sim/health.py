@@ -85,6 +85,7 @@ class DriveHealth:
         self.temperature_c = [model.ambient_c] * len(self.axes)
         self.following_error: list[int | None] = [None] * len(self.axes)
         self._warmed_at = start
+        self._rated: float | None = None  # rated_current_a, as last read
 
     # ------------------------------------------------------------ the values (SI)
 
@@ -104,7 +105,18 @@ class DriveHealth:
                                           (self.current_a(ax) for ax in self.axes))
 
     def rated_current_a(self) -> float:
-        """6075h (mA) as the drive holds it, else half the current limit."""
+        """6075h (mA) as the drive holds it, else half the current limit (read from the
+        dictionary once, again after :meth:`forget_rated`: a write of 6075h, a boot)."""
+        rated = self._rated
+        if rated is None:
+            rated = self._rated = self._read_rated()
+        return rated
+
+    def forget_rated(self) -> None:
+        """6075h may hold another value now (written, or the drive booted)."""
+        self._rated = None
+
+    def _read_rated(self) -> float:
         if isinstance(self._dictionary.get(int(Obj.RATED_CURRENT)), od.ODVariable):
             rated = read_uint(self._get, int(Obj.RATED_CURRENT), 0, "<I", 0) / 1000.0
             if rated > 0:

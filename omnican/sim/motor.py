@@ -80,6 +80,18 @@ def advance(
     p, v, demand = state
     if v == demand == target:  # settled: the one segment below, without its zero terms
         return MotorState(p + target * dt, target, target)
+    if demand == target and tau > 0.0:
+        # The ramp is done, the lag still closing: _ramp_segments' one flat segment
+        # (dt, demand, 0.0), the loop below written out for it. The zero slope's terms
+        # stay (0.0 added and taken away) so the sums are those of the loop, bit for bit.
+        e = math.exp(-dt / tau)
+        k = v - demand + 0.0 * tau
+        p += demand * dt + 0.5 * 0.0 * dt * dt - 0.0 * tau * dt + k * tau * (1.0 - e)
+        v = demand + 0.0 * dt - 0.0 * tau + k * e
+        demand = demand + 0.0 * dt
+        if abs(v - demand) < 1e-9 * max(1.0, abs(demand)):
+            v = demand
+        return MotorState(p, v, demand)
     for duration, c0, c1 in _ramp_segments(demand, target, accel, decel, dt):
         if tau <= 0.0:
             p += c0 * duration + 0.5 * c1 * duration * duration

@@ -45,6 +45,7 @@ from omnican.protocol.cia301 import (
     NmtCommand,
     NmtState,
 )
+from omnican.sim.block_download import BlockDownloadServer
 from omnican.sim.heartbeat import Heartbeat
 from omnican.sim.objects import NodeObjects, ObjectHooks
 from omnican.sim.pdo import read_uint
@@ -151,6 +152,10 @@ class SimNode:
         network.subscribe(NMT_COB_ID, self._on_nmt)
         network.subscribe(local.sdo.rx_cobid, self._on_sdo)
         local.sdo.send_response = self._send_sdo_answer  # type: ignore[method-assign]
+        #: block downloads, which canopen's SDO server lacks (its sinks: 1F50h's taker)
+        self.block = BlockDownloadServer(local, self._send_sdo_answer, clock.now)
+        #: called at every boot with ``reset_node`` (after the objects' defaults)
+        self.on_boot: list[Callable[[bool], None]] = []
         self._sync_cob = read_uint(local.get_data, SYNC_COB_ID_OBJECT, 0, "<I",
                                    SYNC_COB_ID) & COB_ID_MASK
         network.subscribe(self._sync_cob, self._on_sync)
@@ -173,7 +178,10 @@ class SimNode:
         self.nmt = NmtState.BOOT_UP
         self.pdos.stop()
         self.objects.restore_defaults(reset_node)
+        self.block.reset()
         self.app.booted(reset_node)
+        for hook in self.on_boot:
+            hook(reset_node)
         self.heartbeat.enabled = True
         self._send(HEARTBEAT_BASE + self.node_id, bytes([NmtState.BOOT_UP]), droppable=False)
         self.nmt = NmtState.PRE_OPERATIONAL
@@ -241,7 +249,8 @@ class SimNode:
                     self.nmt == NmtState.BOOT_UP and self._boot_due is None):
                 return
             self.app.advance(self.clock.now())
-            self.local.sdo.on_request(can_id, data, timestamp)
+            if not self.block.on_request(data):
+                self.local.sdo.on_request(can_id, data, timestamp)
 
     def _send_sdo_answer(self, response: bytes | bytearray) -> None:
         """The SDO server's answer: on the bus now, or ``sdo_delay_s`` later."""
@@ -257,7 +266,8 @@ class SimNode:
             if (self.frozen or self.nmt != _OPERATIONAL
                     or (self.frame_loss and self._lost())):
                 return
-            now = self._frame_time(timestamp)
+            clock = self.clock  # _frame_time, its lock-step case written out (each SYNC)
+            now = clock.now() if clock.lockstep else self._frame_time(timestamp)
             self.app.advance(now)
             self.pdos.sync(now)
 
@@ -303,6 +313,8 @@ class SimNode:
             reset_node = self._boot_due[1]
             self._boot_due = None
             self.boot(reset_node)
+        if self.block.active:
+            self.block.expire(now)
         while self._sdo_answers and now >= self._sdo_answers[0][0]:
             self._send(self.local.sdo.tx_cobid, self._sdo_answers.pop(0)[1], droppable=False)
         heartbeat = self.heartbeat

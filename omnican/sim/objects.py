@@ -27,8 +27,10 @@ from omnican.protocol.cia301 import (
     IDENTITY,
     MAX_PDOS,
     PRODUCER_HEARTBEAT_TIME,
+    RESTORE_DEFAULTS,
     RPDO_MAP,
     SDO_ABORT_READ_ONLY,
+    STORE_PARAMETERS,
     TPDO_MAP,
 )
 from omnican.sim.pdo import check_mapping_write
@@ -79,6 +81,11 @@ class NodeObjects:
         self.max_mapping_entries = max_mapping_entries
         self.remappable = remappable
         self.accept_unmappable = accept_unmappable
+        #: what the device's non-volatile memory holds (1010h saved it): loaded over the
+        #: defaults at every boot (the communication objects only at a reset communication)
+        self.stored: Mapping[Key, bytes] = {}
+        #: what a write to 1010h or 1011h does (:class:`omnican.sim.lss.ParameterStore`)
+        self.store_command: Callable[[int, int, bytes], None] | None = None
         local.add_read_callback(self.on_read)
         local.add_write_callback(self.on_write)
 
@@ -112,12 +119,18 @@ class NodeObjects:
             for index in [i for i in store if i in COMMUNICATION_PROFILE]:
                 del store[index]
         self.prefill_defaults()
+        for (index, subindex), value in self.stored.items():
+            if reset_node or index in COMMUNICATION_PROFILE:
+                store.setdefault(index, {})[subindex] = value
 
     def on_read(self, index: int, subindex: int, od: od.ODVariable) -> int | None:
         reader = self.readers.get((index, subindex))
         return None if reader is None else reader()
 
     def on_write(self, index: int, subindex: int, od: od.ODVariable, data: bytes) -> None:
+        if self.store_command is not None and index in (STORE_PARAMETERS, RESTORE_DEFAULTS):
+            self.store_command(index, subindex, bytes(data))
+            return
         if is_mapping(index):
             if not self.remappable:
                 raise SdoAbortedError(SDO_ABORT_READ_ONLY)
@@ -136,7 +149,9 @@ class NodeObjects:
         heartbeat = index in (CONSUMER_HEARTBEAT_TIME, PRODUCER_HEARTBEAT_TIME)
 
         def write(data: bytes) -> None:
-            store = store_of.setdefault(index, {})
+            store = store_of.get(index)
+            if store is None:  # (setdefault would make an empty dict with every write)
+                store = store_of[index] = {}
             changed = store.get(subindex) != data
             if hook is not None:
                 hook(data, changed)

@@ -42,9 +42,10 @@ from omnican.errors import ConfigError
 from omnican.telemetry import JSON, TOPICS, Message
 from omnican.telemetry.attach import feed_of
 from omnican.zenoh import rmw
+from omnican.zenoh.imu import ZenohImu
 from omnican.zenoh.security import ENFORCING, tls_entries
+from omnican.zenoh.services import SERVICES, Services
 from omnican.zenoh.services import SOURCE as SERVICE_CLIENT
-from omnican.zenoh.services import Services
 from omnican.zenoh.settings import (
     ZenohSettings,
     config_entries,
@@ -278,6 +279,12 @@ class ZenohBridge:
         self._sources: dict[str, CommandSource] = {}
         self._anyone = base.command_source(SOURCE)
         self.services = Services(session, self.node, self.caller, len(topics) + 2)
+        imu = base.cfg.imu
+        #: the configured IMU's topic into the base's inbox ([imu] source = "zenoh")
+        self.imu = (ZenohImu(session, self.node, len(topics) + 2 + len(SERVICES),
+                             settings.domain_id, base.imu, imu)
+                    if imu is not None and imu.source == "zenoh" and base.imu is not None
+                    else None)
         self.poll_period_s = 1.0 / min(MAX_POLL_HZ, base.cfg.chassis.rate_hz)
         self._poller = (PollThread(self.poll, self.poll_period_s, "omnican-zenoh-poll", logger,
                                    "handling Zenoh cmd_vel failed") if poll_thread else None)
@@ -419,6 +426,8 @@ class ZenohBridge:
         self._cmd_sub.undeclare()
         self._cmd_token.undeclare()
         self.services.close()
+        if self.imu is not None:
+            self.imu.close()
         for pub in self.publishers.values():
             pub.close()
         self._node_token.undeclare()

@@ -135,7 +135,7 @@ def test_a_silent_imu_warns_and_falls_back_without_stopping(channel: str) -> Non
 
 
 def test_a_silent_imu_stops_the_base_when_configured(channel: str) -> None:
-    with rig(channel, FusionSettings(stop_on_imu_stale=True, stale_s=0.2)) as (
+    with rig(channel, FusionSettings(stop_on_imu_stale=True)) as (
             clock, _, base, gyro):
         hold(clock, base, 0.0, 0.0, 0.0, 1.0)
         assert base.status.stopped_reason is None

@@ -409,7 +409,7 @@ def _with_key(section: str, key: str, value: str) -> str:
             text = re.sub(rf"^{key} = .*\n", "", text, count=1, flags=re.M)
         return text.replace("[[wheel]]\nnode_id = 1\n", f"[[wheel]]\n{key} = {value}\n"
                             + ("node_id = 1\n" if key != "node_id" else ""), 1)
-    required = {"estop": "bit = 16\n"}.get(section, "")
+    required = {"estop": "bit = 16\n", "imu": "source = \"ros2\"\n"}.get(section, "")
     if key in required:
         required = ""
     return GOOD + f"\n[{section}]\n{required}{key} = {value}\n"

@@ -590,3 +590,19 @@ def test_close_detaches(rig: Rig) -> None:
     drive.close()
     drive.close()  # idempotent
     assert NODE not in rig.sim_net.nodes
+
+
+def test_the_rated_current_follows_6075h_as_written_and_as_booted(rig: Rig) -> None:
+    """The health model reads 6075h once (each current's per mille divides by it), and
+    again after an SDO download of it and after a reset node restores its default."""
+    drive = rig.drive()
+    node = rig.node()
+    node.nmt.state = "PRE-OPERATIONAL"
+    default = drive.health.rated_current_a()
+    node.sdo[0x6075].raw = 4321  # mA
+    assert drive.health.rated_current_a() == pytest.approx(4.321)
+    node.sdo[0x6075].raw = 1234
+    assert drive.health.rated_current_a() == pytest.approx(1.234)
+    drive.reboot()
+    assert wait_for(lambda: drive.nmt_state != "INITIALISING")
+    assert wait_for(lambda: drive.health.rated_current_a() == pytest.approx(default))

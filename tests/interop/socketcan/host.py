@@ -10,6 +10,7 @@ it reads one command a line and answers each with one JSON line:
     recover          base.recover(); {"ok": true} or {"ok": false, "error": ...}
     watch            start collecting what the status says, every 20 ms
     seen             what the status said since ``watch`` (and start over)
+    close            close the base (stop, disable, release the bus); the process stays
     quit             leave the ``with`` block: stop, disable every drive, exit 0
 """
 
@@ -52,6 +53,10 @@ def snapshot(base: Chassis) -> dict[str, Any]:
         # filed under, against the last SYNC sent (private; read-only).
         "sync_epoch": base.bus.sync_epoch,
         "sample_epochs": [a.epoch for a in base._loop.axes],
+        # Who sends SYNC, and whether the loop runs woken by the kernel's (private).
+        "sync_mode": base.bus.sync_mode,
+        "kernel_sync": getattr(base._runner, "kernel", False),
+        "sync_hold": base.bus.kernel_sync.hold if base.bus.kernel_sync else None,
     }
 
 
@@ -145,6 +150,10 @@ def serve(base: Chassis) -> None:
                 reply({"ok": True})
             elif verb == "seen":
                 reply(commander.seen())
+            elif verb == "close":
+                commander.velocity = None
+                base.close()
+                reply({"ok": True})
             else:
                 reply({"ok": False, "error": f"unknown command {verb!r}"})
     finally:
