@@ -28,7 +28,7 @@ from typing import Any
 
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.chassis.checks import ChassisChecks
-from omnican.chassis.cycle import ControlCycle
+from omnican.chassis.cycle import ControlCycle, reset_pose
 from omnican.chassis.lifecycle import Lifecycle
 from omnican.chassis.opening import make_base
 from omnican.chassis.runner import LockstepRunner, ThreadRunner
@@ -222,11 +222,11 @@ class Chassis:
         if problem is not None:
             raise ValueError(f"odometry reset refused: {problem}")
         loop = self._loop
-        loop.call_soon(lambda: loop.reset_pose(target))
+        loop.call_soon(lambda: reset_pose(loop, target))
         deadline = self.clock.now() + 1.0
         while loop.snapshot.pose != target and self.clock.now() < deadline:
             if not self._runner.running:
-                loop.reset_pose(target)
+                reset_pose(loop, target)
                 break
             self.clock.sleep(self._period if self._lockstep else self._period / 2)
 

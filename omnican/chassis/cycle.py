@@ -110,8 +110,7 @@ class ControlCycle:
         #: where a configured IMU's samples wait for the cycle (None: no IMU; set by
         #: whoever attaches the IMU source before the loop starts)
         self.imu: ImuInbox | None = None
-        #: the gyro fused with the wheels (made when an IMU is attached; see _fuse)
-        self.fusion: FusedOdometry | None = None
+        self.fusion: FusedOdometry | None = None  # the gyro and the wheels (see _fuse)
         self._fused: tuple[Any, tuple[str, ...]] | None = None  # (its values, its warnings)
         self._fusion_settings = (cfg.fusion, getattr(cfg, "imu", None))  # [fusion], [imu]
         self.snapshot = self._make_snapshot(clock.now())
@@ -160,9 +159,9 @@ class ControlCycle:
         self._all_enabled = all_enabled
         self._integrate_samples()
         # ---- IMU fusion (issue 40): a base without an IMU pays this one test.
-        if self.imu is not None:
-            self._fuse(now)
-        # ---- end of IMU fusion
+        imu = self.imu
+        if imu is not None:
+            self._fuse(now, imu)
         # Command -> limits -> wheel speeds.
         cmd, t_cmd = self.command
         if sup.latched or not all_enabled or now - t_cmd > self._cmd_timeout:
@@ -244,22 +243,12 @@ class ControlCycle:
             # The other wheels keep their last speeds, a stale one reads 0 (the snapshot).
             self.wheel_odometry.forget_speeds(stale)
 
-    def reset_pose(self, pose: Pose2D) -> None:
-        """The pose is ``pose`` from now on: the wheels' and the fused (loop thread)."""
-        self.odometry.reset(pose)
-        if self.fusion is not None:
-            self.fusion.reset((pose.x, pose.y, pose.theta))
-
-    def _fuse(self, now: float) -> None:
-        """The IMU's samples since the last cycle fused with the wheels' step
-        (:mod:`omnican.core.fusion`); a slip or a silent IMU warns, or stops the base if
-        the config says so."""
+    def _fuse(self, now: float, imu: ImuInbox) -> None:
+        """The IMU's samples fused with the wheels' step (a slip may stop the base)."""
         fusion = self.fusion
         if fusion is None:  # the first cycle with an IMU
             fusion = self.fusion = FusedOdometry.configured(
                 self.kinematics, self.odometry, self.wheel_odometry, *self._fusion_settings)
-        imu = self.imu
-        assert imu is not None
         stop = fusion.step(now, imu.drain(), self.limiter.output.is_zero())
         self._fused = (fusion.values, fusion.warnings)
         if stop is not None and not self._sup.latched:
@@ -334,6 +323,14 @@ class ControlCycle:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
         every drive enabled) as of the last cycle: what the chassis checks compare."""
         return self._targets, self.wheel_odometry.speeds(), self._stale, self._all_enabled
+
+
+def reset_pose(cycle: ControlCycle, pose: Pose2D) -> None:
+    """The pose of ``cycle``'s base is ``pose`` from now on: the wheels' and the fused (on
+    the loop thread, or with the loop stopped)."""
+    cycle.odometry.reset(pose)
+    if cycle.fusion is not None:
+        cycle.fusion.reset((pose.x, pose.y, pose.theta))
 
 
 def _no_sink(snapshot: Snapshot) -> None:
