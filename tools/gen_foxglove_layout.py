@@ -74,6 +74,9 @@ def panels() -> Any:
                     gradient=("#1f77b440", "#1f77b4")),
                 "/sim/true_pose": fl.BaseRendererPoseTopicSettings(
                     visible=True, type="arrow", arrow_scale=arrow, color="#2ca02c"),
+                # the wheels' own odometry beside the fused (/odom/pose) where an IMU is
+                "/odom/wheels/pose": fl.BaseRendererPoseTopicSettings(
+                    visible=True, type="arrow", arrow_scale=arrow, color="#ff7f0e"),
             }))
 
     def twist() -> Any:
@@ -180,6 +183,22 @@ def panels() -> Any:
                                             "jam N, free N, lift N, land N, battery V, "
                                             "estop on|off",
                                            '{"command": "fault 2"}', editing=True)))))
+    # The odometry fused with an IMU's gyro beside the wheels' alone (omnican.core.fusion):
+    # the headings side by side, the filter's 1-sigma and the gyro bias it learnt, slips.
+    heading = fl.PlotPanel(title="heading (deg): fused vs wheels alone", config=fl.PlotConfig(
+        paths=[series("/fusion.heading_deg"), series("/fusion.wheels_heading_deg")],
+        show_legend=True))
+    filter_state = fl.PlotPanel(title="fusion: heading 1-sigma (deg), gyro bias (deg/s)",
+                                config=fl.PlotConfig(
+                                    paths=[series("/fusion.heading_sigma_deg"),
+                                           series("/fusion.gyro_bias_deg_s",
+                                                  use_right_y_axis=True)],
+                                    show_legend=True))
+    slips = fl.StateTransitionsPanel(title="IMU and slip", config=fl.StateTransitionsConfig(
+        paths=[state("/fusion.imu", "IMU live"), state("/fusion.slipping", "wheels slip")],
+        show_points=True))
+    odometry = split("row", (1.2, scene()),
+                     (1.0, split("column", (1.0, heading), (0.8, filter_state), (0.5, slips))))
     bus = split("row", (1.0, can),
                 (1.0, fl.RawMessagesPanel(title="CAN: frames received (can_msgs/Frame)",
                                           config=fl.RawMessagesConfig(
@@ -188,6 +207,7 @@ def panels() -> Any:
         fl.TabItem(title="omnican", content=live),  # type: ignore[arg-type]
         fl.TabItem(title="drive", content=drive),  # type: ignore[arg-type]
         fl.TabItem(title="drives", content=drives),  # type: ignore[arg-type]
+        fl.TabItem(title="odometry", content=odometry),  # type: ignore[arg-type]
         fl.TabItem(title="CAN", content=bus),  # type: ignore[arg-type]
     ])
 

@@ -28,7 +28,7 @@ from typing import Any
 
 from omnican.chassis.arbiter import CommandArbiter, CommandSource
 from omnican.chassis.checks import ChassisChecks
-from omnican.chassis.cycle import ControlCycle
+from omnican.chassis.cycle import ControlCycle, reset_pose
 from omnican.chassis.lifecycle import Lifecycle
 from omnican.chassis.opening import make_base
 from omnican.chassis.runner import LockstepRunner, SyncRunner, ThreadRunner
@@ -237,17 +237,23 @@ class Chassis:
         if problem is not None:
             raise ValueError(f"odometry reset refused: {problem}")
         loop = self._loop
-        loop.call_soon(lambda: loop.odometry.reset(target))
+        loop.call_soon(lambda: reset_pose(loop, target))
         deadline = self.clock.now() + 1.0
         while loop.snapshot.pose != target and self.clock.now() < deadline:
             if not self._runner.running:
-                loop.odometry.reset(target)
+                reset_pose(loop, target)
                 break
             self.clock.sleep(self._period if self._lockstep else self._period / 2)
 
     @property
     def pose(self) -> Pose2D:
         return self._loop.snapshot.pose
+
+    @property
+    def fused_pose(self) -> Pose2D | None:
+        """The pose fused with an attached IMU's gyro (:mod:`omnican.core.fusion`); None
+        without an IMU. :attr:`pose` stays the wheels' own."""
+        return self._loop.snapshot.fused_pose
 
     @property
     def twist(self) -> Twist:

@@ -22,10 +22,11 @@ from omnican.chassis.state import Snapshot
 from omnican.chassis.supervisor import NodeSupervisor
 from omnican.clock import Clock
 from omnican.config import ChassisConfig
+from omnican.core.fusion import FusedOdometry
 from omnican.core.imu import ImuInbox
 from omnican.core.kinematics import Twist
 from omnican.core.limits import VelocityLimiter
-from omnican.core.odometry import Odometry
+from omnican.core.odometry import Odometry, Pose2D
 from omnican.core.wheel_odometry import EncoderCounters, WheelOdometry
 from omnican.drive import AxisIO, DriveNode
 from omnican.io.bus import CAME_BACK, WENT_DOWN, BusWatch, CanBus, prepared_message
@@ -112,6 +113,9 @@ class ControlCycle:
         #: where a configured IMU's samples wait for the cycle (None: no IMU; set by
         #: whoever attaches the IMU source before the loop starts)
         self.imu: ImuInbox | None = None
+        self.fusion: FusedOdometry | None = None  # the gyro and the wheels (see _fuse)
+        self._fused: tuple[Any, tuple[str, ...]] | None = None  # (its values, its warnings)
+        self._fusion_settings = (cfg.fusion, getattr(cfg, "imu", None))  # [fusion], [imu]
         self.snapshot = self._make_snapshot(clock.now())
 
     def call_soon(self, fn: Callable[[], None]) -> None:
@@ -167,6 +171,10 @@ class ControlCycle:
             self._mark_stale(epoch)
         elif self._stale:
             self._stale = ()
+        # ---- IMU fusion (issue 40): a base without an IMU pays this one test.
+        imu = self.imu
+        if imu is not None:
+            self._fuse(now, imu)
         # Command -> limits -> wheel speeds.
         cmd, t_cmd = self.command
         if sup.latched or not all_enabled or now - t_cmd > self._cmd_timeout:
@@ -250,6 +258,17 @@ class ControlCycle:
             # The other wheels keep their last speeds, a stale one reads 0 (the snapshot).
             self.wheel_odometry.forget_speeds(stale)
 
+    def _fuse(self, now: float, imu: ImuInbox) -> None:
+        """The IMU's samples fused with the wheels' step (a slip may stop the base)."""
+        fusion = self.fusion
+        if fusion is None:  # the first cycle with an IMU
+            fusion = self.fusion = FusedOdometry.configured(
+                self.kinematics, self.odometry, self.wheel_odometry, *self._fusion_settings)
+        stop = fusion.step(now, imu.drain(), self.limiter.output.is_zero())
+        self._fused = (fusion.values, fusion.warnings)
+        if stop is not None and not self._sup.latched:
+            self._sup.latch(stop)
+
     @property
     def speeds_settled(self) -> bool:
         """The limiter's output is zero and every wheel below 5 mm/s."""
@@ -312,12 +331,21 @@ class ControlCycle:
         snap.bus_error = watch.failing or (self._bus.reconnect_error if bus_down else None)
         snap.warnings = self._warnings
         snap.bus_up = not bus_down
+        snap.fusion = self._fused  # None without an IMU
         return snap
 
     def wheel_speeds(self) -> tuple[list[float], list[float], tuple[int, ...], bool]:
         """(targets, measured speeds (m/s, by wheel index), wheels without a fresh sample,
         every drive enabled) as of the last cycle: what the chassis checks compare."""
         return self._targets, self.wheel_odometry.speeds(), self._stale, self._all_enabled
+
+
+def reset_pose(cycle: ControlCycle, pose: Pose2D) -> None:
+    """The pose of ``cycle``'s base is ``pose`` from now on: the wheels' and the fused (on
+    the loop thread, or with the loop stopped)."""
+    cycle.odometry.reset(pose)
+    if cycle.fusion is not None:
+        cycle.fusion.reset((pose.x, pose.y, pose.theta))
 
 
 def _no_sink(snapshot: Snapshot) -> None:

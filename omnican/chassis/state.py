@@ -105,7 +105,7 @@ class Snapshot:
 
     __slots__ = ("_command", "_pose", "_status", "_twist", "_wheels", "applied",
                  "bus_bits_per_s", "bus_error", "bus_load", "bus_up", "checked", "command_age_s",
-                 "cycles", "enabled", "info", "late_fraction", "loop_hz", "measured",
+                 "cycles", "enabled", "fusion", "info", "late_fraction", "loop_hz", "measured",
                  "stopped_reason", "warnings", "wheel_values", "xyt")
 
     xyt: tuple[float, float, float]  # the pose: x, y (m), theta (rad)
@@ -128,6 +128,9 @@ class Snapshot:
     bus_error: str | None
     warnings: tuple[str, ...]
     bus_up: bool
+    #: (:attr:`fused`, the fusion's warnings) where an IMU is attached, else None
+    fusion: tuple[tuple[float, float, float, float, float, float, float, bool, bool],
+                  tuple[str, ...]] | None
     # Made on first read (unset until then).
     _pose: Pose2D
     _twist: Twist
@@ -142,6 +145,22 @@ class Snapshot:
         except AttributeError:  # the first read
             self._pose = pose = Pose2D(*self.xyt)
             return pose
+
+    @property
+    def fused(self) -> tuple[float, float, float, float, float, float, float, bool, bool] | None:
+        """The odometry fused with an IMU's gyro (None: no IMU attached): x, y (m), theta
+        (rad), theta's variance (rad^2), the gyro's bias (rad/s) and its variance, the
+        fused yaw rate (rad/s), the IMU live (False: the wheels alone), the wheels
+        slipping (:class:`omnican.core.fusion.FusedOdometry`); :attr:`xyt` stays the
+        wheels' own."""
+        fusion = self.fusion
+        return None if fusion is None else fusion[0]
+
+    @property
+    def fused_pose(self) -> Pose2D | None:
+        """The pose fused with the IMU's gyro (None: no IMU); :attr:`pose` is the wheels'."""
+        fused = self.fused
+        return None if fused is None else Pose2D(fused[0], fused[1], fused[2])
 
     @property
     def twist(self) -> Twist:
@@ -165,12 +184,16 @@ class Snapshot:
             return self._status
         except AttributeError:
             h = self.checked.status
+            warnings = self.warnings + h.warnings if h.warnings else self.warnings
+            fusion = self.fusion
+            if fusion is not None and fusion[1]:  # a slip, a silent IMU
+                warnings += fusion[1]
             self._status = status = ChassisStatus(
                 enabled=self.enabled, stopped_reason=self.stopped_reason,
                 command_age_s=self.command_age_s, loop_hz=self.loop_hz,
                 late_fraction=self.late_fraction, cycles=self.cycles, bus_load=self.bus_load,
                 bus_bits_per_s=self.bus_bits_per_s, bus_error=self.bus_error,
-                warnings=self.warnings + h.warnings if h.warnings else self.warnings,
+                warnings=warnings,
                 bus_up=self.bus_up, can_state=h.can_state, can_tx_errors=h.can_tx_errors,
                 can_rx_errors=h.can_rx_errors, can_error_frames=h.can_error_frames,
                 estop=h.estop, battery_v=h.battery_v, battery=h.battery)

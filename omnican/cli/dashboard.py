@@ -136,6 +136,10 @@ def _pose_twist(base: Chassis, command: Twist, width: int) -> tuple[list[_Block]
     pose_t.add_row("y", f"{fixed(pose.y, 3, sign=True):>8} m")
     pose_t.add_row("θ", f"{fixed(pose.theta, 3, sign=True):>8} rad "
                         f"({fixed(math.degrees(pose.heading), 1, sign=True):>6}°)")
+    fused = base.fused_pose  # an IMU's gyro fused in: its heading beside the wheels'
+    if fused is not None:
+        pose_t.add_row("θ gyro", f"{fixed(fused.theta, 3, sign=True):>8} rad "
+                                 f"({fixed(math.degrees(fused.heading), 1, sign=True):>6}°)")
     tw = Table(box=None, padding=(0, 1))
     for col in ("", "keys", "applied", "measured"):
         tw.add_column(col, justify="right", no_wrap=True)
@@ -157,7 +161,9 @@ def _pose_twist(base: Chassis, command: Twist, width: int) -> tuple[list[_Block]
     pose_text = Text(wrap_phrases([
         "pose", f"x {fixed(pose.x, 3, sign=True)} m", f"y {fixed(pose.y, 3, sign=True)} m",
         f"θ {fixed(pose.theta, 3, sign=True)} rad "
-        f"({fixed(math.degrees(pose.heading), 1, sign=True)}°)"], width, 2))
+        f"({fixed(math.degrees(pose.heading), 1, sign=True)}°)",
+        *([] if fused is None else [f"θ gyro {fixed(fused.theta, 3, sign=True)} rad"])],
+        width, 2))
     lines = [wrap_phrases(["applied", *(f"{name} {fixed(b, 3, sign=True)}"
                                         for name, _, _, b, _ in rows)], width, 1),
              wrap_phrases(["measured", *(f"{name} {'-' if unknown else fixed(c, 3, sign=True)}"

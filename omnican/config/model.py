@@ -142,6 +142,22 @@ class EstopSettings:
     node_id: int | None = _ESTOP["node_id"]
 
 
+_FUSION = schema_defaults("fusion")
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """The ``[fusion]`` table: how an attached IMU's gyro is fused with the wheels
+    (:mod:`omnican.core.fusion`) and what a slip or a silent IMU does."""
+
+    gyro_noise: float = _FUSION["gyro_noise"]
+    bias_walk: float = _FUSION["bias_walk"]
+    wheel_slip: float = _FUSION["wheel_slip"]
+    slip_warn_s: float = _FUSION["slip_warn_s"]
+    stop_on_slip: bool = _FUSION["stop_on_slip"]
+    stop_on_imu_stale: bool = _FUSION["stop_on_imu_stale"]
+
+
 @dataclass(frozen=True)
 class ImuSettings:
     """The ``[imu]`` table: where the IMU's readings come from (``source``: "can", "ros2"
@@ -256,6 +272,7 @@ class ChassisConfig:
     source: Path | None = field(default=None, compare=False)
     power: PowerSettings | None = None  # the [power] table
     estop: EstopSettings | None = None  # the [estop] table
+    fusion: FusionSettings = field(default_factory=FusionSettings)  # the [fusion] table
     # The [sim] table: not the robot's description, so not part of equality.
     sim: SimTruth | None = field(default=None, compare=False)
     # The [gamepad] table as given, checked (omnican.command.gamepad maps a pad with it).
@@ -268,7 +285,7 @@ class ChassisConfig:
                  power: PowerSettings | None = None, estop: EstopSettings | None = None,
                  sim: SimTruth | None = None, gamepad: Mapping[str, Any] | None = None,
                  front_ends: Mapping[str, Any] | None = None, imu: ImuSettings | None = None,
-                 **moved: Any) -> None:
+                 fusion: FusionSettings | None = None, **moved: Any) -> None:
         tables = {name: table if isinstance(table, FrontEndTable) else read_table(name, table)
                   for name, table in (front_ends or {}).items()}
         for name, given in moved.items():  # ros2=, zenoh=...: the tables' old names
@@ -282,6 +299,7 @@ class ChassisConfig:
         for name, value in (("chassis", chassis), ("wheels", wheels), ("bus", bus),
                             ("source", source), ("power", power), ("estop", estop),
                             ("sim", sim), ("gamepad", gamepad),
+                            ("fusion", fusion if fusion is not None else FusionSettings()),
                             ("front_ends", FrontEndTables(tables)), ("imu", imu)):
             object.__setattr__(self, name, value)
 

@@ -21,6 +21,7 @@ from omnican.config.model import (
     ChassisConfig,
     ChassisSettings,
     EstopSettings,
+    FusionSettings,
     PowerSettings,
     SimTruth,
     WheelConfig,
@@ -148,8 +149,9 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
     estop = _parse_estop(r, data["estop"], wheels) if "estop" in data else None
     sim = _parse_sim(r, data["sim"], len(wheels)) if "sim" in data else None
     imu = parse_imu(r, data["imu"], base_dir) if "imu" in data else None
+    fusion = _parse_fusion(r, data["fusion"]) if "fusion" in data else None
     cfg = ChassisConfig(chassis=settings, wheels=wheels, bus=bus, power=power, estop=estop,
-                        sim=sim, gamepad=gamepad, front_ends=front_ends, imu=imu)
+                        sim=sim, gamepad=gamepad, front_ends=front_ends, imu=imu, fusion=fusion)
     try:
         cfg.kinematics()
     except ConfigError as exc:
@@ -183,6 +185,16 @@ def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
     radius = t["base_radius"]
     return SimTruth(None if radius is None else float(radius),
                     None if values is None else tuple(float(v) for v in values), gyro)
+
+
+def _parse_fusion(r: Reader, table: Any) -> FusionSettings:
+    f = r.table("fusion", table, "fusion")
+    for key in ("gyro_noise", "bias_walk", "wheel_slip", "slip_warn_s"):
+        r.positive(f"fusion.{key}", f[key])
+    return FusionSettings(
+        gyro_noise=float(f["gyro_noise"]), bias_walk=float(f["bias_walk"]),
+        wheel_slip=float(f["wheel_slip"]), slip_warn_s=float(f["slip_warn_s"]),
+        stop_on_slip=bool(f["stop_on_slip"]), stop_on_imu_stale=bool(f["stop_on_imu_stale"]))
 
 
 def _parse_power(r: Reader, table: Any) -> PowerSettings:

@@ -279,6 +279,22 @@ _OWN: dict[str, dict[str, Key]] = {
         "node_id": Key((int,), None, "the drive whose input it is; default every node",
                        range=(1, 127)),
     },
+    # Read by the base when an IMU is attached: how its gyro is fused with the wheels
+    # (omnican.core.fusion) and what a slip or a silent IMU does.
+    "fusion": {
+        "gyro_noise": Key(NUMBER, 0.005, "rad/s: 1-sigma of one gyro sample",
+                          range=(1e-6, 1.0)),
+        "bias_walk": Key(NUMBER, 0.0001, "rad/s per sqrt(s): the gyro bias's random walk",
+                         range=(1e-9, 0.1)),
+        "wheel_slip": Key(NUMBER, 0.01, "1-sigma slip of a wheel, a fraction of its rim "
+                          "speed: more than this is a slip", range=(1e-4, 0.5)),
+        "slip_warn_s": Key(NUMBER, 0.5, "s of slip before a warning (status, dashboard)",
+                           range=(0.01, 60.0)),
+        "stop_on_slip": Key((bool,), False, "a slip warning also stops the base (recover() "
+                            "to drive again)"),
+        "stop_on_imu_stale": Key((bool,), False, "a silent IMU stops the base (default: a "
+                                 "warning, and the wheels alone)"),
+    },
     "imu": imu_keys.IMU_KEYS,
     # The simulated base `omnican calibrate --sim` drives, as it really is: kept apart from
     # the [chassis] and [[wheel]] numbers calibration corrects, so it stays the same base.

@@ -140,6 +140,12 @@ class Bridge:
 
         default = TopicQos()
         self._pub_odom = transport.publisher(settings.topic("odom"), msgs.Odometry, default)
+        # Beside /odom (fused with an IMU where one is attached): the same by
+        # robot_localization's name, and the wheels' own odometry; at /odom's rate.
+        self._pub_odom_more = {
+            topic: transport.publisher(resolve_name(topic[1:], settings.node_namespace,
+                                                    settings.node_name), msgs.Odometry, default)
+            for topic in ("/odometry/filtered", "/odom/wheels")}
         self._pub_tf = (transport.publisher(settings.topic("tf"), msgs.TFMessage,
                                             TopicQos(depth=TF_DEPTH))
                         if settings.publish_tf else None)
@@ -170,7 +176,7 @@ class Bridge:
         self._poll_lock = threading.Lock()
         self._polls = 0
         self._throttle = Throttle(logger)
-        self._wanted = {"/odom", "/diagnostics", "/battery_state"}
+        self._wanted = {"/odom", "/diagnostics", "/battery_state", *self._pub_odom_more}
         if self._pub_tf is not None:
             self._wanted.add("/tf")
         if self._pub_joints is not None:
@@ -258,6 +264,9 @@ class Bridge:
             elif topic == "/tf":
                 if self._pub_tf is not None and self._odom_sent:
                     self._pub_tf(to_idl(msgs.TFMessage, data))
+            elif topic in self._pub_odom_more:
+                if self._odom_sent:
+                    self._pub_odom_more[topic](to_idl(msgs.Odometry, data))
             elif topic == "/sim/true_pose":
                 if self._pub_truth is not None and self._odom_sent:
                     self._pub_truth(to_idl(msgs.PoseStamped, data))

@@ -12,6 +12,7 @@ could hold the loop up.
 
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
@@ -21,6 +22,7 @@ from omnican.clock import Clock
 from omnican.core.kinematics import OmniKinematics, Twist
 from omnican.core.odometry import Odometry, Pose2D
 from omnican.sim.drive import SimulatedDrive
+from omnican.sim.slip import SimSlip
 
 
 class GroundTruth:
@@ -37,6 +39,12 @@ class GroundTruth:
         self._counts_per_metre = counts_per_metre
         self._scales = [float(c) for c in counts_per_metre]
         self._odo = Odometry(kinematics)
+        #: the ground's slip beyond the drives' own (None: none; omnican.sim.slip)
+        self.slip: SimSlip | None = None
+        self._ground: list[float] | None = None  # each wheel's ground counts, last read
+        self._taken = [0.0] * len(wheel_axes)  # what the ground took of each rim, m
+        self._rims: list[float] = []  # each rim's travel of the last step, m (slip only)
+        self._t: float | None = None
         self._lock = threading.Lock()
         self._stopped = False
         self._loop = 0  # the thread (threading.get_ident) of the loop running the drives
@@ -44,12 +52,44 @@ class GroundTruth:
         self._odo.update(self._travel())
 
     def _travel(self, now: float | None = None, moved: bool = True) -> list[float]:
-        """What each wheel rolled on the ground (a wheel off the ground moves nothing), at
-        ``now`` (default the present); ``moved=False``: as the drives last moved them."""
+        """What each wheel rolled on the ground (a wheel off the ground moves nothing, a
+        slipping one less: the drive's ``slip`` and the ground's, :attr:`slip`), at ``now``
+        (default the present); ``moved=False``: as the drives last moved them. Summed step
+        by step, so a slip that starts (or a surface the base reaches) changes what the
+        ground takes from then on, not what it took."""
         t = self.clock.now() if now is None else now
-        return [(d.ground_counts(axis, t) if moved else d.axes[axis].ground_position)
-                * (1.0 - d.slip) / scale
-                for (d, axis), scale in zip(self.wheel_axes, self._scales, strict=True)]
+        ground = [d.ground_counts(axis, t) if moved else d.axes[axis].ground_position
+                  for d, axis in self.wheel_axes]
+        last = self._ground
+        self._ground = ground
+        if last is None:
+            return self._taken
+        slip = self.slip
+        x, y = (self._odo.xyt[0], self._odo.xyt[1]) if slip is not None else (0.0, 0.0)
+        rims = []
+        for i, ((d, _), scale, g0, g1) in enumerate(zip(self.wheel_axes, self._scales, last,
+                                                       ground, strict=True)):
+            rim = (g1 - g0) / scale
+            rims.append(rim)
+            lost = d.slip if slip is None else 1.0 - (1.0 - d.slip) * (1.0 - slip.ratio(i, x, y))
+            self._taken[i] += rim * (1.0 - lost)
+        if slip is not None:
+            self._rims = rims
+        return list(self._taken)
+
+    def _ground_effects(self, t: float) -> None:
+        """After a step: what the rollers that give way and a ramp add to the true pose."""
+        slip = self.slip
+        dt = t - self._t if self._t is not None else 0.0
+        self._t = t
+        if slip is None or not any(self._rims):
+            return
+        dx, dy, dw = slip.lateral(self.kinematics, self._rims)
+        x, y, th = self._odo.xyt
+        cx, cy = slip.creep(th, dt) if dt > 0 else (0.0, 0.0)
+        c, s = math.cos(th), math.sin(th)
+        self._odo.reset(Pose2D(x + c * dx - s * dy + cx, y + s * dx + c * dy + cy, th + dw))
+        self._rims = []
 
     def follow(self, now: float) -> None:
         """Follow the wheels as their drives last moved them (on the SYNC, or in their own
@@ -59,6 +99,7 @@ class GroundTruth:
         with self._lock:
             if not self._stopped:
                 self._odo.step(self._travel(now, moved=False))
+                self._ground_effects(now)
                 if self._loop:
                     self._kept = (self._odo.pose, self._twist(advance=False))
 
@@ -69,7 +110,10 @@ class GroundTruth:
         if kept is not None:
             return kept[0]
         with self._lock:
-            return self._odo.update(self._travel())
+            t = self.clock.now()
+            self._odo.update(self._travel(t))
+            self._ground_effects(t)
+            return self._odo.pose
 
     @property
     def twist(self) -> Twist:
@@ -78,10 +122,18 @@ class GroundTruth:
         return kept[1] if kept is not None else self._twist(advance=True)
 
     def _twist(self, advance: bool) -> Twist:
-        speeds = np.array([(d.velocity_counts(axis) if advance else d.axes[axis].state.velocity)
-                           * (1.0 - d.slip) if d.axes[axis].grounded else 0.0
-                           for d, axis in self.wheel_axes]) / self._counts_per_metre
-        return self.kinematics.to_twist(speeds)
+        rims = np.array([(d.velocity_counts(axis) if advance else d.axes[axis].state.velocity)
+                         if d.axes[axis].grounded else 0.0
+                         for d, axis in self.wheel_axes]) / self._counts_per_metre
+        slip = self.slip
+        if slip is None:
+            return self.kinematics.to_twist(rims * [1.0 - d.slip for d, _ in self.wheel_axes])
+        x, y, _ = self._odo.xyt
+        taken = [v * (1.0 - d.slip) * (1.0 - slip.ratio(i, x, y))
+                 for i, (v, (d, _)) in enumerate(zip(rims, self.wheel_axes, strict=True))]
+        vx, vy, wz = self.kinematics.to_twist(np.asarray(taken)).as_array()
+        lx, ly, lw = slip.lateral(self.kinematics, [float(v) for v in rims])
+        return Twist(float(vx) + lx, float(vy) + ly, float(wz) + lw)
 
     def _elsewhere(self) -> tuple[Pose2D, Twist] | None:
         """The truth of the loop's last cycle, for a thread other than the loop's while

@@ -172,7 +172,8 @@ class Feed:
         if snapshot is None:
             return TelemetrySample(stamp_ns, None, None, None, (), None, true_pose, true_twist)
         return TelemetrySample(stamp_ns, snapshot.pose, snapshot.twist, snapshot.command,
-                      snapshot.wheels, snapshot.status, true_pose, true_twist)
+                               snapshot.wheels, snapshot.status, true_pose, true_twist,
+                               snapshot.fused)
 
     # ------------------------------------------------------------ closing
 

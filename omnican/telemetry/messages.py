@@ -29,6 +29,7 @@ from omnican.core.kinematics import Twist
 from omnican.core.odometry import Pose2D
 from omnican.plan.health_fields import HEALTH_FIELDS
 from omnican.protocol.cia402 import State
+from omnican.telemetry.fused import FUSED_TOPICS, FUSION_SCHEMA
 from omnican.telemetry.settings import TelemetrySettings
 
 # diagnostic_msgs/msg/DiagnosticStatus levels
@@ -55,6 +56,7 @@ class TelemetrySample:
     status: ChassisStatus | None
     true_pose: Pose2D | None = None  # the simulator's ground truth
     true_twist: Twist | None = None
+    fused: tuple[float, float, float, float, float, float, float, bool, bool] | None = None  # IMU
 
 
 # ------------------------------------------------------------------ pieces
@@ -112,9 +114,9 @@ def odometry(s: TelemetrySample, settings: TelemetrySettings, pose_covariance: S
 
 
 def transforms(s: TelemetrySample, settings: TelemetrySettings) -> dict[str, Any]:
-    """tf2_msgs/msg/TFMessage: the one transform odom -> base_link."""
+    """tf2_msgs/msg/TFMessage: the one transform odom -> base_link (/odom's pose)."""
     assert s.pose is not None
-    p = s.pose
+    p = s.pose if s.fused is None else Pose2D(*s.fused[:3])
     return {"transforms": [{
         "header": _header(s.stamp_ns, settings.odom_frame),
         "child_frame_id": settings.base_frame,
@@ -345,7 +347,7 @@ def status(s: TelemetrySample) -> dict[str, Any]:
         "late_fraction": st.late_fraction, "cycles": st.cycles,
         "bus_bits_per_s": st.bus_bits_per_s, "bus_error": st.bus_error or "",
         "bus_up": st.bus_up, "command_age_s": min(st.command_age_s, 1e9),
-        "can_state": st.can_state or "", "estop": st.estop},
+        "can_state": st.can_state or "", "estop": st.estop, "warnings": list(st.warnings)},
         bus_load=st.bus_load, can_tx_errors=st.can_tx_errors, can_rx_errors=st.can_rx_errors,
         battery_v=st.battery_v)
 
@@ -400,7 +402,9 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         bus_bits_per_s=_NUM, bus_error=_STR, bus_up=_BOOL, command_age_s=_NUM,
         can_state=_STR, can_tx_errors=_maybe(_INT, "the CAN controller does not say"),
         can_rx_errors=_maybe(_INT, "the CAN controller does not say"), estop=_BOOL,
-        battery_v=_maybe(_NUM, "no drive measures its DC link")),
+        battery_v=_maybe(_NUM, "no drive measures its DC link"),
+        warnings={"type": "array", "items": _STR}),
+    "omnican.Fusion": FUSION_SCHEMA,
 }
 
 
@@ -410,7 +414,8 @@ ROS2, JSON = "ros2", "json"
 
 #: topic -> (schema name, kind): the state topics every front end may carry.
 TOPICS: dict[str, tuple[str, str]] = {
-    "/odom": ("nav_msgs/msg/Odometry", ROS2),
+    "/odom": ("nav_msgs/msg/Odometry", ROS2),  # fused with an IMU where one is attached
+    **FUSED_TOPICS,  # /odometry/filtered, /odom/wheels...: telemetry/fused.py
     # The odometry's pose and the path so far, as Foxglove's 3D panel draws them (it does
     # not draw nav_msgs/msg/Odometry).
     "/odom/pose": ("geometry_msgs/msg/PoseStamped", ROS2),

@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
-from omnican.core.kinematics import OmniKinematics
+from omnican.core.kinematics import OmniKinematics, Twist
+from omnican.core.odometry import Pose2D
 from omnican.telemetry import messages as m
 from omnican.telemetry.covariance import OdomCovariance
+from omnican.telemetry.fused import fused_pose, fusion
 from omnican.telemetry.settings import TelemetrySettings
 from omnican.telemetry.trail import PERIOD_S as TRAIL_PERIOD_S
 from omnican.telemetry.trail import Trail
@@ -68,6 +70,27 @@ def state_message(topic: str, stamp_ns: int, data: dict[str, Any]) -> Message:
     return Message(topic, schema, kind, stamp_ns, data)
 
 
+#: rad^2/s^2: the fused yaw rate's variance beyond the bias's: one gyro sample's noise
+#: (the [fusion] table's gyro_noise default, 0.005 rad/s)
+FUSED_RATE_VAR = 0.005 ** 2
+
+
+def fused_odometry(s: m.TelemetrySample, settings: TelemetrySettings,
+                   pose_covariance: list[float], twist_covariance: list[float]
+                   ) -> dict[str, Any]:
+    """``/odom`` of a base with an IMU: the fused pose and yaw rate; the covariances the
+    wheels' (x, y, vx, vy: the gyro says nothing of them) with the yaw's and the yaw
+    rate's the filter's (its heading variance; the bias's variance plus a sample's noise)."""
+    f = s.fused
+    assert f is not None and s.twist is not None
+    pose_cov, twist_cov = list(pose_covariance), list(twist_covariance)
+    pose_cov[35] = f[3]
+    twist_cov[35] = f[5] + FUSED_RATE_VAR
+    t = s.twist
+    fused = replace(s, pose=Pose2D(f[0], f[1], f[2]), twist=Twist(t.vx, t.vy, f[6]))
+    return m.odometry(fused, settings, pose_cov, twist_cov)
+
+
 class Telemetry:
     """Samples -> messages, for every front end alike (see the module docstring)."""
 
@@ -91,14 +114,31 @@ class Telemetry:
         if s.pose is not None:
             cov = self.covariance
             cov.update(s.pose)  # every sample: the covariance follows the distance rolled
-            if wants("/odom"):
+            pose = fused_pose(s)  # the base's: fused where an IMU is, else the wheels'
+            assert pose is not None
+            wants_odom, wants_filtered = wants("/odom"), wants("/odometry/filtered")
+            wants_wheels = wants("/odom/wheels")
+            if wants_odom or wants_filtered or wants_wheels:
                 speeds = [w.actual_speed for w in s.wheels]
-                out.append(state_message("/odom", ns, m.odometry(
-                    s, settings, cov.pose_covariance(), cov.twist_covariance(speeds))))
-            self.trail.add(ns, s.pose)  # every sample: the trail is whole when a viewer comes
+                pose_cov, twist_cov = cov.pose_covariance(), cov.twist_covariance(speeds)
+                wheels = m.odometry(s, settings, pose_cov, twist_cov)
+                odom = wheels if s.fused is None else fused_odometry(s, settings, pose_cov,
+                                                                     twist_cov)
+                if wants_odom:
+                    out.append(state_message("/odom", ns, odom))
+                if wants_filtered:
+                    out.append(state_message("/odometry/filtered", ns, odom))
+                if wants_wheels:
+                    out.append(state_message("/odom/wheels", ns, wheels))
+            self.trail.add(ns, pose)  # every sample: the trail is whole when a viewer comes
             if wants("/odom/pose"):
                 out.append(state_message("/odom/pose", ns, m.pose_stamped(
+                    ns, pose, settings.odom_frame)))
+            if wants("/odom/wheels/pose"):
+                out.append(state_message("/odom/wheels/pose", ns, m.pose_stamped(
                     ns, s.pose, settings.odom_frame)))
+            if wants("/fusion"):
+                out.append(state_message("/fusion", ns, fusion(s)))
             if wants("/odom/path") and (last or self._trail_ns is None
                                         or ns - self._trail_ns >= self._trail_period_ns):
                 self._trail_ns = ns
@@ -118,7 +158,6 @@ class Telemetry:
                 battery = m.battery_state(s, settings)
                 if battery is not None:
                     out.append(state_message("/battery_state", ns, battery))
-            pose = s.pose
             for topic, make in (("/pose2d", lambda: m.pose2d(ns, pose)),
                                 ("/twist", lambda: m.twist(s)),
                                 ("/wheels", lambda: m.wheels(s)),

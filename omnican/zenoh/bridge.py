@@ -65,7 +65,9 @@ TWIST = "geometry_msgs/msg/Twist"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 #: The telemetry this front end publishes (tf with odom, joint states with wheel radii).
 PUBLISHED = ("/odom", "/tf", "/joint_states", "/diagnostics", "/battery_state",
-             "/status", "/wheels")
+             "/status", "/wheels", "/odometry/filtered", "/odom/wheels")
+#: What goes out with its sample's /odom (besides the simulator's truth).
+WITH_ODOM = ("/tf", "/odometry/filtered", "/odom/wheels")
 STRING = "std_msgs/msg/String"  # what the JSON topics travel as (the JSON its text)
 #: The fleet's view of the base (:mod:`omnican.zenoh.summary`).
 SUMMARY = "/base_summary"
@@ -318,7 +320,7 @@ class ZenohBridge:
             if pub is None:
                 continue
             topic = message.topic
-            if topic in ("/tf", TRUE_POSE):  # they go with the odometry of their sample
+            if topic in WITH_ODOM or topic == TRUE_POSE:  # with the odometry of their sample
                 due = self._odom_sent
             elif topic in self._every:
                 self._seen[topic] += 1

@@ -44,13 +44,15 @@ class StandIn:
     wheels: tuple[WheelState, ...] = field(default_factory=lambda: tuple(
         wheel(i) for i in range(3)))
     bus: Any = field(default_factory=lambda: SimpleNamespace(bitrate=500_000))
+    fused_pose: Pose2D | None = None  # an IMU's gyro fused in (None: no IMU)
+    warnings: tuple[str, ...] = ()
 
     @property
     def status(self) -> ChassisStatus:
         return ChassisStatus(enabled=self.stopped_reason is None,
                              stopped_reason=self.stopped_reason, command_age_s=0.0,
                              loop_hz=100.0, late_fraction=0.0, cycles=1000, bus_load=0.15,
-                             bus_bits_per_s=75_000.0, bus_error=None, warnings=(),
+                             bus_bits_per_s=75_000.0, bus_error=None, warnings=self.warnings,
                              battery_v=23.9, battery="ok", estop=self.stopped_reason == ESTOP)
 
 
@@ -70,6 +72,17 @@ def screen(base: Any, width: int, height: int, note: str = "",
                                    "simulated base, nodes 1, 2, 3", said or events(), note,
                                    width, height)))
     return console.export_text().splitlines()
+
+
+def test_a_fused_heading_and_a_slip_warning_show_beside_the_wheels() -> None:
+    slip = "the wheels slipping: their yaw rate off the gyro's by 0.075 rad/s for 0.5 s"
+    lines = screen(StandIn(fused_pose=Pose2D(12.3, -3.2, 1.25), warnings=(slip,)), 120, 40)
+    text = "\n".join(lines)
+    assert "θ gyro" in text and "+1.250 rad" in text and "+1.500 rad" in text
+    assert slip in text
+    narrow = "\n".join(screen(StandIn(fused_pose=Pose2D(0.0, 0.0, 0.5)), 50, 40))
+    assert "θ gyro +0.500 rad" in narrow
+    assert "θ gyro" not in "\n".join(screen(StandIn(), 120, 40))
 
 
 def test_an_event_past_80_columns_is_wrapped_whole() -> None:
