@@ -21,6 +21,11 @@ limits of bench_chassis (2 m/s^2, 6 rad/s^2: the base's full acceleration):
   around the call: wall time on the loop's one thread, so a preemption of the shared
   machine lands in the mean and the tail; the median is the figure) at 100 Hz and 1 kHz.
 
+The gyro comes the user's way by default: examples/imu.toml's ``[imu]`` lines (a CAN
+IMU, the bundled OpenIMU300RI DBC) and the simulator's gyro sending its frames on the
+simulated bus (``[sim.gyro]``: the bias and noise above, 200 Hz or the loop's rate);
+``--gyro bench`` puts one sample a cycle straight into the loop's inbox instead.
+
 Run: ``python bench/bench_fusion.py`` (about a minute); ``--quick`` (two squares).
 Prints one JSON object per line, then a table.
 """
@@ -33,12 +38,15 @@ import math
 import random
 import statistics
 import time
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from bench_chassis import config
 
 from omnican import Chassis
 from omnican.clock import SimClock
+from omnican.config import ChassisConfig, SimGyro, SimTruth, load_config
 from omnican.core.fusion import HeadingFusion
 from omnican.core.imu import ImuInbox, ImuSample
 from omnican.sim import SimulatedBase
@@ -54,18 +62,40 @@ def emit(**fields: Any) -> None:
     print(json.dumps(fields), flush=True)
 
 
+#: The gyro's path: "dbc" (the default), the user's: examples/imu.toml's four [imu] lines
+#: (a CAN IMU read through the bundled OpenIMU300RI DBC) and the simulator's gyro sending
+#: on the simulated bus ([sim.gyro] with the bias and noise below, GYRO_HZ); "bench": one
+#: sample a cycle put straight into the loop's inbox.
+GYRO = "dbc"
+GYRO_HZ = 200.0
+IMU_EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "imu.toml"
+
+
+def imu_config(rate_hz: float) -> ChassisConfig:
+    """The demo base with examples/imu.toml's [imu] table and a simulated gyro of
+    ``BIAS`` and ``NOISE`` (per sample) sending through its DBC message."""
+    gyro = SimGyro(enabled=True, rate_hz=min(GYRO_HZ, rate_hz), bias_deg_s=math.degrees(BIAS),
+                   drift_deg_s=0.0, noise_deg_s=math.degrees(NOISE), mount_yaw_deg=None,
+                   noise_stream=1)
+    return replace(config(rate_hz), imu=load_config(IMU_EXAMPLE).imu,
+                   sim=SimTruth(gyro=gyro))
+
+
 class Rig:
-    """A lock-step simulated base with a bench-side gyro: each cycle one sample of the
-    truth's yaw rate plus ``bias`` and noise goes into the loop's IMU inbox, and the
-    fusion's step is timed."""
+    """A lock-step simulated base with a gyro (see :data:`GYRO`); the fusion's step is
+    timed."""
 
     def __init__(self, rate_hz: float, bias: float = BIAS, seed: int = 1) -> None:
-        cfg = config(rate_hz)
+        cfg = imu_config(rate_hz) if GYRO == "dbc" else config(rate_hz)
         self.clock = SimClock()
         self.sim = SimulatedBase.from_config(cfg, clock=self.clock)
         self.base = Chassis.open(cfg, clock=self.clock)
         self.loop = self.base._loop
-        self.loop.imu = self.inbox = ImuInbox()
+        if GYRO == "dbc":
+            assert self.loop.imu is not None, "the [imu] table attached no inbox"
+            self.inbox = self.loop.imu
+        else:
+            self.loop.imu = self.inbox = ImuInbox()
         self.rng = random.Random(seed)
         self.bias = bias
         self.fuse_s: list[float] = []
@@ -73,9 +103,9 @@ class Rig:
         fuse = self.loop._fuse
         sim, inbox, rng = self.sim, self.inbox, self.rng
 
-        def timed_fuse(now: float) -> None:
+        def timed_fuse(now: float, imu: ImuInbox) -> None:
             t0 = time.perf_counter()
-            fuse(now)
+            fuse(now, imu)
             self.fuse_s.append(time.perf_counter() - t0)
 
         def with_gyro(now: float) -> None:
@@ -84,7 +114,8 @@ class Rig:
             cycle(now)
 
         self.loop._fuse = timed_fuse  # type: ignore[method-assign]
-        self.base._runner.cycle = with_gyro
+        if GYRO == "bench":
+            self.base._runner.cycle = with_gyro
 
     def __enter__(self) -> Rig:
         self.wait_enabled()
@@ -287,7 +318,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="two squares, short cost runs")
     ap.add_argument("--rate", type=float, default=100.0, help="control rate of the squares")
+    ap.add_argument("--gyro", choices=("dbc", "bench"), default="dbc",
+                    help="dbc: the simulator's gyro on the bus, read through the [imu] "
+                         "table's DBC (default); bench: one sample a cycle into the inbox")
     args = ap.parse_args()
+    global GYRO
+    GYRO = args.gyro
     n = 2 if args.quick else 10
     squares(args.rate, n)
     compare(args.rate, n)
