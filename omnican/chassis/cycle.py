@@ -165,8 +165,13 @@ class ControlCycle:
             if all_enabled and sup.latched is not None:
                 all_enabled = self._every_stage_enabled()  # a latch may have forgotten one
         self._all_enabled = all_enabled
-        # The encoder samples of the last SYNC (_integrate_samples, written out).
-        epoch = bus.sync_epoch
+        # The encoder samples of the last SYNC whose answers had a period to come (the
+        # one sent last where the loop sends SYNC; the one before it where the kernel
+        # does: the cycle starts as its SYNC comes, before the answers). Not every wheel
+        # has answered it: wait for a complete set. A wheel silent for STALE_AFTER_S has
+        # no known speed: report none rather than the last one (a drive gone offline
+        # must not look as if it still turned).
+        epoch = bus.settled_epoch
         if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
             self._mark_stale(epoch)
         elif self._stale:
@@ -236,17 +241,6 @@ class ControlCycle:
             if sw is None or sw & _ENABLED_MASK != _ENABLED_BITS:
                 return False
         return True
-
-    def _integrate_samples(self) -> None:
-        epoch = self._bus.settled_epoch  # the last SYNC whose answers had a period to come
-        if not self.wheel_odometry.integrate(epoch, self._last_sync_time):
-            # Not every wheel has answered the last SYNC: wait for a complete set. A
-            # wheel silent for STALE_AFTER_S has no known speed: report none rather
-            # than the last one (a drive gone offline must not look as if it still
-            # turned).
-            self._mark_stale(epoch)
-        elif self._stale:
-            self._stale = ()
 
     def _mark_stale(self, epoch: int) -> None:
         stale = tuple(i for i, a in enumerate(self.axes)
