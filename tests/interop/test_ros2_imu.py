@@ -1,8 +1,9 @@
 """A real ROS 2 IMU (rclpy on Fast DDS, ROS 2 Jazzy's PyPI wheels) publishing
 sensor_msgs/Imu at 100 Hz reaches ``omnican ros2 --sim``'s IMU inbox, mounted as its
-``[imu]`` table says, and goes silent when it stops. Loopback only: both processes run
-in a private network namespace with nothing but loopback (as tests/interop/
-test_ros2_interop.py; skipped where none can be made)."""
+``[imu]`` table says, and goes silent when it stops; and it drives the fused heading:
+driving straight while the gyro reads a turn, /odom turns and /odom/wheels does not.
+Loopback only: both processes run in a private network namespace with nothing but
+loopback (as tests/interop/test_ros2_interop.py; skipped where none can be made)."""
 
 from __future__ import annotations
 
