@@ -1,14 +1,16 @@
 """A real ROS 2 IMU (rclpy on Fast DDS, ROS 2 Jazzy's PyPI wheels) publishing
 sensor_msgs/Imu at 100 Hz reaches ``omnican ros2 --sim``'s IMU inbox, mounted as its
-``[imu]`` table says, and goes silent when it stops. Loopback only: both processes run
-in a private network namespace with nothing but loopback (as tests/interop/
-test_ros2_interop.py; skipped where none can be made)."""
+``[imu]`` table says, and goes silent when it stops; and it drives the fused heading:
+driving straight while the gyro reads a turn, /odom turns and /odom/wheels does not.
+Loopback only: both processes run in a private network namespace with nothing but
+loopback (as tests/interop/test_ros2_interop.py; skipped where none can be made)."""
 
 from __future__ import annotations
 
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -43,8 +45,9 @@ def netns() -> Iterator[NetNs]:
         yield ns
 
 
-@pytest.mark.ros2_interop
-def test_an_rclpy_imu_at_100hz_reaches_the_inbox(netns: NetNs, tmp_path: Path) -> None:
+def run_peer(netns: NetNs, tmp_path: Path, script: str, *args: str) -> dict[str, Any]:
+    """``omnican ros2 --sim`` with :data:`IMU_TABLE` and the rclpy ``script`` beside it in
+    the namespace; the script's results (after omnican stopped cleanly on Ctrl-C)."""
     python, note = ros_venv("jazzy")
     if python is None:
         pytest.skip(note)
@@ -63,11 +66,11 @@ def test_an_rclpy_imu_at_100hz_reaches_the_inbox(netns: NetNs, tmp_path: Path) -
         assert omnican.read_until(lambda ln: ln.startswith("Ctrl-C to stop"), 60), \
             "omnican ros2 did not start:\n" + "\n".join(omnican.lines)
         with (tmp_path / "rclpy.stderr").open("w") as err:
-            peer = Proc(netns.wrap([str(python), str(HERE / "imu_check.py"), "3", "100",
-                                    "0.3"]), env=env, stderr=err)
+            peer = Proc(netns.wrap([str(python), str(HERE / script), *args]), env=env,
+                        stderr=err)
             ready = peer.read_json("ready", 90)
             assert ready and ready["ok"], "peer did not start:\n" + "\n".join(peer.lines)
-            done = peer.read_json("done", 120)
+            done = peer.read_json("done", 300)
             assert done is not None, "\n".join(peer.lines)
         omnican.interrupt()
         code, out = omnican.finish()
@@ -76,7 +79,12 @@ def test_an_rclpy_imu_at_100hz_reaches_the_inbox(netns: NetNs, tmp_path: Path) -
         if peer is not None:
             peer.kill()
         omnican.kill()
-    r = done["results"]
+    return dict(done["results"])
+
+
+@pytest.mark.ros2_interop
+def test_an_rclpy_imu_at_100hz_reaches_the_inbox(netns: NetNs, tmp_path: Path) -> None:
+    r = run_peer(netns, tmp_path, "imu_check.py", "3", "100", "0.3")
     print({k: r.get(k) for k in ("sent", "rate_hz")}, r.get("after"), r.get("silent"))
     assert r["sent"] >= 250  # 100 Hz for 3 s
     after, silent = r["after"], r["silent"]
@@ -87,3 +95,29 @@ def test_an_rclpy_imu_at_100hz_reaches_the_inbox(netns: NetNs, tmp_path: Path) -
     # It stopped: the base's IMU has been silent for a while since, and says so.
     assert int(silent["imu_received"]) == r["sent"]
     assert float(silent["imu_silent_s"]) > 0.5
+
+
+@pytest.mark.ros2_interop
+def test_an_rclpy_imu_turns_the_fused_heading_the_wheels_do_not(netns: NetNs,
+                                                                tmp_path: Path) -> None:
+    """The base drives straight ahead while the rclpy IMU (100 Hz) reads a turn the wheels
+    do not see: /odom, the fused odometry, turns as the gyro says (mounted upside down:
+    the other way), /odom/wheels does not. With the IMU ignored /odom is the wheels'."""
+    yaw_rate = 0.5  # rad/s in the IMU's frame: -0.5 on the base (upside down)
+    r = run_peer(netns, tmp_path, "imu_fusion_check.py", "2", str(yaw_rate))
+    print({k: r.get(k) for k in ("fused_turn", "wheels_turn", "gyro_turn_sent", "imu_sent",
+                                 "cmd_sent", "distance_x")})
+    print("while driving, /odom yaw rate", r.get("odom_yaw_rate_driving"),
+          "/odom/wheels", r.get("wheels_yaw_rate_driving"))
+    assert r["rest_before"] and r["moving"] and r["rest_after"], r
+    assert r["distance_x"] > 0.2  # it drove (0.2 m/s for 2 s at least)
+    # The wheels saw no turn: their heading and yaw rate stayed at zero.
+    assert abs(r["wheels_turn"]) < 0.02
+    assert all(abs(w) < 0.02 for w in r["wheels_yaw_rate_driving"])
+    # The fused yaw rate while driving is the gyro's, mounted (bias learnt at rest: ~0) ...
+    assert all(w == pytest.approx(-yaw_rate, abs=0.05) for w in r["odom_yaw_rate_driving"])
+    # ... and the fused heading turned by what the gyro measured, the other way round:
+    # the gyro's turn as sent (none of it lost to a stale IMU, up to half under load).
+    sent = r["gyro_turn_sent"]
+    assert sent > 0.9  # 0.5 rad/s for 2 s at least
+    assert -1.2 * sent < r["fused_turn"] < -0.5 * sent
