@@ -223,9 +223,15 @@ def base_acl(roster: Roster, name: str) -> dict[str, Any]:
         _rule("stop", ("query",), "ingress", stop_keys(d, name)),
         _rule("drive", ("put",), "ingress", cmd_vel_keys(d, name)),
         _rule("call services", ("query",), "ingress", namespace_keys(d, name)),
+        # Another process on the robot under the base's own certificate (an IMU driver,
+        # say) is the base: it may publish and announce in the base's namespace, as the
+        # router lets it (see router_acl).
+        _rule("own namespace", ("put", "liveliness_token"), "ingress",
+              namespace_keys(d, name) + token_keys(d, name)),
     ]
     return _acl(rules, [
         ("routers", list(roster.names("router")), ["send to members", "from routers"]),
+        ("itself", [name], ["send to members", "watch", "own namespace"]),
         ("operators", list(roster.names("operator")),
          ["send to members", "watch", "stop", "drive", "call services"]),
         ("viewers", list(roster.names("viewer")), ["send to members", "watch", "stop"]),

@@ -16,7 +16,7 @@ import shutil
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,10 +24,11 @@ import pytest
 
 from omnican.chassis import Chassis
 from omnican.clock import SimClock
+from omnican.config import ImuSettings
 from omnican.sim import SimulatedBase
 from omnican.zenoh import rmw
 from omnican.zenoh.security import Identity, tls_entries
-from tests.support.helpers import lockstep_rig
+from tests.support.helpers import lockstep_rig, sim_config
 from tests.zenoh.conftest import free_port, wait_real
 from tests.zenoh.test_bridge import run_until
 
@@ -141,9 +142,11 @@ class Rig:
 
 
 @contextlib.contextmanager
-def secured_base(channel: str, root: Path, *, behind_router: bool) -> Iterator[Rig]:
+def secured_base(channel: str, root: Path, *, behind_router: bool,
+                 imu_topic: str | None = None) -> Iterator[Rig]:
     """The base robot1 under its certificate: alone (a peer listening on TLS, members
-    link to it) or a client of a router under the router's certificate."""
+    link to it) or a client of a router under the router's certificate; ``imu_topic``:
+    with ``[imu] source = "zenoh"`` on that topic."""
     from omnican.zenoh.bridge import ZenohBridge, open_session
     from omnican.zenoh.settings import ZenohSettings
 
@@ -159,7 +162,13 @@ def secured_base(channel: str, root: Path, *, behind_router: bool) -> Iterator[R
         else:
             settings = ZenohSettings(mode="peer", listen=(endpoint,), namespace="/robot1",
                                      identity="base/robot1", **creds)
-        clock, sim, base = stack.enter_context(lockstep_rig(channel))
+        if imu_topic is None:
+            clock, sim, base = stack.enter_context(lockstep_rig(channel))
+        else:
+            cfg = replace(sim_config(channel), imu=ImuSettings("zenoh", topic=imu_topic))
+            clock = SimClock()
+            sim = stack.enter_context(SimulatedBase.from_config(cfg, clock=clock))
+            base = stack.enter_context(Chassis.open(cfg, clock=clock))
         session = open_session(settings)
         stack.callback(session.close)
         bridge = stack.enter_context(ZenohBridge(base, settings, session, poll_thread=False))
@@ -302,6 +311,53 @@ def test_through_the_router_no_member_speaks_for_a_base(channel: str, creds: Cre
                 w.undeclare()
         finally:
             for s in (robot2, viewer, operator):
+                s.close()
+
+
+@pytest.mark.parametrize("behind_router", [False, True], ids=["alone", "behind a router"])
+def test_an_imu_on_the_robot_under_the_bases_certificate_is_heard(
+        channel: str, creds: Creds, behind_router: bool) -> None:
+    """``[imu] source = "zenoh"`` with the fleet's certificates: an IMU driver on the robot
+    publishing under the base's own certificate reaches the base's IMU inbox, linked to
+    the base itself or through the router; an operator's and a viewer's Imu samples on the
+    same key never do (only the base's name may publish in its namespace, and an
+    operator only cmd_vel). The operator's and viewer's samples go first on their links,
+    each followed by a cmd_vel or ~/stop that is heard: their links carried them."""
+    from tests.zenoh.test_imu import _imu_cdr
+
+    with secured_base(channel, creds.root, behind_router=behind_router,
+                      imu_topic="imu/data") as rig:
+        inbox, imu = rig.base.imu, rig.bridge.imu
+        assert inbox is not None and imu is not None
+        assert imu.key.startswith("0/robot1/imu/data/sensor_msgs::msg::dds_::Imu_/")
+        operator = member(creds.root, "operator/alice", rig.endpoint)
+        viewer = member(creds.root, "viewer/bob", rig.endpoint)
+        driver = member(creds.root, "base/robot1", rig.endpoint)
+        try:
+            linked(rig, operator)
+            for session in (operator, viewer):
+                pub = session.declare_publisher(imu.key)
+                # It hears of the base's subscriber (declarations reach every member):
+                # its samples go out, and are refused where they come in.
+                assert wait_real(lambda p=pub: p.matching_status.matching)
+                for _ in range(20):
+                    pub.put(_imu_cdr(0.5, time.time()))
+                pub.undeclare()
+            drive = Driver(operator, rig.bridge.cmd_key, 0.2, bytes([0xA1]) * 16)
+            assert run_until(rig.clock, rig.bridge, lambda: rig.sim.true_twist.vx > 0.15,
+                             each=drive)
+            assert call(rig.clock, rig.bridge, viewer, "stop") == \
+                (True, "stopped: held until recover")
+            assert inbox.received == 0 and imu.received == 0
+
+            pub = driver.declare_publisher(imu.key)
+            assert wait_real(lambda: pub.matching_status.matching)
+            for _ in range(20):
+                pub.put(_imu_cdr(0.5, time.time()))
+            assert wait_real(lambda: inbox.received == 20)
+            assert imu.rejected == 0
+        finally:
+            for s in (driver, viewer, operator):
                 s.close()
 
 
