@@ -52,6 +52,18 @@ def _knock_supervisor(base: Any) -> None:
     NodeSupervisor.check = _nothing  # type: ignore[method-assign]
 
 
+def _knock_tracking(base: Any) -> None:
+    from omnican.chassis.checks import ChassisChecks
+
+    ChassisChecks._check_tracking = _nothing  # type: ignore[method-assign]
+
+
+def _knock_values(base: Any) -> None:
+    from omnican.chassis.checks import ChassisChecks
+
+    ChassisChecks._refresh = _nothing  # type: ignore[method-assign]
+
+
 def _knock_node_watch(base: Any) -> None:
     # The supervisor's look at each node (reboot, NMT, SDO aborts, heartbeat, faults):
     # its check with only the chassis checks left in it.
@@ -93,6 +105,8 @@ def _knock_snapshot(base: Any) -> None:
 KNOCKOUTS: dict[str, tuple[str, Callable[[Any], None]]] = {
     "chassis_checks": ("chassis checks: tracking, standstill, lift, e-stop, battery, CAN "
                        "controller, health values (10 Hz and 5 Hz)", _knock_chassis_checks),
+    "tracking": ("of which tracking, standstill and following error (10 Hz)", _knock_tracking),
+    "values": ("of which the health values, lift, e-stop and battery (5 Hz)", _knock_values),
     "node_watch": ("the supervisor's look at each node: reboot, NMT state, SDO aborts, "
                    "heartbeat lost, faults", _knock_node_watch),
     "supervisor": ("both of the above (NodeSupervisor.check)", _knock_supervisor),
