@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import configparser
 import enum
+import pickle
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -157,7 +158,8 @@ def entry_at(dictionary: od.ObjectDictionary, index: int, subindex: int) -> Entr
 def variable_at(dictionary: od.ObjectDictionary, index: int,
                 subindex: int) -> od.ODVariable | None:
     """The variable at ``index:subindex`` (a VAR at sub 0, or a sub of a record or array)."""
-    item = dictionary.get(index)
+    # Not get(): canopen's raises a KeyError, its message formatted, and catches it.
+    item = dictionary[index] if index in dictionary else None  # noqa: SIM401
     if isinstance(item, od.ODVariable):
         return item if subindex == 0 else None
     var = item.subindices.get(subindex) if item is not None else None
@@ -243,6 +245,32 @@ class AxisObjects:
         return self._record_index[obj]
 
 
+#: EDS files parsed, each a pickled dictionary by (path, mtime, size, inode, node id): a
+#: process that opens a base parses each file once per node id, not once per use (the
+#: simulator's drives, the node plans of the simulator and of the host). Bounded.
+_PARSED: dict[tuple[str, int, int, int, int | None], bytes] = {}
+_PARSED_MAX = 64
+
+
+def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictionary:
+    """``canopen.objectdictionary.import_od(path, node_id)``, the file parsed once per
+    version (its modification time, size and inode) and node id: each call returns a
+    dictionary of its own (a copy), which its caller may change without another caller
+    seeing it. Raises what ``import_od`` raises (OSError, parser errors)."""
+    p = Path(path)
+    st = p.stat()
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, st.st_ino, node_id)
+    blob = _PARSED.get(key)
+    if blob is not None:
+        copy: od.ObjectDictionary = pickle.loads(blob)  # our own bytes, made below
+        return copy
+    dictionary = od.import_od(str(p), node_id)
+    if len(_PARSED) >= _PARSED_MAX:
+        _PARSED.clear()
+    _PARSED[key] = pickle.dumps(dictionary, pickle.HIGHEST_PROTOCOL)
+    return dictionary
+
+
 def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:
     """Parse an EDS/DCF file and check what omnican needs of every node's dictionary
     (:func:`omnican.protocol.eds_check.dictionary_problems`); a missing, unreadable or impossible
@@ -256,7 +284,7 @@ def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:
     if not found:
         raise ConfigError(f"EDS file not found: {p}")
     try:
-        dictionary = od.import_od(str(p), node_id)
+        dictionary = parse_eds(p, node_id)
     except Exception as exc:  # canopen raises a variety of parser errors, some multi-line
         text = str(exc).strip().splitlines()[0].rstrip(".") if str(exc).strip() else \
             type(exc).__name__
