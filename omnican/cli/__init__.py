@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import os
 import signal
 import sys
 from collections.abc import Iterator, Sequence
@@ -109,6 +110,10 @@ def _sigterm_unwinds() -> Iterator[None]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # numpy does 3x3 maths here: OpenBLAS's worker threads (one per core, started when
+    # numpy is imported, spinning a while) cost a command 30-40 ms of CPU and would take
+    # cores from the control loop for nothing. A user's own setting stands.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
         with _sigterm_unwinds():
             code = _main(list(sys.argv[1:] if argv is None else argv))
@@ -135,7 +140,6 @@ def _exit_past_foreign_threads(code: int) -> None:
                for module in entry.foreign_threads):
         return
     import logging
-    import os
 
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):

@@ -763,6 +763,29 @@ def test_startup_loads_only_what_the_command_needs(argv: list[str], allowed: set
     assert loaded <= allowed, (argv, loaded - allowed)
 
 
+THREADS = """
+import os
+from omnican.cli import main
+main(["drive", "--sim", "--fast", "--vx", "0.1", "--duration", "0.2", "--json"])
+print(len(os.listdir("/proc/self/task")))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir() or (os.cpu_count() or 1) < 2,
+                    reason="counts the process's threads in /proc; OpenBLAS starts none "
+                    "on one core")
+def test_a_lockstep_drive_runs_on_one_thread() -> None:
+    """``drive --sim --fast`` runs the base and its drives on the main thread alone:
+    numpy's OpenBLAS starts no worker threads of its own in the command (they spun a
+    while at start-up, 30-40 ms of CPU, for 3x3 maths); a user's own setting stands."""
+    env = {k: v for k, v in ENV.items() if k != "OPENBLAS_NUM_THREADS"}
+    for given, threads in ((None, 1), ("2", 2)):
+        run_env = env if given is None else {**env, "OPENBLAS_NUM_THREADS": given}
+        proc = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True,
+                              env=run_env, timeout=60, check=True)
+        assert int(proc.stdout.split("\n")[-2]) == threads, (given, proc.stdout[-200:])
+
+
 # ---------------------------------------------------------------- 20: --record on ros2, monitor
 
 
