@@ -24,13 +24,14 @@ import time
 from pathlib import Path
 
 # The command, with omnican.command.motion.run timed (its wall and CPU seconds on
-# stderr). The timer goes in once main() runs, as the command imports motion: what main()
-# does before anything is imported (OPENBLAS_NUM_THREADS) holds as it does for a user.
+# stderr). main() runs as the ``omnican`` script runs it (no argv: the process's own
+# command), and the timer goes in once main() runs, as the command imports motion: what
+# main() does before anything is imported holds as it does for a user.
 _TIMED = r"""
 import sys, time
 import omnican.cli as cli
 inner_main = cli._main
-def hooked_main(words):
+def hooked_main(words, **kw):
     from omnican.command import motion
     inner = motion.run
     def timed(*a, **k):
@@ -41,9 +42,9 @@ def hooked_main(words):
             print(f"MOTION_RUN_S {time.perf_counter() - t0:.6f} "
                   f"{time.process_time() - c0:.6f}", file=sys.stderr)
     motion.run = timed
-    return inner_main(words)
+    return inner_main(words, **kw)
 cli._main = hooked_main
-sys.exit(cli.main(sys.argv[1:]))
+sys.exit(cli.main())
 """
 
 
