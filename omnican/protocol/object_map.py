@@ -16,6 +16,7 @@ No I/O: it only reads a parsed :class:`canopen.ObjectDictionary`.
 from __future__ import annotations
 
 import configparser
+import contextlib
 import enum
 import pickle
 import re
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from canopen import objectdictionary as od
 from canopen.objectdictionary import datatypes
+from canopen.objectdictionary import eds as canopen_eds
 
 from omnican.errors import ConfigError
 from omnican.protocol import eds_check
@@ -245,30 +247,56 @@ class AxisObjects:
         return self._record_index[obj]
 
 
-#: EDS files parsed, each a pickled dictionary by (path, mtime, size, inode, node id): a
-#: process that opens a base parses each file once per node id, not once per use (the
-#: simulator's drives, the node plans of the simulator and of the host). Bounded.
-_PARSED: dict[tuple[str, int, int, int, int | None], bytes] = {}
+#: EDS files parsed, each a pickled dictionary and the node id it was parsed for, by
+#: (path, mtime, size, inode, whether a node id was given): a process that opens a base
+#: parses each file once (the simulator's drives, the node plans of the simulator and of
+#: the host), whatever the node ids; another node's copy has its $NODEID values
+#: resolved again (:func:`_for_node`). Bounded.
+_PARSED: dict[tuple[str, int, int, int, bool], tuple[bytes, int | None]] = {}
 _PARSED_MAX = 64
 
 
 def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictionary:
     """``canopen.objectdictionary.import_od(path, node_id)``, the file parsed once per
-    version (its modification time, size and inode) and node id: each call returns a
-    dictionary of its own (a copy), which its caller may change without another caller
-    seeing it. Raises what ``import_od`` raises (OSError, parser errors)."""
+    version (its modification time, size and inode): each call returns a dictionary of
+    its own (a copy), which its caller may change without another caller seeing it, its
+    values given as ``$NODEID+...`` those of ``node_id``. Raises what ``import_od`` raises
+    (OSError, parser errors)."""
     p = Path(path)
     st = p.stat()
-    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, st.st_ino, node_id)
-    blob = _PARSED.get(key)
-    if blob is not None:
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, st.st_ino, node_id is None)
+    cached = _PARSED.get(key)
+    if cached is not None:
+        blob, parsed_for = cached
         copy: od.ObjectDictionary = pickle.loads(blob)  # our own bytes, made below
+        if node_id != parsed_for and node_id is not None:
+            _for_node(copy, node_id)
         return copy
     dictionary = od.import_od(str(p), node_id)
     if len(_PARSED) >= _PARSED_MAX:
         _PARSED.clear()
-    _PARSED[key] = pickle.dumps(dictionary, pickle.HIGHEST_PROTOCOL)
+    _PARSED[key] = (pickle.dumps(dictionary, pickle.HIGHEST_PROTOCOL), node_id)
     return dictionary
+
+
+def _for_node(dictionary: od.ObjectDictionary, node_id: int) -> None:
+    """A dictionary parsed for another node id made the one canopen parses for
+    ``node_id``: its node id (canopen sets one only where the file has a
+    DeviceComissioning section), and each default and parameter value the file gives as
+    ``$NODEID+...`` converted again as canopen's parser converts it (a value that did not
+    convert for one node id converts for none: it stays unset)."""
+    if dictionary.node_id is not None:
+        dictionary.node_id = node_id
+    for obj in dictionary.values():
+        for var in [obj] if isinstance(obj, od.ODVariable) else obj.subindices.values():
+            raw = var.__dict__.get("default_raw")
+            if raw is not None and "$NODEID" in raw:
+                with contextlib.suppress(ValueError):
+                    var.default = canopen_eds._convert_variable(node_id, var.data_type, raw)
+            raw = var.__dict__.get("value_raw")
+            if raw is not None and "$NODEID" in raw:
+                with contextlib.suppress(ValueError):
+                    var.value = canopen_eds._convert_variable(node_id, var.data_type, raw)
 
 
 def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:

@@ -1,6 +1,6 @@
-"""An EDS file parsed once per node id (omnican.protocol.object_map.parse_eds): each
-caller still gets a dictionary of its own, the same as canopen's own parse, and a file
-changed on disk is read again."""
+"""An EDS file parsed once (omnican.protocol.object_map.parse_eds), whatever the node
+ids: each caller still gets a dictionary of its own, the same as canopen's own parse for
+its node id, and a file changed on disk is read again."""
 
 from __future__ import annotations
 
@@ -60,6 +60,36 @@ def test_a_parse_is_canopens_parse(path: Path, node_id: int, again: bool) -> Non
     assert _same(parse_eds(path, node_id), od.import_od(str(path), node_id))
 
 
+@settings(max_examples=40, deadline=None)
+@given(path=st.sampled_from(EDS_FILES), first=st.one_of(st.none(), st.integers(1, 127)),
+       node_id=st.one_of(st.none(), st.integers(1, 127)))
+def test_a_parse_for_another_node_is_canopens_parse(path: Path, first: int | None,
+                                                    node_id: int | None) -> None:
+    """A file parsed for one node id (or none) and then asked for another: the copy is
+    canopen's import_od of the file for the second node id ($NODEID values, the node id),
+    object by object, attribute by attribute."""
+    parse_eds(path, first)
+    assert _same(parse_eds(path, node_id), od.import_od(str(path), node_id))
+
+
+def test_a_value_relative_to_the_node_id_is_each_nodes_own(tmp_path: Path) -> None:
+    """Default and parameter values given as $NODEID+..., one that does not convert, and
+    a file without any: each node's copy has what canopen parses for it."""
+    text = WHEEL_EDS.read_text()
+    assert "$NODEID" in text
+    path = tmp_path / "relative.eds"
+    path.write_text(text.replace("ParameterName=Producer heartbeat time",
+                                 "ParameterName=Producer heartbeat time\n"
+                                 "ParameterValue=$NODEID+0x10", 1)
+                    .replace("DefaultValue=$NODEID+0x00000180", "DefaultValue=$NODEID+0x0000018Q", 1))
+    parse_eds(path, 5)
+    for node_id in (1, 127, 5):
+        fresh = od.import_od(str(path), node_id)
+        heartbeat = fresh[0x1017]
+        assert isinstance(heartbeat, od.ODVariable) and heartbeat.value == node_id + 0x10
+        assert _same(parse_eds(path, node_id), fresh)
+
+
 def test_nodes_of_one_file_do_not_share_a_change() -> None:
     """Two drives of one EDS file (or one node parsed twice) change their dictionaries
     without the other seeing it: a simulated drive adds objects where its EDS lacks them
@@ -92,10 +122,11 @@ def test_a_file_changed_on_disk_is_parsed_again(tmp_path: Path) -> None:
     assert parse_eds(path, 1).device_information.product_name == "changed on disk"
 
 
-def test_opening_a_simulated_base_parses_each_file_once_per_node(
+def test_opening_a_simulated_base_parses_each_file_once(
         channel: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """The simulator's drives, their wiring, and the host's node plans and nodes all read
-    the demo base's one EDS: it is parsed once per node, not once per use."""
+    the demo base's one EDS (nodes 1, 2 and 3): it is parsed once, not once per use or
+    per node."""
     parsed: list[tuple[str, int | None]] = []
     real = canopen_eds.import_eds
 
@@ -107,4 +138,5 @@ def test_opening_a_simulated_base_parses_each_file_once_per_node(
     with lockstep_rig(channel) as (clock, sim, base):
         clock.sleep(0.05)
         assert len(sim.drives) == 3 and all(w.online for w in base.wheels)
-    assert sorted(parsed) == [(WHEEL_EDS.name, n) for n in (1, 2, 3)]
+        assert sorted(d.node_id for d in sim.drives) == [1, 2, 3]
+    assert len(parsed) == 1 and parsed[0][0] == WHEEL_EDS.name
