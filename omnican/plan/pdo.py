@@ -157,8 +157,12 @@ def pdo_slots(dictionary: od.ObjectDictionary, node_id: int, tx: bool) -> list[P
     """The PDOs of one direction an EDS offers, with their limits."""
     comm_base, map_base = (TPDO_COMM, TPDO_MAP) if tx else (RPDO_COMM, RPDO_MAP)
     slots = []
+    # Looked up by ``in`` first: canopen's get() raises and catches a KeyError, with its
+    # message formatted, for each of the 512 numbers a drive lacks.
     for n in range(512):
-        comm, mapping = dictionary.get(comm_base + n), dictionary.get(map_base + n)
+        if comm_base + n not in dictionary or map_base + n not in dictionary:
+            continue
+        comm, mapping = dictionary[comm_base + n], dictionary[map_base + n]
         if not isinstance(comm, od.ODRecord) or not isinstance(mapping, (od.ODRecord, od.ODArray)):
             continue
         entries = sum(1 for s in mapping.subindices if s >= 1)

@@ -16,13 +16,16 @@ No I/O: it only reads a parsed :class:`canopen.ObjectDictionary`.
 from __future__ import annotations
 
 import configparser
+import contextlib
 import enum
+import pickle
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from canopen import objectdictionary as od
 from canopen.objectdictionary import datatypes
+from canopen.objectdictionary import eds as canopen_eds
 
 from omnican.errors import ConfigError
 from omnican.protocol import eds_check
@@ -157,7 +160,8 @@ def entry_at(dictionary: od.ObjectDictionary, index: int, subindex: int) -> Entr
 def variable_at(dictionary: od.ObjectDictionary, index: int,
                 subindex: int) -> od.ODVariable | None:
     """The variable at ``index:subindex`` (a VAR at sub 0, or a sub of a record or array)."""
-    item = dictionary.get(index)
+    # Not get(): canopen's raises a KeyError, its message formatted, and catches it.
+    item = dictionary[index] if index in dictionary else None  # noqa: SIM401
     if isinstance(item, od.ODVariable):
         return item if subindex == 0 else None
     var = item.subindices.get(subindex) if item is not None else None
@@ -243,6 +247,58 @@ class AxisObjects:
         return self._record_index[obj]
 
 
+#: EDS files parsed, each a pickled dictionary and the node id it was parsed for, by
+#: (path, mtime, size, inode, whether a node id was given): a process that opens a base
+#: parses each file once (the simulator's drives, the node plans of the simulator and of
+#: the host), whatever the node ids; another node's copy has its $NODEID values
+#: resolved again (:func:`_for_node`). Bounded.
+_PARSED: dict[tuple[str, int, int, int, bool], tuple[bytes, int | None]] = {}
+_PARSED_MAX = 64
+
+
+def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictionary:
+    """``canopen.objectdictionary.import_od(path, node_id)``, the file parsed once per
+    version (its modification time, size and inode): each call returns a dictionary of
+    its own (a copy), which its caller may change without another caller seeing it, its
+    values given as ``$NODEID+...`` those of ``node_id``. Raises what ``import_od`` raises
+    (OSError, parser errors)."""
+    p = Path(path)
+    st = p.stat()
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, st.st_ino, node_id is None)
+    cached = _PARSED.get(key)
+    if cached is not None:
+        blob, parsed_for = cached
+        copy: od.ObjectDictionary = pickle.loads(blob)  # our own bytes, made below
+        if node_id != parsed_for and node_id is not None:
+            _for_node(copy, node_id)
+        return copy
+    dictionary = od.import_od(str(p), node_id)
+    if len(_PARSED) >= _PARSED_MAX:
+        _PARSED.clear()
+    _PARSED[key] = (pickle.dumps(dictionary, pickle.HIGHEST_PROTOCOL), node_id)
+    return dictionary
+
+
+def _for_node(dictionary: od.ObjectDictionary, node_id: int) -> None:
+    """A dictionary parsed for another node id made the one canopen parses for
+    ``node_id``: its node id (canopen sets one only where the file has a
+    DeviceComissioning section), and each default and parameter value the file gives as
+    ``$NODEID+...`` converted again as canopen's parser converts it (a value that did not
+    convert for one node id converts for none: it stays unset)."""
+    if dictionary.node_id is not None:
+        dictionary.node_id = node_id
+    for obj in dictionary.values():
+        for var in [obj] if isinstance(obj, od.ODVariable) else obj.subindices.values():
+            raw = var.__dict__.get("default_raw")
+            if raw is not None and "$NODEID" in raw:
+                with contextlib.suppress(ValueError):
+                    var.default = canopen_eds._convert_variable(node_id, var.data_type, raw)
+            raw = var.__dict__.get("value_raw")
+            if raw is not None and "$NODEID" in raw:
+                with contextlib.suppress(ValueError):
+                    var.value = canopen_eds._convert_variable(node_id, var.data_type, raw)
+
+
 def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:
     """Parse an EDS/DCF file and check what omnican needs of every node's dictionary
     (:func:`omnican.protocol.eds_check.dictionary_problems`); a missing, unreadable or impossible
@@ -256,7 +312,7 @@ def load_dictionary(path: str | Path, node_id: int = 1) -> od.ObjectDictionary:
     if not found:
         raise ConfigError(f"EDS file not found: {p}")
     try:
-        dictionary = od.import_od(str(p), node_id)
+        dictionary = parse_eds(p, node_id)
     except Exception as exc:  # canopen raises a variety of parser errors, some multi-line
         text = str(exc).strip().splitlines()[0].rstrip(".") if str(exc).strip() else \
             type(exc).__name__

@@ -165,6 +165,10 @@ class Motion:
         self._initial_position = list(initial_position)
         self.last_advance = start
         self.window = 1.0  # 606Dh, velocity units
+        #: counts every change of what the statusword's motion bits and the mode are made
+        #: of (a velocity, a command, the window, a mode dropped): unchanged, they are too
+        #: (the event TPDOs' check, :meth:`omnican.sim.device.Device.event_stamp`)
+        self.changes = 0
         self._shaping, self._targets = self._shaping_objects()
 
     # ------------------------------------------------------------ objects
@@ -234,6 +238,7 @@ class Motion:
         target_of = self._targets.get((index, subindex))
         if target_of is not None:
             target_of.command = None
+            self.changes += 1
         else:
             self.invalidate()
         if index == VELOCITY_WINDOW:
@@ -246,6 +251,7 @@ class Motion:
             raw = read_uint(self._get, VELOCITY_WINDOW, 0, "<I", 1)
             window = max(window, float(raw & 0xFFFF))
         self.window = window
+        self.changes += 1
 
     def mode(self, group: AxisGroup) -> int:
         """The group's mode of operation (6060h)."""
@@ -263,12 +269,14 @@ class Motion:
         for ax in self.axes:
             ax.command = None
             ax.params = None
+        self.changes += 1
 
     def restart_ramps(self, group: AxisGroup) -> None:
         """Operation enabled: the ramps start from where the wheels are, not from an
         old demand."""
         for ax in group.axes:
             ax.state = motor.MotorState(ax.state.position, ax.state.velocity, ax.state.velocity)
+        self.changes += 1
 
     def power_up(self) -> None:
         """A reboot: the counters restart at their power-up value (the wheels coast on),
@@ -278,6 +286,7 @@ class Motion:
             ax.internal_limit = False
         for group in self.groups:
             group.mode = None
+        self.changes += 1
 
     def advance(self, now: float) -> bool:
         """Move every motor on to ``now``; False when no time passed."""
@@ -298,6 +307,8 @@ class Motion:
                 new = motor.MotorState(old.position + pushed * dt, pushed, new.demand)
             if ax.grounded:
                 ax.ground_position += new.position - old.position
+            if new.velocity != old.velocity:
+                self.changes += 1
             ax.state = new
         return True
 
@@ -396,6 +407,7 @@ class Motion:
 
     def _command(self, ax: Axis) -> Command:
         """What the axis applies in its stage's present state."""
+        self.changes += 1  # target_units and internal_limit are set anew
         params = ax.params
         if params is None:
             params = ax.params = self._params(ax)

@@ -103,8 +103,12 @@ class Device:
                                   start=clock.now())
         # Written objects the drive acts on: (index, subindex) -> writer (may refuse).
         self.writers: dict[Key, Callable[[int], None]] = {}
+        #: the readers of the objects :meth:`event_stamp` covers (statusword, mode
+        #: display, error code, error register), filled with the readers
+        self.stamped: dict[Key, Callable[[], int]] = {}
         #: the dynamic objects' readers, (index, subindex) -> raw value
         self.readers = self._build_object_hooks()
+        self.event_stamp = self._event_stamp()
 
     def attach(self, comm: SimNode) -> None:
         """The node side this device sends its EMCY frames and event TPDOs with."""
@@ -133,7 +137,45 @@ class Device:
             readers[(err.index, err.subindex)] = lambda: self.stages[0].fault_code
         if ERROR_REGISTER in self.dictionary:
             readers[(ERROR_REGISTER, 0)] = self.error_register
+        for group in self.groups:
+            keys = [(group.statusword.index, group.statusword.subindex)]
+            display = group.axes[0].objs.get(Obj.MODE_DISPLAY)
+            if display is not None:
+                keys.append((display.index, display.subindex))
+            for key in keys:
+                self.stamped[key] = readers[key]
+        for key in [(err.index, err.subindex)] if err is not None else []:
+            self.stamped[key] = readers[key]
+        if ERROR_REGISTER in self.dictionary:
+            self.stamped[(ERROR_REGISTER, 0)] = readers[(ERROR_REGISTER, 0)]
         return readers
+
+    def _event_stamp(self) -> Callable[[], object]:
+        """What the objects in :attr:`stamped` are made of, in one value that is equal
+        between two calls only if each of those objects reads the same in both: the
+        power stages' state, controlword, warning and fault code, the groups' modes,
+        the e-stop and the following errors, as they are, and a count of the motion's
+        changes (:attr:`omnican.sim.axis.Motion.changes`: velocities, commands, the
+        window). The event TPDOs' check makes a TPDO of only such objects again only
+        when this changed (one call, not the objects' own)."""
+        motion, health = self.motion, self.health
+        if len(self.groups) == 1 and len(self.axes) == 1:  # nearly every drive
+            group, stage, number = self.groups[0], self.stages[0], self.axes[0].number
+
+            def stamp() -> object:
+                return (motion.changes, stage.state, stage.controlword, stage.warning,
+                        stage.fault_code, group.mode, health.estop_pressed,
+                        health.following_error[number])
+
+            return stamp
+        groups, stages = self.groups, self.stages
+
+        def stamp_all() -> object:
+            return (motion.changes, health.estop_pressed, tuple(health.following_error),
+                    tuple((s.state, s.controlword, s.warning, s.fault_code) for s in stages),
+                    tuple(g.mode for g in groups))
+
+        return stamp_all
 
     # ------------------------------------ what the node side calls (node.Application)
 

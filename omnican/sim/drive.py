@@ -34,6 +34,7 @@ from canopen import objectdictionary as od
 from omnican.clock import REAL_TIME, Clock
 from omnican.config import WHEEL_EDS
 from omnican.protocol.cia402 import State
+from omnican.protocol.object_map import parse_eds
 from omnican.sim.axis import DEFAULT_TAU_S
 from omnican.sim.device import CIA402_SERVO_DRIVE, Device
 from omnican.sim.faults import DriveFaults
@@ -118,7 +119,7 @@ class SimulatedDrive(DriveFaults):
         self.node_id = node_id
         self.clock = clock
         self.eds = Path(eds) if eds is not None else WHEEL_EDS
-        self.node = canopen.LocalNode(node_id, str(self.eds))
+        self.node = canopen.LocalNode(node_id, parse_eds(self.eds, node_id))
         self.dictionary: od.ObjectDictionary = self.node.object_dictionary
         self.slip = slip
         self.lock = threading.RLock()

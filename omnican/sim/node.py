@@ -144,7 +144,9 @@ class SimNode:
             local, app, self.readers, defaults, self._load_heartbeat_config,
             max_mapping_entries=max_mapping_entries, remappable=remappable,
             accept_unmappable=accept_unmappable)
-        self.pdos = ProcessData(local, self.readers, self._send, self.objects.compile_write)
+        self.pdos = ProcessData(local, self.readers, self._send, self.objects.compile_write,
+                                stamp=getattr(app, "event_stamp", None),
+                                stamped=getattr(app, "stamped", None))
         network.add_node(local)
         # Replace LocalNode's NMT and SDO handlers with ones that honour freeze/NMT state.
         network.unsubscribe(NMT_COB_ID, local.nmt.on_command)

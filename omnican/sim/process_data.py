@@ -36,6 +36,10 @@ Write = Callable[[bytes], None]
 #: generic path (LocalNode's write callbacks, then the store).
 CompileWrite = Callable[[int, int, Any], "Write | None"]
 Maker = Callable[[], bytes]
+#: An event TPDO's last frame made and the stamp it was made at (None: the TPDO maps an
+#: object the stamp does not cover; it is made at every check).
+Made = list[Any]
+_NEVER = object()  # the stamp of a frame not made yet: equal to none
 
 
 class ProcessData:
@@ -48,20 +52,30 @@ class ProcessData:
         send: sends one frame (COB-ID, data); it may lose it.
         compile_write: the node's writes, decided once per mapped object (see
             :data:`CompileWrite`); default every write through LocalNode's callbacks.
+        stamp: a value equal between two calls only if each object in ``stamped`` reads
+            the same in both (:meth:`omnican.sim.device.Device.event_stamp`).
+        stamped: the readers ``stamp`` covers, by object: an event TPDO that maps only
+            objects read by these (the same readers) is made again only when the stamp
+            changed, else its last frame is compared, as made.
     """
 
     def __init__(self, local: canopen.LocalNode, readers: Mapping[tuple[int, int], Reader],
-                 send: Send, compile_write: CompileWrite | None = None) -> None:
+                 send: Send, compile_write: CompileWrite | None = None,
+                 stamp: Callable[[], object] | None = None,
+                 stamped: Mapping[tuple[int, int], Reader] | None = None) -> None:
         self._local = local
         self._readers = readers
         self._send = send
         self._compile_write = compile_write
+        self._stamp = stamp
+        self._stamped = stamped or {}
+        self._stamping: Callable[[], object] | None = None  # the stamp, where a TPDO needs it
         self.tpdos: list[PdoConfig] = []
         self.rpdos: dict[int, PdoConfig] = {}  # by COB-ID
         self._pending: dict[int, bytes] = {}  # synchronous RPDOs waiting for the SYNC
         # What a SYNC and an event check go through: (TPDO, its frame maker), in order.
         self._on_sync: list[tuple[PdoConfig, Maker]] = []
-        self._on_event: list[tuple[PdoConfig, Maker]] = []
+        self._on_event: list[tuple[PdoConfig, Maker, Made | None]] = []
         self._appliers: dict[int, Write] = {}  # id(RPDO) -> writes its objects
 
     def start(self) -> list[int]:
@@ -73,12 +87,27 @@ class ProcessData:
         self.rpdos = {p.cob_id: p for p in read_pdos(dictionary, getter, RPDO_COMM, RPDO_MAP)}
         self._pending = {}
         self._on_sync = [(t, self._maker(t)) for t in self.tpdos if t.synchronous]
-        self._on_event = [(t, self._maker(t)) for t in self.tpdos if t.event_driven]
+        self._on_event = [(t, self._maker(t), [_NEVER, b""] if self._covered(t) else None)
+                          for t in self.tpdos if t.event_driven]
+        covered = any(made is not None for _, _, made in self._on_event)
+        self._stamping = self._stamp if covered else None
         self._appliers = {}
         for tpdo in self.tpdos:
             tpdo.last_data = None
             tpdo.pending_change = tpdo.event_driven  # first event TPDO goes out at once
         return list(self.rpdos)
+
+    def _covered(self, tpdo: PdoConfig) -> bool:
+        """Every object the TPDO maps is read by a reader the stamp covers."""
+        if self._stamp is None or not tpdo.entries:
+            return False
+        readers, stamped = self._readers, self._stamped
+        for e in tpdo.entries:
+            key = (e.index, e.subindex)
+            reader = stamped.get(key)
+            if reader is None or readers.get(key) is not reader:
+                return False
+        return True
 
     def _maker(self, tpdo: PdoConfig) -> Maker:
         """The TPDO's frame in one call: where every object is a dynamic one of 8, 16,
@@ -106,6 +135,7 @@ class ProcessData:
         """No PDOs (out of OPERATIONAL)."""
         self.tpdos, self.rpdos, self._pending = [], {}, {}
         self._on_sync, self._on_event, self._appliers = [], [], {}
+        self._stamping = None
 
     def hold(self, cob_id: int, data: bytes) -> None:
         """A synchronous RPDO: applied at the next SYNC (the last one received wins)."""
@@ -180,8 +210,16 @@ class ProcessData:
     def events(self, now: float) -> None:
         """Send the event-driven TPDOs whose data changed or whose event timer ran out,
         as their inhibit times allow."""
-        for tpdo, make in self._on_event:
-            data = make()
+        stamping = self._stamping
+        stamp = stamping() if stamping is not None else None
+        for tpdo, make, made in self._on_event:
+            if made is None:
+                data = make()
+            elif made[0] == stamp:  # nothing it maps changed since it was made
+                data = made[1]
+            else:
+                data = make()
+                made[0], made[1] = stamp, data
             if data != tpdo.last_data:
                 tpdo.pending_change = True
             due = tpdo.pending_change or (tpdo.event_s and now - tpdo.last_sent >= tpdo.event_s)

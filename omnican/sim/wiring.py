@@ -8,10 +8,9 @@ from typing import Any
 
 import canopen
 
-from omnican.clock import REAL_TIME
 from omnican.config import ChassisConfig, WheelConfig
 from omnican.errors import ConfigError
-from omnican.protocol.object_map import Obj
+from omnican.protocol.object_map import AxisObjects, Obj, parse_eds
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.health import QUANTITIES, EstopInput
 from omnican.sim.scheduler import SimScheduler
@@ -26,10 +25,8 @@ def make_drive(network: canopen.Network, node_id: int, wheels: list[WheelConfig]
     if len(eds) > 1:
         raise ConfigError(f"node {node_id}: its wheels name different EDS files "
                           f"({', '.join(sorted(str(e) for e in eds))})")
-    probe = SimulatedDrive(network, node_id, wheels[0].eds, scheduler=scheduler, boot=False,
-                           clock=options.get("clock", REAL_TIME))
-    n_axes = probe.num_axes
-    probe.close()
+    # The drive's axes, as the drive counts them (Device.num_axes), before it is made.
+    n_axes = max(1, AxisObjects(parse_eds(wheels[0].eds, node_id)).num_axes)
     cpu = [1.0] * n_axes
     for w in wheels:
         cpu[w.axis] = w.position_scale / w.velocity_scale

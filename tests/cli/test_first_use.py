@@ -763,6 +763,49 @@ def test_startup_loads_only_what_the_command_needs(argv: list[str], allowed: set
     assert loaded <= allowed, (argv, loaded - allowed)
 
 
+# The process's own command (main() reads sys.argv, as the omnican script does), asked
+# when it is done what BLAS threads it ran with and whether its heap was frozen.
+OWN = """
+import gc, os, sys
+sys.argv[1:] = {argv!r}
+from omnican.cli import main
+try:
+    main()
+finally:
+    print(os.environ.get("OPENBLAS_NUM_THREADS"), gc.get_freeze_count() > 0, gc.isenabled())
+"""
+THREADS = OWN.format(argv=["drive", "--sim", "--fast", "--vx", "0.1", "--duration", "0.2",
+                           "--json"])
+
+
+def test_the_command_starts_no_blas_threads() -> None:
+    """The ``omnican`` process runs numpy's OpenBLAS on one thread: its worker threads
+    (one per core, started as numpy is imported) spun a while at start-up, 30-40 ms of
+    CPU of ``drive --sim --fast``, for 3x3 maths. A user's own setting stands."""
+    env = {k: v for k, v in ENV.items() if k != "OPENBLAS_NUM_THREADS"}
+    for given, seen in ((None, "1"), ("2", "2")):
+        run_env = env if given is None else {**env, "OPENBLAS_NUM_THREADS": given}
+        proc = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True,
+                              env=run_env, timeout=60, check=True)
+        assert proc.stdout.split("\n")[-2].split()[0] == seen, (given, proc.stdout[-200:])
+
+
+def test_the_command_imports_out_of_the_collectors_way() -> None:
+    """The command's modules are imported with the collector off and frozen out of its
+    reach (gc.freeze): collections do not walk what lives as long as the process; the
+    collector is on again for the command itself. A program that calls main(argv) keeps
+    its heap as it was."""
+    proc = subprocess.run([sys.executable, "-c", OWN.format(argv=["drive", "--help"])],
+                          capture_output=True, text=True, env=ENV, timeout=60, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split("\n")[-2].split()[1:] == ["True", "True"]
+    called = ("import gc\nfrom omnican.cli import main\ntry:\n    main(['drive', '--help'])\n"
+              "finally:\n    print(gc.get_freeze_count())\n")
+    proc = subprocess.run([sys.executable, "-c", called], capture_output=True, text=True,
+                          env=ENV, timeout=60, check=False)
+    assert proc.stdout.split("\n")[-2] == "0", proc.stderr
+
+
 # ---------------------------------------------------------------- 20: --record on ros2, monitor
 
 
