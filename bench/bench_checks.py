@@ -21,7 +21,6 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
 import tempfile
 from collections.abc import Callable
@@ -30,7 +29,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_instructions import _counted, _toggler, build_toggle, measure
+from bench_instructions import build_toggle, measure
 
 
 def _nothing(*_a: Any, **_k: Any) -> None:
@@ -117,53 +116,14 @@ KNOCKOUTS: dict[str, tuple[str, Callable[[Any], None]]] = {
 CHECKS = ("supervisor", "bus_watch")  # summed: every check the cycle makes
 
 
-def child(rate_hz: float, cycles: int, knockout: str) -> None:
-    from bench_chassis import config
-
-    from omnican import Chassis
-    from omnican.clock import SimClock
-    from omnican.sim import SimulatedBase
-
-    cfg = config(rate_hz, 3)
-    clock = SimClock()
-    with SimulatedBase.from_config(cfg, clock=clock) as sim, \
-            Chassis.open(cfg, clock=clock) as base:
-        clock.sleep(0.3)
-        if knockout != "none":
-            KNOCKOUTS[knockout][1](base)
-        wrap = _toggler()
-        host_bus = base.bus.network.bus
-        host_bus.set_receiver(wrap("host", host_bus._receiver))
-        base._runner.cycle = wrap("host", base._runner.cycle)
-        loop = base._loop
-        _counted(wrap, clock, sim, rate_hz, cycles,
-                 lambda k: base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.2),
-                 lambda: loop.cycles)
-
-
 def _run(rate: float, cycles: int, tmp: Path, knockout: str) -> int:
-    env = dict(os.environ, OMNICAN_COUNT_SIDE="host")
-    here = Path(__file__).resolve().parent
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(tmp), str(here),
-                                                      env.get("PYTHONPATH")]))
-    out = tmp / f"cg-{knockout}"
-    done = subprocess.run(
-        ["valgrind", "--tool=callgrind", "--collect-atstart=no",
-         f"--callgrind-out-file={out}.%p", sys.executable, str(Path(__file__).resolve()),
-         "--child", str(rate), str(cycles), knockout],
-        check=False, capture_output=True, text=True, env=env)
-    if done.returncode != 0:
-        raise SystemExit(f"bench_checks: the run under valgrind failed ({knockout}):\n"
-                         f"{done.stderr[-2000:]}")
-    counted = json.loads(done.stdout.strip().splitlines()[-1])["cycles"]
-    total = 0
-    for dump in tmp.glob(f"cg-{knockout}.*"):
-        if dump.suffix == ".1":  # the client request's dump: exactly the counted cycles
-            for line in dump.read_text().splitlines():
-                if line.startswith("summary:"):
-                    total = int(line.split()[1])
-        dump.unlink()
-    return round(total / max(counted, 1))
+    """bench_instructions' count of omnican's cycle with ``knockout`` applied ("none":
+    everything)."""
+    os.environ["OMNICAN_KNOCKOUT"] = "" if knockout == "none" else knockout
+    try:
+        return int(measure(rate, cycles, tmp, tmp, "omnican")["instructions_per_cycle"])
+    finally:
+        os.environ.pop("OMNICAN_KNOCKOUT", None)
 
 
 def main() -> None:
@@ -171,11 +131,7 @@ def main() -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--cycles", type=int, default=300)
-    parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.child:
-        child(float(args.child[0]), int(args.child[1]), args.child[2])
-        return
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         why = build_toggle(tmp)

@@ -129,13 +129,18 @@ def child(rate_hz: float, cycles: int, kind: str, wheels: int) -> None:
         if kind == "omnican":
             with Chassis.open(cfg, clock=clock) as base:
                 clock.sleep(0.3)
+                knockout = os.environ.get("OMNICAN_KNOCKOUT")
+                if knockout:  # bench_checks: one check replaced, the base up and enabled
+                    from bench_checks import KNOCKOUTS
+
+                    KNOCKOUTS[knockout][1](base)
                 wrap = _toggler()
                 host_bus = base.bus.network.bus
                 host_bus.set_receiver(wrap("host", host_bus._receiver))  # type: ignore[union-attr]
                 base._runner.cycle = wrap("host", base._runner.cycle)
                 _counted(wrap, clock, sim, rate_hz, cycles,
                          lambda k: base.set_velocity(0.3 * math.sin(k * 0.01), 0.1, 0.2),
-                         lambda: base.status.cycles)
+                         lambda: base._loop.cycles)  # (the snapshot's may be frozen)
             return
         with _hand_loop(cfg, clock, kind) as (step, count):
             wrap = _toggler()
