@@ -2,7 +2,7 @@
 lock-step run (100 Hz, three wheels, the host side counted by callgrind) once with
 everything, then once per check with that check replaced by a stand-in that does
 nothing (put in after the base is up and enabled, so start-up is the same), each in a
-process of its own. A check's cost is the difference: deterministic, unlike
+process of its own. A check's cost is the difference: repeatable (to a few hundred at 100 Hz), unlike
 bench_attribute's stretches of one run, whose states differ by more than most parts
 cost. Beside them the minimal loop (the floor, bench_cycle's), and what the floor plus
 every check comes to: the least a cycle that keeps every check could cost were
