@@ -94,16 +94,23 @@ class ParameterStore:
                 params[(obj_index, sub)] = bytes(value)
 
 
+def counted_array(name: str, index: int, highest: int) -> od.ODArray:
+    """An array object with only its sub-index 0, "Highest sub-index supported" (read
+    only, ``highest``): its members are added by the caller."""
+    array = od.ODArray(name, index)
+    count = od.ODVariable("Highest sub-index supported", index, 0)
+    count.data_type, count.access_type, count.default = od.UNSIGNED8, "ro", highest
+    array.add_member(count)
+    return array
+
+
 def _add_store_objects(dictionary: od.ObjectDictionary) -> None:
     """1010h and 1011h in the dictionary, as CiA 301 defines them, where the EDS has none."""
     for index, name in ((STORE_PARAMETERS, "Store parameters"),
                         (RESTORE_DEFAULTS, "Restore default parameters")):
         if index in dictionary:
             continue
-        array = od.ODArray(name, index)
-        count = od.ODVariable("Highest sub-index supported", index, 0)
-        count.data_type, count.access_type, count.default = od.UNSIGNED8, "ro", 4
-        array.add_member(count)
+        array = counted_array(name, index, 4)
         for sub, what in ((1, "all"), (2, "communication"), (3, "application"),
                           (4, "manufacturer")):
             var = od.ODVariable(f"{name}: {what}", index, sub)

@@ -53,6 +53,7 @@ from omnican.protocol.program import (
     image_crc,
 )
 from omnican.sim.block_download import DomainSink
+from omnican.sim.memory import counted_array
 
 logger = logging.getLogger(__name__)
 
@@ -192,10 +193,7 @@ def add_objects(dictionary: od.ObjectDictionary) -> None:
             (FLASH_STATUS, "Flash status identification", datatypes.UNSIGNED32, "ro")):
         if index in dictionary:
             continue
-        array = od.ODArray(name, index)
-        count = od.ODVariable("Highest sub-index supported", index, 0)
-        count.data_type, count.access_type, count.default = datatypes.UNSIGNED8, "ro", 1
-        array.add_member(count)
+        array = counted_array(name, index, 1)
         var = od.ODVariable(f"Program number {PROGRAM_NUMBER}", index, PROGRAM_NUMBER)
         var.data_type, var.access_type = data_type, access
         array.add_member(var)
