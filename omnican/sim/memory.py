@@ -21,6 +21,7 @@ from omnican.protocol.cia301 import (
     SAVE_SIGNATURE,
     STORE_PARAMETERS,
 )
+from omnican.sim.objects import counted_array
 
 if TYPE_CHECKING:
     from omnican.sim.drive import SimulatedDrive
@@ -92,16 +93,6 @@ class ParameterStore:
                 if var is not None and var.pdo_mappable:
                     continue  # process data (a controlword, a target), no parameter
                 params[(obj_index, sub)] = bytes(value)
-
-
-def counted_array(name: str, index: int, highest: int) -> od.ODArray:
-    """An array object with only its sub-index 0, "Highest sub-index supported" (read
-    only, ``highest``): its members are added by the caller."""
-    array = od.ODArray(name, index)
-    count = od.ODVariable("Highest sub-index supported", index, 0)
-    count.data_type, count.access_type, count.default = od.UNSIGNED8, "ro", highest
-    array.add_member(count)
-    return array
 
 
 def _add_store_objects(dictionary: od.ObjectDictionary) -> None:

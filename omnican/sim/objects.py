@@ -176,3 +176,13 @@ class NodeObjects:
 def is_mapping(index: int) -> bool:
     """A PDO mapping parameter (16xxh, 1Axxh): written as the PDO configuration."""
     return RPDO_MAP <= index < RPDO_MAP + MAX_PDOS or TPDO_MAP <= index < TPDO_MAP + MAX_PDOS
+
+
+def counted_array(name: str, index: int, highest: int) -> od.ODArray:
+    """An array object with only its sub-index 0, "Highest sub-index supported" (read
+    only, ``highest``): its members are added by the caller."""
+    array = od.ODArray(name, index)
+    count = od.ODVariable("Highest sub-index supported", index, 0)
+    count.data_type, count.access_type, count.default = od.UNSIGNED8, "ro", highest
+    array.add_member(count)
+    return array

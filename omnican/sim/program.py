@@ -53,7 +53,7 @@ from omnican.protocol.program import (
     image_crc,
 )
 from omnican.sim.block_download import DomainSink
-from omnican.sim.memory import counted_array
+from omnican.sim.objects import counted_array
 
 logger = logging.getLogger(__name__)
 
