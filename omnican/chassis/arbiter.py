@@ -31,7 +31,6 @@ import math
 import threading
 import warnings
 from collections.abc import Callable
-from dataclasses import replace
 from typing import Protocol
 
 from omnican.chassis.actions import Action, Outcome, refuser
@@ -52,6 +51,7 @@ class CommandArbiter:
         self._holder: str | None = None
         self._last = -math.inf
         self._stopped: dict[str, tuple[str, float]] = {}  # source -> (by whom, last heard)
+        self._acting: dict[str, int] = {}  # source -> its actions under way (see perform)
 
     def claim(self, source: str, now: float, send: Callable[[], None] | None = None
               ) -> Outcome:
@@ -107,6 +107,41 @@ class CommandArbiter:
             self._stopped[holder] = (source, now)
             return Outcome(action, source, took_from=holder)
 
+    def perform(self, source: str, action: Action, now: float, do: Callable[[], object],
+                ended: Callable[[], float]) -> Outcome:
+        """``source`` takes ``action`` (not a command, not a stop) at ``now`` if the table
+        lets it (:meth:`ask`), and ``do`` runs outside the lock (a recover waits seconds
+        for the drives), with ``source`` holding control until it returns: another's
+        command is refused by ``source`` meanwhile, as if ``source`` drove, so no one
+        starts driving while it acts (anyone may still stop: that takes control from it,
+        as from a driver). Afterwards control is as it was: ``source`` keeps it (from
+        ``ended()``, the time then) if it held it before, else no one holds it. What
+        ``do`` raises goes to the caller, control restored the same way."""
+        if action is Action.DRIVE or action.stops:
+            raise ValueError(f"{action.value!r} has its own method (claim, decide)")
+        with self._lock:
+            holder = self._current(now)
+            refused = refuser(action, source, holder)
+            if refused is not None:
+                return Outcome(action, source, refused_by=refused)
+            self._holder = source  # no lapse while it acts (_current)
+            self._acting[source] = self._acting.get(source, 0) + 1
+        try:
+            do()
+        finally:
+            with self._lock:
+                left = self._acting[source] - 1
+                if left:
+                    self._acting[source] = left
+                else:
+                    del self._acting[source]
+                if not left and self._holder == source:  # (a stop meanwhile took it)
+                    if holder == source:
+                        self._last = ended()
+                    else:
+                        self._holder, self._last = None, -math.inf
+        return Outcome(action, source)
+
     def stop_by(self, source: str, now: float, stop: Callable[[], None] | None = None
                 ) -> str | None:
         """``source`` stops the base at ``now`` (``stop`` runs with no command granted in
@@ -140,7 +175,9 @@ class CommandArbiter:
             return self._current(now)
 
     def _current(self, now: float) -> str | None:
-        if self._holder is not None and now - self._last > self.timeout_s:
+        holder = self._holder
+        if holder is not None and now - self._last > self.timeout_s and \
+                holder not in self._acting:
             self._holder = None  # silent for the timeout: the base stopped by itself
         return self._holder
 
@@ -251,19 +288,17 @@ class CommandSource:
     def act(self, action: Action, do: Callable[[], object]) -> Outcome:
         """Run ``do`` for ``action`` if the table lets this source take it now (the
         simulator's console, which the base does not know; the base's own actions have
-        their methods). The answer is asked first and ``do`` runs after, outside the
-        arbiter (a recover takes seconds). What ``do`` raises as a refusal or failure
+        their methods). ``do`` runs outside the arbiter (a recover takes seconds) with
+        this source holding control meanwhile: no other source starts driving under it
+        (:meth:`CommandArbiter.perform`). What ``do`` raises as a refusal or failure
         (OmnicanError, ValueError) is the outcome's :attr:`~Outcome.failed`."""
         if action is Action.DRIVE or action.stops:
             raise ValueError(f"{action.value!r} has its own method (send, stop, halt)")
-        answer = self.may(action)
-        if not answer.ok:
-            return answer
+        clock = self._base.clock
         try:
-            do()
+            return self._arbiter.perform(self.name, action, clock.now(), do, clock.now)
         except _REFUSALS as exc:
-            return replace(answer, failed=str(exc))
-        return answer
+            return Outcome(action, self.name, failed=str(exc))
 
     def may(self, action: Action) -> Outcome:
         """Whether this source may take ``action`` now, by the table; asks only (takes no

@@ -81,6 +81,61 @@ def test_a_release_runs_its_stop_only_for_the_holder() -> None:
     assert stops == ["a"]
 
 
+def test_no_one_starts_driving_while_another_recovers() -> None:
+    """A recover takes seconds (it waits for the drives) and runs outside the arbiter's
+    lock: while it runs, its source holds control, so a command that comes meanwhile is
+    refused by it, however long it takes, and the base does not start under a recover
+    whose source was told no one drove. Afterwards control is as it was."""
+    arb = CommandArbiter(0.5)
+    seen: list[tuple[str | None, str | None]] = []
+
+    def recovering() -> None:  # another source tries meanwhile, 0.1 s and 5 s in
+        for t in (0.1, 5.0):
+            seen.append((arb.claim("b", t).refused_by, arb.ask("b", Action.RECOVER, t).refused_by))
+        assert arb.holder(5.0) == "a"
+
+    assert arb.perform("a", Action.RECOVER, 0.0, recovering, lambda: 5.1).ok
+    assert seen == [("a", "a"), ("a", "a")]
+    assert arb.holder(5.1) is None  # a did not drive before: no one holds control now
+    assert arb.claim("b", 5.1).ok
+    # b drives and recovers: it keeps control, counted from when the recover ended
+    assert arb.perform("b", Action.RECOVER, 5.2, lambda: None, lambda: 9.0).ok
+    assert arb.holder(9.4) == "b"
+    assert arb.claim("a", 9.4).refused_by == "b"
+    assert arb.perform("a", Action.RECOVER, 9.4, lambda: None, lambda: 9.4).refused_by == "b"
+
+
+def test_a_stop_while_another_recovers_takes_control_as_from_a_driver() -> None:
+    arb = CommandArbiter(0.5)
+    took: list[str | None] = []
+
+    def recovering() -> None:
+        took.append(arb.stop_by("c", 1.0))  # anyone may stop, a recover too
+        assert arb.claim("b", 1.1).ok  # then anyone may drive, as after any stop
+        took.append(arb.stop_by("b", 1.2))  # (b's own stop: it keeps control)
+
+    assert arb.perform("a", Action.RECOVER, 0.0, recovering, lambda: 3.0).ok
+    assert took == ["a", None]
+    assert arb.holder(1.5) == "b"  # the recover's end takes nothing from b
+    assert arb.stopped_by("a", 1.5) == "c"
+    assert arb.holder(1.7) is None  # b is silent: its hold lapses as any driver's
+
+
+def test_a_recover_that_fails_gives_control_back() -> None:
+    arb = CommandArbiter(0.5)
+
+    def failing() -> None:
+        assert arb.claim("b", 0.2).refused_by == "a"
+        raise DriveError("recover refused: e-stop pressed")
+
+    with pytest.raises(DriveError, match="e-stop"):
+        arb.perform("a", Action.RECOVER, 0.0, failing, lambda: 0.3)
+    assert arb.holder(0.3) is None
+    assert arb.claim("b", 0.3).ok
+    with pytest.raises(ValueError, match="own method"):
+        arb.perform("a", Action.STOP, 0.4, lambda: None, lambda: 0.4)
+
+
 @given(st.lists(st.tuples(st.sampled_from("abc"), st.floats(0.0, 1.0),
                           st.sampled_from(["claim", "release"])), max_size=60))
 def test_control_changes_hands_only_when_the_holder_is_silent_or_gone(
@@ -324,6 +379,30 @@ def test_the_arbiter_answers_every_action_by_the_table(
             assert arb.stopped_by(driver, now) == source
         else:
             assert answer.took_from is None and arb.holder(now) == driver
+
+
+def test_a_source_that_recovers_holds_control_until_it_is_done() -> None:
+    """Through the handles: a client's recover on a stand-in base whose recover takes
+    two seconds, with the keys pressed meanwhile (refused: the client acts), and after
+    it (done: the client did not drive)."""
+    base = FakeBase()
+    keys, client = base.command_source("keys"), base.command_source("client")
+    meanwhile: list[str | None] = []
+    slow = base.recover
+
+    def recover_for_two_seconds() -> None:
+        base.clock.sleep(1.0)
+        meanwhile.append(keys.drive(Twist(0.3, 0.0, 0.0)).refused_by)
+        meanwhile.append(keys.may(Action.RESET_POSE).refused_by)
+        base.clock.sleep(1.0)
+        slow()
+
+    base.recover = recover_for_two_seconds  # type: ignore[method-assign]
+    assert client.recover().ok
+    assert meanwhile == ["client", "client"]
+    assert [c for c, _ in base.calls] == ["recover"]  # the keys' command never reached it
+    assert client.holder() is None
+    assert keys.drive(Twist(0.3, 0.0, 0.0)).ok
 
 
 def test_every_action_through_a_source_answers_who_refused_or_what_failed() -> None:
