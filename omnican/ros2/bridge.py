@@ -202,7 +202,7 @@ class Bridge:
             self._polls += 1
             self.cmd_vel.take(check_publications=self._polls % 10 == 1)
             if self.imu is not None:
-                self.imu.take()
+                self.imu.poll()
             asked = self._take_recover()
             if asked:
                 self._on_recover(self._recover_source(asked[-1].writer))

@@ -13,12 +13,13 @@ the IMU measured; the arrival is only when DDS got round to it.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from omnican.core.imu import ImuInbox, ImuMount, ImuSample, sample_of_imu_msg
-from omnican.log_throttle import Throttle
+from omnican.command.imu_intake import ImuFields, ImuIntake
+from omnican.core.imu import ImuInbox
 from omnican.ros2.transport import TopicQos, Transport
 
 if TYPE_CHECKING:
@@ -30,53 +31,31 @@ logger = logging.getLogger(__name__)
 IMU_DEPTH = 100
 
 
-class ImuReader:
-    """Reads ``settings.topic`` into ``inbox``: :meth:`take` from the bridge's poll.
+class ImuReader(ImuIntake):
+    """Reads ``settings.topic`` into ``inbox``: :meth:`poll` from the bridge's poll.
     ``received``: samples taken, ``rejected``: those that did not parse or had no angular
-    velocity, ``last``: the newest sample put."""
+    velocity, ``last``: the newest sample put (:class:`ImuIntake`)."""
 
     def __init__(self, inbox: ImuInbox, settings: ImuSettings, transport: Transport) -> None:
         from omnican.ros2 import msgs
 
-        self.inbox = inbox
-        self.topic = settings.topic
-        self._mount = ImuMount(settings.mount_yaw_deg, settings.upside_down)
+        super().__init__(inbox, settings, settings.topic, logger, "did not parse")
         self._type = msgs.Imu
-        self._take = transport.reader(self.topic, msgs.Imu,
-                                      TopicQos(reliable=False, depth=IMU_DEPTH))
-        self._throttle = Throttle(logger)
-        self.received = 0
-        self.rejected = 0
-        self.last: ImuSample | None = None
+        self._reader = transport.reader(self.topic, msgs.Imu,
+                                        TopicQos(reliable=False, depth=IMU_DEPTH))
 
-    def take(self) -> None:
-        got = self._take()
+    def poll(self) -> None:
+        """Every sample that arrived since the last poll, oldest first, into the inbox."""
+        got = self._reader()
         if not got:
             return
-        self.received += len(got)
         now, now_wall = time.monotonic(), time.time()
         for r in got:
-            try:
-                msg = self._type.deserialize(r.data)
-                stamp = msg.header.stamp
-                sample = sample_of_imu_msg(
-                    self._mount, stamp.sec + stamp.nanosec * 1e-9, msg.angular_velocity.z,
-                    msg.linear_acceleration.x, msg.linear_acceleration.y,
-                    msg.angular_velocity_covariance[0],
-                    msg.linear_acceleration_covariance[0], now, now_wall)
-            except Exception as exc:  # a malformed sample must not stop the poll
-                self.rejected += 1
-                self._throttle.warning("parse", "%s: a sample did not parse (%d so far): %s",
-                                       self.topic, self.rejected, exc)
-                continue
-            if sample is None:
-                self.rejected += 1
-                self._throttle.warning("empty", "%s: a sample without angular velocity "
-                                       "(covariance -1 or not finite; %d so far)", self.topic,
-                                       self.rejected)
-                continue
-            self.inbox.put(sample)
-            self.last = sample
+            self.take(functools.partial(self._fields, r.data), now, now_wall)
 
-    def flush(self) -> None:
-        self._throttle.flush()
+    def _fields(self, data: Any) -> ImuFields:
+        msg = self._type.deserialize(data)
+        stamp = msg.header.stamp
+        return (stamp.sec + stamp.nanosec * 1e-9, msg.angular_velocity.z,
+                msg.linear_acceleration.x, msg.linear_acceleration.y,
+                msg.angular_velocity_covariance[0], msg.linear_acceleration_covariance[0])

@@ -18,8 +18,8 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-from omnican.core.imu import ImuInbox, ImuMount, ImuSample, sample_of_imu_msg
-from omnican.log_throttle import Throttle
+from omnican.command.imu_intake import ImuFields, ImuIntake
+from omnican.core.imu import ImuInbox
 from omnican.zenoh import rmw
 
 if TYPE_CHECKING:
@@ -32,23 +32,19 @@ IMU_TYPE = "sensor_msgs/msg/Imu"
 MAX_IMU_BYTES = 4096
 
 
-class ZenohImu:
+class ZenohImu(ImuIntake):
     """Subscribes ``settings.topic`` (resolved in ``node``'s namespace) on ``session``
     into ``inbox`` until :meth:`close`. ``received``: samples that arrived, ``rejected``:
-    those that did not decode or had no angular velocity, ``last``: the newest put."""
+    those that did not decode or had no angular velocity, ``last``: the newest put
+    (:class:`ImuIntake`)."""
 
     def __init__(self, session: Any, node: rmw.RosNode, entity_id: int, domain_id: int,
                  inbox: ImuInbox, settings: ImuSettings) -> None:
-        self.inbox = inbox
-        self.topic = rmw.fully_qualified(node.namespace, settings.topic)
+        super().__init__(inbox, settings, rmw.fully_qualified(node.namespace, settings.topic),
+                         logger, f"that is not a {IMU_TYPE}")
         hash_ = rmw.type_hash(IMU_TYPE)
         self.key = rmw.data_key(domain_id, self.topic, IMU_TYPE, hash_)
-        self._mount = ImuMount(settings.mount_yaw_deg, settings.upside_down)
-        self._throttle = Throttle(logger)
         self._lock = threading.Lock()
-        self.received = 0
-        self.rejected = 0
-        self.last: ImuSample | None = None
         self._closed = False
         qos = rmw.Qos(reliability=rmw.Reliability.BEST_EFFORT, depth=5)  # sensor data
         self._token = session.liveliness().declare_token(node.endpoint_token(
@@ -56,38 +52,11 @@ class ZenohImu:
         self._sub = session.declare_subscriber(self.key, self._on_sample)
 
     def _on_sample(self, sample: Any) -> None:
-        from omnican.telemetry import cdr
-
         now, now_wall = time.monotonic(), time.time()
         with self._lock:
             if self._closed:
                 return
-            self.received += 1
-            try:
-                data = sample.payload.to_bytes()
-                if len(data) > MAX_IMU_BYTES:
-                    raise ValueError(f"a {len(data)}-byte sample (at most {MAX_IMU_BYTES})")
-                msg = cdr.decode(IMU_TYPE, data)
-                stamp = msg["header"]["stamp"]
-                rate, accel = msg["angular_velocity"], msg["linear_acceleration"]
-                imu = sample_of_imu_msg(
-                    self._mount, stamp["sec"] + stamp["nanosec"] * 1e-9, float(rate["z"]),
-                    float(accel["x"]), float(accel["y"]),
-                    float(msg["angular_velocity_covariance"][0]),
-                    float(msg["linear_acceleration_covariance"][0]), now, now_wall)
-            except Exception as exc:  # a malformed sample must not reach Zenoh's thread
-                self.rejected += 1
-                self._throttle.warning("parse", "%s: a sample that is not a %s (%d so far): "
-                                       "%s", self.topic, IMU_TYPE, self.rejected, exc)
-                return
-            if imu is None:
-                self.rejected += 1
-                self._throttle.warning("empty", "%s: a sample without angular velocity "
-                                       "(covariance -1 or not finite; %d so far)", self.topic,
-                                       self.rejected)
-                return
-            self.inbox.put(imu)
-            self.last = imu
+            self.take(lambda: _fields(sample), now, now_wall)
 
     def close(self) -> None:
         """Undeclare the subscriber and its token. Idempotent."""
@@ -97,4 +66,19 @@ class ZenohImu:
             self._closed = True
         self._sub.undeclare()
         self._token.undeclare()
-        self._throttle.flush()
+        self.flush()
+
+
+def _fields(sample: Any) -> ImuFields:
+    """A Zenoh sample's Imu fields (raises for one too large or not an Imu)."""
+    from omnican.telemetry import cdr
+
+    data = sample.payload.to_bytes()
+    if len(data) > MAX_IMU_BYTES:
+        raise ValueError(f"a {len(data)}-byte sample (at most {MAX_IMU_BYTES})")
+    msg = cdr.decode(IMU_TYPE, data)
+    stamp = msg["header"]["stamp"]
+    rate, accel = msg["angular_velocity"], msg["linear_acceleration"]
+    return (stamp["sec"] + stamp["nanosec"] * 1e-9, float(rate["z"]), float(accel["x"]),
+            float(accel["y"]), float(msg["angular_velocity_covariance"][0]),
+            float(msg["linear_acceleration_covariance"][0]))
