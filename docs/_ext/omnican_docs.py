@@ -133,7 +133,8 @@ def config_reference() -> str:
     out = ["<!-- made from omnican.config.SCHEMA at every docs build: do not edit -->", ""]
     out += bus_reference(examples)
     for table, keys in SCHEMA.items():
-        heading = {"wheel": "[[wheel]]", "wheel.sdo": "[[wheel.sdo]]"}.get(table, f"[{table}]")
+        heading = {"wheel": "[[wheel]]", "wheel.sdo": "[[wheel.sdo]]",
+                   "sim.slip.surface": "[[sim.slip.surface]]"}.get(table, f"[{table}]")
         out += [f"## `{heading}`", "", "| key | default | meaning |", "|---|---|---|"]
         shown: list[str] = []
         for name, key in keys.items():

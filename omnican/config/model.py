@@ -119,6 +119,7 @@ _POWER = schema_defaults("power")
 _ESTOP = schema_defaults("estop")
 _IMU = schema_defaults("imu")
 _GYRO = schema_defaults("sim.gyro")
+_SLIP = schema_defaults("sim.slip")
 
 
 @dataclass(frozen=True)
@@ -193,13 +194,40 @@ class SimGyro:
 
 
 @dataclass(frozen=True)
+class SimSurface:
+    """A ``[[sim.slip.surface]]``: a rectangle of floor between two corners (world frame,
+    m) where each wheel loses ``ratio`` of its rim travel (one per wheel)."""
+
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    ratio: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class SimSlipSettings:
+    """The ``[sim.slip]`` table: what the simulated ground takes of the wheels' motion
+    (:class:`omnican.sim.slip.SimSlip`), one value per wheel where a wheel has one."""
+
+    ratio: tuple[float, ...]
+    roller: tuple[float, ...]
+    ramp_grade_deg: float = _SLIP["ramp_grade_deg"]
+    ramp_downhill_deg: float = _SLIP["ramp_downhill_deg"]
+    ramp_creep: float = _SLIP["ramp_creep"]
+    surfaces: tuple[SimSurface, ...] = ()
+
+
+@dataclass(frozen=True)
 class SimTruth:
     """The ``[sim]`` table: the true geometry of the simulated base ``omnican calibrate
-    --sim`` drives; None: as configured. ``gyro``: its ``[sim.gyro]`` table."""
+    --sim`` drives; None: as configured. ``gyro``: its ``[sim.gyro]`` table; ``slip``: its
+    ``[sim.slip]`` table (None: the ground grips)."""
 
     base_radius: float | None = None
     position_scale: tuple[float, ...] | None = None  # one per wheel, counts per m
     gyro: SimGyro | None = None
+    slip: SimSlipSettings | None = None
 
 
 #: What a ``[chassis]`` table must give (or may leave to the wheels' angle_deg), for a

@@ -23,6 +23,8 @@ from omnican.config.model import (
     EstopSettings,
     FusionSettings,
     PowerSettings,
+    SimSlipSettings,
+    SimSurface,
     SimTruth,
     WheelConfig,
 )
@@ -163,28 +165,62 @@ def parse_config(data: Mapping[str, Any], origin: str = "config", base_dir: Path
 
 
 def _parse_sim(r: Reader, table: Any, n_wheels: int) -> SimTruth:
-    gyro = None
-    if isinstance(table, dict) and "gyro" in table:  # [sim.gyro]: omnican.config.imu's
+    gyro = slip = None
+    if isinstance(table, dict) and ("gyro" in table or "slip" in table):
         table = dict(table)
-        gyro = parse_sim_gyro(r, table.pop("gyro"))
+        if "gyro" in table:  # [sim.gyro]: omnican.config.imu's
+            gyro = parse_sim_gyro(r, table.pop("gyro"))
+        if "slip" in table:
+            slip = _parse_sim_slip(r, table.pop("slip"), n_wheels)
     t = r.table("sim", table, "sim")
     scale = t["position_scale"]
-    if isinstance(scale, list):
-        if len(scale) != n_wheels:
-            raise r.fail("sim.position_scale", f"give one number for every wheel or one per "
-                         f"wheel ({n_wheels}), got {len(scale)}")
-        for i, v in enumerate(scale):
-            if isinstance(v, bool) or not isinstance(v, NUMBER) or math.isnan(v):
-                raise r.fail(f"sim.position_scale[{i}]", f"must be a number, got {v!r}")
-    values = None if scale is None else [scale] * n_wheels if isinstance(scale, NUMBER) else scale
-    if values is not None:
-        spec = SCHEMA["sim"]["position_scale"]
-        for i, v in enumerate(values):
-            r.in_range(f"sim.position_scale[{i}]" if isinstance(scale, list)
-                       else "sim.position_scale", spec, v)
+    values = None if scale is None else _per_wheel(r, "sim", "position_scale", scale, n_wheels)
     radius = t["base_radius"]
-    return SimTruth(None if radius is None else float(radius),
-                    None if values is None else tuple(float(v) for v in values), gyro)
+    return SimTruth(None if radius is None else float(radius), values, gyro, slip)
+
+
+def _parse_sim_slip(r: Reader, table: Any, n_wheels: int) -> SimSlipSettings:
+    """The ``[sim.slip]`` table and its ``[[sim.slip.surface]]`` patches."""
+    surfaces_raw: Any = []
+    if isinstance(table, dict) and "surface" in table:
+        table = dict(table)
+        surfaces_raw = table.pop("surface")
+        if not isinstance(surfaces_raw, list) or not all(
+                isinstance(x, dict) for x in surfaces_raw):
+            raise r.fail("sim.slip.surface", "must be an array of tables "
+                         "([[sim.slip.surface]])")
+    t = r.table("sim.slip", table, "sim.slip")
+    surfaces = []
+    for i, raw in enumerate(surfaces_raw):
+        where = f"sim.slip.surface[{i}]"
+        f = r.table("sim.slip.surface", raw, where)
+        surfaces.append(SimSurface(float(f["x0"]), float(f["y0"]), float(f["x1"]),
+                                   float(f["y1"]), _per_wheel(r, "sim.slip.surface", "ratio",
+                                                              f["ratio"], n_wheels, where)))
+    return SimSlipSettings(
+        _per_wheel(r, "sim.slip", "ratio", t["ratio"], n_wheels),
+        _per_wheel(r, "sim.slip", "roller", t["roller"], n_wheels),
+        float(t["ramp_grade_deg"]), float(t["ramp_downhill_deg"]), float(t["ramp_creep"]),
+        tuple(surfaces))
+
+
+def _per_wheel(r: Reader, section: str, key: str, value: Any, n_wheels: int,
+               where: str | None = None) -> tuple[float, ...]:
+    """A key that is one number for every wheel or a list of one per wheel (each within
+    the key's range), as one float per wheel."""
+    at = f"{where or section}.{key}"
+    spec = SCHEMA[section][key]
+    if not isinstance(value, list):
+        r.in_range(at, spec, value)
+        return (float(value),) * n_wheels
+    if len(value) != n_wheels:
+        raise r.fail(at, f"give one number for every wheel or one per wheel ({n_wheels}), "
+                     f"got {len(value)}")
+    for i, v in enumerate(value):
+        if isinstance(v, bool) or not isinstance(v, NUMBER) or math.isnan(v):
+            raise r.fail(f"{at}[{i}]", f"must be a number, got {v!r}")
+        r.in_range(f"{at}[{i}]", spec, v)
+    return tuple(float(v) for v in value)
 
 
 def _parse_fusion(r: Reader, table: Any) -> FusionSettings:

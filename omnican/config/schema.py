@@ -308,6 +308,36 @@ _OWN: dict[str, dict[str, Key]] = {
                               range=_SCALE),
     },
     "sim.gyro": imu_keys.SIM_GYRO_KEYS,
+    # What the simulated ground takes of the wheels' motion (omnican.sim.slip): the
+    # encoders count every turn, only the true pose (and a gyro) see the difference.
+    "sim.slip": {
+        "ratio": Key((*NUMBER, list), 0.0, "the share of a wheel's rim travel the ground does "
+                     "not take (0: it grips, 0.1: 10 % lost): one number for every wheel, or "
+                     "one per wheel", range=(0.0, 1.0)),
+        "roller": Key((*NUMBER, list), 0.0, "the share of a wheel's rim travel by which its "
+                      "contact point also slides along its roller (a roller that gives way: "
+                      "the base turns and drifts): one number for every wheel, or one per "
+                      "wheel", range=(0.0, 1.0)),
+        "ramp_grade_deg": Key(NUMBER, 0.0, "the floor is a ramp this steep (deg)",
+                              range=(-60.0, 60.0)),
+        "ramp_downhill_deg": Key(NUMBER, 0.0, "the direction the ramp falls towards (deg, "
+                                 "world frame)", range=(-360.0, 360.0)),
+        "ramp_creep": Key(NUMBER, 0.005, "m/s the base creeps downhill per m/s^2 of gravity "
+                          "along the ramp, while its wheels turn", range=(0.0, 1.0)),
+    },
+    # [[sim.slip.surface]]: a patch of floor with its own slip, taken while the simulated
+    # base's centre is on it (a rectangle between two corners, world frame).
+    "sim.slip.surface": {
+        "x0": Key(NUMBER, None, "m, one corner's x", required=True, range=(-1e6, 1e6)),
+        "y0": Key(NUMBER, None, "m, one corner's y", required=True, range=(-1e6, 1e6)),
+        "x1": Key(NUMBER, None, "m, the opposite corner's x", required=True,
+                  range=(-1e6, 1e6)),
+        "y1": Key(NUMBER, None, "m, the opposite corner's y", required=True,
+                  range=(-1e6, 1e6)),
+        "ratio": Key((*NUMBER, list), None, "the share of a wheel's rim travel the ground "
+                     "does not take there: one number for every wheel, or one per wheel",
+                     required=True, range=(0.0, 1.0)),
+    },
     # Read by `omnican teleop --gamepad` (omnican.command.gamepad). A key left out is the
     # preset's; every preset has the defaults below. evdev's sticks read + to the right
     # and + down, REP-103 wants + forward, + left and + counter-clockwise: hence the

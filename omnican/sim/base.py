@@ -45,6 +45,7 @@ from omnican.sim.drive import SimulatedDrive
 from omnican.sim.gyro import SimulatedGyro, attach_gyro
 from omnican.sim.lss import SimLss
 from omnican.sim.scheduler import SimScheduler
+from omnican.sim.slip import SimSlip
 from omnican.sim.truth import GroundTruth
 from omnican.sim.wiring import health_wiring, make_drive
 
@@ -209,6 +210,8 @@ class SimulatedBase:
                        true_kinematics or cfg.kinematics(), counts, clock)
             base.gyro, base._gyro_task = attach_gyro(
                 cfg, network, scheduler, clock, lambda: base.true_pose, lambda: base.true_twist)
+            if cfg.sim is not None and cfg.sim.slip is not None:  # [sim.slip]
+                base._truth.slip = SimSlip.of(cfg.sim.slip)
             base.lss = SimLss(base, base._truth, lambda config_id, node_id: make_drive(
                 network, node_id, cfg.nodes()[config_id], scheduler,
                 {**opts[config_id], "boot": False}), serials, unconfigured, refuse_store)

@@ -18,7 +18,8 @@ on a real base: only a gyro (or a camera) sees the difference.
   m/s^2 of gravity along the ramp) while its wheels turn (free rollers give way to the
   pull; a base at rest is held by its drives' position).
 
-:func:`set_slip` gives a simulated base its ground's slip. Pure module: no I/O.
+:func:`set_slip` gives a simulated base its ground's slip; a config's ``[sim.slip]``
+table gives it one from the start (:meth:`SimSlip.of`). Pure module: no I/O.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from omnican.config import SimSlipSettings
 from omnican.core.kinematics import OmniKinematics
 
 G = 9.81
@@ -73,6 +75,16 @@ class SimSlip:
                 raise ValueError(f"a slip ratio is a fraction 0-1, not {r!r}")
         if not (math.isfinite(self.ramp_grade_deg) and -60.0 <= self.ramp_grade_deg <= 60.0):
             raise ValueError(f"ramp_grade_deg: -60 to 60, not {self.ramp_grade_deg!r}")
+
+    @classmethod
+    def of(cls, table: SimSlipSettings) -> SimSlip:
+        """The slip a config's ``[sim.slip]`` table says (:class:`SimSlipSettings`)."""
+        return cls(ratios=table.ratio,
+                   surfaces=tuple(Surface(s.x0, s.y0, s.x1, s.y1, s.ratio)
+                                  for s in table.surfaces),
+                   roller={i: give for i, give in enumerate(table.roller) if give},
+                   ramp_grade_deg=table.ramp_grade_deg,
+                   ramp_downhill_deg=table.ramp_downhill_deg, ramp_creep=table.ramp_creep)
 
     def ratio(self, wheel: int, x: float, y: float) -> float:
         """The share of wheel ``wheel``'s rim travel the ground does not take with the

@@ -182,6 +182,11 @@ def test_sim_table_is_appended_or_its_numbers_replaced() -> None:
                                           "position_scale = 7.0", "# the end"]
     assert load_text(replaced).sim == SimTruth(0.25, (7.0,) * 3)
     assert load_text(replaced) == load_text(CONFIG_TEXT)  # the robot's numbers untouched
+    # the tables under [sim] ([sim.slip], [sim.gyro]) are kept as they were
+    grounds = CONFIG_TEXT + "\n[sim]\nbase_radius = 0.3\n\n[sim.slip]\nratio = 0.1\n"
+    kept = load_text(set_sim_table(grounds, SimTruth(0.25, (7.0,) * 3))).sim
+    assert kept is not None and kept.slip is not None and kept.slip.ratio == (0.1,) * 3
+    assert (kept.base_radius, kept.position_scale) == (0.25, (7.0,) * 3)
 
 
 @settings(max_examples=50)

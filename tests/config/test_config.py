@@ -395,6 +395,77 @@ def test_sim_table_one_number_is_every_wheel_and_not_the_robot(tmp_path: Path) -
     assert cfg == load_config(write(tmp_path, GOOD))  # the simulated base is not the robot
 
 
+SLIP = """
+[sim.slip]
+ratio = [0.0, 0.15, 0.0]
+roller = 0.05
+ramp_grade_deg = 5
+
+[[sim.slip.surface]]
+x0 = 1.0
+y0 = -1.0
+x1 = 2.0
+y1 = 1.0
+ratio = 0.3
+"""
+
+
+def test_sim_slip_table_is_the_simulated_grounds_slip(tmp_path: Path) -> None:
+    """[sim.slip] and its [[sim.slip.surface]] patches, one number or one per wheel, as
+    the simulator's SimSlip takes them; the robot's own numbers untouched."""
+    from omnican.config import SimSlipSettings, SimSurface
+    from omnican.sim.slip import SimSlip
+
+    cfg = load_config(write(tmp_path, GOOD + SLIP))
+    assert cfg.sim is not None and cfg.sim.slip == SimSlipSettings(
+        (0.0, 0.15, 0.0), (0.05, 0.05, 0.05), 5.0, 0.0, 0.005,
+        (SimSurface(1.0, -1.0, 2.0, 1.0, (0.3, 0.3, 0.3)),))
+    slip = SimSlip.of(cfg.sim.slip)
+    assert [slip.ratio(i, 0.0, 0.0) for i in range(3)] == [0.0, 0.15, 0.0]
+    assert [slip.ratio(i, 1.5, 0.0) for i in range(3)] == [0.3, 0.3, 0.3]  # on the patch
+    assert slip.roller == {0: 0.05, 1: 0.05, 2: 0.05} and slip.ramp_grade_deg == 5.0
+    assert cfg == load_config(write(tmp_path, GOOD))  # the simulated ground is not the robot
+    bare = load_config(write(tmp_path, GOOD + "\n[sim.slip]\n"))
+    assert bare.sim is not None and bare.sim.slip is not None
+    assert SimSlip.of(bare.sim.slip).ratio(1, 0.0, 0.0) == 0.0  # every key optional: grips
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ("[sim.slip]\nratio = 1.5", r"sim\.slip\.ratio: must be 0-1, got 1\.5"),
+    ("[sim.slip]\nratio = [0.1, 0.2]", r"sim\.slip\.ratio: give one number for every wheel "
+     r"or one per wheel \(3\), got 2"),
+    ("[sim.slip]\nroller = [0.1, -0.2, 0.0]", r"sim\.slip\.roller\[1\]: must be 0-1, got -0\.2"),
+    ('[sim.slip]\nratio = [0.1, "x", 0.0]', r"sim\.slip\.ratio\[1\]: must be a number, got 'x'"),
+    ("[sim.slip]\nramp_grade_deg = 80", r"sim\.slip\.ramp_grade_deg: must be -60 to 60, got 80"),
+    ("[sim.slip]\nratios = 0.1", r"sim\.slip\.ratios: unknown key 'ratios'.*'ratio'"),
+    ("[[sim.slip.surface]]\nx0 = 0\ny0 = 0\nx1 = 1\ny1 = 1",
+     r"sim\.slip\.surface\[0\]\.ratio: missing required key"),
+    ("[[sim.slip.surface]]\nx0 = 0\ny0 = 0\nx1 = 1\ny1 = 1\nratio = [0.1, 0.2, 1.1]",
+     r"sim\.slip\.surface\[0\]\.ratio\[2\]: must be 0-1, got 1\.1"),
+    ("[sim.slip]\nsurface = 3", r"sim\.slip\.surface: must be an array of tables"),
+])
+def test_bad_sim_slip_table_names_key_and_problem(tmp_path: Path, table: str,
+                                                  message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_config(write(tmp_path, GOOD + f"\n{table}\n"))
+
+
+@given(st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3), st.floats(0.0, 1.0))
+def test_a_slip_per_wheel_or_one_for_all_reaches_the_simulator(ratios: list[float],
+                                                               one: float) -> None:
+    import tomllib
+
+    from omnican.config import parse_config
+    from omnican.sim.slip import SimSlip
+    base = tomllib.loads(GOOD)
+    per_wheel = parse_config({**base, "sim": {"slip": {"ratio": ratios, "roller": one}}},
+                             "test", check_eds=False)
+    assert per_wheel.sim is not None and per_wheel.sim.slip is not None
+    slip = SimSlip.of(per_wheel.sim.slip)
+    assert [slip.ratio(i, 0.0, 0.0) for i in range(3)] == ratios
+    assert slip.roller == ({i: one for i in range(3)} if one else {})
+
+
 def _with_key(section: str, key: str, value: str) -> str:
     """GOOD with ``key = value`` in ``section`` (the first wheel for [[wheel]])."""
     import re
