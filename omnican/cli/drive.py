@@ -94,9 +94,9 @@ def add_subparser(sub: Any) -> None:
                         "--square); with --foxglove-control and no motion, seconds to take "
                         "commands from Foxglove (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true",
-                   help='print {"pose", "twist", "duration_s", "wheels"} (+ "imu" with an '
-                        '[imu] table, "true_pose" under --sim); a run-time failure prints '
-                        '{"error", "pose", ...} and exits 1')
+                   help='print {"pose", "twist", "duration_s", "wheels"} (+ "imu" and '
+                        '"fused_pose" with an [imu] table, "true_pose" under --sim); a '
+                        'run-time failure prints {"error", "pose", ...} and exits 1')
     add_record_argument(p)
     front_ends.add_arguments(p, "base")
     add_bus_arguments(p)
@@ -350,7 +350,7 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
                 else:
                     print(pose_line(base.pose))
                 return interrupted_exit(exc)
-            pose = base.pose
+            pose, fused = base.pose, base.fused_pose  # (fused: None without an IMU)
             seen["pose"] = pose_dict(pose)
             seen["duration_s"] = round(result.elapsed_s, 3)
             seen["wheels"] = wheels_json(base.wheels)
@@ -365,6 +365,8 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
             out["true_pose"] = pose_dict(s.sim.true_pose)
         if imu is not None:
             out["imu"] = imu
+        if fused is not None:
+            out["fused_pose"] = pose_dict(fused)
         # The motion ran, but a drive the close could not confirm disabled (the error
         # logged names it) is a failure at run time.
         if base.not_disabled:
@@ -381,4 +383,6 @@ def _run(args: argparse.Namespace, given: list[Leg] | None, seen: dict[str, Any]
         if "true_pose" in out:
             print(pose_line(s.sim.true_pose).replace("pose", "true pose", 1) + " (simulated)")
         print(pose_line(pose))
+        if fused is not None:
+            print(pose_line(fused).replace("pose", "fused pose", 1) + " (wheels and gyro)")
     return EXIT_FAILURE if "error" in out else EXIT_OK

@@ -12,6 +12,7 @@ import math
 import re
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -380,6 +381,39 @@ def test_the_square_ends_on_a_full_turn(capsys: pytest.CaptureFixture[str]) -> N
     for pose in (out["pose"], out["true_pose"]):  # odometry, and where the base really is
         assert math.degrees(pose["theta"]) == pytest.approx(360.0, abs=0.3), out
         assert math.hypot(pose["x"], pose["y"]) < 0.01, out
+
+
+def test_a_slipping_ground_from_the_config_turns_the_truth_and_the_gyro_sees_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """[sim.slip] under --sim: the right wheel loses 15 % of its travel on the ground. Its
+    encoder still counts every turn, so the wheels' pose goes straight on, while the base
+    really turns; the pose fused with the simulated gyro turns with it (and says so).
+    Without the table the ground grips: the truth is the wheels' pose."""
+    text = (ROOT / "examples" / "imu.toml").read_text()
+    text = text[:text.index("[sim.gyro]")]  # a gyro without bias or noise
+    plain, slipping = tmp_path / "grips.toml", tmp_path / "slips.toml"
+    plain.write_text(text)
+    slipping.write_text(text + "\n[sim.slip]\nratio = [0.0, 0.15, 0.0]\n")
+
+    def drive(config: Path) -> dict[str, Any]:
+        assert main(["drive", "--sim", "--fast", "--config", str(config), "--vx", "0.3",
+                     "--duration", "5", "--json"]) == 0
+        out: dict[str, Any] = json.loads(capsys.readouterr().out)
+        return out
+
+    grips = drive(plain)
+    assert grips["true_pose"]["theta"] == pytest.approx(grips["pose"]["theta"], abs=1e-3)
+    assert grips["true_pose"]["y"] == pytest.approx(grips["pose"]["y"], abs=1e-3)
+    slips = drive(slipping)
+    assert slips["pose"]["theta"] == pytest.approx(0.0, abs=1e-3)  # the wheels: straight on
+    assert slips["true_pose"]["theta"] < -0.2, slips  # the right wheel held back: it turned
+    assert slips["fused_pose"]["theta"] == pytest.approx(slips["true_pose"]["theta"],
+                                                         abs=0.05), slips
+    assert main(["drive", "--sim", "--fast", "--config", str(slipping), "--vx", "0.3",
+                 "--duration", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1].startswith("fused pose x=") and lines[-1].endswith("(wheels and gyro)")
+    assert lines[-2].startswith("pose x=") and "true pose" in lines[-3]
 
 
 # ---------------------------------------------------------------- 9: the display
