@@ -67,6 +67,19 @@ def yaw(q: Any) -> float:
     return math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y ** 2 + q.z ** 2))
 
 
+def off_path(x: float, y: float, theta: float, a: dict[str, float],
+             b: dict[str, float]) -> float:
+    """How far the pose (x, y, theta) is from the chord between true poses ``a`` and
+    ``b``: metres to the nearest point, plus 0.1 m per radian from the heading there."""
+    dx, dy = b["x"] - a["x"], b["y"] - a["y"]
+    span = dx * dx + dy * dy
+    u = min(1.0, max(0.0, ((x - a["x"]) * dx + (y - a["y"]) * dy) / span)) if span else 0.0
+    turn = math.remainder(b["theta"] - a["theta"], math.tau)
+    there = a["theta"] + u * turn
+    return (math.hypot(x - a["x"] - u * dx, y - a["y"] - u * dy)
+            + 0.1 * abs(math.remainder(theta - there, math.tau)))
+
+
 def test_drive_under_foxglove_publishes_odometry_matching_the_truth() -> None:
     port = free_port()
     proc = subprocess.Popen(
@@ -96,19 +109,21 @@ def test_drive_under_foxglove_publishes_odometry_matching_the_truth() -> None:
     result = json.loads(out)
     # Odometry follows the simulator's true path. It integrates the samples of the previous
     # SYNC, so it trails the truth by a cycle or more (more on a loaded machine): each
-    # odometry pose must match a true pose from within 0.5 s before it (to 1 cm: the
-    # truth is sampled at 30 Hz, 8 mm apart at this speed).
+    # odometry pose must lie on the true path from within 0.5 s before it, to 1 cm. The
+    # truth is published at 30 Hz, less often on a loaded machine: the path between two
+    # of its samples is taken as the chord (on this arc, under 4 mm from it even 0.5 s
+    # apart), not only the samples themselves (8 mm apart at this speed, or more).
     truth = [(t, m) for t, m in seen["/sim/pose2d"]]
     odometry = [(t, o) for t, o in seen["/odom"]]
     assert len(odometry) > 30 and len(truth) > 30
     assert any(math.hypot(m["x"], m["y"]) > 0.2 for _, m in truth), "the base never moved"
     for t_odo, odo in odometry:
         p = odo.pose.pose.position
+        heading = yaw(odo.pose.pose.orientation)
         near = [m for t, m in truth if t_odo - 0.5e9 <= t <= t_odo + 0.05e9]
         assert near
-        assert min(math.hypot(p.x - m["x"], p.y - m["y"]) +
-                   0.1 * abs(math.remainder(yaw(odo.pose.pose.orientation) - m["theta"],
-                                            math.tau)) for m in near) < 0.01
+        assert min(off_path(p.x, p.y, heading, a, b)
+                   for a, b in zip(near, near[1:] + near[-1:], strict=True)) < 0.01
     # The view's last pose is where the command says the base ended.
     last = seen["/odom"][-1][1].pose.pose.position
     assert last.x == pytest.approx(result["true_pose"]["x"], abs=0.01)
