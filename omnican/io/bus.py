@@ -239,6 +239,24 @@ class CanBus(SyncSending):
             except Exception as exc:  # a callback's failure must not stop reception
                 frame_error(msg.arbitration_id, exc)
 
+    def _dispatch_frame(self, can_id: int, data: bytearray, timestamp: float) -> bool:
+        """:meth:`_dispatch` of a standard data frame given as values (the lock-step bus's
+        frame receiver); False (it wants a message) while listeners besides the traffic
+        count hear the bus (a recorder, taps)."""
+        if self._extra_listeners or self._taps.received:
+            return False
+        traffic = self.traffic
+        traffic.loop_frames += 1
+        traffic.loop_bits += _FRAME_BITS[len(data)]
+        callbacks = self.network.subscribers.get(can_id)
+        if callbacks:
+            try:
+                for callback in callbacks:
+                    callback(can_id, data, timestamp)
+            except Exception as exc:  # a callback's failure must not stop reception
+                frame_error(can_id, exc)
+        return True
+
     def _sent(self, can_id: int, data: bytes) -> None:
         self.traffic.count_sent(len(data))
         self._record(can_id, data)

@@ -8,6 +8,11 @@ request is therefore answered before ``send`` returns, and a SYNC's TPDOs are
 delivered before the SYNC's ``send`` returns, in the order a real bus would carry
 them.
 
+A receiver may take standard data frames as values (COB-ID, data, timestamp: a
+:data:`FrameReceiver`, beside the message receiver): the host's bus and the simulator's
+network do while only canopen's subscribers and the traffic count hear them, and a
+lock-step run then makes no message object per frame and peer.
+
 Receivers only copy values and must not send from the receiving call while holding
 a lock the sender holds (omnican's frame handlers never send).
 """
@@ -24,6 +29,9 @@ import can
 from omnican.clock import Clock
 
 Receiver = Callable[[can.Message], None]
+#: Takes a standard data frame as values (COB-ID, a copy of its data, its timestamp), or
+#: returns False to be given it as a message (to the bus's :data:`Receiver`) instead.
+FrameReceiver = Callable[[int, bytearray, float], bool]
 _new = object.__new__
 
 
@@ -38,22 +46,35 @@ class LockstepBus(can.BusABC):
         self.channel = channel
         self._clock = clock
         self._receiver: Receiver | None = None
+        self._frames: FrameReceiver | None = None
         self._queue: collections.deque[can.Message] = collections.deque()
         with self._registry_lock:
             self._channels.setdefault(channel, []).append(self)
         super().__init__(channel=channel, **kwargs)
 
-    def set_receiver(self, receiver: Receiver | None) -> None:
-        """Frames for this bus go to ``receiver`` at once (None: queue them for recv())."""
+    def set_receiver(self, receiver: Receiver | None, frames: FrameReceiver | None = None
+                     ) -> None:
+        """Frames for this bus go to ``receiver`` at once (None: queue them for recv());
+        ``frames``: standard data frames go to it first, as values, no message made (it
+        returns False for one it wants as a message: ``receiver`` has that one)."""
         self._receiver = receiver
+        self._frames = frames if receiver is not None else None
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if self._is_shutdown:
             raise can.CanOperationError("the lock-step bus is shut down")
         stamp = self._clock.wall()
         channel = self.channel
+        # A standard data frame whose dlc is its length goes to a peer's frame receiver as
+        # values: what a message made of it would carry to canopen's subscribers.
+        plain = not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
+                     or msg.is_fd) and msg.dlc == len(msg.data)
         for peer in self._channels.get(channel, ()):
             if peer is not self and not peer._is_shutdown:
+                frames = peer._frames
+                if plain and frames is not None and frames(msg.arbitration_id,
+                                                          bytearray(msg.data), stamp):
+                    continue
                 # What the peer receives: a message of its own with the same frame,
                 # stamped, received. Made field by field, here: can.Message's
                 # constructor (keywords, data conversion) and a call per peer are most
