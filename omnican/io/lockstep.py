@@ -61,20 +61,52 @@ class LockstepBus(can.BusABC):
         self._frames = frames if receiver is not None else None
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd
+                or msg.bitrate_switch or msg.error_state_indicator
+                or msg.dlc != len(msg.data)):
+            self._send_message(msg)
+        else:  # a standard data frame: its values are all it carries
+            self.send_frame(msg.arbitration_id, msg.data)
+
+    def send_frame(self, can_id: int, data: bytes | bytearray) -> None:
+        """:meth:`send` of a standard data frame (an 11-bit ``can_id``, its dlc the length
+        of ``data``), given as values: no message made where a peer takes it as values
+        (its :data:`FrameReceiver`)."""
+        if self._is_shutdown:
+            raise can.CanOperationError("the lock-step bus is shut down")
+        stamp = self._clock.wall()
+        for peer in self._channels.get(self.channel, ()):
+            if peer is not self and not peer._is_shutdown:
+                frames = peer._frames
+                if frames is not None and frames(can_id, bytearray(data), stamp):
+                    continue
+                out: can.Message = _new(can.Message)  # see _send_message
+                out.timestamp = stamp
+                out.arbitration_id = can_id
+                out.is_extended_id = False
+                out.is_remote_frame = False
+                out.is_error_frame = False
+                out.channel = self.channel
+                out.is_fd = False
+                out.is_rx = True
+                out.bitrate_switch = False
+                out.error_state_indicator = False
+                out.data = bytearray(data)
+                out.dlc = len(data)
+                receiver = peer._receiver
+                if receiver is not None:
+                    receiver(out)
+                else:
+                    peer._queue.append(out)
+
+    def _send_message(self, msg: can.Message) -> None:
+        """:meth:`send` of any other frame: each peer a message of its own."""
         if self._is_shutdown:
             raise can.CanOperationError("the lock-step bus is shut down")
         stamp = self._clock.wall()
         channel = self.channel
-        # A standard data frame whose dlc is its length goes to a peer's frame receiver as
-        # values: what a message made of it would carry to canopen's subscribers.
-        plain = not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
-                     or msg.is_fd) and msg.dlc == len(msg.data)
         for peer in self._channels.get(channel, ()):
             if peer is not self and not peer._is_shutdown:
-                frames = peer._frames
-                if plain and frames is not None and frames(msg.arbitration_id,
-                                                          bytearray(msg.data), stamp):
-                    continue
                 # What the peer receives: a message of its own with the same frame,
                 # stamped, received. Made field by field, here: can.Message's
                 # constructor (keywords, data conversion) and a call per peer are most

@@ -114,6 +114,30 @@ def test_a_peer_gets_a_plain_frame_as_values_and_any_other_as_the_message(
             bus.shutdown()
 
 
+@given(st.integers(0, 0x7FF), st.binary(max_size=8), st.booleans())
+def test_send_frame_is_send_of_a_standard_data_frame(can_id: int, data: bytes,
+                                                     queued: bool) -> None:
+    """A frame sent as values (what a simulated drive sends) reaches a peer without a
+    frame receiver, or one reading through recv(), as the message send() makes of it."""
+    clock = SimClock()
+    sender, peer = LockstepBus("ch", clock), LockstepBus("ch", clock)
+    try:
+        got: list[can.Message] = []
+        if not queued:
+            peer.set_receiver(got.append)
+        sender.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+        sender.send_frame(can_id, data)
+        if queued:
+            got = [m for m in (peer.recv(0), peer.recv(0)) if m is not None]
+        assert len(got) == 2 and got[0].equals(got[1], timestamp_delta=0.0)
+        fields = [f for f in can.Message.__slots__ if f != "__weakref__"]
+        assert [(getattr(got[0], f), type(getattr(got[0], f))) for f in fields] == \
+            [(getattr(got[1], f), type(getattr(got[1], f))) for f in fields]
+    finally:
+        sender.shutdown()
+        peer.shutdown()
+
+
 @settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(frames=_FRAMES)
 def test_the_hosts_frame_dispatch_is_its_message_dispatch(
