@@ -103,7 +103,9 @@ class Network(canopen.Network):
                 if callbacks:
                     for callback in callbacks:
                         callback(can_id, data, stamp)
-                scanner.on_message_received(can_id)
+                node_id = can_id & 0x7F  # the scanner notes a node once: past that, no call
+                if node_id and node_id not in scanner.nodes:
+                    scanner.on_message_received(can_id)
             except Exception as exc:  # one bad frame must not stop reception
                 frame_error(can_id, exc)
             return True
