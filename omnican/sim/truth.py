@@ -65,17 +65,22 @@ class GroundTruth:
         if last is None:
             return self._taken
         slip = self.slip
-        x, y = (self._odo.xyt[0], self._odo.xyt[1]) if slip is not None else (0.0, 0.0)
+        taken = self._taken
+        if slip is None:  # the drives' own slip only (the loop below, without the ground's)
+            for i, ((d, _), scale, g0, g1) in enumerate(zip(self.wheel_axes, self._scales,
+                                                           last, ground, strict=True)):
+                taken[i] += (g1 - g0) / scale * (1.0 - d.slip)
+            return list(taken)
+        x, y = self._odo.xyt[0], self._odo.xyt[1]
         rims = []
         for i, ((d, _), scale, g0, g1) in enumerate(zip(self.wheel_axes, self._scales, last,
                                                        ground, strict=True)):
             rim = (g1 - g0) / scale
             rims.append(rim)
-            lost = d.slip if slip is None else 1.0 - (1.0 - d.slip) * (1.0 - slip.ratio(i, x, y))
-            self._taken[i] += rim * (1.0 - lost)
-        if slip is not None:
-            self._rims = rims
-        return list(self._taken)
+            lost = 1.0 - (1.0 - d.slip) * (1.0 - slip.ratio(i, x, y))
+            taken[i] += rim * (1.0 - lost)
+        self._rims = rims
+        return list(taken)
 
     def _ground_effects(self, t: float) -> None:
         """After a step: what the rollers that give way and a ramp add to the true pose."""
