@@ -140,7 +140,9 @@ class SimClock(Clock):
         self._t = float(start)
         self.speed = speed
         self.epoch = epoch
-        self._tasks: list[_Task] = []
+        # A heap of (due, order, task): tuples compare in C, where the task's own order
+        # (a dataclass's __lt__, a Python call) cost each push and pop several calls.
+        self._tasks: list[tuple[float, int, _Task]] = []
         self._order = itertools.count()
         self._running = False
         self._pace: tuple[float, float] | None = None  # (sim time, real time) at the mark
@@ -162,7 +164,7 @@ class SimClock(Clock):
             raise ValueError(f"period must be positive, got {period_s}")
         start = self._t + period_s if first_s is None else first_s
         task = _Task(start, next(self._order), period_s, step, start)
-        heapq.heappush(self._tasks, task)
+        heapq.heappush(self._tasks, (task.due, task.order, task))
         return task
 
     def cancel(self, handle: object) -> None:
@@ -181,8 +183,8 @@ class SimClock(Clock):
         self._running = True
         try:
             tasks = self._tasks
-            while tasks and tasks[0].due <= horizon:
-                task = heapq.heappop(tasks)
+            while tasks and tasks[0][0] <= horizon:
+                task = heapq.heappop(tasks)[2]
                 if task.cancelled:
                     continue
                 self._t = max(self._t, min(task.due, end))
@@ -199,7 +201,7 @@ class SimClock(Clock):
                     if not task.cancelled:
                         if started:
                             task.advance()
-                        heapq.heappush(tasks, task)
+                        heapq.heappush(tasks, (task.due, task.order, task))
             self._t = end
             if self.speed is not None:
                 self._wait_real(end)
