@@ -94,6 +94,7 @@ class Network(canopen.Network):
         that would call them; False (it wants a message) while another listener hears
         the network."""
         listeners, subscribers, scanner = self.listeners, self.subscribers, self.scanner
+        services = scanner.SERVICES
 
         def receive_frame(can_id: int, data: bytearray, stamp: float) -> bool:
             if len(listeners) != 1 or type(listeners[0]) is not StandardFrames:
@@ -103,8 +104,10 @@ class Network(canopen.Network):
                 if callbacks:
                     for callback in callbacks:
                         callback(can_id, data, stamp)
-                node_id = can_id & 0x7F  # the scanner notes a node once: past that, no call
-                if node_id and node_id not in scanner.nodes:
+                # The scanner notes a node's first frame of one of its services: no call
+                # for the others (its own test, first; it makes the call for the rest).
+                node_id = can_id & 0x7F
+                if node_id and (can_id & 0x780) in services and node_id not in scanner.nodes:
                     scanner.on_message_received(can_id)
             except Exception as exc:  # one bad frame must not stop reception
                 frame_error(can_id, exc)
