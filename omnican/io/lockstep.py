@@ -40,6 +40,10 @@ class LockstepBus(can.BusABC):
 
     _channels: ClassVar[dict[str, list[LockstepBus]]] = {}
     _registry_lock: ClassVar[threading.Lock] = threading.Lock()
+    #: Counts the changes of who hears what (a bus joins or leaves a channel, a receiver
+    #: is set): a bus's list of the peers it sends to, and their frame receivers, is
+    #: made again only after one.
+    _changes: ClassVar[int] = 0
 
     def __init__(self, channel: str, clock: Clock, **kwargs: Any) -> None:
         self.channel_info = f"lock-step channel {channel!r}"
@@ -48,8 +52,11 @@ class LockstepBus(can.BusABC):
         self._receiver: Receiver | None = None
         self._frames: FrameReceiver | None = None
         self._queue: collections.deque[can.Message] = collections.deque()
+        self._peers: tuple[tuple[LockstepBus, FrameReceiver | None], ...] = ()
+        self._peers_as_of = -1  # the _changes they were listed at
         with self._registry_lock:
             self._channels.setdefault(channel, []).append(self)
+            LockstepBus._changes += 1
         super().__init__(channel=channel, **kwargs)
 
     def set_receiver(self, receiver: Receiver | None, frames: FrameReceiver | None = None
@@ -57,8 +64,10 @@ class LockstepBus(can.BusABC):
         """Frames for this bus go to ``receiver`` at once (None: queue them for recv());
         ``frames``: standard data frames go to it first, as values, no message made (it
         returns False for one it wants as a message: ``receiver`` has that one)."""
-        self._receiver = receiver
-        self._frames = frames if receiver is not None else None
+        with self._registry_lock:
+            self._receiver = receiver
+            self._frames = frames if receiver is not None else None
+            LockstepBus._changes += 1
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd
@@ -75,9 +84,10 @@ class LockstepBus(can.BusABC):
         if self._is_shutdown:
             raise can.CanOperationError("the lock-step bus is shut down")
         stamp = self._clock.wall()
-        for peer in self._channels.get(self.channel, ()):
-            if peer is not self and not peer._is_shutdown:
-                frames = peer._frames
+        if self._peers_as_of != LockstepBus._changes:
+            self._list_peers()
+        for peer, frames in self._peers:
+            if not peer._is_shutdown:
                 if frames is not None and frames(can_id, bytearray(data), stamp):
                     continue
                 out: can.Message = _new(can.Message)  # see _send_message
@@ -98,6 +108,13 @@ class LockstepBus(can.BusABC):
                     receiver(out)
                 else:
                     peer._queue.append(out)
+
+    def _list_peers(self) -> None:
+        """The other buses of the channel, each with its frame receiver, as of now."""
+        with self._registry_lock:
+            self._peers = tuple((peer, peer._frames) for peer in
+                                self._channels.get(self.channel, ()) if peer is not self)
+            self._peers_as_of = LockstepBus._changes
 
     def _send_message(self, msg: can.Message) -> None:
         """:meth:`send` of any other frame: each peer a message of its own."""
@@ -149,6 +166,7 @@ class LockstepBus(can.BusABC):
                 peers.remove(self)
             if not peers:
                 self._channels.pop(self.channel, None)
+            LockstepBus._changes += 1
         super().shutdown()
 
 

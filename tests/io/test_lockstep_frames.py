@@ -138,6 +138,39 @@ def test_send_frame_is_send_of_a_standard_data_frame(can_id: int, data: bytes,
         peer.shutdown()
 
 
+def test_who_hears_a_frame_follows_peers_joining_leaving_and_changing_receivers() -> None:
+    """The peers a bus sends to are listed again after any change: a bus that joins the
+    channel hears what is sent next, one shut down hears nothing more, a new frame
+    receiver (or none) applies from the next frame."""
+    clock = SimClock()
+    sender, first = LockstepBus("ch-join", clock), LockstepBus("ch-join", clock)
+    heard: list[tuple[str, int]] = []
+
+    def frames_of(name: str) -> Callable[[int, bytearray, float], bool]:
+        def take(can_id: int, data: bytearray, stamp: float) -> bool:
+            heard.append((name, can_id))
+            return True
+        return take
+
+    first.set_receiver(lambda m: heard.append(("first message", m.arbitration_id)),
+                       frames_of("first"))
+    sender.send_frame(0x101, b"")
+    second = LockstepBus("ch-join", clock)
+    try:
+        second.set_receiver(lambda m: heard.append(("second message", m.arbitration_id)))
+        sender.send_frame(0x102, b"")
+        first.set_receiver(lambda m: heard.append(("first message", m.arbitration_id)))
+        second.set_receiver(lambda m: None, frames_of("second"))
+        sender.send_frame(0x103, b"")
+        first.shutdown()
+        sender.send_frame(0x104, b"")
+        assert heard == [("first", 0x101), ("first", 0x102), ("second message", 0x102),
+                         ("first message", 0x103), ("second", 0x103), ("second", 0x104)]
+    finally:
+        for bus in (sender, first, second):
+            bus.shutdown()
+
+
 @settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(frames=_FRAMES)
 def test_the_hosts_frame_dispatch_is_its_message_dispatch(
