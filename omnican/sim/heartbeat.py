@@ -68,6 +68,12 @@ class Heartbeat:
         """Time for the next heartbeat."""
         return self.period_s > 0 and now - self.last_sent >= self.period_s
 
+    def pending(self, now: float) -> bool:
+        """Anything to do at ``now``: a heartbeat :meth:`due`, or a producer that may have
+        timed out (:meth:`expired` may find one). One call for both, at every tick."""
+        return (now >= self._quiet_until
+                or (self.period_s > 0 and now - self.last_sent >= self.period_s))
+
     def next_from(self, now: float) -> float:
         """When the heartbeat sent at ``now`` counts as sent, for the next one's timer: the
         time it was due, if it went out within a period of it (a timer keeps its cadence

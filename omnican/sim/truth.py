@@ -104,7 +104,10 @@ class GroundTruth:
         with self._lock:
             if not self._stopped:
                 self._odo.step(self._travel(now, moved=False))
-                self._ground_effects(now)
+                if self.slip is None:  # _ground_effects without the ground's: the time only
+                    self._t = now
+                else:
+                    self._ground_effects(now)
                 if self._loop:
                     self._kept = (self._odo.pose, self._twist(advance=False))
 

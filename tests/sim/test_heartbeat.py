@@ -130,6 +130,8 @@ _OPS = st.lists(st.one_of(
     st.tuples(st.just("timeouts"), st.dictionaries(st.sampled_from([1, 2, 0x7F]),
                                                    st.sampled_from([0.05, 0.1, 0.3, 2.0]))),
     st.tuples(st.just("restart"),),
+    st.tuples(st.just("period"), st.sampled_from([0.0, 0.1, 0.25])),
+    st.tuples(st.just("sent"),),
 ), max_size=60)
 
 
@@ -141,7 +143,8 @@ def test_expired_reports_what_looking_at_every_producer_every_time_reports(
         ops: list[tuple]) -> None:  # type: ignore[type-arg]
     """The consumer skips its producers until the first of them could time out: the
     losses it reports, and when, are those of looking at each at every call (checked
-    after every step; time going backwards, new timeouts and boots included)."""
+    after every step; time going backwards, new timeouts and boots included); a tick
+    told nothing is pending has no heartbeat due and no loss to report."""
     hb, ref = Heartbeat(), _Reference()
     now = 0.0
     for op in ops:
@@ -152,7 +155,14 @@ def test_expired_reports_what_looking_at_every_producer_every_time_reports(
             now = now + op[1] if kind == "step" else op[1]
         elif kind == "timeouts":
             hb.timeouts, ref.timeouts = dict(op[1]), dict(op[1])
-        else:
+        elif kind == "restart":
             hb.restart()
             ref.seen, ref.lost = {}, set()
-        assert hb.expired(now) == ref.expired(now)
+        elif kind == "period":
+            hb.period_s = op[1]
+        else:
+            hb.last_sent = now
+        quiet = not hb.pending(now)  # then neither a heartbeat due nor a loss
+        lost = hb.expired(now)
+        assert lost == ref.expired(now)
+        assert not (quiet and (lost or hb.due(now)))
