@@ -106,8 +106,10 @@ class PollThread:
             self._stop.wait(delay)
 
 
-@dataclass(order=True)
+@dataclass
 class _Task:
+    """A task of a :class:`SimClock`, on its heap as (due, order, task)."""
+
     due: float
     order: int  # ties run in the order the tasks were added
     period: float = field(compare=False)
@@ -115,10 +117,6 @@ class _Task:
     start: float = field(compare=False)
     count: int = field(default=0, compare=False)
     cancelled: bool = field(default=False, compare=False)
-
-    def advance(self) -> None:
-        self.count += 1
-        self.due = self.start + self.count * self.period  # no drift from summing periods
 
 
 class SimClock(Clock):
@@ -199,8 +197,9 @@ class SimClock(Clock):
                     # wait must not drop it from the clock: a control cycle dropped so
                     # stopped the host's heartbeat while the drives' time went on.
                     if not task.cancelled:
-                        if started:
-                            task.advance()
+                        if started:  # its next time: no drift from summing periods
+                            count = task.count = task.count + 1
+                            task.due = task.start + count * task.period
                         heapq.heappush(tasks, (task.due, task.order, task))
             self._t = end
             if self.speed is not None:
