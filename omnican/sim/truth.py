@@ -57,15 +57,24 @@ class GroundTruth:
         (default the present); ``moved=False``: as the drives last moved them. Summed step
         by step, so a slip that starts (or a surface the base reaches) changes what the
         ground takes from then on, not what it took."""
+        last, slip, taken = self._ground, self.slip, self._taken
+        if not moved and slip is None and last is not None:
+            # Each step of the truth (as the drives last moved the wheels, no ground slip):
+            # the loops below in one, the same sums.
+            ground = []
+            for i, ((d, axis), scale) in enumerate(zip(self.wheel_axes, self._scales,
+                                                       strict=True)):
+                g1 = d.axes[axis].ground_position
+                ground.append(g1)
+                taken[i] += (g1 - last[i]) / scale * (1.0 - d.slip)
+            self._ground = ground
+            return list(taken)
         t = self.clock.now() if now is None else now
         ground = [d.ground_counts(axis, t) if moved else d.axes[axis].ground_position
                   for d, axis in self.wheel_axes]
-        last = self._ground
         self._ground = ground
         if last is None:
             return self._taken
-        slip = self.slip
-        taken = self._taken
         if slip is None:  # the drives' own slip only (the loop below, without the ground's)
             for i, ((d, _), scale, g0, g1) in enumerate(zip(self.wheel_axes, self._scales,
                                                            last, ground, strict=True)):
