@@ -106,8 +106,10 @@ class PollThread:
             self._stop.wait(delay)
 
 
-@dataclass(order=True)
+@dataclass
 class _Task:
+    """A task of a :class:`SimClock`, on its heap as (due, order, task)."""
+
     due: float
     order: int  # ties run in the order the tasks were added
     period: float = field(compare=False)
@@ -115,10 +117,6 @@ class _Task:
     start: float = field(compare=False)
     count: int = field(default=0, compare=False)
     cancelled: bool = field(default=False, compare=False)
-
-    def advance(self) -> None:
-        self.count += 1
-        self.due = self.start + self.count * self.period  # no drift from summing periods
 
 
 class SimClock(Clock):
@@ -140,7 +138,9 @@ class SimClock(Clock):
         self._t = float(start)
         self.speed = speed
         self.epoch = epoch
-        self._tasks: list[_Task] = []
+        # A heap of (due, order, task): tuples compare in C, where the task's own order
+        # (a dataclass's __lt__, a Python call) cost each push and pop several calls.
+        self._tasks: list[tuple[float, int, _Task]] = []
         self._order = itertools.count()
         self._running = False
         self._pace: tuple[float, float] | None = None  # (sim time, real time) at the mark
@@ -162,7 +162,7 @@ class SimClock(Clock):
             raise ValueError(f"period must be positive, got {period_s}")
         start = self._t + period_s if first_s is None else first_s
         task = _Task(start, next(self._order), period_s, step, start)
-        heapq.heappush(self._tasks, task)
+        heapq.heappush(self._tasks, (task.due, task.order, task))
         return task
 
     def cancel(self, handle: object) -> None:
@@ -181,8 +181,8 @@ class SimClock(Clock):
         self._running = True
         try:
             tasks = self._tasks
-            while tasks and tasks[0].due <= horizon:
-                task = heapq.heappop(tasks)
+            while tasks and tasks[0][0] <= horizon:
+                task = heapq.heappop(tasks)[2]
                 if task.cancelled:
                     continue
                 self._t = max(self._t, min(task.due, end))
@@ -197,9 +197,10 @@ class SimClock(Clock):
                     # wait must not drop it from the clock: a control cycle dropped so
                     # stopped the host's heartbeat while the drives' time went on.
                     if not task.cancelled:
-                        if started:
-                            task.advance()
-                        heapq.heappush(tasks, task)
+                        if started:  # its next time: no drift from summing periods
+                            count = task.count = task.count + 1
+                            task.due = task.start + count * task.period
+                        heapq.heappush(tasks, (task.due, task.order, task))
             self._t = end
             if self.speed is not None:
                 self._wait_real(end)

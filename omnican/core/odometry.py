@@ -238,12 +238,22 @@ class Odometry:
         if last is None:
             return None
         # kinematics.body_of_change and _sinc_terms, written out (each cycle).
-        dx = dy = dw = 0.0
-        for (ca, cb, cc), v1, v0 in zip(self._cols, travel, last, strict=True):
-            d = v1 - v0
-            dx += ca * d
-            dy += cb * d
-            dw += cc * d
+        cols = self._cols
+        if len(cols) == 3 and len(travel) == 3 and len(last) == 3:
+            # Three wheels (nearly every base): the loop below unrolled, the same sums in
+            # the same order.
+            (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = cols
+            d0, d1, d2 = travel[0] - last[0], travel[1] - last[1], travel[2] - last[2]
+            dx = 0.0 + a0 * d0 + a1 * d1 + a2 * d2
+            dy = 0.0 + b0 * d0 + b1 * d1 + b2 * d2
+            dw = 0.0 + c0 * d0 + c1 * d1 + c2 * d2
+        else:
+            dx = dy = dw = 0.0
+            for (ca, cb, cc), v1, v0 in zip(cols, travel, last, strict=True):
+                d = v1 - v0
+                dx += ca * d
+                dy += cb * d
+                dw += cc * d
         moved = self._d = (dx, dy, dw)
         self._dt = dt_s
         # Compose the SE(2) exponential of the step onto the pose.

@@ -37,6 +37,7 @@ from omnican.io.bus_watch import (
 )
 from omnican.io.listeners import FRAME_BITS as _FRAME_BITS
 from omnican.io.listeners import RX_ERROR_PAUSE_S, CountingNetwork, Taps, Traffic
+from omnican.io.lockstep_side import LockstepSide
 from omnican.io.network import FRAME_ERRORS, frame_error
 from omnican.io.owner import Recorder
 from omnican.io.sync_sending import SyncSending, prepared_message
@@ -69,7 +70,7 @@ NOTIFIER_CYCLE_S = 0.02
 SYNC_KEYS = ("sync", "sync_counter")
 
 
-class CanBus(SyncSending):
+class CanBus(SyncSending, LockstepSide):
     """Opens the bus from a ``[bus]`` config table (None: python-can's own config).
 
     Sends never raise: a failed send is counted (:attr:`send_errors`, :attr:`last_error`)
@@ -277,7 +278,7 @@ class CanBus(SyncSending):
         (interface down, transmit queue full) is dropped, never queued: what the drives
         need is this cycle's targets, not a backlog. Straight to the bus: canopen's
         ``send_message`` adds a second message object and a Notifier check per frame.
-        (In lock-step this is :meth:`_send_lockstep`.)"""
+        (In lock-step this is :meth:`~omnican.io.lockstep_side.LockstepSide._send_lockstep`.)"""
         network = self.network
         bus = None
         try:
@@ -293,25 +294,6 @@ class CanBus(SyncSending):
         traffic.loop_bits += bits
         if self.recorder is not None or self._taps.sent:
             self._record(msg.arbitration_id, msg.data)
-        if self.send_errors:
-            self._sends_work()
-        return True
-
-    def _send_lockstep(self, msg: can.Message, bits: int) -> bool:
-        """:meth:`send_prepared` on a lock-step bus: one thread, so no lock; recorded
-        before the send, since the answers arrive inside it."""
-        if self.recorder is not None or self._taps.sent:
-            self._record(msg.arbitration_id, msg.data)
-        bus = self.network.bus
-        try:
-            if bus is None:
-                raise can.CanOperationError("bus is closed")
-            bus.send(msg)
-        except (can.CanError, OSError, RuntimeError, ValueError) as exc:
-            return self._send_failed(msg, bus, exc)
-        traffic = self.traffic
-        traffic.loop_frames += 1
-        traffic.loop_bits += bits
         if self.send_errors:
             self._sends_work()
         return True

@@ -88,6 +88,33 @@ class Network(canopen.Network):
 
         return receive
 
+    def lockstep_frame_receiver(self) -> Callable[[int, bytearray, float], bool]:
+        """:meth:`lockstep_receiver` of a standard data frame given as values (the
+        lock-step bus's frame receiver): canopen's subscribers and its node scanner, as
+        that would call them; False (it wants a message) while another listener hears
+        the network."""
+        listeners, subscribers, scanner = self.listeners, self.subscribers, self.scanner
+        services = scanner.SERVICES
+
+        def receive_frame(can_id: int, data: bytearray, stamp: float) -> bool:
+            if len(listeners) != 1 or type(listeners[0]) is not StandardFrames:
+                return False
+            try:
+                callbacks = subscribers.get(can_id)
+                if callbacks:
+                    for callback in callbacks:
+                        callback(can_id, data, stamp)
+                # The scanner notes a node's first frame of one of its services: no call
+                # for the others (its own test, first; it makes the call for the rest).
+                node_id = can_id & 0x7F
+                if node_id and (can_id & 0x780) in services and node_id not in scanner.nodes:
+                    scanner.on_message_received(can_id)
+            except Exception as exc:  # one bad frame must not stop reception
+                frame_error(can_id, exc)
+            return True
+
+        return receive_frame
+
     def subscribe(self, can_id: int, callback: Any) -> None:
         with self._subscribe_lock:
             current = self.subscribers.get(can_id, [])

@@ -97,8 +97,10 @@ class Transport:
         lockstep = LockstepBus(str(channel), owner.clock)
 
         # The real-time loop's own dispatch, for each frame as it arrives: lock-step runs
-        # exercise the same path (traffic, listeners, subscribers) as a robot.
-        lockstep.set_receiver(owner._dispatch)
+        # exercise the same path (traffic, listeners, subscribers) as a robot. A frame only
+        # the traffic count and canopen's subscribers hear goes to them as values
+        # (_dispatch_frame, held to _dispatch by tests/io/test_lockstep_frames.py).
+        lockstep.set_receiver(owner._dispatch, owner._dispatch_frame)
         self.network.bus = lockstep
 
     # ------------------------------------------------------------ who reads the bus

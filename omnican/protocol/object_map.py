@@ -254,6 +254,8 @@ class AxisObjects:
 #: resolved again (:func:`_for_node`). Bounded.
 _PARSED: dict[tuple[str, int, int, int, bool], tuple[bytes, int | None]] = {}
 _PARSED_MAX = 64
+#: The axis count (:func:`count_axes`) of each file version parsed, by the same key.
+_AXES: dict[tuple[str, int, int, int, bool], int] = {}
 
 
 def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictionary:
@@ -262,9 +264,7 @@ def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictiona
     its own (a copy), which its caller may change without another caller seeing it, its
     values given as ``$NODEID+...`` those of ``node_id``. Raises what ``import_od`` raises
     (OSError, parser errors)."""
-    p = Path(path)
-    st = p.stat()
-    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, st.st_ino, node_id is None)
+    key = _version(path, node_id)
     cached = _PARSED.get(key)
     if cached is not None:
         blob, parsed_for = cached
@@ -272,11 +272,31 @@ def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictiona
         if node_id != parsed_for and node_id is not None:
             _for_node(copy, node_id)
         return copy
-    dictionary = od.import_od(str(p), node_id)
+    dictionary = od.import_od(str(path), node_id)
     if len(_PARSED) >= _PARSED_MAX:
         _PARSED.clear()
+        _AXES.clear()
     _PARSED[key] = (pickle.dumps(dictionary, pickle.HIGHEST_PROTOCOL), node_id)
+    _AXES[key] = count_axes(dictionary)
     return dictionary
+
+
+def eds_axes(path: str | Path) -> int:
+    """How many axes the drive of an EDS file has (:func:`count_axes` of its dictionary),
+    from :func:`parse_eds`'s parse of that version of the file: no copy made."""
+    key = _version(path, 1)
+    count = _AXES.get(key)
+    if count is None:
+        count = count_axes(parse_eds(path, 1))
+    return count
+
+
+def _version(path: str | Path, node_id: int | None) -> tuple[str, int, int, int, bool]:
+    """A parse's key: the file (its modification time, size and inode), and whether a
+    node id was given."""
+    p = Path(path)
+    st = p.stat()
+    return (str(p.resolve()), st.st_mtime_ns, st.st_size, st.st_ino, node_id is None)
 
 
 def _for_node(dictionary: od.ObjectDictionary, node_id: int) -> None:

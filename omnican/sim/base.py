@@ -179,7 +179,7 @@ class SimulatedBase:
                 raise ConfigError("lock-step simulation runs on an in-process channel: the "
                                   "bus must be interface 'virtual' with a channel")
             lockstep = LockstepBus(str(channel), clock)
-            lockstep.set_receiver(network.lockstep_receiver())
+            lockstep.set_receiver(network.lockstep_receiver(), network.lockstep_frame_receiver())
             network.bus = lockstep
         else:
             # A receive error (an interface that went down) is handled, not the end of

@@ -8,6 +8,8 @@ at the first heartbeat it receives, and again after each boot.
 
 from __future__ import annotations
 
+import math
+
 from canopen import objectdictionary as od
 
 from omnican.protocol.cia301 import CONSUMER_HEARTBEAT_TIME, MAX_NODE_ID, PRODUCER_HEARTBEAT_TIME
@@ -21,9 +23,22 @@ class Heartbeat:
         self.enabled = True  # the producer runs (a drive whose heartbeat stopped: False)
         self.period_s = 0.0  # 1017h; 0: no heartbeat
         self.last_sent = -1e9
-        self.timeouts: dict[int, float] = {}  # 1016h: producer node id -> timeout s
+        self._timeouts: dict[int, float] = {}  # 1016h: producer node id -> timeout s
         self._seen: dict[int, float] = {}  # producer -> when last heard
         self._lost: set[int] = set()
+        # No watched producer times out before this (a little before, for rounding):
+        # expired() does nothing until then (it runs at every housekeeping tick).
+        self._quiet_until = -math.inf
+
+    @property
+    def timeouts(self) -> dict[int, float]:
+        """1016h: producer node id -> timeout (s)."""
+        return self._timeouts
+
+    @timeouts.setter
+    def timeouts(self, timeouts: dict[int, float]) -> None:
+        self._timeouts = timeouts
+        self._quiet_until = -math.inf
 
     def load(self, dictionary: od.ObjectDictionary, get_data: Getter) -> list[int]:
         """Take 1017h and 1016h from the dictionary; returns the producers consumed."""
@@ -40,16 +55,24 @@ class Heartbeat:
                     self.timeouts[producer] = ms / 1000.0
         self._seen = {p: t for p, t in self._seen.items() if p in self.timeouts}
         self._lost &= set(self.timeouts)
+        self._quiet_until = -math.inf
         return list(self.timeouts)
 
     def restart(self) -> None:
         """After a boot a consumer watches from the next heartbeat it receives, not from
         one it heard before (a host that ran earlier)."""
         self._seen, self._lost = {}, set()
+        self._quiet_until = -math.inf
 
     def due(self, now: float) -> bool:
         """Time for the next heartbeat."""
         return self.period_s > 0 and now - self.last_sent >= self.period_s
+
+    def pending(self, now: float) -> bool:
+        """Anything to do at ``now``: a heartbeat :meth:`due`, or a producer that may have
+        timed out (:meth:`expired` may find one). One call for both, at every tick."""
+        return (now >= self._quiet_until
+                or (self.period_s > 0 and now - self.last_sent >= self.period_s))
 
     def next_from(self, now: float) -> float:
         """When the heartbeat sent at ``now`` counts as sent, for the next one's timer: the
@@ -64,6 +87,9 @@ class Heartbeat:
     def heard(self, producer: int, now: float) -> bool:
         """A consumed producer's heartbeat arrived; True if it had been lost."""
         self._seen[producer] = now
+        timeout = self._timeouts.get(producer)
+        if timeout is not None:  # watched from now on, if it was not: its deadline counts
+            self._quiet_until = min(self._quiet_until, _earliest(now, timeout))
         if producer in self._lost:
             self._lost.discard(producer)
             return True
@@ -72,11 +98,22 @@ class Heartbeat:
     def expired(self, now: float) -> list[int]:
         """The producers whose heartbeat has just timed out (each reported once)."""
         lost: list[int] = []
-        for producer, timeout in self.timeouts.items():
+        if now < self._quiet_until:
+            return lost
+        quiet = math.inf
+        for producer, timeout in self._timeouts.items():
             seen = self._seen.get(producer)
             if seen is None or producer in self._lost:
                 continue  # consumer starts at the first heartbeat received
             if now - seen > timeout:
                 self._lost.add(producer)
                 lost.append(producer)
+            else:
+                quiet = min(quiet, _earliest(seen, timeout))
+        self._quiet_until = quiet
         return lost
+
+
+def _earliest(seen: float, timeout: float) -> float:
+    """A time before which ``now - seen > timeout`` cannot hold, however it rounds."""
+    return seen + timeout - 1e-9 * (abs(seen) + timeout) - 1e-12

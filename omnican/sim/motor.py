@@ -25,6 +25,11 @@ class MotorState(NamedTuple):
     demand: float = 0.0  # ramp output, counts/s
 
 
+# MotorState((position, velocity, demand)) without the named tuple's __new__ (a Python
+# function, a call more for each motor at each step): the same tuple.
+_state = tuple.__new__
+
+
 def _ramp_segments(
     demand: float, target: float, accel: float, decel: float, dt: float
 ) -> list[tuple[float, float, float]]:
@@ -79,7 +84,7 @@ def advance(
         raise ValueError("accel and decel must be positive (inf for no ramp)")
     p, v, demand = state
     if v == demand == target:  # settled: the one segment below, without its zero terms
-        return MotorState(p + target * dt, target, target)
+        return _state(MotorState, (p + target * dt, target, target))
     if demand == target and tau > 0.0:
         # The ramp is done, the lag still closing: _ramp_segments' one flat segment
         # (dt, demand, 0.0), the loop below written out for it. The zero slope's terms
@@ -91,7 +96,7 @@ def advance(
         demand = demand + 0.0 * dt
         if abs(v - demand) < 1e-9 * max(1.0, abs(demand)):
             v = demand
-        return MotorState(p, v, demand)
+        return _state(MotorState, (p, v, demand))
     for duration, c0, c1 in _ramp_segments(demand, target, accel, decel, dt):
         if tau <= 0.0:
             p += c0 * duration + 0.5 * c1 * duration * duration
@@ -106,4 +111,4 @@ def advance(
         demand = c0 + c1 * duration
     if tau > 0.0 and abs(v - demand) < 1e-9 * max(1.0, abs(demand)):
         v = demand  # settle exactly, so "target reached" and "speed zero" become true
-    return MotorState(position=p, velocity=v, demand=demand)
+    return _state(MotorState, (p, v, demand))

@@ -320,15 +320,17 @@ class SimNode:
         while self._sdo_answers and now >= self._sdo_answers[0][0]:
             self._send(self.local.sdo.tx_cobid, self._sdo_answers.pop(0)[1], droppable=False)
         heartbeat = self.heartbeat
-        if heartbeat.due(now):
-            sent_at = heartbeat.next_from(now)  # the timer's cadence, kept
-            self._send_heartbeat(now)
-            heartbeat.last_sent = sent_at
-        for producer in heartbeat.expired(now):
-            logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
-                        producer)
-            self.emcy(EMCY_HEARTBEAT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
-            self.app.abort_connection()
+        if heartbeat.pending(now):  # (nothing, nearly every tick)
+            if heartbeat.due(now):
+                sent_at = heartbeat.next_from(now)  # the timer's cadence, kept
+                self._send_heartbeat(now)
+                heartbeat.last_sent = sent_at
+            for producer in heartbeat.expired(now):
+                logger.info("simulated node %d lost the heartbeat of node %d", self.node_id,
+                            producer)
+                self.emcy(EMCY_HEARTBEAT,
+                          ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
+                self.app.abort_connection()
         if self.nmt == _OPERATIONAL:
             self.pdos.events(now)
 

@@ -87,9 +87,9 @@ class SimScheduler:
 
     def step(self, now: float) -> None:
         """Run every tick once at ``now``."""
-        with self._lock:
-            ticks = list(self._ticks)
-        for tick in ticks:
+        # A copy (add/remove may run meanwhile, on another thread): one C call, atomic
+        # under the interpreter's lock, so the lock is not taken each period.
+        for tick in tuple(self._ticks):
             try:
                 tick(now)
             except Exception:  # one broken drive must not stop the others

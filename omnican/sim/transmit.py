@@ -15,6 +15,7 @@ import canopen
 
 from omnican.clock import Clock
 from omnican.io.bus import prepared_message
+from omnican.io.lockstep import LockstepBus
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +43,9 @@ class Transmitter:
             return
         try:
             with self.network.send_lock:
+                if type(bus) is LockstepBus:  # no message to fill: the frame as values
+                    bus.send_frame(cob_id, data)
+                    return
                 msg = self._frames.get(cob_id)
                 if msg is None:
                     msg = self._frames[cob_id] = prepared_message(cob_id, bytes(data))

@@ -57,25 +57,39 @@ class GroundTruth:
         (default the present); ``moved=False``: as the drives last moved them. Summed step
         by step, so a slip that starts (or a surface the base reaches) changes what the
         ground takes from then on, not what it took."""
+        last, slip, taken = self._ground, self.slip, self._taken
+        if not moved and slip is None and last is not None:
+            # Each step of the truth (as the drives last moved the wheels, no ground slip):
+            # the loops below in one, the same sums.
+            ground = []
+            for i, ((d, axis), scale) in enumerate(zip(self.wheel_axes, self._scales,
+                                                       strict=True)):
+                g1 = d.axes[axis].ground_position
+                ground.append(g1)
+                taken[i] += (g1 - last[i]) / scale * (1.0 - d.slip)
+            self._ground = ground
+            return list(taken)
         t = self.clock.now() if now is None else now
         ground = [d.ground_counts(axis, t) if moved else d.axes[axis].ground_position
                   for d, axis in self.wheel_axes]
-        last = self._ground
         self._ground = ground
         if last is None:
             return self._taken
-        slip = self.slip
-        x, y = (self._odo.xyt[0], self._odo.xyt[1]) if slip is not None else (0.0, 0.0)
+        if slip is None:  # the drives' own slip only (the loop below, without the ground's)
+            for i, ((d, _), scale, g0, g1) in enumerate(zip(self.wheel_axes, self._scales,
+                                                           last, ground, strict=True)):
+                taken[i] += (g1 - g0) / scale * (1.0 - d.slip)
+            return list(taken)
+        x, y = self._odo.xyt[0], self._odo.xyt[1]
         rims = []
         for i, ((d, _), scale, g0, g1) in enumerate(zip(self.wheel_axes, self._scales, last,
                                                        ground, strict=True)):
             rim = (g1 - g0) / scale
             rims.append(rim)
-            lost = d.slip if slip is None else 1.0 - (1.0 - d.slip) * (1.0 - slip.ratio(i, x, y))
-            self._taken[i] += rim * (1.0 - lost)
-        if slip is not None:
-            self._rims = rims
-        return list(self._taken)
+            lost = 1.0 - (1.0 - d.slip) * (1.0 - slip.ratio(i, x, y))
+            taken[i] += rim * (1.0 - lost)
+        self._rims = rims
+        return list(taken)
 
     def _ground_effects(self, t: float) -> None:
         """After a step: what the rollers that give way and a ramp add to the true pose."""
@@ -99,7 +113,10 @@ class GroundTruth:
         with self._lock:
             if not self._stopped:
                 self._odo.step(self._travel(now, moved=False))
-                self._ground_effects(now)
+                if self.slip is None:  # _ground_effects without the ground's: the time only
+                    self._t = now
+                else:
+                    self._ground_effects(now)
                 if self._loop:
                     self._kept = (self._odo.pose, self._twist(advance=False))
 

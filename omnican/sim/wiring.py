@@ -10,7 +10,7 @@ import canopen
 
 from omnican.config import ChassisConfig, WheelConfig
 from omnican.errors import ConfigError
-from omnican.protocol.object_map import AxisObjects, Obj, parse_eds
+from omnican.protocol.object_map import Obj, eds_axes
 from omnican.sim.drive import SimulatedDrive
 from omnican.sim.health import QUANTITIES, EstopInput
 from omnican.sim.scheduler import SimScheduler
@@ -26,7 +26,7 @@ def make_drive(network: canopen.Network, node_id: int, wheels: list[WheelConfig]
         raise ConfigError(f"node {node_id}: its wheels name different EDS files "
                           f"({', '.join(sorted(str(e) for e in eds))})")
     # The drive's axes, as the drive counts them (Device.num_axes), before it is made.
-    n_axes = max(1, AxisObjects(parse_eds(wheels[0].eds, node_id)).num_axes)
+    n_axes = max(1, eds_axes(wheels[0].eds))
     cpu = [1.0] * n_axes
     for w in wheels:
         cpu[w.axis] = w.position_scale / w.velocity_scale

@@ -9,19 +9,42 @@
 :mod:`~omnican.telemetry.settings` reads from the config what they all say alike.
 """
 
-from omnican.telemetry.feed import Feed, Sink
-from omnican.telemetry.messages import (
-           CAN_FRAME,
-           CAN_RX,
-           CAN_TX,
-           JSON,
-           JSON_SCHEMAS,
-           ROS2,
-           TOPICS,
-           TelemetrySample,
-)
-from omnican.telemetry.model import Message, Telemetry
-from omnican.telemetry.settings import TelemetrySettings
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from omnican.telemetry.feed import Feed, Sink
+    from omnican.telemetry.messages import (
+        CAN_FRAME,
+        CAN_RX,
+        CAN_TX,
+        JSON,
+        JSON_SCHEMAS,
+        ROS2,
+        TOPICS,
+        TelemetrySample,
+    )
+    from omnican.telemetry.model import Message, Telemetry
+    from omnican.telemetry.settings import TelemetrySettings
 
 __all__ = ["CAN_FRAME", "CAN_RX", "CAN_TX", "JSON", "JSON_SCHEMAS", "ROS2", "TOPICS", "Feed",
            "Message", "Sink", "Telemetry", "TelemetrySample", "TelemetrySettings"]
+
+# Each name from its module when first asked for: a base run beside a simulator imports
+# this package (omnican.telemetry.attach) and uses none of it until a front end attaches.
+_HOME = {"Feed": "feed", "Sink": "feed", "Message": "model", "Telemetry": "model",
+         "TelemetrySettings": "settings",
+         **{name: "messages" for name in ("CAN_FRAME", "CAN_RX", "CAN_TX", "JSON",
+                                          "JSON_SCHEMAS", "ROS2", "TOPICS",
+                                          "TelemetrySample")}}
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOME.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{home}"), name)
+    globals()[name] = value
+    return value

@@ -19,11 +19,11 @@ from omnican.clock import Clock
 from omnican.config import ChassisConfig
 from omnican.core.kinematics import OmniKinematics, Twist
 from omnican.core.odometry import Pose2D
-from omnican.telemetry.feed import Feed
-from omnican.telemetry.settings import TelemetrySettings
 
 if TYPE_CHECKING:
     from omnican.chassis.base import Chassis
+    from omnican.chassis.state import Snapshot
+    from omnican.telemetry.feed import Feed
 
 
 def feed_of(base: Chassis) -> Feed:
@@ -31,7 +31,7 @@ def feed_of(base: Chassis) -> Feed:
     (the ROS 2 bridge, the live view, an MCAP recording) asks for it here and gets the
     same feed; it is closed with the base (its last sample: the base's last snapshot).
     Raises RuntimeError once the base is closed."""
-    return base.attachments.setdefault("telemetry", lambda: _base_feed(base))
+    return base.attachments.setdefault(_FEED, lambda: _base_feed(base))
 
 
 def add_truth(base: Chassis, sim: Simulator | None) -> None:
@@ -40,14 +40,43 @@ def add_truth(base: Chassis, sim: Simulator | None) -> None:
     ``/sim/pose2d`` of every front end, of a recording). The one place the truth is
     wired, by whoever runs a base beside a simulator (the command line's session), before
     the front ends attach; no front end wires it."""
-    if sim is not None:
-        feed_of(base).truth = sim
+    if sim is None:
+        return
+    # Kept for the feed until one is made (by the first front end or recording that
+    # asks: a base none asks for makes none, nor imports the telemetry).
+    kept = base.attachments.get(_TRUTH)
+    if kept is None:
+        base.attachments.add(_TRUTH, _Truth(sim))
+    else:
+        kept.sim = sim
+    feed = base.attachments.get(_FEED)
+    if feed is not None:  # made already
+        feed.truth = sim
+
+
+_FEED, _TRUTH = "telemetry", "truth"
+
+
+class _Truth:
+    """The simulator a base runs beside, for its feed (an attachment: nothing to close)."""
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+
+    def close(self, last: Snapshot | None = None) -> None:
+        pass
 
 
 def _base_feed(base: Chassis) -> Feed:
+    from omnican.telemetry.feed import Feed
+    from omnican.telemetry.settings import TelemetrySettings
+
     cfg, bus = base.cfg, base.bus
     feed = Feed(TelemetrySettings.from_config(cfg), cfg.kinematics(), base.clock,
                 make_database=_database(cfg))
+    kept = base.attachments.get(_TRUTH)
+    if kept is not None:
+        feed.truth = kept.sim
     every = max(1, round(cfg.chassis.rate_hz / feed.settings.state_rate_hz))
 
     def active(on: bool) -> None:
@@ -86,6 +115,9 @@ def simulator_feed(sim: Simulator) -> Iterator[Feed]:
     """A simulator's own telemetry, for a front end without a base (``omnican sim
     --foxglove``): its ground truth at the state rate of its clock, and the frames its
     drives hear; closed when the block ends."""
+    from omnican.telemetry.feed import Feed
+    from omnican.telemetry.settings import TelemetrySettings
+
     cfg = sim.cfg
     feed = Feed(TelemetrySettings.from_config(cfg), sim.true_kinematics, sim.clock,
                 make_database=_database(cfg), has_base=False)

@@ -764,15 +764,15 @@ def test_startup_loads_only_what_the_command_needs(argv: list[str], allowed: set
 
 
 # The process's own command (main() reads sys.argv, as the omnican script does), asked
-# when it is done what BLAS threads it ran with and whether its heap was frozen.
+# when it is done (an exit handler: the process ends in main()) what BLAS threads it ran
+# with and whether its heap was frozen.
 OWN = """
-import gc, os, sys
+import atexit, gc, os, sys
 sys.argv[1:] = {argv!r}
+atexit.register(lambda: print(os.environ.get("OPENBLAS_NUM_THREADS"),
+                              gc.get_freeze_count() > 0, gc.isenabled(), flush=True))
 from omnican.cli import main
-try:
-    main()
-finally:
-    print(os.environ.get("OPENBLAS_NUM_THREADS"), gc.get_freeze_count() > 0, gc.isenabled())
+main()
 """
 THREADS = OWN.format(argv=["drive", "--sim", "--fast", "--vx", "0.1", "--duration", "0.2",
                            "--json"])

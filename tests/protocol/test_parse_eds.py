@@ -140,3 +140,17 @@ def test_opening_a_simulated_base_parses_each_file_once(
         assert len(sim.drives) == 3 and all(w.online for w in base.wheels)
         assert sorted(d.node_id for d in sim.drives) == [1, 2, 3]
     assert len(parsed) == 1 and parsed[0][0] == WHEEL_EDS.name
+
+
+@pytest.mark.parametrize("path", EDS_FILES, ids=lambda p: p.name)
+@pytest.mark.parametrize("parsed_first", [False, True])
+def test_eds_axes_is_the_axis_count_of_canopens_parse(path: Path, parsed_first: bool) -> None:
+    """A drive's axis count from its file (what the simulator sizes a drive by): the
+    count of canopen's own parse, whether the file was parsed before or not."""
+    object_map._PARSED.clear()
+    object_map._AXES.clear()
+    if parsed_first:
+        parse_eds(path, 5)
+    want = object_map.count_axes(od.import_od(str(path), 1))
+    assert object_map.eds_axes(path) == want
+    assert object_map.eds_axes(path) == want  # from what was kept

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import canopen
-from hypothesis import given
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from omnican import WHEEL_EDS
@@ -94,3 +94,75 @@ def test_a_producer_far_behind_starts_its_period_again() -> None:
     assert hb.due(0.35)
     hb.last_sent = hb.next_from(0.35)
     assert hb.last_sent == 0.35 and not hb.due(0.44) and hb.due(0.45)
+
+
+class _Reference:
+    """The consumer's bookkeeping as it was: every producer looked at on every call."""
+
+    def __init__(self) -> None:
+        self.timeouts: dict[int, float] = {}
+        self.seen: dict[int, float] = {}
+        self.lost: set[int] = set()
+
+    def heard(self, producer: int, now: float) -> bool:
+        self.seen[producer] = now
+        if producer in self.lost:
+            self.lost.discard(producer)
+            return True
+        return False
+
+    def expired(self, now: float) -> list[int]:
+        lost = []
+        for producer, timeout in self.timeouts.items():
+            seen = self.seen.get(producer)
+            if seen is None or producer in self.lost:
+                continue
+            if now - seen > timeout:
+                self.lost.add(producer)
+                lost.append(producer)
+        return lost
+
+
+_OPS = st.lists(st.one_of(
+    st.tuples(st.just("heard"), st.sampled_from([1, 2, 0x7F])),
+    st.tuples(st.just("step"), st.sampled_from([0.0, 0.01, 0.05, 0.1, 0.2, 0.3, 1.0])),
+    st.tuples(st.just("jump"), st.floats(0, 1e5, allow_nan=False)),
+    st.tuples(st.just("timeouts"), st.dictionaries(st.sampled_from([1, 2, 0x7F]),
+                                                   st.sampled_from([0.05, 0.1, 0.3, 2.0]))),
+    st.tuples(st.just("restart"),),
+    st.tuples(st.just("period"), st.sampled_from([0.0, 0.1, 0.25])),
+    st.tuples(st.just("sent"),),
+), max_size=60)
+
+
+@example([("timeouts", {1: 2.0}), ("heard", 1), ("step", 0.1), ("timeouts", {1: 0.05}),
+          ("step", 0.1)])
+@settings(max_examples=300)
+@given(_OPS)
+def test_expired_reports_what_looking_at_every_producer_every_time_reports(
+        ops: list[tuple]) -> None:  # type: ignore[type-arg]
+    """The consumer skips its producers until the first of them could time out: the
+    losses it reports, and when, are those of looking at each at every call (checked
+    after every step; time going backwards, new timeouts and boots included); a tick
+    told nothing is pending has no heartbeat due and no loss to report."""
+    hb, ref = Heartbeat(), _Reference()
+    now = 0.0
+    for op in ops:
+        kind = op[0]
+        if kind == "heard":
+            assert hb.heard(op[1], now) == ref.heard(op[1], now)
+        elif kind in ("step", "jump"):
+            now = now + op[1] if kind == "step" else op[1]
+        elif kind == "timeouts":
+            hb.timeouts, ref.timeouts = dict(op[1]), dict(op[1])
+        elif kind == "restart":
+            hb.restart()
+            ref.seen, ref.lost = {}, set()
+        elif kind == "period":
+            hb.period_s = op[1]
+        else:
+            hb.last_sent = now
+        quiet = not hb.pending(now)  # then neither a heartbeat due nor a loss
+        lost = hb.expired(now)
+        assert lost == ref.expired(now)
+        assert not (quiet and (lost or hb.due(now)))
