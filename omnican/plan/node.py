@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 from canopen import objectdictionary as od
 
@@ -281,34 +280,11 @@ class NodeLayout:
         return self._plan("eds") if self.plan.tried else None
 
 
-#: The config last laid out, the versions of its EDS files then, and its layouts: under
-#: --sim the simulator's wiring and the host lay out the one config object, once. Layouts
-#: are not changed once made (a node's objects, plans and checks, read by who uses them).
-_LAST: tuple[ChassisConfig, tuple[tuple[str, int, int, int], ...], list[NodeLayout]] | None \
-    = None
-
-
 def node_layouts(cfg: ChassisConfig) -> list[NodeLayout]:
-    """One layout per node of ``cfg``, in order of first appearance (those of the last
-    call again, when it was for this very config and its EDS files are unchanged)."""
-    global _LAST
-    try:
-        versions = tuple(_version(w.eds) for w in cfg.wheels)
-    except OSError:  # a file gone: the layouts below say so as they always did
-        versions = None
-    last = _LAST
-    if versions is not None and last is not None and last[0] is cfg and last[1] == versions:
-        return list(last[2])
-    layouts = [NodeLayout(node_id, [(cfg.wheels.index(w), w) for w in wheels], cfg.chassis,
-                          cfg.estop)
-               for node_id, wheels in cfg.nodes().items()]
-    _LAST = (cfg, versions, layouts) if versions is not None else None
-    return list(layouts)
-
-
-def _version(path: Path) -> tuple[str, int, int, int]:
-    st = path.stat()
-    return str(path), st.st_mtime_ns, st.st_size, st.st_ino
+    """One layout per node of ``cfg``, in order of first appearance."""
+    return [NodeLayout(node_id, [(cfg.wheels.index(w), w) for w in wheels], cfg.chassis,
+                       cfg.estop)
+            for node_id, wheels in cfg.nodes().items()]
 
 
 def cycle_bits(plans: Iterable[NodePlan]) -> int:
