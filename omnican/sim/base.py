@@ -75,6 +75,31 @@ class _ReceiveErrors(can.Listener):
         pass
 
 
+def _open_network(bus_kwargs: dict[str, Any], clock: Clock) -> Network:
+    """The simulated drives' network on ``bus_kwargs``' bus: in lock-step, an in-process
+    channel of that name (ConfigError for another interface); else the bus itself
+    (BusError, in one line, if it cannot be opened)."""
+    network = Network()
+    network.NOTIFIER_CYCLE = 0.02  # bounds how long close() waits for the Notifier
+    if clock.lockstep:
+        channel = bus_kwargs.get("channel")
+        if bus_kwargs.get("interface", "virtual") != "virtual" or not channel:
+            raise ConfigError("lock-step simulation runs on an in-process channel: the "
+                              "bus must be interface 'virtual' with a channel")
+        lockstep = LockstepBus(str(channel), clock)
+        lockstep.set_receiver(network.lockstep_receiver(), network.lockstep_frame_receiver())
+        network.bus = lockstep
+        return network
+    # A receive error (an interface that went down) is handled, not the end of the
+    # simulator's Notifier: it keeps serving when the link returns.
+    network.listeners.append(_ReceiveErrors())  # type: ignore[arg-type]
+    try:
+        network.connect(**bus_kwargs)
+    except Exception as exc:
+        raise BusError(describe_open_error(bus_kwargs, exc)) from None
+    return network
+
+
 class SimulatedBase:
     """Simulated drives for every wheel of ``cfg`` on the configured bus.
 
@@ -171,24 +196,7 @@ class SimulatedBase:
         if len(scales) != len(cfg.wheels):
             raise ConfigError(f"true_scale has {len(scales)} values for {len(cfg.wheels)} wheels")
         clock = clock if clock is not None else REAL_TIME
-        network = Network()
-        network.NOTIFIER_CYCLE = 0.02  # bounds how long close() waits for the Notifier
-        if clock.lockstep:
-            channel = bus_kwargs.get("channel")
-            if bus_kwargs.get("interface", "virtual") != "virtual" or not channel:
-                raise ConfigError("lock-step simulation runs on an in-process channel: the "
-                                  "bus must be interface 'virtual' with a channel")
-            lockstep = LockstepBus(str(channel), clock)
-            lockstep.set_receiver(network.lockstep_receiver(), network.lockstep_frame_receiver())
-            network.bus = lockstep
-        else:
-            # A receive error (an interface that went down) is handled, not the end of
-            # the simulator's Notifier: it keeps serving when the link returns.
-            network.listeners.append(_ReceiveErrors())  # type: ignore[arg-type]
-            try:
-                network.connect(**bus_kwargs)
-            except Exception as exc:
-                raise BusError(describe_open_error(bus_kwargs, exc)) from None
+        network = _open_network(bus_kwargs, clock)
         if tick_s is None:
             tick_s = max(TICK_S, 1.0 / cfg.chassis.rate_hz) if clock.lockstep else TICK_S
         scheduler = SimScheduler(tick_s, name="omnican-sim", clock=clock)
