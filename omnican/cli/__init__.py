@@ -167,8 +167,11 @@ def _exit_unfinalized(code: int) -> None:
     they hold down (numpy, python-can, canopen, omnican): ~12 ms of CPU at the end of
     ``drive --sim --fast``, for nothing once the command has closed what it opened, as
     every command has. A thread besides the main one that is not a daemon (none of
-    omnican's) keeps the interpreter's exit, which waits for it."""
-    if any(not t.daemon for t in threading.enumerate() if t is not threading.main_thread()):
+    omnican's) keeps the interpreter's exit, which waits for it; so does a profiler or a
+    tracer (``python -m cProfile -m omnican ...``, coverage), which writes its findings
+    once the command has returned."""
+    if sys.getprofile() is not None or sys.gettrace() is not None or any(
+            not t.daemon for t in threading.enumerate() if t is not threading.main_thread()):
         return
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
