@@ -22,6 +22,7 @@ from omnican.io.bus import CanBus
 from omnican.io.lockstep import LockstepBus
 from omnican.io.network import Network
 from tests.support.helpers import lockstep_rig
+from tests.support.sim_steps import act, record_drive_frames
 
 Call = tuple[int, bytes, str, float]
 
@@ -267,25 +268,6 @@ _STEPS = st.lists(st.tuples(_ACTIONS, st.sampled_from([0.0, 0.01, 0.03, 0.2, 0.6
                   min_size=1, max_size=6)
 
 
-def _act(action: tuple[Any, ...], sim: Any, base: Any) -> None:
-    kind, *args = action
-    if kind == "drive":
-        base.set_velocity(*args[0])
-    elif kind == "fault":
-        sim.drives[args[0]].inject_fault()
-    elif kind == "estop":
-        for drive in sim.drives:
-            drive.estop(args[0])
-    elif kind == "stop_heartbeat":
-        sim.drives[args[0]].stop_heartbeat()
-    elif kind == "recover":
-        base.recover(timeout_s=0.5)
-    elif kind == "halt":
-        base.halt("test")
-    else:  # an SDO upload from the host's side, answered inside its request
-        base.nodes[args[0]].remote.sdo.upload(0x6041, 0)
-
-
 @contextlib.contextmanager
 def _messages_only() -> Iterator[None]:
     """The lock-step bus as it was: every frame to every peer as a message."""
@@ -304,18 +286,11 @@ def _run(channel: str, steps: list[tuple[tuple[Any, ...], float]]) -> list[Any]:
     receives (its wheels, pose, status, traffic), after each step."""
     seen: list[Any] = []
     with lockstep_rig(channel) as (clock, sim, base):
-        def recorded(send: Callable[[int, bytes], None]) -> Callable[[int, bytes], None]:
-            def send_recorded(cob_id: int, data: bytes) -> None:
-                seen.append((clock.now(), cob_id, bytes(data)))
-                send(cob_id, data)
-            return send_recorded
-
-        for drive in sim.drives:
-            drive.comm._tx.send = recorded(drive.comm._tx.send)  # type: ignore[method-assign]
+        record_drive_frames(sim, clock, seen)
         clock.sleep(0.1)
         for action, dt in steps:
             with contextlib.suppress(OmnicanError):
-                _act(action, sim, base)
+                act(action, sim, base)
             clock.sleep(dt)
             seen.append((base.wheels, base.pose, base.twist, base.status.stopped_reason,
                          base.bus.traffic.frames, base.bus.traffic.bits,

@@ -6,7 +6,7 @@ a check that makes every TPDO at every tick sends."""
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import canopen
@@ -24,8 +24,7 @@ from omnican.sim import SimulatedDrive, process_data
 from omnican.sim.axis import Motion
 from omnican.sim.health import EstopInput
 from tests.support.helpers import VENDOR_EDS, lockstep_rig
-
-Frame = tuple[float, int, bytes]
+from tests.support.sim_steps import Frame, act, record_drive_frames
 
 # One step of a run: what happens, then how long the base runs on (s).
 _ACTIONS = st.one_of(
@@ -46,52 +45,16 @@ _STEPS = st.lists(st.tuples(_ACTIONS, st.sampled_from([0.0, 0.01, 0.03, 0.2, 0.6
                   min_size=1, max_size=8)
 
 
-def _act(action: tuple[Any, ...], sim: Any, base: Any) -> None:
-    kind, *args = action
-    if kind == "drive":
-        base.set_velocity(*args[0])
-    elif kind == "fault":
-        sim.drives[args[0]].inject_fault()
-    elif kind == "estop":
-        for drive in sim.drives:
-            drive.estop(args[0])
-    elif kind == "following":
-        drive = sim.drives[args[0]]
-        drive.inject_following_error() if args[1] else drive.clear_following_error()
-    elif kind == "jam":
-        drive = sim.drives[args[0]]
-        drive.jam() if args[1] else drive.free()
-    elif kind == "push":
-        sim.drives[args[0]].push(args[1])
-    elif kind == "window":  # 606Dh, as an SDO download writes it
-        sim.drives[args[0]].node.sdo[0x606D].raw = args[1]
-    elif kind == "mode":  # 6060h, written behind the host's back
-        sim.drives[args[0]].node.sdo[0x6060].raw = args[1]
-    elif kind == "stop_heartbeat":
-        sim.drives[args[0]].stop_heartbeat()
-    elif kind == "recover":
-        base.recover(timeout_s=0.5)
-    else:
-        base.halt("test")
-
-
 def _run(channel: str, steps: list[tuple[tuple[Any, ...], float]]) -> tuple[list[Frame], int]:
     """Every frame the simulated drives send (time, COB-ID, data) through ``steps``,
     and how many of their event TPDOs the stamp covers."""
     frames: list[Frame] = []
     with lockstep_rig(channel) as (clock, sim, base):
-        def recorded(send: Callable[[int, bytes], None]) -> Callable[[int, bytes], None]:
-            def send_recorded(cob_id: int, data: bytes) -> None:
-                frames.append((clock.now(), cob_id, bytes(data)))
-                send(cob_id, data)
-            return send_recorded
-
-        for drive in sim.drives:
-            drive.comm._tx.send = recorded(drive.comm._tx.send)  # type: ignore[method-assign]
+        record_drive_frames(sim, clock, frames)
         clock.sleep(0.1)
         for action, dt in steps:
             with contextlib.suppress(OmnicanError):
-                _act(action, sim, base)
+                act(action, sim, base)
             clock.sleep(dt)
         covered = sum(made is not None for drive in sim.drives
                       for _, _, made in drive.comm.pdos._on_event)
