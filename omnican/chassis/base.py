@@ -274,6 +274,13 @@ class Chassis:
         return self._loop.snapshot.status
 
     @property
+    def stopped_reason(self) -> str | None:
+        """Why the base is held stopped until :meth:`recover` (None: it is not), as of the
+        last cycle: :attr:`status`'s ``stopped_reason`` without making the rest of it (a
+        script that watches for a stop each step)."""
+        return self._loop.snapshot.stopped_reason
+
+    @property
     def bus(self) -> CanBus:
         return self._bus
 

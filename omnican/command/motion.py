@@ -9,7 +9,7 @@ previous leg happened to stop: a square's fourth turn ends on the start heading 
 degrees as the odometry measures it, however much each earlier turn over- or undershot.
 
 :func:`run` and :func:`settle` drive a :class:`omnican.chassis.Chassis` (anything with
-its ``pose``/``twist``/``command``/``wheels``/``status``/``cfg``/``set_velocity``/``stop``)
+its ``pose``/``twist``/``command``/``wheels``/``stopped_reason``/``cfg``/``set_velocity``/``stop``)
 from the caller's thread and report progress through a callback. The names of the legs
 and of fitting a plan are importable from here too.
 """
@@ -100,7 +100,7 @@ class Base(Protocol):
     def wheels(self) -> Sequence[Any]: ...
 
     @property
-    def status(self) -> Any: ...
+    def stopped_reason(self) -> str | None: ...
 
     def set_velocity(self, vx: float, vy: float, wz: float) -> None: ...
 
@@ -127,7 +127,7 @@ def _lead(leg: Leg, applied: Twist, lag_s: float) -> float:
 
 
 def _check(base: Base) -> None:
-    reason = base.status.stopped_reason
+    reason = base.stopped_reason
     if reason:
         raise BaseStoppedError(reason)
 

@@ -79,16 +79,18 @@ def test_watchdog_stops_without_commands(rig: tuple[SimulatedBase, Chassis]) -> 
 def test_halt_holds_the_base_stopped_until_recover(rig: tuple[SimulatedBase, Chassis]) -> None:
     sim, base = rig
     drive_for(base, 0.4, vx=0.3)
+    assert base.stopped_reason is None
     base.halt("stopped over Zenoh by the fleet")
     assert wait_for(lambda: still(sim), 0.3 / 2.0 + 0.5, clock=sim.clock)
     assert base.status.stopped_reason == "stopped over Zenoh by the fleet"
+    assert base.stopped_reason == base.status.stopped_reason  # the same, without the rest
     drive_for(base, 0.3, vx=0.3)  # a command after the halt moves nothing
     assert still(sim)
     base.halt("a second halt")  # the first reason stays
     sim.clock.sleep(0.05)
     assert base.status.stopped_reason == "stopped over Zenoh by the fleet"
     base.recover()
-    assert base.status.stopped_reason is None
+    assert base.status.stopped_reason is None and base.stopped_reason is None
     drive_for(base, 0.3, vx=0.3)
     assert sim.true_twist.vx > 0.1
 
