@@ -7,8 +7,9 @@ Public API (README's Python API section; the layers: docs/architecture.md)::
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from omnican.lazy import lazy_names
 
 __version__ = "0.1.0"
 
@@ -50,13 +51,7 @@ _HOMES = {
 __all__ = ["__version__", *_HOMES]  # noqa: PLE0604 (made from the table)
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'omnican' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"omnican.{home}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _HOMES, globals())
 
 
 def __dir__() -> list[str]:

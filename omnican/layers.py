@@ -57,7 +57,7 @@ FRONT_ENDS: dict[str, FrontEndEntry] = {
 
 #: Lowest first. A set is one layer of siblings.
 LAYERS: tuple[frozenset[str], ...] = tuple(frozenset(s) for s in (
-    {"errors", "clock", "extras", "log_throttle", "layers"},  # what every layer may use
+    {"errors", "clock", "extras", "log_throttle", "layers", "lazy"},  # what every layer may use
     {"core"},            # pure robot maths
     {"protocol"},        # pure CANopen/CAN
     {"config"},          # schema, model, parsing

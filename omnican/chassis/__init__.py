@@ -7,8 +7,9 @@ The state types are :mod:`omnican.chassis.state`'s; what layers above attach to 
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from omnican.lazy import lazy_names
 
 if TYPE_CHECKING:
     from omnican.chassis.base import Chassis as Chassis
@@ -21,10 +22,4 @@ _HOMES = {"Chassis": "base", "ChassisStatus": "state", "WheelState": "state"}
 __all__ = list(_HOMES)
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'omnican.chassis' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"omnican.chassis.{home}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _HOMES, globals())

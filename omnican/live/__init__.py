@@ -9,8 +9,9 @@ none of its modules until a name below is asked for.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from omnican.lazy import lazy_names
 
 if TYPE_CHECKING:  # the same names for type checkers and editors
     from omnican.live.settings import DEFAULT_HOST as DEFAULT_HOST
@@ -39,13 +40,7 @@ __all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "FOXGLOVE_HELP", "FoxgloveSettings", 
            "resolve", "watch"]
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'omnican.live' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"omnican.live.{home}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _HOMES, globals())
 
 
 def __dir__() -> list[str]:

@@ -11,8 +11,9 @@
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from omnican.lazy import lazy_names
 
 if TYPE_CHECKING:
     from omnican.telemetry.feed import Feed, Sink
@@ -41,10 +42,4 @@ _HOME = {"Feed": "feed", "Sink": "feed", "Message": "model", "Telemetry": "model
                                           "TelemetrySample")}}
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOME.get(name)
-    if home is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{home}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _HOME, globals())
