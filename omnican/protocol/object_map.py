@@ -247,15 +247,14 @@ class AxisObjects:
         return self._record_index[obj]
 
 
-#: EDS files parsed, each a pickled dictionary and the node id it was parsed for, by
+#: EDS files parsed, each a pickled dictionary, the node id it was parsed for and its
+#: axis count (:func:`count_axes`, for :func:`eds_axes`), by
 #: (path, mtime, size, inode, whether a node id was given): a process that opens a base
 #: parses each file once (the simulator's drives, the node plans of the simulator and of
 #: the host), whatever the node ids; another node's copy has its $NODEID values
 #: resolved again (:func:`_for_node`). Bounded.
-_PARSED: dict[tuple[str, int, int, int, bool], tuple[bytes, int | None]] = {}
+_PARSED: dict[tuple[str, int, int, int, bool], tuple[bytes, int | None, int]] = {}
 _PARSED_MAX = 64
-#: The axis count (:func:`count_axes`) of each file version parsed, by the same key.
-_AXES: dict[tuple[str, int, int, int, bool], int] = {}
 
 
 def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictionary:
@@ -267,7 +266,7 @@ def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictiona
     key = _version(path, node_id)
     cached = _PARSED.get(key)
     if cached is not None:
-        blob, parsed_for = cached
+        blob, parsed_for, _ = cached
         copy: od.ObjectDictionary = pickle.loads(blob)  # our own bytes, made below
         if node_id != parsed_for and node_id is not None:
             _for_node(copy, node_id)
@@ -275,20 +274,16 @@ def parse_eds(path: str | Path, node_id: int | None = None) -> od.ObjectDictiona
     dictionary = od.import_od(str(path), node_id)
     if len(_PARSED) >= _PARSED_MAX:
         _PARSED.clear()
-        _AXES.clear()
-    _PARSED[key] = (pickle.dumps(dictionary, pickle.HIGHEST_PROTOCOL), node_id)
-    _AXES[key] = count_axes(dictionary)
+    _PARSED[key] = (pickle.dumps(dictionary, pickle.HIGHEST_PROTOCOL), node_id,
+                    count_axes(dictionary))
     return dictionary
 
 
 def eds_axes(path: str | Path) -> int:
     """How many axes the drive of an EDS file has (:func:`count_axes` of its dictionary),
     from :func:`parse_eds`'s parse of that version of the file: no copy made."""
-    key = _version(path, 1)
-    count = _AXES.get(key)
-    if count is None:
-        count = count_axes(parse_eds(path, 1))
-    return count
+    cached = _PARSED.get(_version(path, 1))
+    return cached[2] if cached is not None else count_axes(parse_eds(path, 1))
 
 
 def _version(path: str | Path, node_id: int | None) -> tuple[str, int, int, int, bool]:
