@@ -154,10 +154,7 @@ def _exit_past_foreign_threads(code: int) -> None:
     import logging
 
     logging.shutdown()
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    os._exit(code)
+    _end_now(code)
 
 
 def _exit_unfinalized(code: int) -> None:
@@ -174,6 +171,12 @@ def _exit_unfinalized(code: int) -> None:
             not t.daemon for t in threading.enumerate() if t is not threading.main_thread()):
         return
     atexit._run_exitfuncs()
+    _end_now(code)
+
+
+def _end_now(code: int) -> None:
+    """The process's output flushed, then its end with ``code``, past the interpreter's
+    finalization (what the two exits above have made safe to skip)."""
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
